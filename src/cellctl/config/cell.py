@@ -1,0 +1,50 @@
+"""The cell's process settings: working distance, tolerances, alignment spots and gates."""
+
+from __future__ import annotations
+
+from pydantic import Field, model_validator
+
+from cellctl.config.types import Finite, StrictModel, Vec2
+
+
+class ToleranceConfig(StrictModel):
+    """Install tolerance (paper: +-0.5 mm, +-1 deg)."""
+
+    position_mm: Finite = Field(0.5, gt=0)
+    orientation_deg: Finite = Field(1.0, gt=0)
+
+
+class AlignConfig(StrictModel):
+    """Laser alignment (paper section 3).
+
+    ``spots_mm`` are where the laser should hit the wall, in the taught workpiece frame T0
+    (x right, y down from the upper-right corner; the opening is x < 0, 0 < y). Keep them on the
+    wall, off the opening, and spread in two directions.
+    """
+
+    spots_mm: tuple[Vec2, ...] = (
+        (-1500.0, -60.0),
+        (-500.0, -60.0),
+        (60.0, 300.0),
+        (60.0, 1200.0),
+        (-1000.0, 1560.0),
+        (-2060.0, 750.0),
+    )
+    laser_standoff_mm: Finite = Field(350.0, gt=0)
+    max_rms_mm: Finite = Field(0.2, gt=0)
+    inlier_threshold_mm: Finite = Field(0.5, gt=0)
+    min_collinearity: Finite = Field(1e-3, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _enough_spots(self) -> "AlignConfig":
+        if len(self.spots_mm) < 3:
+            raise ValueError(f"spots_mm has {len(self.spots_mm)} spots; the plane needs at least 3")
+        return self
+
+
+class ProcessConfig(StrictModel):
+    """What the cell does each cycle."""
+
+    working_distance_mm: Finite = Field(400.0, gt=0)
+    tolerance: ToleranceConfig = ToleranceConfig()
+    align: AlignConfig = AlignConfig()

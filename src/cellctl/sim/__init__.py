@@ -1,0 +1,1 @@
+"""The digital twin: a simulated cell that knows the truth."""
