@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import model_validator
 
 from cellctl.config.cell import ProcessConfig
+from cellctl.config.devices import DevicesConfig
 from cellctl.config.sim import SimConfig
 from cellctl.config.types import StrictModel
 
@@ -19,6 +20,7 @@ class CellConfig(StrictModel):
 
     mode: Literal["sim", "hardware"] = "sim"
     process: ProcessConfig = ProcessConfig()
+    devices: DevicesConfig = DevicesConfig()
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")

@@ -6,6 +6,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
+from cellctl.config.render import RenderConfig
 from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
 from cellctl.geometry.pose import Pose, make_pose
 
@@ -69,6 +70,7 @@ class CameraSimConfig(StrictModel):
 
     intrinsics: CameraIntrinsics = CameraIntrinsics()
     hand_eye: HandEye = HandEye()
+    render: RenderConfig = RenderConfig()
 
 
 class GlassConfig(StrictModel):
