@@ -12,7 +12,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict
 class StrictModel(BaseModel):
     """Unknown fields are refused (a typo must not silently fall back to a default)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
 def _finite(v: float) -> float:
