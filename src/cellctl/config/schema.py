@@ -8,6 +8,7 @@ from pydantic import model_validator
 
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
+from cellctl.config.plc import PlcConfig
 from cellctl.config.sim import SimConfig
 from cellctl.config.types import StrictModel
 
@@ -21,6 +22,7 @@ class CellConfig(StrictModel):
     mode: Literal["sim", "hardware"] = "sim"
     process: ProcessConfig = ProcessConfig()
     devices: DevicesConfig = DevicesConfig()
+    plc: PlcConfig = PlcConfig()
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")

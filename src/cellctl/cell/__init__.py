@@ -1,0 +1,1 @@
+"""The cell orchestrator: PackML state machine, cycle steps, alarms, watchdog."""
