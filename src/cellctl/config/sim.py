@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 from pydantic import Field, model_validator
 
@@ -9,6 +11,7 @@ from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
 from cellctl.config.render import RenderConfig
 from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
 from cellctl.geometry.pose import Pose, make_pose
+from cellctl.geometry.rotation import xyz_fixed_to_matrix
 
 
 class WorldConfig(StrictModel):
@@ -49,20 +52,74 @@ class WorldConfig(StrictModel):
 
 
 class RobotSimConfig(StrictModel):
-    """IRB 7600-325 as the twin models it."""
+    """ABB IRB 7600-325 as the twin models it.
+
+    Error sources (each one off when its magnitude is 0):
+
+    - absolute accuracy: a smooth, pose-dependent deformation fixed per robot (seeded), bounded
+      by ``absolute_accuracy_mm`` in position and ``absolute_accuracy_deg`` in orientation, that
+      changes little over ``accuracy_wavelength_mm`` (an uncalibrated robot: up to about 0.5 mm).
+    - repeatability: ISO 9283 pose repeatability RP (``repeatability_mm``, paper: 0.1 mm) and
+      orientation repeatability (``repeatability_orientation_deg``, the ISO 9283 +-3 S per angle).
+
+    Reach: the wrist centre (the flange origin moved back ``wrist_to_flange_mm`` along the flange
+    z axis) must lie between ``min_reach_mm`` and ``reach_mm`` from ``reach_centre_mm``, by
+    default on the axis-1 centre line at the height of axis 2 (780 mm above the base plate), from
+    where ABB quotes the 3.1 m reach.
+    """
 
     reach_mm: Finite = Field(3100.0, gt=0)
+    min_reach_mm: Finite = Field(500.0, ge=0)
+    reach_centre_mm: Vec3 = (0.0, 0.0, 780.0)
+    wrist_to_flange_mm: Finite = Field(250.0, ge=0)
     repeatability_mm: Finite = Field(0.1, ge=0)
-    absolute_accuracy_mm: Finite = Field(0.5, ge=0)
-    max_speed_mm_s: Finite = Field(1000.0, gt=0)
+    repeatability_orientation_deg: Finite = Field(0.005, ge=0, le=1.0)
+    absolute_accuracy_mm: Finite = Field(0.5, ge=0, le=50.0)
+    absolute_accuracy_deg: Finite = Field(0.015, ge=0, le=1.0)
+    accuracy_wavelength_mm: Finite = Field(2000.0, ge=100.0)
+    max_speed_mm_s: Finite = Field(1000.0, gt=0, le=7000.0)
     acceleration_mm_s2: Finite = Field(2000.0, gt=0)
+    max_speed_deg_s: Finite = Field(60.0, gt=0, le=1000.0)
+    acceleration_deg_s2: Finite = Field(120.0, gt=0)
+    settle_time_s: Finite = Field(0.15, ge=0, le=10.0)
+    call_latency_s: Finite = Field(0.004, ge=0, le=1.0)
+    home_position_mm: Vec3 = (1000.0, 0.0, 1600.0)
+    home_xyz_fixed_deg: Vec3 = (180.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _reach(self) -> "RobotSimConfig":
+        if self.min_reach_mm >= self.reach_mm:
+            raise ValueError(f"min_reach_mm ({self.min_reach_mm:g}) must be below reach_mm ({self.reach_mm:g})")
+        home = self.T_B_H_home()
+        wrist = home[:3, 3] - self.wrist_to_flange_mm * home[:3, 2]
+        dist = float(np.linalg.norm(wrist - as_array(self.reach_centre_mm)))
+        if not (self.min_reach_mm <= dist <= self.reach_mm):
+            raise ValueError(
+                f"home_position_mm puts the wrist centre {dist:.0f} mm from reach_centre_mm, outside the "
+                f"robot's reach {self.min_reach_mm:g}..{self.reach_mm:g} mm; choose a home pose inside it"
+            )
+        return self
+
+    def T_B_H_home(self) -> Pose:
+        """The flange pose the robot starts at (XYZ fixed angles rx, ry, rz as in eq. 13)."""
+        rx, ry, rz = np.deg2rad(as_array(self.home_xyz_fixed_deg))
+        return make_pose(xyz_fixed_to_matrix(rz, ry, rx), self.home_position_mm)
 
 
 class LaserSimConfig(LaserMount):
-    """LK-G500 on the fixture: mounting (eq. 19) and error sources."""
+    """LK-G500 on the fixture: mounting (eq. 19) and error sources.
 
-    linearity_fraction_fs: Finite = Field(0.0002, ge=0)  # +-0.02 % of full scale (paper)
-    noise_mm: Finite = Field(0.002, ge=0)  # repeatability of the LK-G500 head, one sigma
+    Error sources (each one off when 0): ``linearity_fraction_fs`` (paper: +-0.02 % of the full
+    scale, a fixed smooth curve over the range, seeded) and ``noise_mm`` (repeatability, one sigma,
+    drawn per reading). ``no_return_status`` is what a reading says when the beam finds no surface
+    (through the window opening): the LK-G shows over range; which sign it takes for a missing
+    return is not confirmed by the manual pages at hand, so it is a setting.
+    """
+
+    linearity_fraction_fs: Finite = Field(0.0002, ge=0, le=0.05)  # +-0.02 % of full scale (paper)
+    noise_mm: Finite = Field(0.002, ge=0, le=10.0)  # repeatability of the LK-G500 head, one sigma
+    no_return_status: Literal["over_range_far", "over_range_near", "no_value"] = "over_range_far"
+    read_latency_s: Finite = Field(0.002, ge=0, le=1.0)  # one M1 round trip at 115200 Bd
 
 
 class CameraSimConfig(StrictModel):
@@ -77,22 +134,34 @@ class GlassConfig(StrictModel):
     """The glass on the gripper: its upper-right corner frame G in the flange frame H.
 
     G is defined like T (x right, y down, z into the wall when installed); a correct install puts
-    G onto T. The default holds the glass with its plane parallel to the flange plane.
+    G onto T. The default holds the glass with its plane parallel to the flange plane (paper 2.1:
+    the fixture plane is parallel to the flange plane) and its centre on the flange axis;
+    ``rotation_xyz_fixed_deg`` (rx, ry, rz, eq. 13 order) tilts it, as a gripper that holds it
+    slightly askew would.
     """
 
     width_mm: Finite = Field(2000.0, gt=0)
     height_mm: Finite = Field(1500.0, gt=0)
     corner_in_flange_mm: Vec3 = (1000.0, -750.0, 120.0)
+    rotation_xyz_fixed_deg: Vec3 = (0.0, 0.0, 0.0)
 
     def T_H_G(self) -> Pose:
         """The glass corner frame in the flange frame."""
-        return make_pose(np.eye(3), self.corner_in_flange_mm)
+        rx, ry, rz = np.deg2rad(as_array(self.rotation_xyz_fixed_deg))
+        return make_pose(xyz_fixed_to_matrix(rz, ry, rx), self.corner_in_flange_mm)
 
 
 class SimConfig(StrictModel):
-    """Everything the twin needs; deterministic for a seed."""
+    """Everything the twin needs; deterministic for a seed.
 
-    seed: int = 1
+    Each error source draws from its own random stream derived from ``seed`` and the source's
+    name, so switching one source off leaves every other source's draws unchanged.
+    ``time_scale`` is how long a simulated second lasts in real seconds: 1.0 runs moves and
+    latencies in real time, the default 0.001 keeps tests and demos fast, 0 makes them instant.
+    """
+
+    seed: int = Field(1, ge=0)
+    time_scale: Finite = Field(0.001, ge=0, le=10.0)
     world: WorldConfig = WorldConfig()
     robot: RobotSimConfig = RobotSimConfig()
     laser: LaserSimConfig = LaserSimConfig()

@@ -1,7 +1,10 @@
 """One laser alignment in the simulated cell, scored against the truth.
 
-This is the step the cycle runs before shooting, done here without device I/O: the robot is
-pose noise on commanded poses, the laser a ray cast with the LK-G500's error sources.
+This is the step the cycle runs before shooting, done here without device I/O: the robot is the
+twin's robot model (belief targets in, true flange poses out, with its absolute-accuracy and
+repeatability errors), the laser the twin's LK-G500 (ray cast from the true flange pose, with its
+linearity and noise). The controller side sees only belief poses and reported distances; the
+score uses the truth.
 """
 
 from __future__ import annotations
@@ -10,11 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellctl.align import AlignmentResult, camera_distance_to_plane, compute_alignment, plan_spot_poses
+from cellctl.align import AlignmentError, AlignmentResult, camera_distance_to_plane, compute_alignment, plan_spot_poses
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.plane import PlaneFit
+from cellctl.geometry.pose import Pose
 from cellctl.geometry.rotation import angle_between_vectors
-from cellctl.sim.world import World, nominal_world, sample_world
+from cellctl.ports import LaserStatus
+from cellctl.sim.cell import SimCell
+from cellctl.sim.world import World, nominal_world
 
 
 @dataclass(frozen=True)
@@ -23,8 +29,9 @@ class SimulatedAlignment:
 
     result: AlignmentResult
     world: World
-    camera_axis_error_rad: float  # camera z under the aligned pose vs the true normal
-    distance_error_mm: float  # true optical-centre distance at the aligned pose minus the target
+    camera_axis_error_rad: float  # true camera z at the executed aligned pose vs the true normal
+    distance_error_mm: float  # true optical-centre distance at the executed aligned pose minus the target
+    T_B_H_aligned_true: Pose  # where the flange really went when the aligned pose was commanded
 
 
 def shooting_orientation(config: CellConfig) -> np.ndarray:
@@ -34,27 +41,34 @@ def shooting_orientation(config: CellConfig) -> np.ndarray:
     return R_B_T0 @ R_H_C.T
 
 
-def simulate_alignment(config: CellConfig, rng: np.random.Generator) -> SimulatedAlignment:
-    """Place the car body at a random posture, measure the spots, align, and score the result."""
-    world = sample_world(config.sim.world, rng)
+def run_alignment(cell: SimCell, config: CellConfig) -> SimulatedAlignment:
+    """Measure the spots on the car body as it stands in ``cell``, align, move there, and score.
+
+    Raises AlignmentError if a planned spot gives no reading (it fell into the opening or out of
+    range), and ReachError if a pose is out of the robot's reach.
+    """
+    world = cell.world()
     laser = config.sim.laser
     T_H_C = config.sim.camera.hand_eye.T_H_C()
-    R_meas = shooting_orientation(config)
     T_B_T0 = nominal_world(config.sim.world).T_B_T
     commanded = plan_spot_poses(
-        T_B_T0, config.process.align.spots_mm, R_meas, laser.r, laser.l, config.process.align.laser_standoff_mm
+        T_B_T0,
+        config.process.align.spots_mm,
+        shooting_orientation(config),
+        laser.r,
+        laser.l,
+        config.process.align.laser_standoff_mm,
     )
-    sigma_robot = config.sim.robot.repeatability_mm
-    linearity = laser.linearity_fraction_fs * laser.full_scale_mm
     distances = []
-    for T_cmd in commanded:
-        T_true = T_cmd.copy()
-        T_true[:3, 3] += rng.normal(0.0, sigma_robot, 3)
-        origin = T_true[:3, :3] @ laser.r + T_true[:3, 3]
-        d, _ = world.ray_hit(origin, T_true[:3, :3] @ laser.l)
-        if d is None:
-            raise RuntimeError("a planned laser spot missed the wall; check process.align.spots_mm")
-        distances.append(d + rng.uniform(-linearity, linearity) + rng.normal(0.0, laser.noise_mm))
+    for k, X in enumerate(commanded):
+        cell.execute(X)
+        status, d = cell.laser_reading()
+        if status is not LaserStatus.OK or d is None:
+            raise AlignmentError(
+                f"laser spot {k} gave no distance ({status.value}); move process.align.spots_mm[{k}] onto the "
+                "wall and within the sensor's range"
+            )
+        distances.append(d)
     result = compute_alignment(
         commanded,
         np.array(distances),
@@ -67,15 +81,25 @@ def simulate_alignment(config: CellConfig, rng: np.random.Generator) -> Simulate
         max_rms_mm=config.process.align.max_rms_mm,
         min_collinearity=config.process.align.min_collinearity,
     )
-    T_B_C = result.T_B_H_aligned @ T_H_C
-    axis_err = angle_between_vectors(T_B_C[:3, 2], world.normal_B)
-    true_plane = _true_plane(world)
-    dist_err = camera_distance_to_plane(result.T_B_H_aligned, T_H_C, true_plane) - config.process.working_distance_mm
-    return SimulatedAlignment(result, world, axis_err, dist_err)
+    T_true = cell.execute(result.T_B_H_aligned)
+    truth = cell.truth()
+    axis_err = angle_between_vectors(truth.camera_pose(T_true)[:3, 2], world.normal_B)
+    dist_err = camera_distance_to_plane(T_true, truth.T_H_C, _true_plane(world)) - config.process.working_distance_mm
+    return SimulatedAlignment(result, world, axis_err, dist_err, T_true)
+
+
+def simulate_alignment(config: CellConfig, rng: np.random.Generator) -> SimulatedAlignment:
+    """One alignment in a fresh simulated cell seeded from ``rng``.
+
+    Each call builds its own cell (its own robot accuracy field and sensor errors, a new car-body
+    posture), so a series of calls samples cells as well as postures; use :func:`run_alignment`
+    with one :class:`SimCell` to run many cycles of the same cell.
+    """
+    cell = SimCell(config.sim, seed=int(rng.integers(0, 2**63 - 1)))
+    return run_alignment(cell, config)
 
 
 def _true_plane(world: World) -> PlaneFit:
     n = world.normal_B
     E = np.column_stack([n, world.T_B_T[:3, 0], world.T_B_T[:3, 1]])
     return PlaneFit(n, world.offset_B, world.T_B_T[:3, 3], np.array([0.0, 1.0, 1.0]), E, np.zeros(3))
-

@@ -1,0 +1,217 @@
+"""The twin camera's geometry: pinhole projection with Brown-Conrady distortion (paper eq. 17).
+
+OpenCV's model and conventions: camera frame x right, y down, z along the optical axis; pixel
+(u, v) with u right, v down and the centre of pixel [row i, column j] at (u, v) = (j, i);
+distortion coefficients in OpenCV's order (k1, k2, p1, p2, k3):
+
+    x = X/Z, y = Y/Z, r^2 = x^2 + y^2, R = 1 + k1 r^2 + k2 r^4 + k3 r^6
+    x' = x R + 2 p1 x y + p2 (r^2 + 2 x^2),   y' = y R + p1 (r^2 + 2 y^2) + 2 p2 x y
+    u = fx x' + cx,   v = fy y' + cy
+
+The renderer needs the inverse, the ray through each pixel centre. :func:`ray_map` computes it
+once per set of intrinsics by Newton's method in float64 and caches it; it checks that
+re-distorting every ray lands back on its pixel (to 1e-6 px) and refuses a distortion model that
+folds over inside the image.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cellctl.config.mounting import CameraIntrinsics
+from cellctl.geometry.pose import apply_pose, check_pose, invert_pose
+
+F64 = NDArray[np.float64]
+
+# The ray map must reproduce its pixel to this accuracy (px) when distorted again.
+RAY_MAP_TOLERANCE_PX = 1e-6
+_NEWTON_MAX_ITER = 30
+
+
+class DistortionNotInvertible(ValueError):
+    """The distortion coefficients fold the image over: some pixel has no unique ray."""
+
+
+@dataclass(frozen=True)
+class RayMap:
+    """Undistorted normalised coordinates (x, y) of the ray through pixel centres.
+
+    ``x[i, j], y[i, j]`` belong to pixel (u, v) = (j, i). The map covers ``rows`` x ``cols`` pixels,
+    which may extend past the image (the renderer pads to whole blocks plus one row and column).
+    ``max_residual_px`` is the largest distance between a pixel and its ray distorted again.
+    """
+
+    x: F64
+    y: F64
+    max_residual_px: float
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.x.shape  # type: ignore[return-value]
+
+
+class CameraModel:
+    """Projection and back-projection for one set of intrinsics."""
+
+    def __init__(self, intrinsics: CameraIntrinsics) -> None:
+        self.intrinsics = intrinsics
+        self.width = intrinsics.width_px
+        self.height = intrinsics.height_px
+        self.fx, self.fy = intrinsics.fx, intrinsics.fy
+        self.cx, self.cy = intrinsics.cx, intrinsics.cy
+        self.k1, self.k2, self.k3 = intrinsics.k1, intrinsics.k2, intrinsics.k3
+        self.p1, self.p2 = intrinsics.p1, intrinsics.p2
+
+    # --- forward model -----------------------------------------------------------------------
+
+    def distort_normalized(self, x: F64, y: F64) -> tuple[F64, F64]:
+        """Distorted normalised coordinates (x', y') of undistorted ones (x, y)."""
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xy = x * y
+        xd = x * radial + 2.0 * self.p1 * xy + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * xy
+        return xd, yd
+
+    def normalized_to_pixels(self, x: ArrayLike, y: ArrayLike) -> tuple[F64, F64]:
+        """Pixel coordinates (u, v) of undistorted normalised coordinates, with distortion."""
+        xd, yd = self.distort_normalized(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        return self.fx * xd + self.cx, self.fy * yd + self.cy
+
+    def project_camera(self, points_C: ArrayLike) -> F64:
+        """Pixel coordinates (N, 2) of points (N, 3) given in the camera frame C.
+
+        Raises ValueError if a point is not in front of the camera (Z <= 0).
+        """
+        P = np.atleast_2d(np.asarray(points_C, dtype=float))
+        if P.ndim != 2 or P.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {np.shape(points_C)}")
+        if not np.all(np.isfinite(P)):
+            raise ValueError("points contain NaN or infinite values")
+        behind = np.flatnonzero(P[:, 2] <= 0.0)
+        if behind.size:
+            raise ValueError(
+                f"{behind.size} point(s) lie behind the camera (Z <= 0 in the camera frame), "
+                f"first index {int(behind[0])}; they have no image"
+            )
+        u, v = self.normalized_to_pixels(P[:, 0] / P[:, 2], P[:, 1] / P[:, 2])
+        return np.column_stack([u, v])
+
+    def project(self, points_B: ArrayLike, T_B_C: ArrayLike) -> F64:
+        """Pixel coordinates (N, 2) of points (N, 3) in the robot base frame, seen from T_B_C.
+
+        Same model and numbers as ``cv2.projectPoints`` with the camera matrix A and the
+        coefficients (k1, k2, p1, p2, k3).
+        """
+        T = check_pose(T_B_C, "T_B_C")
+        return self.project_camera(apply_pose(invert_pose(T), np.atleast_2d(np.asarray(points_B, dtype=float))))
+
+    # --- inverse model -----------------------------------------------------------------------
+
+    def undistort_normalized(self, xd: F64, yd: F64) -> tuple[F64, F64, float]:
+        """Undistorted normalised coordinates of distorted ones, by Newton's method.
+
+        Returns (x, y, max_residual_px). Raises DistortionNotInvertible when Newton's method does
+        not converge to RAY_MAP_TOLERANCE_PX or the distortion's Jacobian is not positive there.
+        """
+        x = np.array(xd, dtype=np.float64, copy=True)
+        y = np.array(yd, dtype=np.float64, copy=True)
+        scale = max(self.fx, self.fy)
+        residual = np.inf
+        for _ in range(_NEWTON_MAX_ITER):
+            fx_, fy_ = self.distort_normalized(x, y)
+            ex = fx_ - xd
+            ey = fy_ - yd
+            residual = float(np.max(np.abs(ex) + np.abs(ey))) * scale if ex.size else 0.0
+            if residual < RAY_MAP_TOLERANCE_PX * 1e-2:
+                break
+            a, b, c, d = self._distortion_jacobian(x, y)
+            det = a * d - b * c
+            det = np.where(np.abs(det) > 1e-12, det, 1e-12)
+            x -= (d * ex - b * ey) / det
+            y -= (a * ey - c * ex) / det
+        fx_, fy_ = self.distort_normalized(x, y)
+        residual = float(np.max(np.hypot((fx_ - xd) * self.fx, (fy_ - yd) * self.fy))) if x.size else 0.0
+        a, b, c, d = self._distortion_jacobian(x, y)
+        if not np.isfinite(residual) or residual > RAY_MAP_TOLERANCE_PX or np.any(a * d - b * c <= 0.0):
+            raise DistortionNotInvertible(
+                f"the distortion model (k1={self.k1}, k2={self.k2}, k3={self.k3}, p1={self.p1}, "
+                f"p2={self.p2}) cannot be inverted over the image (residual {residual:.3g} px): it folds "
+                "over inside the field of view; check the coefficients and their order (k1, k2, p1, p2, k3)"
+            )
+        return x, y, residual
+
+    def undistort_pixels(self, uv: ArrayLike) -> F64:
+        """Undistorted normalised coordinates (N, 2) of pixel positions (N, 2)."""
+        P = np.atleast_2d(np.asarray(uv, dtype=float))
+        if P.ndim != 2 or P.shape[1] != 2 or not np.all(np.isfinite(P)):
+            raise ValueError(f"pixel positions must be finite with shape (N, 2), got {np.shape(uv)}")
+        x, y, _ = self.undistort_normalized((P[:, 0] - self.cx) / self.fx, (P[:, 1] - self.cy) / self.fy)
+        return np.column_stack([x, y])
+
+    def ideal_pixels(self, uv: ArrayLike) -> F64:
+        """Where pixel positions would lie without distortion (same camera matrix A)."""
+        xy = self.undistort_pixels(uv)
+        return np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
+
+    def _distortion_jacobian(self, x: F64, y: F64) -> tuple[F64, F64, F64, F64]:
+        """d(x', y') / d(x, y) as (dx'/dx, dx'/dy, dy'/dx, dy'/dy)."""
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        dradial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)
+        a = radial + 2.0 * x * x * dradial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+        b = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        c = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+        d = radial + 2.0 * y * y * dradial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+        return a, b, c, d
+
+    def ray_map(self, rows: int | None = None, cols: int | None = None) -> RayMap:
+        """The cached ray map of ``rows`` x ``cols`` pixel centres (default: the image)."""
+        return ray_map(self.intrinsics, rows or self.height, cols or self.width)
+
+
+_CACHE: dict[tuple[object, ...], RayMap] = {}
+_CACHE_LOCK = threading.Lock()
+_CACHE_MAX = 4
+
+
+def ray_map(intrinsics: CameraIntrinsics, rows: int, cols: int) -> RayMap:
+    """Rays through the pixel centres (u, v) = (j, i), i < rows, j < cols; computed once and cached.
+
+    Newton's method on each pixel in float64, started from the distorted coordinates; every ray
+    re-distorts onto its pixel within RAY_MAP_TOLERANCE_PX (the achieved worst case is recorded).
+    A request that fits inside a cached map for the same intrinsics is served as a view of it.
+    """
+    if rows <= 0 or cols <= 0:
+        raise ValueError(f"ray map size must be positive, got {rows} x {cols}")
+    key = tuple(intrinsics.model_dump().values())
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is None or hit.x.shape[0] < rows or hit.x.shape[1] < cols:
+            # Compute at least the image padded to whole 16 px blocks plus one row and column, the
+            # renderer's need, so one map serves every user of these intrinsics.
+            need_r = max(rows, -(-intrinsics.height_px // 16) * 16 + 1)
+            need_c = max(cols, -(-intrinsics.width_px // 16) * 16 + 1)
+            if hit is not None:
+                need_r, need_c = max(need_r, hit.x.shape[0]), max(need_c, hit.x.shape[1])
+            hit = _compute_ray_map(CameraModel(intrinsics), need_r, need_c)
+            _CACHE.pop(key, None)
+            if len(_CACHE) >= _CACHE_MAX:
+                _CACHE.pop(next(iter(_CACHE)))
+            _CACHE[key] = hit
+    return RayMap(hit.x[:rows, :cols], hit.y[:rows, :cols], hit.max_residual_px)
+
+
+def _compute_ray_map(model: CameraModel, rows: int, cols: int) -> RayMap:
+    u = np.arange(cols, dtype=np.float64)
+    v = np.arange(rows, dtype=np.float64)
+    xd = np.broadcast_to((u - model.cx) / model.fx, (rows, cols))
+    yd = np.broadcast_to(((v - model.cy) / model.fy)[:, None], (rows, cols))
+    x, y, residual = model.undistort_normalized(xd, yd)
+    x.setflags(write=False)
+    y.setflags(write=False)
+    return RayMap(x, y, residual)

@@ -1,0 +1,124 @@
+"""The simulated cell: one car body at its posture, one robot with its laser and camera, and the truth.
+
+:class:`SimCell` holds the state that every simulated device reads: where the car body stands and
+where the flange really is. Its methods are the twin's physics entry points:
+
+- for the in-process devices (:mod:`cellctl.sim.devices`) and the camera renderer:
+  :meth:`SimCell.world`, :meth:`SimCell.true_camera_pose`, :meth:`SimCell.laser_reading`, and the
+  robot arm :attr:`SimCell.arm`;
+- for the protocol fakes of the driver packages, which keep their own time and wire format and
+  take their physics from callbacks: :meth:`SimCell.laser_reading` (status and distance for a true
+  flange pose), :meth:`SimCell.execute` (belief target in, true pose out) and
+  :meth:`SimCell.motion_time`;
+- for scoring: :meth:`SimCell.truth` and :meth:`SimCell.install_error`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from cellctl.config.sim import SimConfig
+from cellctl.geometry.pose import Pose
+from cellctl.ports import LaserStatus
+from cellctl.sim.laser import LaserModel
+from cellctl.sim.robot import RobotArm, RobotModel
+from cellctl.sim.streams import WORLD_POSTURE, rng_stream
+from cellctl.sim.truth import CellTruth, InstallError
+from cellctl.sim.world import World, sample_world
+
+
+class SimCell:
+    """The digital twin of the cell, deterministic for a seed.
+
+    Args:
+        config: the ``[sim]`` section of the configuration.
+        seed: overrides ``config.seed`` (e.g. one cell per benchmark run).
+        clock: monotonic real time in seconds (injectable for tests).
+
+    The first car-body posture is drawn at construction; :meth:`new_car_body` draws the next one
+    (one per cycle). The robot starts at rest at its home pose.
+    """
+
+    def __init__(
+        self, config: SimConfig, *, seed: int | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.config = config
+        self.seed = config.seed if seed is None else int(seed)
+        self.time_scale = config.time_scale
+        self.robot_model = RobotModel(config.robot, self.seed)
+        self.laser_model = LaserModel(config.laser, self.seed)
+        self.arm = RobotArm(self.robot_model, time_scale=config.time_scale, clock=clock)
+        self.T_H_C: Pose = config.camera.hand_eye.T_H_C()
+        self.T_H_G: Pose = config.glass.T_H_G()
+        self._posture_rng = rng_stream(self.seed, WORLD_POSTURE)
+        self._world = sample_world(config.world, self._posture_rng)
+
+    # -- the car body ---------------------------------------------------------------------------
+
+    def world(self) -> World:
+        """The car body as it stands now."""
+        return self._world
+
+    def new_car_body(self) -> World:
+        """The next car body arrives at a new random posture (the next cycle)."""
+        self._world = sample_world(self.config.world, self._posture_rng)
+        return self._world
+
+    def place_car_body(self, world: World) -> None:
+        """Put the car body at a given placement (tests, teaching at a known posture)."""
+        if not isinstance(world, World):
+            raise TypeError(f"place_car_body needs a World, got {type(world).__name__}")
+        self._world = world
+
+    # -- truth ----------------------------------------------------------------------------------
+
+    def truth(self) -> CellTruth:
+        """The true geometry at the current placement."""
+        return CellTruth(
+            self._world, self.T_H_C.copy(), self.laser_model.r.copy(), self.laser_model.l.copy(), self.T_H_G.copy()
+        )
+
+    def true_flange_pose(self) -> Pose:
+        """Where the flange really is now."""
+        return self.arm.true_pose()
+
+    def belief_flange_pose(self) -> Pose:
+        """What the controller reports now."""
+        return self.arm.belief_pose()
+
+    def true_camera_pose(self) -> Pose:
+        """The camera's true pose T_B_C now (for the camera renderer)."""
+        return self.arm.true_pose() @ self.T_H_C
+
+    def install_error(self) -> InstallError:
+        """The paper's six figures for the flange where it really stands now."""
+        return self.truth().score(self.arm.true_pose())
+
+    def install_command(self) -> Pose:
+        """The belief target that, without repeatability noise, puts the glass exactly onto T.
+
+        This is what a perfect controller would command; it differs from the true install pose
+        by the robot's absolute-accuracy error there.
+        """
+        return self.robot_model.command_for(self.truth().install_flange_pose())
+
+    # -- physics entry points -------------------------------------------------------------------
+
+    def laser_reading(self, T_B_H_true: ArrayLike | None = None) -> tuple[LaserStatus, float | None]:
+        """One laser reading: at ``T_B_H_true`` if given, else where the flange really is now."""
+        T = self.arm.true_pose() if T_B_H_true is None else np.asarray(T_B_H_true, dtype=float)
+        return self.laser_model.reading(T, self._world)
+
+    def execute(self, X: ArrayLike) -> Pose:
+        """Move to belief target X at once; returns the true flange pose (raises ReachError if unreachable)."""
+        return self.arm.execute(X)
+
+    def motion_time(
+        self, X_from: ArrayLike, X_to: ArrayLike, speed_mm_s: float | None = None, speed_deg_s: float | None = None
+    ) -> float:
+        """Seconds a real robot needs for the move (trapezoidal profiles plus settling)."""
+        return self.robot_model.motion_time(X_from, X_to, speed_mm_s, speed_deg_s)

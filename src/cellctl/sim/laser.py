@@ -1,0 +1,107 @@
+"""The twin's Keyence LK-G500 laser displacement sensor: a ray cast with the sensor's error sources.
+
+The beam leaves the sensor at r along l, both fixed in the flange frame (paper eq. 19), and is
+traced from the *true* flange pose to the car-body wall. The sensor reports
+
+    d_reported = d_true + linearity(d_true) + noise
+
+- linearity: the sensor's deviation from a straight-line response, +-(linearity_fraction_fs *
+  full scale) at most (paper: +-0.02 % of the 200 mm span, so +-0.04 mm). It is systematic: a
+  smooth curve over the measuring range, fixed for one sensor (drawn from its seed), with no
+  straight-line part (gain and offset belong to calibration, not linearity).
+- noise: white Gaussian repeatability, ``noise_mm`` one sigma, drawn per reading.
+
+A reading outside the measuring range, or a beam that finds no surface (it passes through the
+window opening), carries no distance but a status, as the LK-G controller reports it: nearer than
+the range is ``-FFFFFFF`` (OVER_RANGE_NEAR), beyond it ``+FFFFFFF`` (OVER_RANGE_FAR); no return is
+reported as ``no_return_status`` (default over range far: the receiver sees no spot in its window).
+NO_VALUE (``XXXXXXXX``) is the controller's "no measurement yet", which the device layer produces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cellctl.config.sim import LaserSimConfig
+from cellctl.geometry.pose import check_pose
+from cellctl.ports import LaserStatus
+from cellctl.sim.streams import LASER_LINEARITY, LASER_NOISE, rng_stream
+from cellctl.sim.world import World
+
+# Harmonics in the linearity curve: its shape varies over about a third of the range at most.
+LINEARITY_HARMONICS = 3
+# Grid used once to remove the straight-line part and to scale the curve to its bound.
+LINEARITY_GRID = 4097
+
+NO_RETURN_STATUS = {
+    "over_range_far": LaserStatus.OVER_RANGE_FAR,
+    "over_range_near": LaserStatus.OVER_RANGE_NEAR,
+    "no_value": LaserStatus.NO_VALUE,
+}
+
+
+class LaserModel:
+    """The physics of one LK-G500 head on the fixture.
+
+    Args:
+        config: the laser's section of the twin's configuration (mounting, range, error sources).
+        seed: the cell's seed; linearity and noise draw from their own streams.
+    """
+
+    def __init__(self, config: LaserSimConfig, seed: int) -> None:
+        self.config = config
+        self.r = config.r
+        self.l = config.l  # noqa: E741 - the paper's name for the laser direction
+        lin_rng = rng_stream(seed, LASER_LINEARITY)
+        k = np.arange(1, LINEARITY_HARMONICS + 1)
+        self._lin_amp = lin_rng.normal(size=LINEARITY_HARMONICS) / k
+        self._lin_phase = lin_rng.uniform(0.0, 2.0 * np.pi, LINEARITY_HARMONICS)
+        self._lin_k = k
+        u = np.linspace(0.0, 1.0, LINEARITY_GRID)
+        raw = self._lin_raw(u)
+        self._lin_slope, self._lin_offset = np.polyfit(u, raw, 1)
+        peak = float(np.max(np.abs(raw - (self._lin_slope * u + self._lin_offset))))
+        self.linearity_bound_mm = config.linearity_fraction_fs * config.full_scale_mm
+        self._lin_scale = self.linearity_bound_mm / peak if peak > 0 else 0.0
+        self._noise_rng = rng_stream(seed, LASER_NOISE)
+
+    def _lin_raw(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.sin(np.pi * np.multiply.outer(u, self._lin_k) + self._lin_phase) @ self._lin_amp
+
+    def linearity_error(self, distance_mm: ArrayLike) -> NDArray[np.float64]:
+        """The fixed linearity deviation (mm) at true distance(s) ``distance_mm``.
+
+        Smooth over the range and within +-linearity_bound_mm; held at its end values outside it.
+        """
+        d = np.asarray(distance_mm, dtype=float)
+        u = np.clip((d - self.config.range_min_mm) / self.config.full_scale_mm, 0.0, 1.0)
+        return self._lin_scale * (self._lin_raw(u) - (self._lin_slope * u + self._lin_offset))
+
+    def beam(self, T_B_H_true: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The beam's origin and unit direction in the base frame for a true flange pose."""
+        T = check_pose(T_B_H_true, "true flange pose")
+        return T[:3, :3] @ self.r + T[:3, 3], T[:3, :3] @ self.l
+
+    def true_distance(self, T_B_H_true: ArrayLike, world: World) -> float | None:
+        """Distance from r along l to the wall, or None if the beam finds no wall (opening, facing away)."""
+        origin, direction = self.beam(T_B_H_true)
+        d, _ = world.ray_hit(origin, direction)
+        return d
+
+    def reading(self, T_B_H_true: ArrayLike, world: World) -> tuple[LaserStatus, float | None]:
+        """One reading at a true flange pose: (status, distance in mm or None).
+
+        One noise value is drawn per reading whatever its outcome, so the noise stream advances
+        with the number of readings only.
+        """
+        noise = float(self._noise_rng.normal()) * self.config.noise_mm
+        d = self.true_distance(T_B_H_true, world)
+        if d is None:
+            return NO_RETURN_STATUS[self.config.no_return_status], None
+        measured = d + float(self.linearity_error(d)) + noise
+        if measured < self.config.range_min_mm:
+            return LaserStatus.OVER_RANGE_NEAR, None
+        if measured > self.config.range_max_mm:
+            return LaserStatus.OVER_RANGE_FAR, None
+        return LaserStatus.OK, measured
