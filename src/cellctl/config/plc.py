@@ -4,17 +4,38 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from cellctl.config.types import Finite, StrictModel
 
 
 class PlcConfig(StrictModel):
-    """Modbus TCP server settings."""
+    """Modbus TCP server settings (register map: docs/plc_register_map.md)."""
 
     enabled: bool = True
     host: str = "127.0.0.1"
-    port: int = Field(5020, ge=1, le=65535)
-    unit_id: int = Field(1, ge=0, le=255)
-    float_word_order: Literal["big", "little"] = "big"  # "big": high word first (ABCD)
-    heartbeat_timeout_s: Finite = Field(3.0, gt=0)
+    port: int = Field(5020, ge=0, le=65535)  # 0: any free port (tests); the server reports the one it got
+    unit_id: int = Field(1, ge=0, le=255)  # 0: answer every unit id
+    float_word_order: Literal["big", "little"] = "big"  # 32-bit values; "big": high word first (ABCD)
+    heartbeat_timeout_s: Finite = Field(3.0, gt=0)  # plc_heartbeat unchanged this long: link lost
+    cell_heartbeat_period_s: Finite = Field(0.5, gt=0)  # cell_heartbeat increments this often
+    scan_period_s: Finite = Field(0.02, gt=0, le=1.0)  # PLC block read and status publish period
+    facade_timeout_s: Finite = Field(5.0, gt=0)  # longest wait for one answer from the cell
+    cycle_result_timeout_s: Finite = Field(900.0, gt=0)  # longest wait for an accepted cycle's result
+
+    @model_validator(mode="after")
+    def _periods_fit(self) -> "PlcConfig":
+        if self.heartbeat_timeout_s < 3 * self.scan_period_s:
+            raise ValueError(
+                f"plc.heartbeat_timeout_s = {self.heartbeat_timeout_s:g} s is shorter than three scans "
+                f"(plc.scan_period_s = {self.scan_period_s:g} s): raise the timeout or shorten the scan")
+        if self.cell_heartbeat_period_s < self.scan_period_s:
+            raise ValueError(
+                f"plc.cell_heartbeat_period_s = {self.cell_heartbeat_period_s:g} s is shorter than one scan "
+                f"(plc.scan_period_s = {self.scan_period_s:g} s): the cell heartbeat changes once per "
+                "scan at most; raise it")
+        if self.cycle_result_timeout_s < self.facade_timeout_s:
+            raise ValueError(
+                f"plc.cycle_result_timeout_s = {self.cycle_result_timeout_s:g} s is shorter than "
+                f"plc.facade_timeout_s = {self.facade_timeout_s:g} s: raise it")
+        return self

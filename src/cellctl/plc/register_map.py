@@ -1,0 +1,418 @@
+"""The line PLC's Modbus register map, defined once.
+
+Every holding register the PLC can see is declared here with its address, type, writer, units and
+meaning. The server builds its datastore from these blocks, the codec packs values by them, and
+``docs/plc_register_map.md`` is rendered from them (``python -m cellctl.plc --write PATH``).
+
+Addresses are 0-based protocol addresses of holding registers (FC3 read, FC6/FC16 write), so
+address 0 is "40001" in Modicon notation. Each direction has its own block with a single writer:
+the PLC writes only the PLC block, the cell only the cell block. Addresses never move: a new
+register takes a reserved address and bumps ``MAP_VERSION``'s minor number; a change to an existing
+register bumps the major number.
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from dataclasses import dataclass
+
+from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
+
+MAP_VERSION: tuple[int, int] = (1, 0)
+"""(major, minor), published in the cell block so the PLC can check it talks to the map it expects."""
+
+PLC_ERROR_CODE_RANGE = range(900, 1000)
+"""Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
+alarm / stop-reason id space."""
+
+
+class CommandReply(enum.IntEnum):
+    """How the cell answered a PackML command or unit mode request (``cmd_result`` on the wire)."""
+
+    ACCEPTED = 0
+    INVALID_IN_STATE = 1
+    BUSY = 2
+    BAD_PARAMETER = 3
+    NO_ANSWER = 4
+
+
+class PlcErrorCode(enum.IntEnum):
+    """Error codes raised by the PLC interface itself, within ``PLC_ERROR_CODE_RANGE``."""
+
+    CYCLE_REQ_ID_ZERO = 901
+    CELL_NO_ANSWER = 902
+    RESULT_TIMEOUT = 903
+    CELL_BAD_ANSWER = 904
+
+
+PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
+    PlcErrorCode.CYCLE_REQ_ID_ZERO: "cycle_request = 1 with cycle_req_id = 0: give each cycle a nonzero id.",
+    PlcErrorCode.CELL_NO_ANSWER: "The cell's controller did not answer within facade_timeout_s (or failed); "
+                                 "request the same id again to ask again (the cell never runs an id twice).",
+    PlcErrorCode.RESULT_TIMEOUT: "An accepted cycle gave no result within cycle_result_timeout_s; "
+                                 "requesting the same id again waits for it again (it never runs twice).",
+    PlcErrorCode.CELL_BAD_ANSWER: "The cell's controller answered with something the map cannot carry "
+                                  "(another id's result, a value out of range).",
+}
+
+
+class RegType(enum.Enum):
+    """Wire type of a register: its name and how many 16-bit words it takes."""
+
+    UINT16 = ("uint16", 1)
+    INT16 = ("int16", 1)
+    UINT32 = ("uint32", 2)
+    FLOAT32 = ("float32", 2)
+
+    @property
+    def label(self) -> str:
+        return self.value[0]
+
+    @property
+    def words(self) -> int:
+        return self.value[1]
+
+
+class Access(enum.Enum):
+    """Which side writes a register (the other side only reads it)."""
+
+    PLC_WRITES = "PLC"
+    CELL_WRITES = "cell"
+
+
+@dataclass(frozen=True)
+class Bit:
+    """One named bit of a flags word (bit 0 is the least significant)."""
+
+    index: int
+    name: str
+    description: str
+
+
+@dataclass(frozen=True)
+class Register:
+    """One value in the map; 32-bit types take ``address`` and ``address + 1``."""
+
+    name: str
+    address: int
+    type: RegType
+    access: Access
+    units: str
+    description: str
+    bits: tuple[Bit, ...] = ()
+
+    @property
+    def words(self) -> int:
+        return self.type.words
+
+    @property
+    def end(self) -> int:
+        """One past the last word."""
+        return self.address + self.type.words
+
+
+@dataclass(frozen=True)
+class Block:
+    """A contiguous address range with one writer; unmapped addresses inside it are reserved (read 0)."""
+
+    name: str
+    access: Access
+    start: int
+    size: int
+    registers: tuple[Register, ...]
+
+    @property
+    def end(self) -> int:
+        return self.start + self.size
+
+    def contains(self, address: int) -> bool:
+        return self.start <= address < self.end
+
+    def overlaps(self, address: int, count: int) -> bool:
+        return address < self.end and self.start < address + count
+
+    def register(self, name: str) -> Register:
+        for reg in self.registers:
+            if reg.name == name:
+                return reg
+        known = ", ".join(r.name for r in self.registers)
+        raise KeyError(f"no register {name!r} in the {self.name}; it has: {known}")
+
+
+def _enum_list(enum_cls: type[enum.IntEnum]) -> str:
+    return ", ".join(f"{m.value} {m.name.lower()}" for m in enum_cls)
+
+
+_P = Access.PLC_WRITES
+_C = Access.CELL_WRITES
+_U16, _I16, _U32, _F32 = RegType.UINT16, RegType.INT16, RegType.UINT32, RegType.FLOAT32
+
+CYCLE_FLAG_BITS: tuple[Bit, ...] = (
+    Bit(0, "ready", "The cell would accept a cycle request now (its controller says so and no "
+        "request is being served)."),
+    Bit(1, "busy", "A cycle for `cycle_ack_id` is running."),
+    Bit(2, "done", "The result registers hold the result of `cycle_ack_id`; stays on until the "
+        "PLC drops `cycle_request`."),
+    Bit(3, "ok", "With done: the cycle succeeded (`error_code` = 0)."),
+    Bit(4, "nok", "With done: the cycle failed or was refused; `error_code` says why."),
+    Bit(5, "replayed", "With done: `cycle_req_id` was seen before; the stored result was "
+        "published again and no new cycle ran."),
+    Bit(6, "plc_heartbeat_ok", "The cell sees `plc_heartbeat` change within the configured timeout."),
+    Bit(7, "request_mismatch", "With replayed: the repeated id came with a part or recipe other than "
+        "the stored result's (the stored result stands)."),
+)
+
+PLC_BLOCK = Block(
+    name="PLC block",
+    access=_P,
+    start=0,
+    size=32,
+    registers=(
+        Register("plc_heartbeat", 0, _U16, _P, "count",
+                 "Change it (increment or toggle) at least every heartbeat_timeout_s / 5; "
+                 "unchanged for heartbeat_timeout_s means PLC heartbeat lost."),
+        Register("cntrl_cmd", 1, _U16, _P, "PackMLCommand",
+                 f"PackML Command.CntrlCmd: {_enum_list(PackMLCommand)}. Latched by cmd_change_request."),
+        Register("cmd_change_request", 2, _U16, _P, "0/1",
+                 "Command.CmdChangeRequest: set to 1 to latch cntrl_cmd; keep it until cmd_ack = 1, "
+                 "then set 0."),
+        Register("unit_mode_request", 3, _U16, _P, "UnitMode",
+                 f"Requested unit mode: {_enum_list(UnitMode)}. Latched by unit_mode_change_request."),
+        Register("unit_mode_change_request", 4, _U16, _P, "0/1",
+                 "Command.UnitModeChangeRequest: set to 1 to latch unit_mode_request; keep it until "
+                 "unit_mode_ack = 1, then set 0."),
+        Register("recipe_id", 5, _U16, _P, "id", "Recipe (window type) of the requested cycle."),
+        Register("part_id", 6, _U32, _P, "id", "Part (window) serial of the requested cycle."),
+        Register("cycle_req_id", 8, _U32, _P, "id",
+                 "Cycle request id, nonzero and new for each cycle: the idempotency key. A repeated "
+                 "id never starts a second cycle; its stored result is published again."),
+        Register("cycle_request", 10, _U16, _P, "0/1",
+                 "Set to 1 (with recipe_id, part_id and cycle_req_id in the same FC16 write) to "
+                 "request a cycle; keep it until done = 1, read the result, then set 0."),
+    ),
+)
+
+CELL_BLOCK = Block(
+    name="cell block",
+    access=_C,
+    start=100,
+    size=64,
+    registers=(
+        Register("map_version_major", 100, _U16, _C, "-",
+                 "Register map major version: a change means existing registers moved or changed."),
+        Register("map_version_minor", 101, _U16, _C, "-",
+                 "Register map minor version: registers were added at reserved addresses."),
+        Register("cell_heartbeat", 102, _U16, _C, "count",
+                 "Incremented by the cell every cell_heartbeat_period_s (wraps at 65535); it stops "
+                 "when the cell's controller does not answer."),
+        Register("state_current", 103, _U16, _C, "PackMLState",
+                 f"PackML Status.StateCurrent: {_enum_list(PackMLState)}."),
+        Register("unit_mode_current", 104, _U16, _C, "UnitMode",
+                 f"PackML Status.UnitModeCurrent: {_enum_list(UnitMode)}."),
+        Register("cycle_step", 105, _U16, _C, "CycleStep",
+                 f"Step of the running cycle (sub-state of Execute): {_enum_list(CycleStep)}."),
+        Register("stop_reason_id", 106, _U16, _C, "id",
+                 "First-out alarm / stop reason id; 0 when none is active."),
+        Register("cycle_flags", 107, _U16, _C, "bits", "Cycle handshake flags (bits below).",
+                 bits=CYCLE_FLAG_BITS),
+        Register("cycle_ack_id", 108, _U32, _C, "id",
+                 "Echo of cycle_req_id once the cell has taken the request (accepted, refused or "
+                 "replayed)."),
+        Register("result_req_id", 110, _U32, _C, "id",
+                 "cycle_req_id the result registers belong to (they keep the last result after done "
+                 "drops)."),
+        Register("result_part_id", 112, _U32, _C, "id", "part_id of that result."),
+        Register("result_recipe_id", 114, _U16, _C, "id", "recipe_id of that result."),
+        Register("error_code", 115, _U16, _C, "id",
+                 "0 when ok; else why the cycle failed or was refused: the cell's alarm / stop reason "
+                 "id, or 900-999 for the PLC interface's own codes."),
+        Register("dx_mm", 116, _F32, _C, "mm",
+                 "Install correction along X of the workpiece frame (install pose minus taught "
+                 "install pose)."),
+        Register("dy_mm", 118, _F32, _C, "mm", "Install correction along Y of the workpiece frame."),
+        Register("dz_mm", 120, _F32, _C, "mm", "Install correction along Z of the workpiece frame."),
+        Register("drx_deg", 122, _F32, _C, "deg",
+                 "Install correction about X (XYZ fixed angles, eq. 13 of the method)."),
+        Register("dry_deg", 124, _F32, _C, "deg", "Install correction about Y."),
+        Register("drz_deg", 126, _F32, _C, "deg", "Install correction about Z."),
+        Register("cycle_time_ms", 128, _U32, _C, "ms", "Duration of the cycle, request to result."),
+        Register("cmd_ack", 130, _U16, _C, "0/1",
+                 "1 once the latched command was handled (cmd_result says how); 0 after the PLC "
+                 "drops cmd_change_request."),
+        Register("cmd_ack_cmd", 131, _U16, _C, "PackMLCommand", "Echo of the command that cmd_ack answers."),
+        Register("cmd_result", 132, _U16, _C, "code",
+                 f"{_enum_list(CommandReply)}."),
+        Register("unit_mode_ack", 133, _U16, _C, "0/1",
+                 "1 once the latched mode request was handled; 0 after the PLC drops "
+                 "unit_mode_change_request."),
+        Register("unit_mode_ack_mode", 134, _U16, _C, "UnitMode", "Echo of the mode that unit_mode_ack answers."),
+        Register("unit_mode_result", 135, _U16, _C, "code", "Same codes as cmd_result."),
+        Register("refused_write_count", 136, _U16, _C, "count",
+                 "PLC writes into the cell block that were refused (exception 2), wrapping at 65535."),
+    ),
+)
+
+BLOCKS: tuple[Block, ...] = (PLC_BLOCK, CELL_BLOCK)
+MAX_REGISTERS_PER_REQUEST = 123
+"""FC16 writes at most 123 registers (FC3 reads 125): each block must fit one request."""
+
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+def check_map(blocks: tuple[Block, ...] = BLOCKS) -> None:
+    """Refuse an inconsistent map: overlaps, registers outside their block or of the wrong writer."""
+    names: set[str] = set()
+    for i, block in enumerate(blocks):
+        if block.size > MAX_REGISTERS_PER_REQUEST:
+            raise ValueError(f"{block.name}: {block.size} registers do not fit one Modbus request "
+                             f"(at most {MAX_REGISTERS_PER_REQUEST})")
+        for other in blocks[i + 1:]:
+            if block.overlaps(other.start, other.size):
+                raise ValueError(f"{block.name} and {other.name} overlap")
+        taken: dict[int, str] = {}
+        for reg in block.registers:
+            if not _NAME.match(reg.name):
+                raise ValueError(f"register name {reg.name!r} must be snake_case")
+            if reg.name in names:
+                raise ValueError(f"register name {reg.name!r} is used twice")
+            names.add(reg.name)
+            if reg.access is not block.access:
+                raise ValueError(f"{reg.name} is written by {reg.access.value} but sits in the "
+                                 f"{block.name}, written by {block.access.value}")
+            if not (block.start <= reg.address and reg.end <= block.end):
+                raise ValueError(f"{reg.name} ({reg.address}..{reg.end - 1}) lies outside the "
+                                 f"{block.name} ({block.start}..{block.end - 1})")
+            for addr in range(reg.address, reg.end):
+                if addr in taken:
+                    raise ValueError(f"{reg.name} overlaps {taken[addr]} at address {addr}")
+                taken[addr] = reg.name
+            if reg.bits:
+                if reg.type is not RegType.UINT16:
+                    raise ValueError(f"{reg.name}: flag bits need a uint16 register")
+                indices = [b.index for b in reg.bits]
+                if len(set(indices)) != len(indices) or not all(0 <= k < 16 for k in indices):
+                    raise ValueError(f"{reg.name}: bit indices must be unique and in 0..15")
+
+
+check_map()
+if set(PLC_ERROR_TEXT) != set(PlcErrorCode) or not all(c in PLC_ERROR_CODE_RANGE for c in PlcErrorCode):
+    raise RuntimeError("every PlcErrorCode needs a text in PLC_ERROR_TEXT and a value in PLC_ERROR_CODE_RANGE")
+
+
+def register(name: str) -> Register:
+    """The register called ``name`` in either block."""
+    for block in BLOCKS:
+        for reg in block.registers:
+            if reg.name == name:
+                return reg
+    raise KeyError(f"no register {name!r} in the PLC register map")
+
+
+_INTRO = """\
+# PLC register map (Modbus TCP)
+
+Generated from `src/cellctl/plc/register_map.py` by `python -m cellctl.plc --write
+docs/plc_register_map.md`; do not edit by hand (a test compares this file with the generator).
+
+Map version {major}.{minor}. The cell is the Modbus TCP server (host, port and unit id from `[plc]` in
+the config; unit id 0 answers any unit id). All values are holding registers at 0-based protocol
+addresses (address 0 is 40001 in Modicon notation): read with FC3, write with FC16 (or FC6, FC22,
+FC23). Other function codes (coils, input registers) get exception code 1 (illegal function).
+
+- The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it.
+- The **cell block** ({c_start}-{c_last}) is written only by the cell. A PLC write into it is refused
+  with exception code 2 (illegal data address), leaves it unchanged and counts in
+  `refused_write_count`. Addresses between the blocks do not exist (exception code 2), so read
+  each block with its own request.
+- Reserved addresses inside a block read 0.
+- 32-bit values (uint32, float32) take two registers; their word order is `[plc] float_word_order`:
+  `big` puts the high word first (ABCD), `little` the low word first (CDAB). Bytes within a
+  register are always big-endian.
+
+## Handshakes
+
+**Heartbeats.** The PLC changes `plc_heartbeat` periodically; if it stays unchanged for
+`heartbeat_timeout_s` the cell raises "PLC heartbeat lost" and clears `plc_heartbeat_ok`. The cell
+increments `cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watch it the same way.
+
+**Cycle** (four-way, keyed by `cycle_req_id`):
+1. With `ready` = 1, the PLC writes `recipe_id`, `part_id`, a new nonzero `cycle_req_id` and
+   `cycle_request` = 1 in one FC16 write.
+2. The cell echoes the id in `cycle_ack_id` and sets `busy` (or, if it refuses, `done` + `nok`
+   with `error_code`).
+3. When the cycle ends the cell writes the result registers (`result_req_id` = the id) and sets
+   `done` with `ok` or `nok`, clearing `busy`, in one update.
+4. The PLC reads the result and sets `cycle_request` = 0; the cell then clears `done`, `ok`, `nok`
+   and `replayed`. The result registers keep the last result.
+
+A repeated `cycle_req_id` never starts a second cycle: the cell publishes that id's stored result
+again with `replayed` = 1. Dropping `cycle_request` before `done` does not cancel a cycle: send
+the PackML Stop or Abort command for that.
+
+**PackML commands and unit mode.** The PLC writes `cntrl_cmd` and sets `cmd_change_request` = 1;
+the cell answers with `cmd_ack_cmd`, `cmd_result` and `cmd_ack` = 1; the PLC sets
+`cmd_change_request` = 0 and the cell clears `cmd_ack`. The unit mode uses `unit_mode_request`,
+`unit_mode_change_request`, `unit_mode_ack_mode`, `unit_mode_result` and `unit_mode_ack` the
+same way.
+"""
+
+
+def _table(block: Block) -> list[str]:
+    lines = [
+        f"## {block.name[0].upper()}{block.name[1:]}: {block.start}-{block.end - 1}, "
+        f"written by the {block.access.value}",
+        "",
+        "| Address | Name | Type | Units | Description |",
+        "|---|---|---|---|---|",
+    ]
+    for reg in sorted(block.registers, key=lambda r: r.address):
+        addr = str(reg.address) if reg.words == 1 else f"{reg.address}-{reg.end - 1}"
+        desc = reg.description.replace("|", "\\|")
+        lines.append(f"| {addr} | `{reg.name}` | {reg.type.label} | {reg.units} | {desc} |")
+    used = {a for r in block.registers for a in range(r.address, r.end)}
+    free = [a for a in range(block.start, block.end) if a not in used]
+    if free:
+        lines.append("")
+        lines.append(f"Reserved: {_ranges(free)}.")
+    for reg in block.registers:
+        if reg.bits:
+            lines += ["", f"### `{reg.name}` bits", "", "| Bit | Name | Meaning |", "|---|---|---|"]
+            for bit in sorted(reg.bits, key=lambda b: b.index):
+                lines.append(f"| {bit.index} | `{bit.name}` | {bit.description} |")
+    return lines
+
+
+def _ranges(addresses: list[int]) -> str:
+    """Sorted addresses as "a-b, c" spans."""
+    spans: list[list[int]] = []
+    for a in addresses:
+        if spans and a == spans[-1][1] + 1:
+            spans[-1][1] = a
+        else:
+            spans.append([a, a])
+    return ", ".join(str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in spans)
+
+
+def _codes() -> list[str]:
+    lines = ["## Codes", "", "`cmd_result` and `unit_mode_result`:", "", "| Value | Meaning |", "|---|---|"]
+    lines += [f"| {m.value} | {m.name.lower().replace('_', ' ')} |" for m in CommandReply]
+    lines += ["", f"`error_code` values of the PLC interface itself ({PLC_ERROR_CODE_RANGE.start}-"
+              f"{PLC_ERROR_CODE_RANGE.stop - 1}; other nonzero values are the cell's alarm / stop-reason ids):",
+              "", "| Value | Name | Meaning |", "|---|---|---|"]
+    lines += [f"| {m.value} | `{m.name.lower()}` | {PLC_ERROR_TEXT[m]} |" for m in PlcErrorCode]
+    return lines
+
+
+def render_markdown() -> str:
+    """The register map as the Markdown page committed at ``docs/plc_register_map.md``."""
+    text = _INTRO.format(
+        major=MAP_VERSION[0], minor=MAP_VERSION[1],
+        p_start=PLC_BLOCK.start, p_last=PLC_BLOCK.end - 1,
+        c_start=CELL_BLOCK.start, c_last=CELL_BLOCK.end - 1,
+    )
+    parts = [text]
+    for block in BLOCKS:
+        parts.append("\n".join(_table(block)) + "\n")
+    parts.append("\n".join(_codes()) + "\n")
+    return "\n".join(parts)

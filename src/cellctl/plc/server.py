@@ -1,0 +1,281 @@
+"""The Modbus TCP server the line PLC talks to (pymodbus 3.16, SimDevice datastore).
+
+The datastore holds exactly the two blocks of the register map; addresses between them do not
+exist. One access hook guards the direction of every write: a PLC write that touches the cell
+block is refused with exception 2 and counted, and the cell's own writes (marked with a context
+variable) may touch only the cell block. A scan loop reads the PLC block, supervises the PLC
+heartbeat, publishes the cell's status words and heartbeat, and feeds the handshakes.
+
+Use::
+
+    server = PlcServer(config.plc, cell)      # cell implements CellFacade
+    await server.start()                       # listens on config.plc.host:port (server.port)
+    ...
+    await server.stop()
+
+or ``async with PlcServer(config.plc, cell) as server: ...``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextvars
+import logging
+import time
+from collections.abc import Callable
+from types import TracebackType
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from cellctl.cell.tags import PackMLCommand, UnitMode
+from cellctl.config.plc import PlcConfig
+from cellctl.plc.codec import decode_block
+from cellctl.plc.facade import CellFacade, CellStatus
+from cellctl.plc.handshake import CycleHandshake, HandshakeTiming, LatchedRequest
+from cellctl.plc.heartbeat import HeartbeatWatch, LinkEvent
+from cellctl.plc.process_image import CellImage, InputFeed, PlcInputs
+from cellctl.plc.register_map import CELL_BLOCK, PLC_BLOCK
+
+log = logging.getLogger(__name__)
+
+_CELL_WRITING: contextvars.ContextVar[bool] = contextvars.ContextVar("cellctl_plc_cell_writing", default=False)
+_HOLDING_REGISTER_FCS = frozenset({3, 6, 16, 22, 23})
+_FC_WRITE_MULTIPLE = 16
+_FC_READ_HOLDING = 3
+
+
+class PlcServer:
+    """Modbus TCP server for the line PLC, wired to the cell through ``CellFacade``."""
+
+    def __init__(self, config: PlcConfig, cell: CellFacade,
+                 *, clock: Callable[[], float] = time.monotonic) -> None:
+        if not isinstance(cell, CellFacade):
+            raise TypeError(f"{type(cell).__name__} does not implement CellFacade "
+                            "(status, start_cycle, result_of, command, change_mode, plc_link_lost, "
+                            "plc_link_restored)")
+        self._config = config
+        self._cell = cell
+        self._clock = clock
+        self._feed = InputFeed()
+        self._image = CellImage()
+        self._server: ModbusTcpServer | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._wake = asyncio.Event()
+        self._refused_writes = 0
+        self._fault: BaseException | None = None
+        self._watch = HeartbeatWatch(config.heartbeat_timeout_s, clock())
+        self._cell_heartbeat = 0
+        self._next_beat_s = 0.0
+        self._status_failing = False
+        timing = HandshakeTiming(config.scan_period_s, config.facade_timeout_s, config.cycle_result_timeout_s)
+        self._cycle = CycleHandshake(cell, self._feed, self._image, self._flush, timing, clock)
+        self._command = LatchedRequest(
+            name="command", feed=self._feed, image=self._image, flush=self._flush,
+            request_field="cmd_change_request", value_field="cntrl_cmd", ack_field="cmd_ack",
+            echo_field="cmd_ack_cmd", result_field="cmd_result", kind=PackMLCommand,
+            invalid=PackMLCommand.UNDEFINED, send=cell.command, timeout_s=config.facade_timeout_s)
+        self._mode = LatchedRequest(
+            name="unit mode", feed=self._feed, image=self._image, flush=self._flush,
+            request_field="unit_mode_change_request", value_field="unit_mode_request",
+            ack_field="unit_mode_ack", echo_field="unit_mode_ack_mode", result_field="unit_mode_result",
+            kind=UnitMode, invalid=UnitMode.INVALID, send=cell.change_mode,
+            timeout_s=config.facade_timeout_s)
+
+    # --- life cycle -------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Listen on the configured address and start serving; raises OSError if it cannot listen."""
+        if self._server is not None:
+            raise RuntimeError("the PLC server is already running")
+        cfg = self._config
+        device = SimDevice(
+            id=cfg.unit_id,
+            simdata=[
+                SimData(PLC_BLOCK.start, count=PLC_BLOCK.size, values=0, datatype=DataType.REGISTERS),
+                SimData(CELL_BLOCK.start, count=CELL_BLOCK.size, values=0, datatype=DataType.REGISTERS),
+            ],
+            action=self._on_access,
+        )
+        server = ModbusTcpServer(device, address=(cfg.host, cfg.port))
+        try:
+            await server.serve_forever(background=True)
+        except (RuntimeError, OSError) as exc:
+            await server.shutdown()
+            raise OSError(f"PLC interface cannot listen on {cfg.host}:{cfg.port} ({exc}); is the port "
+                          "taken or the host not local? set [plc] host and port") from exc
+        self._server = server
+        self._wake = asyncio.Event()
+        self._fault = None
+        now = self._clock()
+        self._watch = HeartbeatWatch(cfg.heartbeat_timeout_s, now)
+        self._next_beat_s = now
+        await self._flush()
+        self._tasks = [
+            asyncio.create_task(self._scan_loop(), name="plc-scan"),
+            asyncio.create_task(self._cycle.run(), name="plc-cycle-handshake"),
+            asyncio.create_task(self._command.run(), name="plc-command-handshake"),
+            asyncio.create_task(self._mode.run(), name="plc-mode-handshake"),
+        ]
+        for task in self._tasks:
+            task.add_done_callback(self._task_ended)
+        log.info("PLC interface listening on %s:%d (unit id %d, word order %s)",
+                 cfg.host, self.port, cfg.unit_id, cfg.float_word_order)
+
+    async def stop(self) -> None:
+        """Stop the handshakes and close the listener and every PLC connection. Cycles keep running
+        in the cell; a restarted server picks their results up by cycle_req_id."""
+        tasks, self._tasks = self._tasks, []
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        server, self._server = self._server, None
+        if server is not None:
+            await server.shutdown()
+            log.info("PLC interface stopped")
+
+    async def __aenter__(self) -> PlcServer:
+        await self.start()
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                        tb: TracebackType | None) -> None:
+        await self.stop()
+
+    # --- observation ------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self._server is not None
+
+    @property
+    def port(self) -> int:
+        """The TCP port actually bound (differs from the config when it asked for port 0)."""
+        if self._server is None or self._server.transport is None:
+            raise RuntimeError("the PLC server is not running")
+        return int(self._server.transport.sockets[0].getsockname()[1])  # type: ignore[attr-defined]
+
+    @property
+    def refused_writes(self) -> int:
+        """PLC writes into the cell block refused since construction."""
+        return self._refused_writes
+
+    @property
+    def plc_link_alive(self) -> bool:
+        return self._watch.alive
+
+    @property
+    def fault(self) -> BaseException | None:
+        """Why a handshake task died, if one did (the cell heartbeat then stops)."""
+        return self._fault
+
+    # --- internals --------------------------------------------------------------------------
+
+    def _task_ended(self, task: asyncio.Task[None]) -> None:
+        if task.cancelled():
+            return
+        exc = task.exception()
+        if exc is not None:
+            self._fault = exc
+            log.critical("PLC interface task %s died; the cell heartbeat stops", task.get_name(),
+                         exc_info=exc)
+
+    async def _on_access(self, func_code: int, _start: int, address: int, count: int,
+                         _registers: list[int], set_values: list[int] | list[bool] | None) -> ExcCodes | None:
+        """pymodbus calls this before every datastore access, the cell's own included."""
+        if func_code not in _HOLDING_REGISTER_FCS:
+            return ExcCodes.ILLEGAL_FUNCTION
+        if set_values is None:
+            return None
+        n = len(set_values) if set_values else count
+        if _CELL_WRITING.get():
+            return ExcCodes.ILLEGAL_ADDRESS if PLC_BLOCK.overlaps(address, n) else None
+        if CELL_BLOCK.overlaps(address, n):
+            self._refused_writes += 1
+            level = logging.WARNING if self._refused_writes % 1000 == 1 else logging.DEBUG
+            log.log(level, "refused PLC write (FC%d) to %d..%d: the cell block is written only by the "
+                    "cell (%d refused so far)", func_code, address, address + n - 1, self._refused_writes)
+            self._wake.set()
+            return ExcCodes.ILLEGAL_ADDRESS
+        self._wake.set()
+        return None
+
+    async def _flush(self) -> None:
+        """Put the whole cell image on the wire in one datastore write (the PLC never sees half)."""
+        if self._server is None:
+            return
+        regs = self._image.registers(self._config.float_word_order)
+        token = _CELL_WRITING.set(True)
+        try:
+            await self._server.async_setValues(self._config.unit_id, _FC_WRITE_MULTIPLE, CELL_BLOCK.start, regs)
+        finally:
+            _CELL_WRITING.reset(token)
+
+    async def _read_plc_block(self) -> PlcInputs:
+        assert self._server is not None
+        regs = await self._server.async_getValues(self._config.unit_id, _FC_READ_HOLDING,
+                                                  PLC_BLOCK.start, PLC_BLOCK.size)
+        return PlcInputs.from_decoded(decode_block(PLC_BLOCK, [int(r) for r in regs],
+                                                   self._config.float_word_order))
+
+    async def _scan_loop(self) -> None:
+        period = self._config.scan_period_s
+        while True:
+            try:
+                await asyncio.wait_for(self._wake.wait(), period)
+            except asyncio.TimeoutError:
+                pass
+            self._wake.clear()
+            await self._scan()
+
+    async def _scan(self) -> None:
+        inputs = await self._read_plc_block()
+        now = self._clock()
+        change = self._watch.observe(inputs.plc_heartbeat, now)
+        if change is not None:
+            self._report_link(change.event, change.silent_for_s)
+        status = self._read_status()
+        update: dict[str, object] = {"refused_write_count": self._refused_writes & 0xFFFF}
+        flags = {"plc_heartbeat_ok": self._watch.alive, "ready": False}
+        if status is not None:
+            update.update(state_current=int(status.state), unit_mode_current=int(status.unit_mode),
+                          cycle_step=int(status.cycle_step), stop_reason_id=status.stop_reason_id)
+            flags["ready"] = status.ready_for_cycle and self._cycle.idle and inputs.cycle_request == 0
+            if self._fault is None and now >= self._next_beat_s:
+                self._cell_heartbeat = (self._cell_heartbeat + 1) & 0xFFFF
+                period = self._config.cell_heartbeat_period_s
+                self._next_beat_s += period
+                if self._next_beat_s <= now:  # fell behind (a stall): restart the cadence
+                    self._next_beat_s = now + period
+                update["cell_heartbeat"] = self._cell_heartbeat
+        update["cycle_flags"] = flags
+        self._image.update(**update)  # type: ignore[arg-type]
+        await self._flush()
+        await self._feed.publish(inputs)
+
+    def _read_status(self) -> CellStatus | None:
+        try:
+            status = self._cell.status()
+            if not isinstance(status, CellStatus):
+                raise TypeError(f"status() returned {type(status).__name__}, not CellStatus")
+        except Exception:
+            if not self._status_failing:
+                log.exception("the cell's status() failed; the cell heartbeat stops until it answers")
+            self._status_failing = True
+            return None
+        if self._status_failing:
+            log.info("the cell's status() answers again")
+        self._status_failing = False
+        return status
+
+    def _report_link(self, event: LinkEvent, silent_for_s: float) -> None:
+        try:
+            if event is LinkEvent.LOST:
+                log.warning("PLC heartbeat lost: plc_heartbeat unchanged for %.2f s", silent_for_s)
+                self._cell.plc_link_lost(silent_for_s)
+            else:
+                log.info("PLC heartbeat restored")
+                self._cell.plc_link_restored()
+        except Exception:
+            log.exception("the cell failed to take the PLC link report (%s)", event.value)
