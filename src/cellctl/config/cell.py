@@ -42,9 +42,41 @@ class AlignConfig(StrictModel):
         return self
 
 
+class MotionConfig(StrictModel):
+    """Speeds and timeouts of the cycle's robot moves."""
+
+    travel_speed_mm_s: Finite = Field(500.0, gt=0, le=7000)  # between spots, to the shooting pose
+    fine_speed_mm_s: Finite = Field(50.0, gt=0, le=1000)  # the last approach into the opening
+    speed_deg_s: Finite = Field(30.0, gt=0, le=500)
+    approach_mm: Finite = Field(100.0, ge=0)  # stand-off in front of the install pose
+    move_timeout_s: Finite = Field(60.0, gt=0)
+    read_timeout_s: Finite = Field(2.0, gt=0)  # laser reading, pose read-back
+    grab_timeout_s: Finite = Field(5.0, gt=0)
+
+
+class VerifyConfig(StrictModel):
+    """The verification shot: re-shoot at the corrected pose until the residual is small enough."""
+
+    max_shots: int = Field(3, ge=1, le=10)  # shots after the first; 0 would skip verification
+    residual_mm: Finite = Field(0.02, gt=0)
+    residual_deg: Finite = Field(0.01, gt=0)
+
+
+class LimitsConfig(StrictModel):
+    """How far a correction may move the robot from its taught pose."""
+
+    max_correction_mm: Finite = Field(80.0, gt=0)
+    max_correction_deg: Finite = Field(5.0, gt=0, le=45)
+    max_verify_step_mm: Finite = Field(5.0, gt=0)  # one verification shot's correction
+    max_verify_step_deg: Finite = Field(0.5, gt=0)
+
+
 class ProcessConfig(StrictModel):
     """What the cell does each cycle."""
 
     working_distance_mm: Finite = Field(400.0, gt=0)
     tolerance: ToleranceConfig = ToleranceConfig()
     align: AlignConfig = AlignConfig()
+    motion: MotionConfig = MotionConfig()
+    verify: VerifyConfig = VerifyConfig()
+    limits: LimitsConfig = LimitsConfig()

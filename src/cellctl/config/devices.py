@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Union
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from cellctl.config.types import Finite, StrictModel
 
@@ -31,9 +31,112 @@ class SimRobotDevice(StrictModel):
     kind: Literal["sim"] = "sim"
 
 
-LaserDevice = Annotated[Union[SimLaserDevice], Field(discriminator="kind")]
-CameraDevice = Annotated[Union[SimCameraDevice], Field(discriminator="kind")]
-RobotDevice = Annotated[Union[SimRobotDevice], Field(discriminator="kind")]
+class SerialReconnect(StrictModel):
+    """How a serial driver reopens its port after it vanished (USB adapter unplugged and back)."""
+
+    attempts: int = Field(5, ge=1, le=1000)  # opens tried within one call before DeviceDisconnected
+    interval_s: Finite = Field(0.5, gt=0, le=60)  # pause between two opens
+
+
+class KeyenceLkgDevice(StrictModel):
+    """A Keyence LK-G controller on RS-232C (drivers/keyence_lkg).
+
+    The dialect and the display unit are read from here, never guessed: the two controllers
+    speak different command sets and error codes, and the reply does not carry its unit. A
+    reading's distance along the laser from r (eq. 1) is ``reference_distance_mm`` plus the
+    displacement, signed by ``displacement_positive``; check both on the real head.
+    """
+
+    kind: Literal["keyence_lkg"]
+    port: str = Field(min_length=1)  # e.g. /dev/serial/by-id/usb-FTDI_..., or the udev rule's /dev/lkg
+    baud: Literal[9600, 19200, 38400, 57600, 115200] = 115200  # the controller's RS-232C setting; 8N1
+    dialect: Literal["LK-G3001", "LK-G5001"]
+    output: int = Field(1, ge=1, le=12)  # OUT number of the head (LK-G3001: 1 or 2)
+    display_unit: Literal["0.01mm", "0.001mm", "0.0001mm", "0.00001mm", "0.1um", "0.01um"]
+    reference_distance_mm: Finite = Field(gt=0, le=5000)  # distance from r at which the OUT reads 0
+    displacement_positive: Literal["away_from_head", "toward_head"]
+    exchange_timeout_s: Finite = Field(0.5, gt=0, le=10)  # one command and its reply
+    mode_change_timeout_s: Finite = Field(3.0, gt=0, le=60)  # Q0/R0 (R0 takes 600 ms+ on an LK-G5001)
+    reconnect: SerialReconnect = SerialReconnect()
+
+    @model_validator(mode="after")
+    def _output_exists(self) -> "KeyenceLkgDevice":
+        if self.dialect == "LK-G3001" and self.output > 2:
+            raise ValueError(
+                f"output = {self.output}: the LK-G3001 has OUT1 and OUT2 only; set output to 1 or 2, "
+                f"or dialect to 'LK-G5001' if the controller is an LK-G5001"
+            )
+        return self
+
+
+class GenicamCameraDevice(StrictModel):
+    """A GenICam camera through a GenTL producer (drivers/genicam_camera; needs the ``camera`` extra).
+
+    Unset exposure and gain leave the camera's own values; a set one the camera cannot take is
+    refused when the camera is opened.
+    """
+
+    kind: Literal["genicam"]
+    cti_path: str = Field(min_length=1)  # the vendor's GenTL producer (.cti), left where it was installed
+    serial_number: str | None = Field(None, min_length=1)  # picks the camera; None: the only camera found
+    user_id: str | None = Field(None, min_length=1)  # DeviceUserID, an alternative to the serial number
+    pixel_format: Literal["Mono8", "Mono10", "Mono12", "Mono16"] = "Mono8"  # deeper formats are scaled to 8 bits
+    exposure_us: Finite | None = Field(None, gt=0, le=10_000_000)
+    gain_db: Finite | None = Field(None, ge=-20, le=48)
+    trigger_mode: Literal["software", "free_run"] = "software"  # software: one trigger per grab
+    timeout_s: Finite = Field(5.0, gt=0, le=120)  # opening the camera and writing its settings
+
+
+class AbbRobotDevice(StrictModel):
+    """An ABB robot behind cellctl's RAPID server module, with EGM for fine corrections
+    (drivers/abb_robot). Field names match ``abb_robot.AbbRobotSettings`` one for one.
+
+    Poses are the flange in the base frame only with tool = "tool0" and wobj = "wobj0"; other
+    names must exist in the controller's motion task and change the frame of every pose.
+    """
+
+    kind: Literal["abb"]
+    host: str = Field(min_length=1)  # the controller's LAN/WAN address (not the service port)
+    rapid_port: int = Field(30100, ge=1, le=65535)  # CELLCTL_PORT in CellctlServer.mod
+    egm_port: int | None = Field(6511, ge=1, le=65535)  # UDP port the PC binds (UDPUC remote port); None: no EGM
+    egm_bind_host: str = Field("0.0.0.0", min_length=1)
+    connect_timeout_s: Finite = Field(3.0, gt=0, le=60)
+    request_timeout_s: Finite = Field(2.0, gt=0, le=60)  # handshake and settings after each connection
+    heartbeat_period_s: Finite = Field(1.0, gt=0, le=60)  # PING after this much quiet (the module drops a client after 10 s)
+    heartbeat_timeout_s: Finite = Field(2.0, gt=0, le=60)  # no PONG within this: the link is dropped and rebuilt
+    reconnect_delay_s: Finite = Field(0.5, gt=0, le=60)
+    reconnect_max_delay_s: Finite = Field(5.0, gt=0, le=600)
+    keepalive_idle_s: int = Field(10, ge=1, le=7200)  # TCP keepalive
+    keepalive_interval_s: int = Field(3, ge=1, le=600)
+    keepalive_count: int = Field(3, ge=1, le=100)
+    tool: str = Field("tool0", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,31}$")  # tooldata name on the controller
+    wobj: str = Field("wobj0", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,31}$")  # wobjdata name on the controller
+    speed_mm_s: Finite = Field(100.0, gt=0, le=7000)  # until a move asks for its own speed
+    speed_deg_s: Finite = Field(30.0, gt=0, le=1000)
+    zone_mm: Finite = Field(0.0, ge=0, le=2000)  # 0: fine point (the Robot port's moves end at fine points)
+    egm_receive_timeout_s: Finite = Field(0.5, gt=0, le=60)
+    egm_cond_time_s: Finite = Field(0.1, gt=0, le=60)  # EGMRunPose \CondTime
+    egm_max_correction_mm: Finite = Field(20.0, gt=0, le=500)  # larger EGM corrections are refused
+    egm_max_correction_deg: Finite = Field(2.0, gt=0, le=45)
+    egm_max_rate_hz: Finite = Field(250.0, gt=0, le=1000)
+    egm_settle_cycles: int = Field(5, ge=1, le=1000)
+    egm_rt_priority: int | None = Field(None, ge=1, le=99)  # SCHED_FIFO for the EGM thread (needs CAP_SYS_NICE)
+
+    @model_validator(mode="after")
+    def _heartbeat_fits(self) -> "AbbRobotDevice":
+        if self.heartbeat_period_s >= 10.0:
+            raise ValueError(
+                f"heartbeat_period_s = {self.heartbeat_period_s:g}: the RAPID server drops a client silent for "
+                "10 s (CELLCTL_IDLE_TIMEOUT); use a period under 10 s"
+            )
+        if self.reconnect_max_delay_s < self.reconnect_delay_s:
+            raise ValueError("reconnect_max_delay_s must be >= reconnect_delay_s")
+        return self
+
+
+LaserDevice = Annotated[Union[SimLaserDevice, KeyenceLkgDevice], Field(discriminator="kind")]
+CameraDevice = Annotated[Union[SimCameraDevice, GenicamCameraDevice], Field(discriminator="kind")]
+RobotDevice = Annotated[Union[SimRobotDevice, AbbRobotDevice], Field(discriminator="kind")]
 
 
 class DevicesConfig(StrictModel):

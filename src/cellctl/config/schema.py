@@ -9,6 +9,7 @@ from pydantic import model_validator
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
 from cellctl.config.plc import PlcConfig
+from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
 from cellctl.config.sim import SimConfig
 from cellctl.config.types import StrictModel
 
@@ -23,6 +24,9 @@ class CellConfig(StrictModel):
     process: ProcessConfig = ProcessConfig()
     devices: DevicesConfig = DevicesConfig()
     plc: PlcConfig = PlcConfig()
+    store: StoreConfig = StoreConfig()
+    alarms: AlarmsConfig = AlarmsConfig()
+    packml: PackMLConfig = PackMLConfig()
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")

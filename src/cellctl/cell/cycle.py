@@ -1,0 +1,339 @@
+"""One installation cycle: the sub-steps of Execute (paper sections 3 and 4.3).
+
+:func:`run_cycle` drives the devices through their ports only:
+
+1. align: laser spots around the opening, the wall plane, the aligned shooting pose C_Pos_1;
+2. shoot: one image at the aligned pose;
+3. compensate: the corner, eq. 16, T' and T2 = T1 @ T'; then verification shots at the corrected
+   shooting pose until the residual offset is under the threshold;
+4. install: approach, then the install pose ``T2 @ inv(T0) @ g_Pos_0``.
+
+Every figure goes to the :class:`CycleRecorder`; the install is announced to it (and must be
+persisted) before the robot is commanded there, so a restart never repeats it. A failure raises
+:class:`CycleFailed` with the step, the alarm code and a readable reason.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from cellctl.align import AlignmentError, AlignmentResult, compute_alignment, plan_spot_poses
+from cellctl.cell.alarms import AlarmCode
+from cellctl.cell.tags import CycleStep
+from cellctl.compensate import (
+    CorrectionLimitError,
+    TaughtPoses,
+    check_correction,
+    corrected_workpiece_frame,
+    deviation_in_frame,
+    install_pose,
+    shooting_pose_in,
+    workpiece_frame_after_alignment,
+)
+from cellctl.config.cell import ProcessConfig
+from cellctl.config.vision import VisionConfig
+from cellctl.geometry.planar import PlanarOffset
+from cellctl.geometry.pose import Pose, invert_pose, make_pose
+from cellctl.ports import (
+    Camera,
+    CartesianPose,
+    DeviceError,
+    DisplacementSensor,
+    LaserStatus,
+    MotionKind,
+    MotionRequest,
+    Robot,
+    UnreachableTarget,
+)
+from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, detect_corner, offset_from_map
+
+
+@dataclass(frozen=True)
+class CellDevices:
+    """The three devices a cycle uses, behind their ports."""
+
+    laser: DisplacementSensor
+    camera: Camera
+    robot: Robot
+
+
+@dataclass(frozen=True)
+class CycleCalibration:
+    """What a cycle needs from the calibration set (all checked before production)."""
+
+    lens: Lens
+    T_H_C: Pose
+    laser_r: np.ndarray
+    laser_l: np.ndarray
+    laser_range_mm: tuple[float, float]
+    nine_point: AffineMap
+    taught: TaughtPoses
+    template: CornerFeatures
+
+
+class CycleFailed(Exception):
+    """A cycle stopped in ``step`` for ``reason``; ``code`` is the alarm to raise."""
+
+    def __init__(self, step: CycleStep, code: AlarmCode, reason: str) -> None:
+        super().__init__(f"{step.name.lower()}: {reason}")
+        self.step = step
+        self.code = code
+        self.reason = reason
+
+
+class CycleRecorder(Protocol):
+    """Where a running cycle reports what it does (the store, the event stream)."""
+
+    async def step_started(self, step: CycleStep) -> None:
+        """The cycle entered ``step``."""
+        ...
+
+    async def step_figures(self, step: CycleStep, figures: dict[str, Any]) -> None:
+        """Figures of a step (JSON-serialisable), possibly several times per step."""
+        ...
+
+    async def image(self, name: str, png: bytes) -> None:
+        """An annotated image of the cycle."""
+        ...
+
+    async def install_started(self, target: CartesianPose) -> None:
+        """Persist that the install move is about to be commanded; return only once it is durable."""
+        ...
+
+
+@dataclass(frozen=True)
+class ShotRecord:
+    """One shot of the compensate loop and the offset it measured."""
+
+    index: int
+    offset: PlanarOffset
+    corner_sigma_px: float
+
+
+@dataclass(frozen=True)
+class CycleResult:
+    """What a finished cycle did.
+
+    Attributes:
+        workpiece_correction_mm / _rad: the corrected workpiece frame T2 relative to the taught T0,
+            in T0's axes (dX, dY, dZ; dRx, dRy, dRz as XYZ fixed angles).
+        install_target: the commanded install flange pose (belief, in B).
+        install_reached: the flange pose read back after the move.
+        alignment: the laser alignment's result.
+        shots: the compensate loop's shots, first to last.
+    """
+
+    workpiece_correction_mm: np.ndarray
+    workpiece_correction_rad: np.ndarray
+    install_target: Pose
+    install_reached: Pose
+    alignment: AlignmentResult
+    shots: tuple[ShotRecord, ...] = field(default=())
+
+
+def _offset_size(offset: PlanarOffset) -> tuple[float, float]:
+    return float(np.hypot(offset.dx_mm, offset.dy_mm)), abs(offset.dtheta_rad)
+
+
+class _CycleRun:
+    """The state of one cycle while it runs (kept off the module level: no globals)."""
+
+    def __init__(
+        self,
+        devices: CellDevices,
+        cal: CycleCalibration,
+        process: ProcessConfig,
+        vision: VisionConfig,
+        recorder: CycleRecorder,
+    ) -> None:
+        self.dev = devices
+        self.cal = cal
+        self.process = process
+        self.vision = vision
+        self.rec = recorder
+        self.motion = process.motion
+
+    async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
+        speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s
+        request = MotionRequest(CartesianPose.from_matrix(T), kind, speed, self.motion.speed_deg_s)
+        try:
+            reached = await self.dev.robot.move(request, timeout_s=self.motion.move_timeout_s)
+        except UnreachableTarget as err:
+            raise CycleFailed(step, AlarmCode.CORRECTION_LIMIT_EXCEEDED, f"target out of reach: {err}") from err
+        except DeviceError as err:
+            raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"robot move failed: {err}") from err
+        return reached.to_matrix()
+
+    def limit(self, step: CycleStep, taught: Pose, corrected: Pose, what: str, *, verify: bool = False) -> None:
+        lim = self.process.limits
+        max_mm = lim.max_verify_step_mm if verify else lim.max_correction_mm
+        max_deg = lim.max_verify_step_deg if verify else lim.max_correction_deg
+        try:
+            check_correction(taught, corrected, max_translation_mm=max_mm, max_rotation_rad=np.radians(max_deg), what=what)
+        except CorrectionLimitError as err:
+            raise CycleFailed(step, AlarmCode.CORRECTION_LIMIT_EXCEEDED, str(err)) from err
+
+    async def align(self) -> tuple[AlignmentResult, Pose]:
+        step = CycleStep.ALIGN
+        await self.rec.step_started(step)
+        cfg, cal = self.process.align, self.cal
+        planned = plan_spot_poses(
+            cal.taught.T0, cfg.spots_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, cfg.laser_standoff_mm
+        )
+        poses, distances, spots = [], [], []
+        for i, T in enumerate(planned):
+            reached = await self.move(step, T, kind="joint" if i == 0 else "linear")
+            try:
+                reading = await self.dev.laser.read(timeout_s=self.motion.read_timeout_s)
+            except DeviceError as err:
+                raise CycleFailed(step, AlarmCode.LASER_LOST, f"laser reading at spot {i} failed: {err}") from err
+            spots.append({"index": i, "status": reading.status.value, "distance_mm": reading.distance_mm})
+            if reading.status is LaserStatus.OK and reading.distance_mm is not None:
+                poses.append(reached)
+                distances.append(reading.distance_mm)
+        missing = [s["index"] for s in spots if s["status"] != LaserStatus.OK.value]
+        if len(distances) < 3:
+            raise CycleFailed(
+                step,
+                AlarmCode.ALIGNMENT_FAILED,
+                f"only {len(distances)} of {len(planned)} laser spots gave a distance (spots {missing} "
+                "had none); is the car body in position?",
+            )
+        try:
+            result = compute_alignment(
+                np.stack(poses),
+                np.array(distances),
+                cal.laser_r,
+                cal.laser_l,
+                cal.T_H_C,
+                self.process.working_distance_mm,
+                T_B_H_current=cal.taught.C_Pos_0,
+                range_mm=cal.laser_range_mm,
+                inlier_threshold_mm=cfg.inlier_threshold_mm,
+                max_rms_mm=cfg.max_rms_mm,
+                min_collinearity=cfg.min_collinearity,
+            )
+        except AlignmentError as err:
+            raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
+        self.limit(step, cal.taught.C_Pos_0, result.T_B_H_aligned, "aligned shooting pose")
+        wall = result.wall
+        await self.rec.step_figures(
+            step,
+            {
+                "spots": spots,
+                "spots_without_reading": missing,
+                "rejected": [{"index": r.index, "residual_mm": r.residual_mm, "reason": r.reason} for r in wall.rejected],
+                "normal_B": wall.normal.tolist(),
+                "fit_rms_mm": wall.plane.rms,
+                "fit_max_residual_mm": wall.plane.max_residual,
+                "normal_uncertainty_deg": None if wall.uncertainty is None else float(np.degrees(wall.uncertainty.rms_rad)),
+                "flange_turn_deg": float(np.degrees(result.rotation_rad)),
+                "lm_vs_minimal_axis_rad": result.axis_agreement_rad,
+                "distance_correction_mm": result.distance.delta_d_mm,
+            },
+        )
+        C_Pos_1 = await self.move(step, result.T_B_H_aligned)
+        return result, C_Pos_1
+
+    async def shoot_and_compensate(self, C_Pos_1: Pose) -> tuple[Pose, tuple[ShotRecord, ...]]:
+        cal, verify = self.cal, self.process.verify
+        T_est = workpiece_frame_after_alignment(cal.taught, C_Pos_1)
+        shots: list[ShotRecord] = []
+        for shot in range(verify.max_shots + 1):
+            await self.rec.step_started(CycleStep.SHOOT)
+            try:
+                frame = await self.dev.camera.grab(timeout_s=self.motion.grab_timeout_s)
+            except DeviceError as err:
+                raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_LOST, f"no image: {err}") from err
+            await self.rec.step_started(CycleStep.COMPENSATE)
+            m = await asyncio.to_thread(detect_corner, frame.image, cal.lens, self.vision)
+            offset = offset_from_map(cal.template, m.features, cal.nine_point) if m.ok else None
+            png = await asyncio.to_thread(annotate, frame.image, m, cal.lens, taught=cal.template, offset=offset)
+            await self.rec.image(f"shot{shot}", png)
+            if offset is None:
+                raise CycleFailed(CycleStep.COMPENSATE, AlarmCode.CORNER_NOT_FOUND, m.message)
+            shots.append(ShotRecord(shot, offset, float(m.corner_sigma_px or 0.0)))
+            T_est = corrected_workpiece_frame(T_est, offset)
+            moved_mm, turned_rad = _offset_size(offset)
+            small = moved_mm <= verify.residual_mm and turned_rad <= np.radians(verify.residual_deg)
+            await self.rec.step_figures(
+                CycleStep.COMPENSATE,
+                {
+                    "shot": shot,
+                    "corner_px": [m.features.u_px, m.features.v_px],
+                    "theta_deg": float(np.degrees(m.features.theta_rad)),
+                    "corner_sigma_px": m.corner_sigma_px,
+                    "offset_mm": [offset.dx_mm, offset.dy_mm],
+                    "offset_deg": float(np.degrees(offset.dtheta_rad)),
+                    "converged": bool(small and shot > 0),
+                },
+            )
+            if shot > 0 and small:
+                break
+            if shot == verify.max_shots:
+                raise CycleFailed(
+                    CycleStep.COMPENSATE,
+                    AlarmCode.RESIDUAL_OVER_LIMIT,
+                    f"after {shot} verification shots the corner still moves {moved_mm:.3f} mm and "
+                    f"{np.degrees(turned_rad):.4f} deg (limits {verify.residual_mm} mm, {verify.residual_deg} deg)",
+                )
+            here = await self._current_pose(CycleStep.COMPENSATE)
+            target = shooting_pose_in(cal.taught, T_est)
+            self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=shot > 0)
+            reached = await self.move(CycleStep.COMPENSATE, target)
+            # Re-anchor on where the robot says it went, so the next offset is measured from there.
+            T_est = workpiece_frame_after_alignment(cal.taught, reached)
+        return T_est, tuple(shots)
+
+    async def _current_pose(self, step: CycleStep) -> Pose:
+        try:
+            return (await self.dev.robot.read_pose(timeout_s=self.motion.read_timeout_s)).to_matrix()
+        except DeviceError as err:
+            raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"cannot read the robot pose: {err}") from err
+
+    async def install(self, T2: Pose) -> tuple[Pose, Pose]:
+        step = CycleStep.INSTALL
+        await self.rec.step_started(step)
+        taught = self.cal.taught
+        target = install_pose(taught, T2)
+        self.limit(step, taught.g_Pos_0, target, "install pose")
+        approach = T2 @ make_pose(np.eye(3), [0.0, 0.0, -self.motion.approach_mm]) @ taught.T_T0_gpos0
+        await self.move(step, approach, kind="joint")
+        await self.rec.install_started(CartesianPose.from_matrix(target))
+        reached = await self.move(step, target, fine=True)
+        return target, reached
+
+
+async def run_cycle(
+    devices: CellDevices,
+    cal: CycleCalibration,
+    process: ProcessConfig,
+    vision: VisionConfig,
+    recorder: CycleRecorder,
+) -> CycleResult:
+    """Run one cycle through align, shoot, compensate (with verification) and install."""
+    run = _CycleRun(devices, cal, process, vision, recorder)
+    alignment, C_Pos_1 = await run.align()
+    T2, shots = await run.shoot_and_compensate(C_Pos_1)
+    target, reached = await run.install(T2)
+    dt, dr = deviation_in_frame(cal.taught.T0, T2)
+    await recorder.step_figures(
+        CycleStep.INSTALL,
+        {
+            "workpiece_correction_mm": dt.tolist(),
+            "workpiece_correction_deg": np.degrees(dr).tolist(),
+            "install_target": _pose_fields(target),
+            "install_reached": _pose_fields(reached),
+            "target_vs_reached_mm": float(np.linalg.norm((invert_pose(target) @ reached)[:3, 3])),
+        },
+    )
+    return CycleResult(dt, dr, target, reached, alignment, shots)
+
+
+def _pose_fields(T: Pose) -> dict[str, list[float]]:
+    p = CartesianPose.from_matrix(T)
+    return {"position_mm": list(p.position_mm), "quaternion_wxyz": list(p.quaternion_wxyz)}

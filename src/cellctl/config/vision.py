@@ -1,0 +1,109 @@
+"""The window-corner detector's settings (paper section 4.2): where to look, how, and when to refuse.
+
+Pixel figures are full-resolution pixels of the camera image. The defaults suit the paper's cell:
+a 2048 x 2048 camera at 400 mm from the wall (0.0762 mm/px), the virtual sharp corner near the
+image centre and an opening corner radius of 30 mm (394 px).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from cellctl.config.types import Finite, StrictModel
+
+
+class RoiConfig(StrictModel):
+    """The region of interest (raw image pixels) in which the corner and its two edges are sought.
+
+    It must contain the corner and a straight stretch of both edges beside the arc. The default is
+    the whole 2048 x 2048 frame.
+    """
+
+    x_px: int = Field(0, ge=0)
+    y_px: int = Field(0, ge=0)
+    width_px: int = Field(2048, ge=64)
+    height_px: int = Field(2048, ge=64)
+
+    def check_inside(self, image_width_px: int, image_height_px: int) -> None:
+        """Raise ValueError naming the field when the ROI does not fit in an image of this size."""
+        if self.x_px + self.width_px > image_width_px:
+            raise ValueError(
+                f"vision.roi: x_px + width_px = {self.x_px + self.width_px} exceeds the image width "
+                f"{image_width_px} px; shrink width_px or move x_px"
+            )
+        if self.y_px + self.height_px > image_height_px:
+            raise ValueError(
+                f"vision.roi: y_px + height_px = {self.y_px + self.height_px} exceeds the image height "
+                f"{image_height_px} px; shrink height_px or move y_px"
+            )
+
+
+class CoarseConfig(StrictModel):
+    """Finding the two edges roughly: Canny edges and the probabilistic Hough transform.
+
+    Both run on the ROI shrunk by ``downscale`` (area averaging), which is enough to seed the
+    sub-pixel stage and keeps the frame time low; lengths and gaps are in full-resolution pixels.
+    """
+
+    downscale: Literal[1, 2, 4] = 4
+    blur_sigma_px: Finite = Field(1.0, ge=0, le=10)  # Gaussian pre-blur on the shrunk image
+    canny_low: Finite = Field(20.0, gt=0, le=2000)
+    canny_high: Finite = Field(50.0, gt=0, le=4000)
+    canny_l2_gradient: bool = True
+    hough_rho_px: Finite = Field(1.0, gt=0, le=10)  # on the shrunk image
+    hough_theta_deg: Finite = Field(0.5, gt=0, le=5)
+    hough_threshold: int = Field(40, ge=5)  # votes, on the shrunk image
+    hough_min_length_px: Finite = Field(160.0, gt=0)
+    hough_max_gap_px: Finite = Field(24.0, ge=0)
+    max_tilt_deg: Finite = Field(12.0, gt=0, le=40)  # an edge may lean this far from the image axes
+    cluster_tolerance_px: Finite = Field(6.0, gt=0)  # segments this close belong to one line
+
+    @model_validator(mode="after")
+    def _order(self) -> "CoarseConfig":
+        if self.canny_low >= self.canny_high:
+            raise ValueError(f"canny_low ({self.canny_low:g}) must be below canny_high ({self.canny_high:g})")
+        return self
+
+
+class FitConfig(StrictModel):
+    """Sub-pixel edge points and the line fits (RANSAC, then least squares)."""
+
+    arc_exclusion_px: Finite = Field(440.0, ge=0)  # from the sharp corner along each edge: the arc
+    border_margin_px: int = Field(12, ge=4, le=200)  # keep edge profiles this far inside the ROI
+    level_samples: int = Field(2, ge=1, le=8)  # samples at each end of a profile giving its levels
+    max_blur_sigma_px: Finite = Field(4.0, gt=0, le=20)  # refuse an edge blurred more than this
+    ransac_iterations: int = Field(100, ge=10, le=100000)
+    ransac_band_px: Finite = Field(1.0, gt=0, le=20)  # on the Canny seed points
+    subpixel_band_px: Finite = Field(0.5, gt=0, le=10)  # RANSAC band on the sub-pixel points
+    robust_k: Finite = Field(3.5, gt=1, le=10)  # final inliers: |residual| < k * robust sigma
+    min_robust_band_px: Finite = Field(0.12, gt=0, le=5)
+    seed: int = Field(0, ge=0)  # RANSAC's random stream: the detector is deterministic
+
+
+class LimitsConfig(StrictModel):
+    """When the detector refuses instead of answering (each refusal names the figure and limit)."""
+
+    min_edge_points: int = Field(150, ge=10)  # sub-pixel inliers per edge
+    min_inlier_fraction: Finite = Field(0.5, gt=0, le=1)
+    max_fit_rms_px: Finite = Field(0.3, gt=0)
+    min_contrast_dn: Finite = Field(20.0, gt=0)  # wall minus opening, median over the edge
+    perpendicular_tolerance_deg: Finite = Field(1.0, gt=0, le=45)
+    max_bow_px: Finite = Field(0.25, gt=0)  # departure of an edge from a straight line
+    max_corner_sigma_px: Finite = Field(0.1, gt=0)  # predicted 1-sigma of the corner from the fits
+    max_saturated_fraction: Finite = Field(0.5, gt=0, le=1)  # of an edge's profiles
+
+
+class VisionConfig(StrictModel):
+    """Corner detection of paper section 4.2: ROI, coarse search, fits and refusal limits.
+
+    ``opening_polarity`` says whether the opening looks darker or brighter than the wall; "auto"
+    accepts either as long as both edges agree.
+    """
+
+    roi: RoiConfig = RoiConfig()
+    coarse: CoarseConfig = CoarseConfig()
+    fit: FitConfig = FitConfig()
+    limits: LimitsConfig = LimitsConfig()
+    opening_polarity: Literal["darker", "brighter", "auto"] = "darker"

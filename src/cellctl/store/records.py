@@ -1,0 +1,248 @@
+"""What the store keeps and hands back (plain frozen records), and its errors."""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime
+from typing import Any
+
+from cellctl.cell.tags import CycleStep
+
+MAX_TEXT_LEN = 128
+
+
+class CycleState(str, enum.Enum):
+    QUEUED = "queued"
+    RUNNING = "running"
+    DONE = "done"  # ran to its end and installed; ``result`` says how well
+    FAILED = "failed"  # ended without installing (NOK, fault, abort); ``error`` says why
+    INTERRUPTED = "interrupted"  # the process died while it was queued or running
+
+
+def _check_text(name: str, value: object, *, required: bool) -> None:
+    if value is None and not required:
+        return
+    if not isinstance(value, str):
+        raise ValueError(f"{name} must be a string, got {type(value).__name__}")
+    if required and not value.strip():
+        raise ValueError(f"{name} must not be empty")
+    if len(value) > MAX_TEXT_LEN:
+        raise ValueError(f"{name} is {len(value)} characters long; at most {MAX_TEXT_LEN} are allowed")
+    if any(ord(ch) < 32 for ch in value):
+        raise ValueError(f"{name} contains control characters; use printable text")
+
+
+@dataclass(frozen=True)
+class CycleRequest:
+    """What was asked for. The idempotency check compares :meth:`identity` (source is metadata:
+    a retry from another client address is still the same request)."""
+
+    recipe: str
+    part_id: str
+    car_id: str | None = None
+    source: str = "api"
+
+    def __post_init__(self) -> None:
+        _check_text("recipe", self.recipe, required=True)
+        _check_text("part_id", self.part_id, required=True)
+        _check_text("car_id", self.car_id, required=False)
+        _check_text("source", self.source, required=True)
+
+    def identity(self) -> dict[str, str | None]:
+        return {"recipe": self.recipe, "part_id": self.part_id, "car_id": self.car_id}
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One run of one cycle step (compensate's verification shots make several SHOOT attempts)."""
+
+    step: CycleStep
+    attempt: int
+    started_at: datetime
+    finished_at: datetime | None
+    duration_s: float | None
+    ok: bool | None
+    figures: Mapping[str, Any]
+    error: str | None
+
+
+@dataclass(frozen=True)
+class ImageRef:
+    step: CycleStep
+    name: str
+    uri: str
+    created_at: datetime
+
+
+@dataclass(frozen=True)
+class CycleRecord:
+    """A cycle with its inputs, steps, result and timings.
+
+    ``true_error`` is the simulated cell's known error of the install (None on hardware).
+    ``install_started_at`` is the marker written before the robot is commanded to install.
+    """
+
+    id: int
+    idempotency_scope: str
+    idempotency_key: str
+    request: CycleRequest
+    actor: str
+    state: CycleState
+    current_step: CycleStep
+    result: Mapping[str, Any] | None
+    error: str | None
+    true_error: Mapping[str, Any] | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    install_started_at: datetime | None
+    interrupted_step: CycleStep | None
+    interrupted_at: datetime | None
+    steps: tuple[StepRecord, ...] = ()
+    images: tuple[ImageRef, ...] = ()
+
+    @property
+    def install_started(self) -> bool:
+        return self.install_started_at is not None
+
+    @property
+    def duration_s(self) -> float | None:
+        if self.started_at is None or self.finished_at is None:
+            return None
+        return (self.finished_at - self.started_at).total_seconds()
+
+
+@dataclass(frozen=True)
+class SubmitResult:
+    cycle: CycleRecord
+    created: bool  # False: the idempotency key was seen before with the same request
+
+
+@dataclass(frozen=True)
+class StoredResponse:
+    """A finished idempotent request's answer, to replay."""
+
+    scope: str
+    key: str
+    response: Mapping[str, Any]
+    completed_at: datetime
+
+
+@dataclass(frozen=True)
+class InterruptedCycle:
+    cycle_id: int
+    was: CycleState
+    step: CycleStep
+    install_started: bool
+
+    @property
+    def resumable(self) -> bool:
+        return not self.install_started
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What startup recovery found after an unclean stop."""
+
+    interrupted: tuple[InterruptedCycle, ...]
+    alarms_closed: int
+    keys_released: int
+
+
+@dataclass(frozen=True)
+class AuditEntry:
+    seq: int
+    at: datetime
+    actor: str
+    source: str
+    action: str
+    params: Mapping[str, Any]
+    state_before: str | None
+    state_after: str | None
+    result: str
+    cycle_id: int | None
+    prev_hash: str
+    hash: str
+
+
+@dataclass(frozen=True)
+class CalibrationVersion:
+    kind: str
+    version: int
+    data: Mapping[str, Any]
+    metadata: Mapping[str, Any]
+    created_at: datetime
+    created_by: str
+
+
+# --- Errors --------------------------------------------------------------------------------------
+
+
+class StoreError(Exception):
+    """The store cannot do what was asked."""
+
+
+class SchemaTooNew(StoreError):
+    """The database was written by a newer cellctl."""
+
+
+class UnknownCycle(StoreError, KeyError):
+    def __init__(self, cycle_id: int) -> None:
+        super().__init__(f"no cycle with id {cycle_id}")
+        self.cycle_id = cycle_id
+
+    def __str__(self) -> str:
+        return f"no cycle with id {self.cycle_id}"
+
+
+class CycleStateError(StoreError):
+    """The cycle is not in a state that allows this (e.g. finishing a cycle that never started)."""
+
+    def __init__(self, cycle_id: int, message: str) -> None:
+        super().__init__(f"cycle {cycle_id}: {message}")
+        self.cycle_id = cycle_id
+
+
+class InstallAlreadyStarted(CycleStateError):
+    """The install step of this cycle was started once; it is never run again."""
+
+    def __init__(self, cycle_id: int, started_at: datetime) -> None:
+        super().__init__(
+            cycle_id,
+            f"the install step was started at {started_at.isoformat()} and is never repeated; "
+            "inspect the part and request a new cycle",
+        )
+        self.started_at = started_at
+
+
+class IdempotencyConflict(StoreError):
+    """The key was used before with a different request (the API answers 422)."""
+
+    def __init__(self, scope: str, key: str, differences: Mapping[str, tuple[object, object]]) -> None:
+        diff = ", ".join(f"{f} {old!r} then {new!r}" for f, (old, new) in differences.items())
+        super().__init__(
+            f"idempotency key {key!r} ({scope}) was already used for a different request ({diff}); "
+            "use a new key for a new request"
+        )
+        self.scope = scope
+        self.key = key
+        self.differences = dict(differences)
+
+
+class IdempotencyInFlight(StoreError):
+    """The first request with this key has not finished yet (the API answers 409)."""
+
+    def __init__(self, scope: str, key: str) -> None:
+        super().__init__(f"a request with idempotency key {key!r} ({scope}) is still in progress; retry later")
+        self.scope = scope
+        self.key = key
+
+
+class AuditChainBroken(StoreError):
+    """The audit log's hash chain does not verify: an entry was altered or removed."""
+
+    def __init__(self, seq: int, why: str) -> None:
+        super().__init__(f"audit log entry {seq}: {why}")
+        self.seq = seq

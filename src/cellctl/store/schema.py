@@ -1,0 +1,168 @@
+"""The database schema as numbered migrations, tracked in ``PRAGMA user_version``.
+
+Migration N brings a database from version N-1 to N. Each runs in one transaction together with
+the user_version update, so a failed migration leaves the database at the previous version.
+Never edit a released migration; append a new one.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Sequence
+
+from cellctl.store.records import SchemaTooNew, StoreError
+
+_APPEND_ONLY = """
+CREATE TRIGGER {table}_append_only_update BEFORE UPDATE ON {table}
+BEGIN SELECT RAISE(ABORT, '{table} is append-only: entries cannot be changed'); END;
+CREATE TRIGGER {table}_append_only_delete BEFORE DELETE ON {table}
+BEGIN SELECT RAISE(ABORT, '{table} is append-only: entries cannot be deleted'); END;
+"""
+
+V1 = (
+    """
+CREATE TABLE cycles (
+    id                  INTEGER PRIMARY KEY AUTOINCREMENT,
+    idempotency_scope   TEXT NOT NULL,
+    idempotency_key     TEXT NOT NULL,
+    recipe              TEXT NOT NULL,
+    part_id             TEXT NOT NULL,
+    car_id              TEXT,
+    source              TEXT NOT NULL,
+    actor               TEXT NOT NULL,
+    state               TEXT NOT NULL
+        CHECK (state IN ('queued', 'running', 'done', 'failed', 'interrupted')),
+    current_step        INTEGER NOT NULL DEFAULT 0,
+    result_json         TEXT,
+    error               TEXT,
+    true_error_json     TEXT,
+    created_at          TEXT NOT NULL,
+    started_at          TEXT,
+    finished_at         TEXT,
+    install_started_at  TEXT,
+    interrupted_step    INTEGER,
+    interrupted_at      TEXT
+);
+CREATE INDEX cycles_by_state ON cycles (state);
+CREATE INDEX cycles_by_key ON cycles (idempotency_scope, idempotency_key);
+
+-- Once written, the install marker can never be unset: the no-repeat guarantee does not rely
+-- on every code path remembering it.
+CREATE TRIGGER cycles_install_marker_is_permanent BEFORE UPDATE OF install_started_at ON cycles
+WHEN OLD.install_started_at IS NOT NULL AND NEW.install_started_at IS NOT OLD.install_started_at
+BEGIN SELECT RAISE(ABORT, 'the install-started marker of a cycle cannot be changed'); END;
+
+CREATE TABLE cycle_steps (
+    id            INTEGER PRIMARY KEY AUTOINCREMENT,
+    cycle_id      INTEGER NOT NULL REFERENCES cycles (id),
+    step          INTEGER NOT NULL,
+    attempt       INTEGER NOT NULL,
+    started_at    TEXT NOT NULL,
+    finished_at   TEXT,
+    duration_s    REAL,
+    ok            INTEGER,
+    figures_json  TEXT NOT NULL DEFAULT '{}',
+    error         TEXT,
+    UNIQUE (cycle_id, step, attempt)
+);
+
+CREATE TABLE cycle_images (
+    id          INTEGER PRIMARY KEY AUTOINCREMENT,
+    cycle_id    INTEGER NOT NULL REFERENCES cycles (id),
+    step        INTEGER NOT NULL,
+    name        TEXT NOT NULL,
+    uri         TEXT NOT NULL,
+    created_at  TEXT NOT NULL
+);
+
+CREATE TABLE idempotency_keys (
+    scope          TEXT NOT NULL,
+    key            TEXT NOT NULL,
+    request_hash   TEXT NOT NULL,
+    request_json   TEXT NOT NULL,
+    cycle_id       INTEGER REFERENCES cycles (id),
+    response_json  TEXT,
+    created_at     TEXT NOT NULL,
+    completed_at   TEXT,
+    PRIMARY KEY (scope, key)
+);
+
+CREATE TABLE alarms (
+    uid         TEXT PRIMARY KEY,
+    code        INTEGER NOT NULL,
+    value       INTEGER NOT NULL,
+    message     TEXT NOT NULL,
+    category    INTEGER NOT NULL,
+    severity    INTEGER NOT NULL,
+    source      TEXT NOT NULL,
+    raised_at   TEXT NOT NULL,
+    active      INTEGER NOT NULL,
+    condition   INTEGER NOT NULL,
+    ack_at      TEXT,
+    ack_by      TEXT,
+    cleared_at  TEXT,
+    reaction    INTEGER,
+    cycle_id    INTEGER
+);
+CREATE INDEX alarms_by_time ON alarms (raised_at);
+
+CREATE TABLE audit_log (
+    seq           INTEGER PRIMARY KEY,
+    at            TEXT NOT NULL,
+    actor         TEXT NOT NULL,
+    source        TEXT NOT NULL,
+    action        TEXT NOT NULL,
+    params_json   TEXT NOT NULL,
+    state_before  TEXT,
+    state_after   TEXT,
+    result        TEXT NOT NULL,
+    cycle_id      INTEGER,
+    prev_hash     TEXT NOT NULL,
+    hash          TEXT NOT NULL
+);
+
+CREATE TABLE calibrations (
+    id             INTEGER PRIMARY KEY AUTOINCREMENT,
+    kind           TEXT NOT NULL,
+    version        INTEGER NOT NULL,
+    data_json      TEXT NOT NULL,
+    metadata_json  TEXT NOT NULL,
+    created_at     TEXT NOT NULL,
+    created_by     TEXT NOT NULL,
+    UNIQUE (kind, version)
+);
+"""
+    + _APPEND_ONLY.format(table="audit_log")
+    + _APPEND_ONLY.format(table="calibrations")
+)
+
+MIGRATIONS: Sequence[str] = (V1,)
+"""``MIGRATIONS[i]`` brings the database from version i to i + 1."""
+
+
+def schema_version(conn: sqlite3.Connection) -> int:
+    return int(conn.execute("PRAGMA user_version").fetchone()[0])
+
+
+def migrate(conn: sqlite3.Connection, migrations: Sequence[str] = MIGRATIONS) -> tuple[int, int]:
+    """Apply the pending migrations; returns (version before, version after).
+
+    The connection must be in autocommit mode (``isolation_level=None``).
+    """
+    before = schema_version(conn)
+    latest = len(migrations)
+    if before > latest:
+        raise SchemaTooNew(
+            f"the database is at schema version {before}, newer than this cellctl knows ({latest}): "
+            "upgrade cellctl or point [store] path at another file"
+        )
+    for version in range(before + 1, latest + 1):
+        try:
+            conn.executescript(
+                f"BEGIN IMMEDIATE;\n{migrations[version - 1]}\nPRAGMA user_version = {version};\nCOMMIT;"
+            )
+        except sqlite3.Error as err:
+            if conn.in_transaction:
+                conn.execute("ROLLBACK")
+            raise StoreError(f"migration to schema version {version} failed: {err}") from err
+    return before, latest

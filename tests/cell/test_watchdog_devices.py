@@ -1,0 +1,232 @@
+"""The device watchdog with small fakes that satisfy the ports (no timed assertions beyond generous bounds)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+import pytest
+
+from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.packml import PackMLMachine
+from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.cell.watchdog import DeviceWatchdog, LinkState, WatchdogSettings, default_alarm_code
+from cellctl.ports import (
+    CartesianPose,
+    DeviceTimeout,
+    DistanceReading,
+    Frame,
+    LaserStatus,
+    MotionRequest,
+    RobotState,
+)
+
+
+class Link:
+    """How a fake answers ping: up, timing out (as a driver does), hanging, or broken."""
+
+    def __init__(self) -> None:
+        self.mode = "up"
+        self.calls = 0
+
+    async def ping(self, device: str, timeout_s: float) -> float:
+        self.calls += 1
+        if self.mode == "up":
+            await asyncio.sleep(0)
+            return 0.001
+        if self.mode == "timeout":
+            raise DeviceTimeout(device, f"no reply within {timeout_s} s")
+        if self.mode == "hang":  # a driver ignoring its own timeout
+            await asyncio.sleep(60)
+            return 60.0
+        raise RuntimeError("driver bug")
+
+
+class FakeLaser:
+    def __init__(self) -> None:
+        self.link = Link()
+
+    async def read(self, *, timeout_s: float) -> DistanceReading:
+        return DistanceReading(350.0, LaserStatus.OK, time.monotonic())
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self.link.ping("laser", timeout_s)
+
+    async def close(self) -> None:
+        return None
+
+
+class FakeCamera:
+    def __init__(self) -> None:
+        self.link = Link()
+
+    async def grab(self, *, timeout_s: float) -> Frame:
+        return Frame(np.zeros((4, 4), np.uint8), time.monotonic(), 1)
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self.link.ping("camera", timeout_s)
+
+    async def close(self) -> None:
+        return None
+
+
+class FakeRobot:
+    def __init__(self) -> None:
+        self.link = Link()
+        self.pose = CartesianPose((1000.0, 0.0, 1200.0), (1.0, 0.0, 0.0, 0.0))
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        self.pose = request.target
+        return self.pose
+
+    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
+        return self.pose
+
+    async def state(self, *, timeout_s: float) -> RobotState:
+        return RobotState(True, True, False)
+
+    async def stop(self, *, timeout_s: float) -> None:
+        return None
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self.link.ping("robot", timeout_s)
+
+    async def close(self) -> None:
+        return None
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+async def executing_machine() -> PackMLMachine:
+    m = PackMLMachine()
+    for cmd in (PackMLCommand.CLEAR, None, PackMLCommand.RESET, None, PackMLCommand.START, None):
+        if cmd is None:
+            await m.state_complete()
+        else:
+            await m.command(cmd, actor="test", source="pytest")
+    assert m.state == PackMLState.EXECUTE
+    return m
+
+
+def test_alarm_code_follows_the_port_and_settings_are_checked() -> None:
+    assert default_alarm_code(FakeLaser()) == AlarmCode.LASER_LOST
+    assert default_alarm_code(FakeCamera()) == AlarmCode.CAMERA_LOST
+    assert default_alarm_code(FakeRobot()) == AlarmCode.ROBOT_LOST
+    with pytest.raises(TypeError, match="alarm_code="):
+        default_alarm_code(object())
+    with pytest.raises(ValueError, match="timeout_s"):
+        WatchdogSettings(period_s=0.1, timeout_s=0.2)
+    with pytest.raises(ValueError, match="miss_threshold"):
+        WatchdogSettings(miss_threshold=0)
+    with pytest.raises(ValueError, match="period_s"):
+        WatchdogSettings(period_s=0.0)
+    wd = DeviceWatchdog(AlarmManager())
+    wd.add("laser", FakeLaser())
+    with pytest.raises(ValueError, match="already supervised"):
+        wd.add("laser", FakeLaser())
+    with pytest.raises(TypeError, match="no ping"):
+        wd.add("thing", object())  # type: ignore[arg-type]
+
+
+async def test_lost_sensor_holds_the_cell_and_its_return_clears_the_alarm() -> None:
+    m = await executing_machine()
+    am = AlarmManager(m)
+    am.install()
+    clock = FakeClock()
+    laser, camera = FakeLaser(), FakeCamera()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=3), clock=clock)
+    wd.add("laser", laser)
+    wd.add("camera", camera)
+    assert wd.health()["laser"].link == LinkState.UNKNOWN and wd.health()["laser"].heartbeat_age_s is None
+
+    h = await wd.check_once()
+    assert h["laser"].link == h["camera"].link == LinkState.UP
+    laser.link.mode = "timeout"
+    for expected_misses in (1, 2):
+        clock.t += 1.0
+        h = await wd.check_once()
+        assert (h["laser"].link, h["laser"].consecutive_misses) == (LinkState.DEGRADED, expected_misses)
+        assert m.state == PackMLState.EXECUTE  # below the threshold: only a warning
+    assert [a.code for a in am.active()] == [AlarmCode.DEVICE_SLOW]
+    assert "DeviceTimeout" in (h["laser"].last_error or "")
+    assert h["laser"].heartbeat_age_s == pytest.approx(2.0) and h["camera"].heartbeat_age_s == 0.0
+
+    clock.t += 1.0
+    h = await wd.check_once()
+    assert h["laser"].link == LinkState.LOST and h["camera"].link == LinkState.UP
+    assert m.state == PackMLState.HOLDING  # SENSOR_LOST -> Hold
+    lost = am.active()
+    assert [(a.code, a.source) for a in lost] == [(AlarmCode.LASER_LOST, "laser")]
+    assert "3 pings missed" in lost[0].message
+
+    clock.t += 1.0
+    await wd.check_once()  # still lost: no second alarm
+    assert len(am.active()) == 1 and wd.health()["laser"].misses == 4
+
+    laser.link.mode = "up"
+    clock.t += 1.0
+    h = await wd.check_once()
+    assert h["laser"].link == LinkState.UP and h["laser"].consecutive_misses == 0
+    assert am.active() == [] and h["laser"].pings == 6 and h["laser"].misses == 4
+
+
+async def test_lost_robot_aborts() -> None:
+    m = await executing_machine()
+    am = AlarmManager(m)
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=1))
+    robot = FakeRobot()
+    wd.add("robot", robot)
+    robot.link.mode = "broken"  # any exception from a driver counts as a miss
+    h = await wd.check_once()
+    assert h["robot"].link == LinkState.LOST and "RuntimeError: driver bug" in (h["robot"].last_error or "")
+    assert m.state == PackMLState.ABORTING and am.stop_reason is not None
+    assert am.stop_reason.code == AlarmCode.ROBOT_LOST
+
+
+async def test_a_ping_that_ignores_its_timeout_is_a_miss_not_a_hang() -> None:
+    am = AlarmManager()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=0.05, timeout_s=0.02, miss_threshold=1))
+    cam = FakeCamera()
+    cam.link.mode = "hang"
+    wd.add("camera", cam)
+    h = await asyncio.wait_for(wd.check_once(), timeout=5.0)
+    assert h["camera"].link == LinkState.LOST and "no answer within 0.02 s" in (h["camera"].last_error or "")
+    assert [a.code for a in am.active()] == [AlarmCode.CAMERA_LOST]
+
+
+async def test_running_watchdog_detects_loss_and_return() -> None:
+    am = AlarmManager()
+    laser, robot = FakeLaser(), FakeRobot()
+    settings = WatchdogSettings(period_s=0.01, timeout_s=0.005, miss_threshold=2)
+    wd = DeviceWatchdog(am, defaults=settings)
+    wd.add("laser", laser)
+    wd.add("robot", robot, settings=WatchdogSettings(period_s=0.02, timeout_s=0.01, miss_threshold=2))
+
+    async def until(pred: object, what: str) -> None:
+        deadline = time.monotonic() + 5.0  # generous: the condition needs a few periods of 10-20 ms
+        while not pred():  # type: ignore[operator]
+            assert time.monotonic() < deadline, f"watchdog never reached: {what}"
+            await asyncio.sleep(0.005)
+
+    async with wd:
+        await until(lambda: wd.health()["laser"].link == LinkState.UP and wd.health()["robot"].link == LinkState.UP, "up")
+        laser.link.mode = "timeout"
+        await until(lambda: am.find_active(AlarmCode.LASER_LOST, "laser") is not None, "laser lost")
+        assert wd.health()["robot"].link == LinkState.UP
+        laser.link.mode = "up"
+        await until(lambda: am.find_active(AlarmCode.LASER_LOST, "laser") is None, "laser back")
+        age = wd.health()["laser"].heartbeat_age_s
+        assert age is not None and 0.0 <= age < 5.0
+    calls = laser.link.calls
+    await asyncio.sleep(0.05)
+    assert laser.link.calls == calls  # stopped: no more pings
+    # Both went away but stay listed until acknowledged; nothing about the robot was raised.
+    assert {(a.code, a.source, a.active) for a in am.current()} == {
+        (AlarmCode.DEVICE_SLOW, "laser", False), (AlarmCode.LASER_LOST, "laser", False)}  # fmt: skip
