@@ -1,0 +1,151 @@
+"""The GenICam adapter against a real GenTL producer: TLSimu.cti from the genicam wheels 1.3.0-1.5.0.
+
+TLSimu is a simulated camera (no exposure or gain nodes, software trigger); its Mono8 frame n is
+the ramp (x + y + n) mod 256, which the tests use as the known truth.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import AsyncIterator
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("harvesters.core", reason="the optional extra 'camera' (harvesters, genicam) is not installed")
+genicam = pytest.importorskip("genicam", reason="the optional extra 'camera' (harvesters, genicam) is not installed")
+
+from cellctl.ports import Camera, DeviceDisconnected, DeviceProtocolError, DeviceRejected, DeviceTimeout, Frame  # noqa: E402
+from genicam_camera import GenicamCamera  # noqa: E402
+
+TLSIMU = os.path.join(os.path.dirname(genicam.__file__), "TLSimu.cti")
+if not os.path.isfile(TLSIMU):
+    pytest.skip(
+        f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it): "
+        "install the camera extra's pin 'genicam>=1.3,<1.5.1'",
+        allow_module_level=True,
+    )
+
+MONO = "SN_InterfaceA_0"
+COLOUR = "SN_InterfaceA_1"
+
+
+def ramp_offset(image: np.ndarray) -> int:
+    """The n of TLSimu's ramp (x + y + n) mod 256; fails if the image is not that ramp."""
+    n = int(image[0, 0])
+    yy, xx = np.indices(image.shape)
+    np.testing.assert_array_equal(image, ((xx + yy + n) % 256).astype(np.uint8))
+    return n
+
+
+@pytest.fixture
+async def camera() -> AsyncIterator[GenicamCamera]:
+    cam = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, timeout_s=10.0)
+    yield cam
+    await cam.close()
+
+
+async def test_it_is_a_camera(camera: GenicamCamera) -> None:
+    assert isinstance(camera, Camera)
+    info = await camera.open()
+    assert (info.model, info.serial_number) == ("TLSimuMono", MONO)
+
+
+async def test_software_triggered_frames_are_new_and_true(camera: GenicamCamera) -> None:
+    frames: list[Frame] = [await camera.grab(timeout_s=5.0) for _ in range(4)]
+    offsets = [ramp_offset(f.image) for f in frames]
+    assert all(f.image.dtype == np.uint8 and f.image.ndim == 2 for f in frames)
+    # one trigger, one frame: consecutive frame ids and ramp offsets, nothing skipped or repeated
+    assert [(o - offsets[0]) % 256 for o in offsets] == [0, 1, 2, 3]
+    assert [f.frame_id - frames[0].frame_id for f in frames] == [0, 1, 2, 3]
+    host = [f.timestamp_s for f in frames]
+    device = [f.device_timestamp_ns for f in frames]
+    assert host == sorted(host) and len(set(host)) == 4
+    assert all(d is not None for d in device) and device == sorted(device)  # type: ignore[type-var]
+    assert frames[0].exposure_us is None and frames[0].gain_db is None  # TLSimu has neither
+
+
+async def test_free_run_frames(camera: GenicamCamera) -> None:
+    free = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, trigger_mode="free_run")
+    try:
+        first, second = await free.grab(timeout_s=5.0), await free.grab(timeout_s=5.0)
+        ramp_offset(first.image)
+        ramp_offset(second.image)
+        assert second.frame_id > first.frame_id
+    finally:
+        await free.close()
+
+
+async def test_frames_in_another_format_than_set_are_refused() -> None:
+    # TLSimuColor accepts PixelFormat = Mono8 (and reads it back) but still delivers RGB8 buffers
+    cam = GenicamCamera(cti_path=TLSIMU, serial_number=COLOUR)
+    try:
+        with pytest.raises(DeviceProtocolError, match="delivered RGB8 with PixelFormat set to Mono8"):
+            await cam.grab(timeout_s=5.0)
+    finally:
+        await cam.close()
+
+
+class DroppedTrigger:
+    """The camera's acquirer, except that the software trigger never reaches the camera."""
+
+    def __init__(self, acquirer: Any) -> None:
+        self._acquirer = acquirer
+        self.remote_device = SimpleNamespace(node_map=SimpleNamespace(TriggerSoftware=SimpleNamespace(execute=lambda: None)))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._acquirer, name)
+
+
+async def test_a_lost_trigger_ends_in_a_timeout(camera: GenicamCamera) -> None:
+    await camera.grab(timeout_s=5.0)
+    real = camera._acquirer  # noqa: SLF001 - swap in a trigger that is lost on the way
+    camera._acquirer = DroppedTrigger(real)  # noqa: SLF001
+    with pytest.raises(DeviceTimeout, match="no frame"):
+        await camera.grab(timeout_s=0.3)
+    camera._acquirer = real  # noqa: SLF001
+    ramp_offset((await camera.grab(timeout_s=5.0)).image)  # and the camera still works
+
+
+async def test_ping(camera: GenicamCamera) -> None:
+    assert 0.0 < await camera.ping(timeout_s=5.0) < 5.0
+    assert 0.0 < await camera.ping(timeout_s=5.0) < 5.0
+
+
+async def test_settings_the_camera_lacks_are_refused() -> None:
+    for kwargs, message in (({"exposure_us": 1000.0}, "ExposureTime.*exposure_us"), ({"gain_db": 3.0}, "Gain.*gain_db")):
+        cam = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, **kwargs)  # type: ignore[arg-type]
+        with pytest.raises(DeviceRejected, match=message):
+            await cam.open()
+        await cam.close()
+
+
+async def test_choosing_the_camera() -> None:
+    ambiguous = GenicamCamera(cti_path=TLSIMU)
+    with pytest.raises(DeviceRejected, match="4 cameras match.*SN_InterfaceB_1"):
+        await ambiguous.open()
+    await ambiguous.close()
+    missing = GenicamCamera(cti_path=TLSIMU, serial_number="NOPE")
+    with pytest.raises(DeviceDisconnected, match="serial_number='NOPE'.*found: TLSimuMono"):
+        await missing.grab(timeout_s=5.0)
+    await missing.close()
+    by_both = GenicamCamera(cti_path=TLSIMU, serial_number="SN_InterfaceB_0", user_id="Center")
+    assert (await by_both.open()).serial_number == "SN_InterfaceB_0"
+    await by_both.close()
+
+
+async def test_a_missing_producer_names_the_setting(tmp_path: object) -> None:
+    cam = GenicamCamera(cti_path="/opt/none/producer.cti")
+    with pytest.raises(DeviceDisconnected, match="devices.camera.cti_path"):
+        await cam.open()
+    await cam.close()
+
+
+async def test_close_twice_then_grab_is_refused(camera: GenicamCamera) -> None:
+    await camera.grab(timeout_s=5.0)
+    await camera.close()
+    await camera.close()
+    with pytest.raises(DeviceDisconnected, match="closed"):
+        await camera.grab(timeout_s=1.0)
