@@ -154,7 +154,9 @@ class _Blocks:
         img_idx = ((bi * B) * self.wp + bj * B)[:, None] + self.img_offsets[None, :]
         return ray_idx.ravel(), img_idx.ravel()
 
-    def pixel_hits(self, plane: _PlaneView, ray_idx: NDArray[np.intp]) -> tuple[F64, F64, tuple[F64, F64, F64, F64], NDArray[np.bool_]]:
+    def pixel_hits(
+        self, plane: _PlaneView, ray_idx: NDArray[np.intp]
+    ) -> tuple[F64, F64, tuple[F64, F64, F64, F64], NDArray[np.bool_]]:
         """Plane hits of the pixel centres and the plane-from-pixel Jacobian (forward differences)."""
         X0, Y0, v0 = plane.hit(self.rx[ray_idx], self.ry[ray_idx])
         Xu, Yu, vu = plane.hit(self.rx[ray_idx + 1], self.ry[ray_idx + 1])
@@ -208,8 +210,10 @@ class CameraRenderer:
         either is in play. ``noise=False`` leaves out shot and read noise (rounding stays).
         """
         signal, applied = self._signal(T_B_C, world, targets, rng, noise)
-        image = self._sensor(signal, rng, noise)
-        return RenderedFrame(np.ascontiguousarray(image[: self.intrinsics.height_px, : self.intrinsics.width_px]), applied)
+        image = self.expose(signal, rng, noise=noise)
+        return RenderedFrame(
+            np.ascontiguousarray(image[: self.intrinsics.height_px, : self.intrinsics.width_px]), applied
+        )
 
     def render_signal(
         self,
@@ -250,7 +254,12 @@ class CameraRenderer:
         mean = 0.5 * (cfg.wall_dn + cfg.opening_dn)
         wall = mean + dist.contrast_factor * (cfg.wall_dn - mean)
         opening = mean + dist.contrast_factor * (cfg.opening_dn - mean)
-        applied = {"blur_sigma_px": sigma, "contrast_factor": dist.contrast_factor, "wall_dn": wall, "opening_dn": opening}
+        applied = {
+            "blur_sigma_px": sigma,
+            "contrast_factor": dist.contrast_factor,
+            "wall_dn": wall,
+            "opening_dn": opening,
+        }
 
         blocks = self._blocks
         albedo = np.empty((blocks.hp, blocks.wp), dtype=np.float32)
@@ -317,11 +326,20 @@ class CameraRenderer:
                 "from the camera, into the plate)"
             )
         bx, by, radius, scale, valid = blocks.footprint(plane)
+        margin = radius + kernel_reach_px(sigma) * scale
         sd_plate, _, _ = placed.plate_sdf(bx, by)
         X, Y, ok = plane.hit(blocks.corner_x, blocks.corner_y)
         any_ok = ok[:-1, :-1] | ok[:-1, 1:] | ok[1:, :-1] | ok[1:, 1:]
-        near = np.where(valid, sd_plate <= radius + kernel_reach_px(sigma) * scale, any_ok)
-        bi, bj = np.nonzero(near)
+        near = np.where(valid, sd_plate <= margin, any_ok)
+        # Blocks wholly on the plate and clear of every printed edge take one printed level.
+        flat_print, level = placed.target.uniform_level(bx, by, margin)
+        solid = valid & (sd_plate < -margin) & flat_print & self.band_rendering
+        si, sj = np.nonzero(solid)
+        if si.size:
+            albedo.reshape(blocks.nby, BLOCK_PX, blocks.nbx, BLOCK_PX)[si, :, sj, :] = level[si, sj].astype(np.float32)[
+                :, None, None
+            ]
+        bi, bj = np.nonzero(near & ~solid)
         if bi.size == 0:
             return
         ray_idx, img_idx = blocks.indices(bi, bj)
@@ -371,14 +389,18 @@ class CameraRenderer:
         applied.update(occluded_edge=edge, occluded_span_mm=(start, start + length), occluder_dn=level)
         return centre, half, level
 
-    def _add_glare(self, signal: F32, T_B_C: F64, world: World, rng: np.random.Generator, applied: dict[str, object]) -> None:
+    def _add_glare(
+        self, signal: F32, T_B_C: F64, world: World, rng: np.random.Generator, applied: dict[str, object]
+    ) -> None:
         glare = self.config.disturbances.glare
         assert glare is not None
         w, h = self.intrinsics.width_px, self.intrinsics.height_px
         centre: tuple[float, float] | None = None
         draw = rng.random(4)
         if glare.on_edge:
-            intervals = [(e, iv) for e in EDGES if (iv := visible_edge_interval(self.camera, T_B_C, world, e)) is not None]
+            intervals = [
+                (e, iv) for e in EDGES if (iv := visible_edge_interval(self.camera, T_B_C, world, e)) is not None
+            ]
             if intervals:
                 edge, (a0, a1) = intervals[int(draw[0] * len(intervals)) % len(intervals)]
                 uv = edge_curve_px(self.camera, T_B_C, world, edge, [a0 + draw[1] * (a1 - a0)])[0]
@@ -395,9 +417,17 @@ class CameraRenderer:
             signal[v0:v1, u0:u1] += np.float32(glare.peak_dn) * gv[:, None] * gu[None, :]
         applied.update(glare_center_px=centre, glare_peak_dn=glare.peak_dn, glare_sigma_px=glare.sigma_px)
 
-    def _sensor(self, signal: F32, rng: np.random.Generator | None, noise: bool) -> NDArray[np.uint8]:
-        """Shot and read noise, black level, rounding and 8-bit saturation."""
+    def expose(self, signal: F32, rng: np.random.Generator | None, *, noise: bool = True) -> NDArray[np.uint8]:
+        """The sensor stage: shot and read noise, black level, rounding and 8-bit saturation.
+
+        ``signal`` is a float32 image in DN above the black level (as from :meth:`render_signal`);
+        it is overwritten. ``rng`` is required when ``noise`` is on.
+        """
         cfg = self.config
+        if signal.dtype != np.float32 or signal.ndim != 2:
+            raise ValueError(f"signal must be a 2-D float32 image, got {signal.dtype} {signal.shape}")
+        if noise and (cfg.shot_noise or cfg.read_noise_dn > 0) and rng is None:
+            raise ValueError("sensor noise needs a seeded numpy Generator as rng")
         np.maximum(signal, 0.0, out=signal)
         if noise and (cfg.shot_noise or cfg.read_noise_dn > 0):
             assert rng is not None
@@ -411,7 +441,9 @@ class CameraRenderer:
                 sigma *= z
                 if np.any(low):
                     electrons = rng.poisson(signal[low].astype(np.float64) * cfg.electrons_per_dn)
-                    sigma[low] = (electrons / cfg.electrons_per_dn - signal[low] + cfg.read_noise_dn * z[low]).astype(np.float32)
+                    sigma[low] = (electrons / cfg.electrons_per_dn - signal[low] + cfg.read_noise_dn * z[low]).astype(
+                        np.float32
+                    )
                 signal += sigma
             else:
                 z *= np.float32(cfg.read_noise_dn)
@@ -423,7 +455,12 @@ class CameraRenderer:
     def _illumination_field(self) -> F32:
         """Vignetting cos^p(field angle) times the linear lighting gradient, per pixel (cached)."""
         cfg = self.config
-        key = (tuple(self.intrinsics.model_dump().values()), cfg.vignetting_power, cfg.lighting_gradient, cfg.lighting_gradient_angle_deg)
+        key = (
+            tuple(self.intrinsics.model_dump().values()),
+            cfg.vignetting_power,
+            cfg.lighting_gradient,
+            cfg.lighting_gradient_angle_deg,
+        )
         with _ILLUMINATION_LOCK:
             hit = _ILLUMINATION.get(key)
             if hit is not None:
@@ -436,7 +473,12 @@ class CameraRenderer:
             phi = math.radians(cfg.lighting_gradient_angle_deg)
             u = np.arange(blocks.wp) - self.intrinsics.cx
             v = np.arange(blocks.hp) - self.intrinsics.cy
-            ramp = 1.0 + cfg.lighting_gradient * (math.cos(phi) * u[None, :] + math.sin(phi) * v[:, None]) / self.intrinsics.width_px
+            ramp = (
+                1.0
+                + cfg.lighting_gradient
+                * (math.cos(phi) * u[None, :] + math.sin(phi) * v[:, None])
+                / self.intrinsics.width_px
+            )
             field = (field * ramp).astype(np.float32)
             field.setflags(write=False)
             if len(_ILLUMINATION) >= 4:

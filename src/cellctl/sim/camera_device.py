@@ -28,7 +28,12 @@ from cellctl.sim.world import World
 
 
 def _check_timeout(device: str, timeout_s: float) -> float:
-    if isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float)) or not math.isfinite(timeout_s) or timeout_s <= 0:
+    if (
+        isinstance(timeout_s, bool)
+        or not isinstance(timeout_s, (int, float))
+        or not math.isfinite(timeout_s)
+        or timeout_s <= 0
+    ):
         raise ValueError(f"{device}: timeout_s must be a positive number of seconds, got {timeout_s!r}")
     return float(timeout_s)
 
@@ -95,7 +100,9 @@ class SimCamera:
         self._check_open()
         self.last_applied = rendered.applied
         self.last_pose = pose
-        return Frame(image=rendered.image, timestamp_s=time.monotonic(), frame_id=frame_id, device_timestamp_ns=trigger_ns)
+        return Frame(
+            image=rendered.image, timestamp_s=time.monotonic(), frame_id=frame_id, device_timestamp_ns=trigger_ns
+        )
 
     async def ping(self, *, timeout_s: float) -> float:
         """A harmless round trip; returns its duration in seconds."""

@@ -208,10 +208,19 @@ def ray_map(intrinsics: CameraIntrinsics, rows: int, cols: int) -> RayMap:
 
 def _compute_ray_map(model: CameraModel, rows: int, cols: int) -> RayMap:
     u = np.arange(cols, dtype=np.float64)
-    v = np.arange(rows, dtype=np.float64)
-    xd = np.broadcast_to((u - model.cx) / model.fx, (rows, cols))
-    yd = np.broadcast_to(((v - model.cy) / model.fy)[:, None], (rows, cols))
-    x, y, residual = model.undistort_normalized(xd, yd)
+    xd_row = (u - model.cx) / model.fx
+    x = np.empty((rows, cols), dtype=np.float64)
+    y = np.empty((rows, cols), dtype=np.float64)
+    residual = 0.0
+    chunk = max(1, 65536 // cols)  # rows per pass: small arrays stay in the CPU cache
+    for r0 in range(0, rows, chunk):
+        r1 = min(rows, r0 + chunk)
+        yd = ((np.arange(r0, r1, dtype=np.float64) - model.cy) / model.fy)[:, None]
+        xs, ys, res = model.undistort_normalized(
+            np.broadcast_to(xd_row, (r1 - r0, cols)), np.broadcast_to(yd, (r1 - r0, cols))
+        )
+        x[r0:r1], y[r0:r1] = xs, ys
+        residual = max(residual, res)
     x.setflags(write=False)
     y.setflags(write=False)
     return RayMap(x, y, residual)

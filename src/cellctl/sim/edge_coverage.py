@@ -131,9 +131,7 @@ def circle_sdf(x: F64, y: F64, cx: F64 | float, cy: F64 | float, radius: float) 
     return r - radius, gx, gy
 
 
-def coverage_from_sdf(
-    sd_mm: F64, grad_x: F64, grad_y: F64, jac: tuple[F64, F64, F64, F64], sigma_px: float
-) -> F64:
+def coverage_from_sdf(sd_mm: F64, grad_x: F64, grad_y: F64, jac: tuple[F64, F64, F64, F64], sigma_px: float) -> F64:
     """Coverage of pixels by a planar shape given its signed distance in the plane.
 
     Args:

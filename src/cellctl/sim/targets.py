@@ -60,6 +60,11 @@ class Target(Protocol):
         """The plate's own (paper) grey level, at full illumination."""
         ...
 
+    def uniform_level(self, x: F64, y: F64, margin: F64) -> tuple[NDArray[np.bool_], F64]:
+        """Whether every point within ``margin`` (mm) of (x, y) on the plate prints one grey
+        level (no pattern edge that close), and that level."""
+        ...
+
 
 def _positive(name: str, value: float) -> None:
     if not np.isfinite(value) or value <= 0:
@@ -145,6 +150,18 @@ class Checkerboard:
         y0, y1 = -s - m, rows * s + m
         return ((x0 + x1) / 2.0, (y0 + y1) / 2.0), ((x1 - x0) / 2.0, (y1 - y0) / 2.0)
 
+    def _cell_level(self, x: F64, y: F64) -> F64:
+        cols, rows = self.inner_corners
+        c = np.floor(x / self.square_mm) + 1.0
+        r = np.floor(y / self.square_mm) + 1.0
+        black = (c >= 0) & (c <= cols) & (r >= 0) & (r <= rows) & (np.mod(c + r, 2) == 0)
+        return np.where(black, self.black_dn, self.white_dn)
+
+    def uniform_level(self, x: F64, y: F64, margin: F64) -> tuple[NDArray[np.bool_], F64]:
+        s = self.square_mm
+        to_line = np.minimum(np.abs(x - np.rint(x / s) * s), np.abs(y - np.rint(y / s) * s))
+        return to_line > margin, self._cell_level(x, y)
+
     def shade(self, x: F64, y: F64, jac: Jacobian, sigma_px: float) -> F64:
         _check_pixel_size("a checkerboard square", self.square_mm, jac, sigma_px, 1.0)
         cols, rows = self.inner_corners
@@ -214,12 +231,19 @@ class NinePointTarget:
         half = self.pitch_mm + self.border_mm
         return (self.pitch_mm, self.pitch_mm), (half, half)
 
+    def _nearest_dot(self, x: F64, y: F64) -> tuple[F64, F64]:
+        p = self.pitch_mm
+        return np.clip(np.rint(x / p), 0, 2) * p, np.clip(np.rint(y / p), 0, 2) * p
+
+    def uniform_level(self, x: F64, y: F64, margin: F64) -> tuple[NDArray[np.bool_], F64]:
+        ci, cj = self._nearest_dot(x, y)
+        sd = np.hypot(x - ci, y - cj) - self.dot_diameter_mm / 2.0
+        return np.abs(sd) > margin, np.where(sd < 0.0, self.dot_dn, self.white_dn)
+
     def shade(self, x: F64, y: F64, jac: Jacobian, sigma_px: float) -> F64:
         gap = self.pitch_mm - self.dot_diameter_mm  # clear paper between neighbouring dots
         _check_pixel_size("the gap between dots", gap, jac, sigma_px, 2.0)
-        p = self.pitch_mm
-        ci = np.clip(np.rint(x / p), 0, 2) * p
-        cj = np.clip(np.rint(y / p), 0, 2) * p
+        ci, cj = self._nearest_dot(x, y)
         sd, gx, gy = circle_sdf(x, y, ci, cj, self.dot_diameter_mm / 2.0)
         cov = coverage_from_sdf(sd, gx, gy, jac, sigma_px)
         return self.white_dn - (self.white_dn - self.dot_dn) * cov
@@ -245,7 +269,9 @@ class PlacedTarget:
         return rounded_rect_sdf(x, y, centre, half, 0.0)
 
 
-def place_on_world_plane(T_B_F: ArrayLike, offset_xy_mm: tuple[float, float], angle_rad: float = 0.0) -> NDArray[np.float64]:
+def place_on_world_plane(
+    T_B_F: ArrayLike, offset_xy_mm: tuple[float, float], angle_rad: float = 0.0
+) -> NDArray[np.float64]:
     """A pose T_B_P lying in the x-y plane of frame F (e.g. the wall's T), shifted and turned in it.
 
     Handy to stick a target on the car-body wall: P's origin at ``offset_xy_mm`` in F, P's axes

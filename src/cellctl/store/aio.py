@@ -92,6 +92,9 @@ class AsyncCellStore:
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
         return await self._run(self._store.submit_cycle, request, scope=scope, key=key, actor=actor)
 
+    async def cycle_for_key(self, scope: str, key: str) -> CycleRecord | None:
+        return await self._run(self._store.cycle_for_key, scope, key)
+
     async def start_cycle(self, cycle_id: int) -> CycleRecord:
         return await self._run(self._store.start_cycle, cycle_id)
 

@@ -255,6 +255,13 @@ class CellStore:
                 created = True
         return SubmitResult(self.cycle(cycle_id), created)
 
+    def cycle_for_key(self, scope: str, key: str) -> CycleRecord | None:
+        """The cycle an idempotency key made, or None if the key is unknown (or not a cycle's)."""
+        row = self._conn.execute(
+            "SELECT cycle_id FROM idempotency_keys WHERE scope = ? AND key = ?", (scope, key)
+        ).fetchone()
+        return None if row is None or row[0] is None else self.cycle(int(row[0]))
+
     def start_cycle(self, cycle_id: int) -> CycleRecord:
         """queued -> running."""
         self._transition(cycle_id, "queued", "state = 'running', started_at = ?", (_ts(self._clock()),), "start")

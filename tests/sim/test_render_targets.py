@@ -1,0 +1,126 @@
+"""Calibration targets rendered by the twin camera, checked with OpenCV's detectors against the truth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from cellctl.config.mounting import CameraIntrinsics
+from cellctl.config.render import RenderConfig
+from cellctl.config.sim import WorldConfig
+from cellctl.geometry.pose import make_pose
+from cellctl.geometry.rotation import rot_x, rot_y, rot_z
+from cellctl.sim.camera import CameraRenderer
+from cellctl.sim.targets import Checkerboard, NinePointTarget, PlacedTarget, place_on_world_plane
+from cellctl.sim.world import nominal_world
+
+INTR = CameraIntrinsics()
+
+
+@pytest.fixture(scope="module")
+def renderer() -> CameraRenderer:
+    return CameraRenderer(INTR, RenderConfig())
+
+
+def _board_pose(R: np.ndarray, distance_mm: float, board: Checkerboard) -> np.ndarray:
+    """The board's centre on the optical axis at ``distance_mm``, turned by R (camera at B's origin)."""
+    cols, rows = board.inner_corners
+    centre_P = np.array([(cols - 1) * board.square_mm / 2.0, (rows - 1) * board.square_mm / 2.0, 0.0])
+    return make_pose(R, np.array([0.0, 0.0, distance_mm]) - R @ centre_P)
+
+
+def _match(found: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per-corner distance; OpenCV may report the grid starting from either end."""
+    d1 = np.linalg.norm(found - truth, axis=1)
+    d2 = np.linalg.norm(found[::-1] - truth, axis=1)
+    return d1 if d1.mean() < d2.mean() else d2
+
+
+@pytest.mark.parametrize(
+    "R, distance, flags, mean_px, max_px",
+    [
+        (rot_z(0.05), 420.0, 0, 0.1, 0.25),
+        # OpenCV's high-accuracy mode (up-sampling) reaches the render's own accuracy.
+        (rot_y(0.45) @ rot_x(-0.3) @ rot_z(0.2), 400.0, cv2.CALIB_CB_ACCURACY, 0.04, 0.12),
+    ],
+    ids=["facing", "tilted"],
+)
+def test_checkerboard_is_found_with_sub_pixel_corners(
+    renderer: CameraRenderer, R: np.ndarray, distance: float, flags: int, mean_px: float, max_px: float
+) -> None:
+    board = Checkerboard(inner_corners=(9, 6), square_mm=10.0, border_mm=10.0)
+    placed = PlacedTarget(board, _board_pose(R, distance, board))
+    T_B_C = np.eye(4)
+    image = renderer.render(T_B_C, None, targets=[placed], rng=np.random.default_rng(21)).image
+    ok, corners = cv2.findChessboardCornersSB(image, board.inner_corners, flags=flags)
+    assert ok
+    truth = renderer.project(placed.points_B(), T_B_C)
+    err = _match(corners.reshape(-1, 2), truth)
+    assert err.mean() < mean_px and err.max() < max_px, f"mean {err.mean():.3f} max {err.max():.3f} px"
+
+
+def test_checkerboard_on_the_wall_in_front_of_the_opening() -> None:
+    """Stuck on the wall beside the corner (the pixel-scale calibration of eq. 15), the board hides
+    what is behind it and is found at its true corners."""
+    renderer = CameraRenderer(INTR, RenderConfig())
+    world = nominal_world(WorldConfig())
+    board = Checkerboard(inner_corners=(7, 5), square_mm=12.0, border_mm=12.0)
+    T_B_P = place_on_world_plane(world.T_B_T, (-110.0, 20.0), np.radians(3.0))
+    placed = PlacedTarget(board, T_B_P)
+    # Camera 400 mm in front of the board's centre, along T's axes.
+    T_T_C = make_pose(np.eye(3), [-110.0 + 36.0, 20.0 + 24.0, -400.0])
+    T_B_C = world.T_B_T @ T_T_C
+    image = renderer.render(T_B_C, world, targets=[placed], rng=np.random.default_rng(4)).image
+    ok, corners = cv2.findChessboardCornersSB(image, board.inner_corners)
+    assert ok
+    err = _match(corners.reshape(-1, 2), renderer.project(placed.points_B(), T_B_C))
+    assert err.mean() < 0.1 and err.max() < 0.25
+    # Pixel scale (eq. 15) from the truth: square size over the mean corner spacing.
+    truth = renderer.project(placed.points_B(), T_B_C).reshape(5, 7, 2)
+    spacing = np.mean(np.linalg.norm(np.diff(truth, axis=1), axis=2))
+    assert board.square_mm / spacing == pytest.approx(400.0 / INTR.fx, rel=0.01)
+
+
+def test_nine_point_dots_are_found_at_their_projected_centres(renderer: CameraRenderer) -> None:
+    target = NinePointTarget(pitch_mm=40.0, dot_diameter_mm=8.0)
+    R = rot_y(0.1) @ rot_x(0.05)
+    T_B_P = make_pose(R, np.array([0.0, 0.0, 400.0]) - R @ np.array([40.0, 40.0, 0.0]))
+    placed = PlacedTarget(target, T_B_P)
+    image = renderer.render(np.eye(4), None, targets=[placed], rng=np.random.default_rng(8)).image
+    truth = renderer.project(placed.points_B(), np.eye(4))
+    # Dots are dark on white: the darkness-weighted centroid of each blob, over the blob and a
+    # 4 px ring around it (so the paper's noise elsewhere does not weigh in).
+    for uv in truth:
+        u0, v0 = int(round(uv[0])), int(round(uv[1]))
+        win = image[v0 - 80 : v0 + 81, u0 - 80 : u0 + 81].astype(float)
+        paper = np.median(np.r_[win[0], win[-1], win[:, 0], win[:, -1]])
+        dot = np.median(win[75:86, 75:86])
+        blob = cv2.dilate((win < 0.5 * (paper + dot)).astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+        weight = np.clip((paper - win) / (paper - dot), 0.0, 1.0) * blob
+        vv, uu = np.mgrid[v0 - 80 : v0 + 81, u0 - 80 : u0 + 81]
+        centroid = np.array([(weight * uu).sum(), (weight * vv).sum()]) / weight.sum()
+        # The imaged ellipse's centroid differs from the projected centre by perspective and
+        # distortion (0.08 px here without noise).
+        assert np.linalg.norm(centroid - uv) < 0.2
+    assert len(truth) == 9
+
+
+def test_target_seen_from_behind_is_refused(renderer: CameraRenderer) -> None:
+    board = Checkerboard()
+    flipped = PlacedTarget(board, make_pose(rot_x(np.pi), [0.0, 0.0, 400.0]))
+    with pytest.raises(ValueError, match="behind the plate"):
+        renderer.render(np.eye(4), None, targets=[flipped], rng=np.random.default_rng(0))
+
+
+def test_invalid_targets_are_refused_naming_the_field() -> None:
+    with pytest.raises(ValueError, match="inner_corners"):
+        Checkerboard(inner_corners=(1, 6))
+    with pytest.raises(ValueError, match="square_mm"):
+        Checkerboard(square_mm=0.0)
+    with pytest.raises(ValueError, match="black_dn"):
+        Checkerboard(white_dn=100.0, black_dn=150.0)
+    with pytest.raises(ValueError, match="dot_diameter_mm"):
+        NinePointTarget(pitch_mm=10.0, dot_diameter_mm=12.0)
+    with pytest.raises(ValueError, match="T_B_P"):
+        PlacedTarget(Checkerboard(), np.eye(3))
