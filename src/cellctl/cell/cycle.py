@@ -101,7 +101,11 @@ class CycleRecorder(Protocol):
         ...
 
     async def install_started(self, target: CartesianPose) -> None:
-        """Persist that the install move is about to be commanded; return only once it is durable."""
+        """The install step begins: persist it and return only once it is durable.
+
+        Called before the robot moves the glass towards the car body (the approach included), so a
+        cycle that crashes from here on is never resumed and the install never repeated.
+        """
         ...
 
 
@@ -297,13 +301,12 @@ class _CycleRun:
 
     async def install(self, T2: Pose) -> tuple[Pose, Pose]:
         step = CycleStep.INSTALL
-        await self.rec.step_started(step)
         taught = self.cal.taught
         target = install_pose(taught, T2)
         self.limit(step, taught.g_Pos_0, target, "install pose")
         approach = T2 @ make_pose(np.eye(3), [0.0, 0.0, -self.motion.approach_mm]) @ taught.T_T0_gpos0
-        await self.move(step, approach, kind="joint")
         await self.rec.install_started(CartesianPose.from_matrix(target))
+        await self.move(step, approach, kind="joint")
         reached = await self.move(step, target, fine=True)
         return target, reached
 

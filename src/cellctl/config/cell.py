@@ -71,6 +71,14 @@ class LimitsConfig(StrictModel):
     max_verify_step_deg: Finite = Field(0.5, gt=0)
 
 
+class Recipe(StrictModel):
+    """A workpiece type the cell installs: its PLC number and the name records and the API use."""
+
+    id: int = Field(ge=1, le=65535)
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_.-]*$")
+    description: str = ""
+
+
 class ProcessConfig(StrictModel):
     """What the cell does each cycle."""
 
@@ -80,3 +88,18 @@ class ProcessConfig(StrictModel):
     motion: MotionConfig = MotionConfig()
     verify: VerifyConfig = VerifyConfig()
     limits: LimitsConfig = LimitsConfig()
+    recipes: tuple[Recipe, ...] = (Recipe(id=1, name="side-window", description="2000 x 1500 mm side-window glass"),)
+
+    @model_validator(mode="after")
+    def _unique_recipes(self) -> "ProcessConfig":
+        if not self.recipes:
+            raise ValueError("recipes: give at least one recipe (id and name)")
+        for what in ("id", "name"):
+            values = [getattr(r, what) for r in self.recipes]
+            if len(set(values)) != len(values):
+                raise ValueError(f"recipes: each recipe needs its own {what}, got {values}")
+        return self
+
+    def recipe_names(self) -> dict[int, str]:
+        """PLC recipe number -> recipe name."""
+        return {r.id: r.name for r in self.recipes}

@@ -120,7 +120,8 @@ class AbbRobotDevice(StrictModel):
     egm_max_correction_deg: Finite = Field(2.0, gt=0, le=45)
     egm_max_rate_hz: Finite = Field(250.0, gt=0, le=1000)
     egm_settle_cycles: int = Field(5, ge=1, le=1000)
-    egm_rt_priority: int | None = Field(None, ge=1, le=99)  # SCHED_FIFO for the EGM thread (needs CAP_SYS_NICE)
+    egm_rt_priority: int | None = Field(None, ge=1, le=99)  # SCHED_FIFO for the EGM loop (needs CAP_SYS_NICE)
+    egm_isolation: Literal["process", "thread"] = "process"  # process: the EGM loop shares no GIL with the cell
 
     @model_validator(mode="after")
     def _heartbeat_fits(self) -> "AbbRobotDevice":

@@ -6,10 +6,13 @@ from typing import Literal
 
 from pydantic import model_validator
 
+from cellctl.config.api import ApiConfig
+from cellctl.config.calibration import CalibrationConfig
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
 from cellctl.config.plc import PlcConfig
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
+from cellctl.config.vision import VisionConfig
 from cellctl.config.sim import SimConfig
 from cellctl.config.types import StrictModel
 
@@ -27,6 +30,9 @@ class CellConfig(StrictModel):
     store: StoreConfig = StoreConfig()
     alarms: AlarmsConfig = AlarmsConfig()
     packml: PackMLConfig = PackMLConfig()
+    vision: VisionConfig = VisionConfig()
+    api: ApiConfig = ApiConfig()
+    calibration: CalibrationConfig = CalibrationConfig()
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")

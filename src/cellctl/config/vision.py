@@ -79,13 +79,18 @@ class FitConfig(StrictModel):
     subpixel_band_px: Finite = Field(0.5, gt=0, le=10)  # RANSAC band on the sub-pixel points
     robust_k: Finite = Field(3.5, gt=1, le=10)  # final inliers: |residual| < k * robust sigma
     min_robust_band_px: Finite = Field(0.12, gt=0, le=5)
+    # A profile is left out when the ratio of its darker to its brighter plateau leaves the edge's
+    # undisturbed ratio by more than this: lighting scales both alike, light added by a glare
+    # spot does not, and it biases the crossing (0.1 is a veil of about 17 DN on a 150/20 DN scene).
+    background_tolerance: Finite = Field(0.1, gt=0, le=1)
     seed: int = Field(0, ge=0)  # RANSAC's random stream: the detector is deterministic
+    check_arc: bool = True  # measure the corner arc, check both lines touch it (off for a sharp corner)
 
 
 class LimitsConfig(StrictModel):
     """When the detector refuses instead of answering (each refusal names the figure and limit)."""
 
-    min_edge_points: int = Field(150, ge=10)  # sub-pixel inliers per edge
+    min_edge_points: int = Field(100, ge=10)  # sub-pixel inliers per edge
     min_inlier_fraction: Finite = Field(0.5, gt=0, le=1)
     max_fit_rms_px: Finite = Field(0.3, gt=0)
     min_contrast_dn: Finite = Field(20.0, gt=0)  # wall minus opening, median over the edge
@@ -93,6 +98,11 @@ class LimitsConfig(StrictModel):
     max_bow_px: Finite = Field(0.25, gt=0)  # departure of an edge from a straight line
     max_corner_sigma_px: Finite = Field(0.1, gt=0)  # predicted 1-sigma of the corner from the fits
     max_saturated_fraction: Finite = Field(0.5, gt=0, le=1)  # of an edge's profiles
+    # The arc check: each line must touch the circle fitted to the corner arc within this gap
+    # (a line that stands off the arc would move the corner as much); the arc points must span
+    # at least this angle about its centre (90 deg is the whole arc of a square corner).
+    max_arc_gap_px: Finite = Field(0.3, gt=0)
+    min_arc_coverage_deg: Finite = Field(30.0, ge=0, le=90)
 
 
 class VisionConfig(StrictModel):

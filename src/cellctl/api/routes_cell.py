@@ -1,0 +1,177 @@
+"""Cell routes: status, PackML commands and unit mode, alarms, calibration, events, health, metrics."""
+
+from __future__ import annotations
+
+import asyncio
+import enum
+import json
+import time
+from collections.abc import AsyncIterator
+from typing import Any
+
+from fastapi import APIRouter, HTTPException, Request, status
+from fastapi.responses import PlainTextResponse, StreamingResponse
+
+from cellctl.api.auth import TokenGuard
+from cellctl.api.metrics import metric
+from cellctl.api.schemas import CommandResult
+from cellctl.cell.alarms import Alarm, UnknownAlarm
+from cellctl.cell.orchestrator import CellOrchestrator
+from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
+from cellctl.cell.tags import PackMLCommand, UnitMode
+from cellctl.store import CycleState
+
+CommandName = enum.Enum("CommandName", {c.name.lower(): c.name.lower() for c in PackMLCommand if c.value})  # type: ignore[misc]
+ModeName = enum.Enum("ModeName", {m.name.lower(): m.name.lower() for m in UnitMode if m.value})  # type: ignore[misc]
+
+SSE_KEEPALIVE_S = 15.0
+
+
+def alarm_json(a: Alarm) -> dict[str, Any]:
+    return {
+        "uid": a.uid,
+        "code": int(a.code),
+        "value": a.value,
+        "message": a.message,
+        "category": a.category.name.lower(),
+        "severity": a.severity.name.lower(),
+        "source": a.source,
+        "raised_at": a.raised_at.isoformat(),
+        "active": a.active,
+        "acknowledged": a.acknowledged,
+        "ack_by": a.ack_by,
+        "ack_at": a.ack_at.isoformat() if a.ack_at else None,
+        "cleared_at": a.cleared_at.isoformat() if a.cleared_at else None,
+        "reaction": a.reaction.name.lower() if a.reaction else None,
+        "cycle_id": a.cycle_id,
+    }
+
+
+def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
+    router = APIRouter(tags=["cell"])
+
+    @router.get("/status")
+    async def get_status(request: Request) -> dict[str, Any]:
+        guard.read(request)
+        return orch.status()
+
+    @router.post("/commands/{name}", response_model=CommandResult, responses={409: {"description": "the state table forbids it now"}})
+    async def post_command(name: CommandName, request: Request) -> CommandResult:  # type: ignore[valid-type]
+        caller = guard.require(request)
+        cmd = PackMLCommand[name.value.upper()]  # type: ignore[attr-defined]
+        try:
+            ev = await orch.command(cmd, actor=caller.actor, source=f"rest:{caller.source}")
+        except CommandRefused as err:
+            raise HTTPException(status.HTTP_409_CONFLICT, detail=str(err)) from None
+        return CommandResult(command=cmd.name.lower(), state=ev.state_after.name, mode=ev.mode_after.name)
+
+    @router.post("/mode/{name}", response_model=CommandResult, responses={409: {"description": "modes change only in some states"}})
+    async def post_mode(name: ModeName, request: Request) -> CommandResult:  # type: ignore[valid-type]
+        caller = guard.require(request)
+        mode = UnitMode[name.value.upper()]  # type: ignore[attr-defined]
+        try:
+            ev = await orch.machine.change_mode(mode, actor=caller.actor, source=f"rest:{caller.source}")
+        except ModeChangeNotAllowed as err:
+            raise HTTPException(status.HTTP_409_CONFLICT, detail=str(err)) from None
+        return CommandResult(command=f"mode:{mode.name.lower()}", state=ev.state_after.name, mode=ev.mode_after.name)
+
+    @router.get("/alarms")
+    async def get_alarms(request: Request, history: bool = False) -> dict[str, Any]:
+        guard.read(request)
+        stop = orch.alarms.stop_reason
+        out: dict[str, Any] = {
+            "current": [alarm_json(a) for a in orch.alarms.current()],
+            "stop_reason": None if stop is None else alarm_json(stop),
+        }
+        if history:
+            out["history"] = [alarm_json(a) for a in await orch.store.alarms(limit=200)]
+        return out
+
+    @router.post("/alarms/{uid}/acknowledge")
+    async def acknowledge(uid: str, request: Request) -> dict[str, Any]:
+        caller = guard.require(request)
+        try:
+            alarm = orch.alarms.acknowledge(uid, by=caller.actor)
+        except UnknownAlarm:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no current alarm with uid '{uid}'") from None
+        await orch.store.append_audit(
+            actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge",
+            params={"uid": uid, "code": int(alarm.code)},
+        )  # fmt: skip
+        return alarm_json(alarm)
+
+    @router.post("/alarms/acknowledge-all")
+    async def acknowledge_all(request: Request) -> list[dict[str, Any]]:
+        caller = guard.require(request)
+        done = orch.alarms.acknowledge_all(by=caller.actor)
+        await orch.store.append_audit(
+            actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge_all",
+            params={"uids": [a.uid for a in done]},
+        )  # fmt: skip
+        return [alarm_json(a) for a in done]
+
+    @router.get("/calibration")
+    async def get_calibration(request: Request) -> dict[str, Any]:
+        guard.read(request)
+        kinds = await orch.store.calibration_kinds()
+        history = {
+            k: [
+                {"version": v.version, "created_at": v.created_at.isoformat(), "created_by": v.created_by, "metadata": v.metadata}
+                for v in await orch.store.calibration_history(k)
+            ]
+            for k in kinds
+        }
+        return {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "history": history}
+
+    @router.get("/events")
+    async def events(request: Request) -> StreamingResponse:
+        guard.read(request)
+        queue = orch.events.subscribe()
+
+        async def stream() -> AsyncIterator[str]:
+            try:
+                yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
+                while not await request.is_disconnected():
+                    try:
+                        ev = await asyncio.wait_for(queue.get(), SSE_KEEPALIVE_S)
+                    except asyncio.TimeoutError:
+                        yield ": keepalive\n\n"
+                        continue
+                    yield f"id: {ev.seq}\nevent: {ev.kind}\ndata: {json.dumps(ev.data)}\n\n"
+            finally:
+                orch.events.unsubscribe(queue)
+
+        return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
+
+    @router.get("/health")
+    async def health() -> dict[str, Any]:
+        devices = orch.status()["devices"]
+        lost = [n for n, d in devices.items() if d["link"] == "lost"]
+        info = await orch.store.info()
+        return {"ok": not lost, "devices_lost": lost, "store": {"path": str(info.path), "journal_mode": info.journal_mode}}
+
+    @router.get("/metrics", response_class=PlainTextResponse)
+    async def metrics() -> str:
+        st = orch.status()
+        counts = await orch.store.cycle_counts()
+        parts = [
+            metric("cellctl_packml_state", "gauge", "PackML StateCurrent (PackTags integer)", [({}, st["state_id"])]),
+            metric("cellctl_unit_mode", "gauge", "PackML UnitModeCurrent", [({}, st["mode_id"])]),
+            metric(
+                "cellctl_cycles", "gauge", "Cycles in the store by state",
+                [({"state": s.value}, counts.get(s, 0)) for s in CycleState],
+            ),  # fmt: skip
+            metric("cellctl_alarms_active", "gauge", "Active alarms", [({}, sum(a.active for a in orch.alarms.current()))]),
+            metric(
+                "cellctl_device_up", "gauge", "1 while the watchdog sees the device",
+                [({"device": n}, 1.0 if d["link"] == "up" else 0.0) for n, d in st["devices"].items()],
+            ),  # fmt: skip
+            metric(
+                "cellctl_device_heartbeat_age_seconds", "gauge", "Time since the device last answered",
+                [({"device": n}, d["heartbeat_age_s"]) for n, d in st["devices"].items() if d["heartbeat_age_s"] is not None],
+            ),  # fmt: skip
+            metric("cellctl_scrape_timestamp_seconds", "gauge", "Wall time of this scrape", [({}, time.time())]),
+        ]
+        return "".join(parts)
+
+    return router

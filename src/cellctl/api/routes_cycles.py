@@ -1,0 +1,148 @@
+"""Cycle routes: POST /cycle (idempotent), the cycle records and their images."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
+from fastapi.responses import FileResponse
+
+from cellctl.api.auth import TokenGuard
+from cellctl.api.schemas import CycleAccepted, CycleRequestBody
+from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
+from cellctl.store import CycleRecord, CycleRequest, CycleState, IdempotencyConflict, UnknownCycle
+from cellctl.store.records import MAX_TEXT_LEN
+
+
+def cycle_json(record: CycleRecord, *, full: bool = True) -> dict[str, Any]:
+    """A cycle record as the API shows it."""
+    out: dict[str, Any] = {
+        "id": record.id,
+        "state": record.state.value,
+        "recipe": record.request.recipe,
+        "part_id": record.request.part_id,
+        "car_id": record.request.car_id,
+        "source": record.request.source,
+        "actor": record.actor,
+        "idempotency_key": record.idempotency_key,
+        "current_step": record.current_step.name.lower(),
+        "result": record.result,
+        "error": record.error,
+        "true_error": record.true_error,
+        "created_at": record.created_at.isoformat(),
+        "started_at": record.started_at.isoformat() if record.started_at else None,
+        "finished_at": record.finished_at.isoformat() if record.finished_at else None,
+        "install_started_at": record.install_started_at.isoformat() if record.install_started_at else None,
+        "interrupted_step": record.interrupted_step.name.lower() if record.interrupted_step else None,
+    }
+    if full:
+        out["steps"] = [
+            {
+                "step": s.step.name.lower(),
+                "attempt": s.attempt,
+                "started_at": s.started_at.isoformat(),
+                "duration_s": s.duration_s,
+                "ok": s.ok,
+                "figures": s.figures,
+                "error": s.error,
+            }
+            for s in record.steps
+        ]
+        out["images"] = [
+            {"name": i.name, "step": i.step.name.lower(), "url": f"/cycles/{record.id}/images/{i.name}"}
+            for i in record.images
+        ]
+    return out
+
+
+def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -> APIRouter:
+    router = APIRouter(tags=["cycles"])
+
+    @router.post(
+        "/cycle",
+        status_code=status.HTTP_202_ACCEPTED,
+        response_model=None,
+        responses={
+            200: {"description": "with ?wait=true: the finished cycle"},
+            202: {"model": CycleAccepted, "description": "queued (or already known under this key)"},
+            401: {"description": "no or wrong bearer token"},
+            409: {"description": "the cell is not in a state to take a cycle"},
+            422: {"description": "bad body or header, or the key was used for a different request"},
+        },
+    )
+    async def post_cycle(
+        body: CycleRequestBody,
+        request: Request,
+        response: Response,
+        idempotency_key: str = Header(
+            ..., alias="Idempotency-Key", min_length=1, max_length=128, description="one key per intended cycle"
+        ),
+        wait: bool = Query(False, description="answer when the cycle has finished (or after timeout_s)"),
+        timeout_s: float = Query(120.0, gt=0, description="how long ?wait=true waits"),
+    ) -> Any:
+        caller = guard.require(request)
+        known = sorted(orch.config.process.recipe_names().values())
+        if body.recipe not in known:
+            raise HTTPException(
+                status.HTTP_422_UNPROCESSABLE_ENTITY,
+                detail=f"body field 'recipe': unknown recipe '{body.recipe}'; known recipes: {known}",
+            )
+        try:
+            sub = await orch.submit_cycle(
+                CycleRequest(body.recipe, body.part_id, body.car_id, source=f"rest:{caller.source}"),
+                scope="rest",
+                key=idempotency_key,
+                actor=caller.actor,
+            )
+        except CycleRefused as err:
+            raise HTTPException(status.HTTP_409_CONFLICT, detail=err.reason) from None
+        except IdempotencyConflict as err:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err)) from None
+        cid = sub.cycle.id
+        if wait:
+            record = await orch.wait_cycle(cid, min(timeout_s, wait_max_s))
+            if record.state in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
+                response.status_code = status.HTTP_200_OK
+                return cycle_json(record)
+        return CycleAccepted(
+            cycle_id=cid,
+            state=sub.cycle.state.value,
+            created=sub.created,
+            links={"self": f"/cycles/{cid}", "events": "/events"},
+        )
+
+    @router.get("/cycles")
+    async def list_cycles(
+        request: Request,
+        limit: int = Query(50, ge=1, le=1000),
+        before_id: int | None = Query(None, ge=1),
+        state: CycleState | None = None,
+    ) -> list[dict[str, Any]]:
+        guard.read(request)
+        records = await orch.store.cycles(limit=limit, before_id=before_id, state=state)
+        return [cycle_json(r, full=False) for r in records]
+
+    @router.get("/cycles/{cycle_id}")
+    async def get_cycle(cycle_id: int, request: Request) -> dict[str, Any]:
+        guard.read(request)
+        try:
+            return cycle_json(await orch.store.cycle(cycle_id))
+        except UnknownCycle:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
+
+    @router.get("/cycles/{cycle_id}/images/{name}", response_class=FileResponse)
+    async def get_image(cycle_id: int, name: str, request: Request) -> FileResponse:
+        guard.read(request)
+        try:
+            record = await orch.store.cycle(cycle_id)
+        except UnknownCycle:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
+        ref = next((i for i in record.images if i.name == name), None)
+        if ref is None or len(name) > MAX_TEXT_LEN:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"cycle {cycle_id} has no image '{name}'")
+        path = orch.image_dir / ref.uri
+        if not path.is_file():
+            raise HTTPException(status.HTTP_410_GONE, detail=f"image file {ref.uri} is no longer on disk")
+        return FileResponse(path, media_type="image/png")
+
+    return router

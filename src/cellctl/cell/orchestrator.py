@@ -1,0 +1,437 @@
+"""The orchestrator: PackML state actions, the cycle queue, and the records of every cycle.
+
+It owns no devices' protocols and no transport: the API, the PLC interface and the CLI call it;
+it calls the devices through their ports (:mod:`cellctl.cell.cycle`), the state machine, the
+alarms and the store. Cycles run one at a time, only in Execute.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleFailed, CycleResult, run_cycle
+from cellctl.cell.events import EventHub
+from cellctl.cell.packml import MachineEvent, PackMLMachine
+from cellctl.cell.recorder import StoreRecorder
+from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState
+from cellctl.cell.watchdog import DeviceWatchdog
+from cellctl.config.schema import CellConfig
+from cellctl.ports import (
+    CartesianPose,
+    DeviceError,
+    MotionRequest,
+    Robot,
+    RobotState,
+)
+from cellctl.store import AsyncCellStore, CycleRecord, CycleRequest, CycleState, SubmitResult
+
+log = logging.getLogger(__name__)
+
+# Acting states end by themselves once their action is done (PackML "SC").
+_ACTING = {
+    PackMLState.STARTING,
+    PackMLState.STOPPING,
+    PackMLState.ABORTING,
+    PackMLState.HOLDING,
+    PackMLState.UNHOLDING,
+    PackMLState.SUSPENDING,
+    PackMLState.UNSUSPENDING,
+    PackMLState.RESETTING,
+    PackMLState.CLEARING,
+    PackMLState.COMPLETING,
+}
+# Entering these stops a running cycle (and the robot).
+_STOP_CYCLE = {PackMLState.STOPPING, PackMLState.ABORTING, PackMLState.HOLDING, PackMLState.SUSPENDING}
+
+
+class CycleRefused(Exception):
+    """A cycle request the cell cannot take now; ``reason`` says why and what to do."""
+
+    def __init__(self, code: AlarmCode | int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = int(code)
+        self.reason = reason
+
+
+class CalibrationSource(Protocol):
+    """Where the cycle's calibration comes from (the versioned calibration set)."""
+
+    def problems(self) -> list[str]:
+        """What keeps the set from production (missing, failed, out of date); empty when ready."""
+        ...
+
+    def cycle_calibration(self) -> CycleCalibration:
+        """The parts a cycle needs; only called when :meth:`problems` is empty."""
+        ...
+
+    def summary(self) -> dict[str, Any]:
+        """Versions, dates and quality figures for the records and the dashboard."""
+        ...
+
+    async def calibrate(self) -> None:
+        """Run the missing calibrations and teaching (the simulated cell can); raise if it cannot."""
+        ...
+
+
+class SimTruth(Protocol):
+    """The twin's knowledge, for simulated cycles only."""
+
+    def new_car_body(self) -> None:
+        """The next car body arrives (a new random posture)."""
+        ...
+
+    def install_error(self) -> Mapping[str, float]:
+        """The true install error of the glass where it stands now (the paper's six figures)."""
+        ...
+
+
+class TrackedRobot:
+    """A Robot port that knows whether a motion is under way (for alarm reactions)."""
+
+    def __init__(self, robot: Robot) -> None:
+        self._robot = robot
+        self._moves = 0
+
+    @property
+    def moving(self) -> bool:
+        return self._moves > 0
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        self._moves += 1
+        try:
+            return await self._robot.move(request, timeout_s=timeout_s)
+        finally:
+            self._moves -= 1
+
+    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
+        return await self._robot.read_pose(timeout_s=timeout_s)
+
+    async def state(self, *, timeout_s: float) -> RobotState:
+        return await self._robot.state(timeout_s=timeout_s)
+
+    async def stop(self, *, timeout_s: float) -> None:
+        await self._robot.stop(timeout_s=timeout_s)
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self._robot.ping(timeout_s=timeout_s)
+
+    async def close(self) -> None:
+        await self._robot.close()
+
+
+@dataclass(frozen=True)
+class CycleSummary:
+    """The outcome of a finished cycle in the units the PLC and the API publish."""
+
+    cycle_id: int
+    ok: bool
+    error_code: int
+    error: str | None
+    correction_mm: tuple[float, float, float]
+    correction_rad: tuple[float, float, float]
+    cycle_time_s: float
+
+
+class CellOrchestrator:
+    """Runs the cell: PackML state actions, one cycle at a time in Execute, all of it recorded."""
+
+    def __init__(
+        self,
+        *,
+        config: CellConfig,
+        devices: CellDevices,
+        calibration: CalibrationSource,
+        store: AsyncCellStore,
+        machine: PackMLMachine,
+        alarms: AlarmManager,
+        watchdog: DeviceWatchdog | None,
+        events: EventHub,
+        image_dir: Path,
+        truth: SimTruth | None = None,
+    ) -> None:
+        self.config = config
+        self.robot = devices.robot if isinstance(devices.robot, TrackedRobot) else TrackedRobot(devices.robot)
+        self.devices = CellDevices(devices.laser, devices.camera, self.robot)
+        self.calibration = calibration
+        self.store = store
+        self.machine = machine
+        self.alarms = alarms
+        self.watchdog = watchdog
+        self.events = events
+        self.image_dir = image_dir
+        self.truth = truth
+        self._queue: asyncio.Queue[int] = asyncio.Queue()
+        self._tasks: list[asyncio.Task[None]] = []
+        self._cycle_task: asyncio.Task[None] | None = None
+        self._current: int | None = None
+        self._finished: dict[int, asyncio.Event] = {}
+        self._stop_reason: str | None = None
+
+    # -- lifecycle --------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Recover from the last run, then start the state actor, persistence and the cycle worker."""
+        report = await self.store.recover()
+        for ic in report.interrupted:
+            detail = f"cycle {ic.cycle_id} was interrupted in {ic.step.name.lower()}"
+            if ic.install_started:
+                detail += "; the install had started: check the glass by hand, it will not be repeated"
+            await self.alarms.raise_alarm(AlarmCode.CYCLE_INTERRUPTED, source="cycle", detail=detail, cycle_id=ic.cycle_id)
+        for q, sink in (
+            (self.machine.subscribe_queue(), self._on_machine_event),
+            (self.alarms.subscribe_queue(), self._on_alarm_event),
+        ):
+            self._tasks.append(asyncio.create_task(self._pump(q, sink)))
+        self._tasks.append(asyncio.create_task(self._worker()))
+        if self.watchdog is not None:
+            await self.watchdog.start()
+
+    async def stop(self) -> None:
+        """Stop background work. A running cycle is left as it is (the next start marks it interrupted)."""
+        if self.watchdog is not None:
+            await self.watchdog.stop()
+        for t in [*self._tasks, *([self._cycle_task] if self._cycle_task else [])]:
+            t.cancel()
+        for t in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await t
+        self._tasks.clear()
+
+    async def _pump(self, q: asyncio.Queue[Any], sink: Any) -> None:
+        while True:
+            item = await q.get()
+            try:
+                await sink(item)
+            except Exception:  # a bad event must not stop the pump; it is logged with its trace
+                log.exception("handling %r failed", item)
+
+    # -- PackML state actions ----------------------------------------------------------------
+
+    async def _on_machine_event(self, ev: MachineEvent) -> None:
+        await self.store.append_machine_event(ev, cycle_id=self._current)
+        self.events.publish(
+            "state",
+            {
+                "state": ev.state_after.name,
+                "mode": ev.mode_after.name,
+                "step": ev.step_after.name.lower(),
+                "actor": ev.actor,
+                "command": None if ev.command is None else ev.command.name,
+            },
+        )
+        if not ev.state_changed:
+            return
+        state = ev.state_after
+        if state in _STOP_CYCLE:
+            await self._stop_running_cycle(state)
+        if state is PackMLState.RESETTING:
+            self.alarms.reset_stop_reason()
+        if state in _ACTING:
+            if self.machine.state is state:  # nothing moved it on meanwhile
+                await self.machine.state_complete(actor="system", source="cell")
+        if state is PackMLState.EXECUTE:
+            self._kick()
+
+    async def _on_alarm_event(self, ev: Any) -> None:
+        await self.store.save_alarm(ev.alarm)
+        a = ev.alarm
+        self.events.publish(
+            "alarm",
+            {"uid": a.uid, "code": int(a.code), "message": a.message, "active": a.active, "acknowledged": a.acknowledged},
+        )
+
+    async def _stop_running_cycle(self, state: PackMLState) -> None:
+        task = self._cycle_task
+        if task is None or task.done():
+            return
+        self._stop_reason = f"the cell went to {state.name.lower()}"
+        with contextlib.suppress(DeviceError):
+            await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+    # -- cycles -----------------------------------------------------------------------------
+
+    def ready_for_cycle(self) -> bool:
+        """The cell takes a new cycle now: Execute, in production or maintenance, no cycle running."""
+        return self.machine.state is PackMLState.EXECUTE
+
+    async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
+        """Queue a cycle under an idempotency key; the same key returns the same cycle, never a second one.
+
+        Raises CycleRefused when the cell is not in Execute (for a key it has not seen).
+        """
+        existing = await self.store.cycle_for_key(scope, key)
+        if existing is None and not self.ready_for_cycle():
+            state = self.machine.state.name
+            raise CycleRefused(
+                AlarmCode.TASK_FAILED,
+                f"the cell is {state}, not EXECUTE: send Reset and Start (POST /commands/reset, /commands/start)",
+            )
+        result = await self.store.submit_cycle(request, scope=scope, key=key, actor=actor)
+        if result.created:
+            self._finished[result.cycle.id] = asyncio.Event()
+            await self._queue.put(result.cycle.id)
+            self.events.publish("cycle", {"cycle_id": result.cycle.id, "state": "queued", "part_id": request.part_id})
+        return result
+
+    async def wait_cycle(self, cycle_id: int, timeout_s: float) -> CycleRecord:
+        """The cycle's record once it has finished (or as it is after ``timeout_s``)."""
+        ev = self._finished.get(cycle_id)
+        if ev is not None:
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(ev.wait(), timeout_s)
+        return await self.store.cycle(cycle_id)
+
+    def _kick(self) -> None:
+        """Nudge the worker (it waits for Execute before taking the next cycle)."""
+        self._queue.put_nowait(0)
+
+    async def _worker(self) -> None:
+        pending: list[int] = []
+        while True:
+            cid = await self._queue.get()
+            if cid:
+                pending.append(cid)
+            while pending and self.ready_for_cycle():
+                nxt = pending.pop(0)
+                self._cycle_task = asyncio.create_task(self._run(nxt))
+                with contextlib.suppress(asyncio.CancelledError):
+                    await self._cycle_task
+                self._cycle_task = None
+
+    async def _run(self, cycle_id: int) -> None:
+        self._current = cycle_id
+        rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir)
+        started = time.monotonic()
+        await self.store.start_cycle(cycle_id)
+        self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
+        self._stop_reason = None
+        try:
+            await rec.step_started(CycleStep.CALIBRATE)
+            problems = self.calibration.problems()
+            if problems:
+                try:
+                    await self.calibration.calibrate()
+                except Exception as err:  # noqa: BLE001 - reported as the cycle's reason
+                    raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, f"{'; '.join(problems)} ({err})") from err
+                problems = self.calibration.problems()
+                if problems:
+                    raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
+            await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.summary()})
+            if self.truth is not None:
+                self.truth.new_car_body()
+            result = await run_cycle(
+                self.devices, self.calibration.cycle_calibration(), self.config.process, self.config.vision, rec
+            )
+            await rec.close_step(ok=True)
+            await self.store.complete_cycle(
+                cycle_id, result=_result_fields(result, time.monotonic() - started), true_error=self._true_error()
+            )
+            self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done"})
+        except CycleFailed as f:
+            await self._fail(rec, cycle_id, f.reason if f.step is CycleStep.NONE else str(f), int(f.code), started)
+            await self.alarms.raise_alarm(f.code, source="cycle", detail=f.reason, cycle_id=cycle_id)
+        except asyncio.CancelledError:
+            reason = self._stop_reason or "the service is stopping"
+            if self._stop_reason is None:
+                raise  # shutdown: leave it running; the next start marks it interrupted
+            await self._fail(rec, cycle_id, f"stopped: {reason}", int(AlarmCode.TASK_FAILED), started)
+        except Exception as err:  # noqa: BLE001 - any bug still ends the cycle with a record and an alarm
+            log.exception("cycle %d failed", cycle_id)
+            await self._fail(rec, cycle_id, f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), started)
+            await self.alarms.raise_alarm(AlarmCode.TASK_FAILED, source="cycle", detail=str(err), cycle_id=cycle_id)
+        finally:
+            self._current = None
+            with contextlib.suppress(Exception):
+                await self.machine.set_cycle_step(CycleStep.NONE)
+            ev = self._finished.pop(cycle_id, None)
+            if ev is not None:
+                ev.set()
+
+    async def _fail(self, rec: StoreRecorder, cycle_id: int, error: str, code: int, started: float) -> None:
+        await rec.close_step(ok=False, error=error)
+        await self.store.fail_cycle(
+            cycle_id,
+            error=error,
+            result={"error_code": code, "cycle_time_s": time.monotonic() - started},
+            true_error=self._true_error(),
+        )
+        self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": error})
+
+    def _true_error(self) -> dict[str, float] | None:
+        return None if self.truth is None else dict(self.truth.install_error())
+
+    # -- commands and status ------------------------------------------------------------------
+
+    async def command(self, command: PackMLCommand, *, actor: str, source: str) -> MachineEvent:
+        """A PackML command (raises the machine's CommandRefused when the table forbids it)."""
+        return await self.machine.command(command, actor=actor, source=source)
+
+    def status(self) -> dict[str, Any]:
+        """A JSON-ready snapshot for /status and the dashboard."""
+        st = self.machine.status()
+        stop = self.alarms.stop_reason
+        return {
+            "state": st.state.name,
+            "state_id": int(st.state),
+            "mode": st.mode.name,
+            "mode_id": int(st.mode),
+            "cycle_step": st.cycle_step.name.lower(),
+            "current_cycle": self._current,
+            "queued_cycles": self._queue.qsize(),
+            "allowed_commands": sorted(c.name.lower() for c in st.allowed_commands),
+            "blocked_commands": {c.name.lower(): why for c, why in st.blocked_commands.items()},
+            "stop_reason": None if stop is None else {"code": int(stop.code), "message": stop.message},
+            "devices": {
+                name: {
+                    "link": h.link.value,
+                    "heartbeat_age_s": h.heartbeat_age_s,
+                    "round_trip_s": h.last_round_trip_s,
+                }
+                for name, h in (self.watchdog.health().items() if self.watchdog else [])
+            },
+            "calibration": {"problems": self.calibration.problems()},
+        }
+
+
+def _result_fields(result: CycleResult, cycle_time_s: float) -> dict[str, Any]:
+    return {
+        "ok": True,
+        "error_code": 0,
+        "correction_mm": [float(v) for v in result.workpiece_correction_mm],
+        "correction_deg": [float(np.degrees(v)) for v in result.workpiece_correction_rad],
+        "shots": len(result.shots),
+        "cycle_time_s": cycle_time_s,
+    }
+
+
+def summarize(record: CycleRecord) -> CycleSummary | None:
+    """The PLC/API outcome of a finished cycle record (None while it has not finished)."""
+    if record.state not in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
+        return None
+    res = dict(record.result or {})
+    ok = record.state is CycleState.DONE
+    code = 0 if ok else int(res.get("error_code") or AlarmCode.CYCLE_INTERRUPTED)
+    mm = res.get("correction_mm") or [0.0, 0.0, 0.0]
+    deg = res.get("correction_deg") or [0.0, 0.0, 0.0]
+    return CycleSummary(
+        record.id,
+        ok,
+        code,
+        record.error,
+        (float(mm[0]), float(mm[1]), float(mm[2])),
+        tuple(float(np.radians(d)) for d in deg),  # type: ignore[arg-type]
+        float(res.get("cycle_time_s") or 0.0),
+    )

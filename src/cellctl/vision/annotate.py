@@ -1,0 +1,147 @@
+"""An annotated picture of a corner measurement, as PNG bytes, for the dashboard and for debugging.
+
+Drawn on the raw image (shrunk to ``width_px``): the region of interest (blue), the arc left out
+around the corner (grey), the sub-pixel edge points (green: fitted, red: rejected), the fitted
+lines and the circle fitted to the corner arc (yellow, drawn through the lens distortion so they
+lie on the raw edges), the corner (cyan
+cross), the taught corner (magenta cross) with an arrow from it to the corner, and a caption with
+the result or the refusal.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.geometry.planar import PlanarOffset
+from cellctl.vision.corner import CornerFeatures, CornerMeasurement, EdgeMeasurement
+from cellctl.vision.lens import Lens
+
+_BLUE = (255, 128, 0)
+_GREEN = (0, 200, 0)
+_RED = (0, 0, 255)
+_YELLOW = (0, 230, 255)
+_CYAN = (255, 255, 0)
+_MAGENTA = (255, 0, 255)
+_GREY = (160, 160, 160)
+_WHITE = (255, 255, 255)
+
+
+def _pt(p: NDArray[np.float64], k: float) -> tuple[int, int]:
+    return int(round((p[0] + 0.5) * k - 0.5)), int(round((p[1] + 0.5) * k - 0.5))
+
+
+def _cross(img: NDArray[np.uint8], p: NDArray[np.float64], k: float, colour: tuple[int, int, int], size: int = 12) -> None:
+    c = _pt(p, k)
+    cv2.line(img, (c[0] - size, c[1]), (c[0] + size, c[1]), colour, 2, cv2.LINE_AA)
+    cv2.line(img, (c[0], c[1] - size), (c[0], c[1] + size), colour, 2, cv2.LINE_AA)
+
+
+def _draw_edge(img: NDArray[np.uint8], edge: EdgeMeasurement, lens: Lens, k: float, corner: NDArray[np.float64] | None) -> None:
+    # The fitted line from the corner (or its points' start) across the image, through the distortion.
+    t0 = float(edge.line.along(corner[None, :])[0]) if corner is not None else float(edge.line.along(edge.points_ideal).min())
+    t = np.linspace(t0, t0 + 3000.0, 600)
+    ideal = edge.line.at(t)
+    ideal = ideal[np.all((ideal > -200) & (ideal < np.array([lens.width_px, lens.height_px]) + 200), axis=1)]
+    if len(ideal) >= 2:
+        raw = lens.distort(ideal)
+        poly = np.rint((raw + 0.5) * k - 0.5).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(img, [poly], False, _YELLOW, 1, cv2.LINE_AA)
+    # The points on top of the line, so rejected ones stand out.
+    for pts, colour in ((edge.points_raw[~edge.inliers], _RED), (edge.points_raw[edge.inliers], _GREEN)):
+        if len(pts) == 0:
+            continue
+        q = np.rint((pts + 0.5) * k - 0.5).astype(np.int64)
+        h, w = img.shape[:2]
+        for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):  # 2 x 2 px dots
+            x, y = q[:, 0] + du, q[:, 1] + dv
+            ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+            img[y[ok], x[ok]] = colour
+
+
+def annotate(
+    image: NDArray[np.uint8],
+    measurement: CornerMeasurement,
+    lens: Lens,
+    *,
+    taught: CornerFeatures | None = None,
+    offset: PlanarOffset | None = None,
+    width_px: int = 1024,
+) -> bytes:
+    """The annotated picture of ``measurement`` on ``image`` as PNG bytes, ``width_px`` wide."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError("image must be a 2-D uint8 grey image")
+    if width_px < 64:
+        raise ValueError(f"width_px must be at least 64, got {width_px}")
+    k = width_px / image.shape[1]
+    small = cv2.resize(image, (width_px, max(1, int(round(image.shape[0] * k)))), interpolation=cv2.INTER_AREA)
+    img = cv2.cvtColor(small, cv2.COLOR_GRAY2BGR)
+    m = measurement
+    roi = m.roi
+    cv2.rectangle(
+        img,
+        _pt(np.array([roi.x_px, roi.y_px], float), k),
+        _pt(np.array([roi.x_px + roi.width_px - 1, roi.y_px + roi.height_px - 1], float), k),
+        _BLUE,
+        1,
+    )
+    if m.corner_raw_px is not None:
+        cv2.circle(img, _pt(m.corner_raw_px, k), int(round(m.arc_exclusion_px * k)), _GREY, 1, cv2.LINE_AA)
+    for edge in (m.top, m.right):
+        if edge is not None:
+            _draw_edge(img, edge, lens, k, m.corner_px)
+    if m.arc is not None:
+        arc = m.arc
+        ang = np.linspace(0.0, 2.0 * np.pi, 720)
+        circle = arc.centre_px + arc.radius_px * np.column_stack([np.cos(ang), np.sin(ang)])
+        d = arc.points_ideal[arc.inliers] - arc.centre_px
+        if len(d):
+            # Only the part of the circle the arc points span.
+            a = np.arctan2(d[:, 1], d[:, 0])
+            mid = np.arctan2(np.mean(np.sin(a)), np.mean(np.cos(a)))
+            rel = np.angle(np.exp(1j * (ang - mid)))
+            lo, hi = np.min(np.angle(np.exp(1j * (a - mid)))), np.max(np.angle(np.exp(1j * (a - mid))))
+            part = circle[(rel >= lo) & (rel <= hi)]
+            if len(part) >= 2:
+                poly = np.rint((lens.distort(part) + 0.5) * k - 0.5).astype(np.int32).reshape(-1, 1, 2)
+                cv2.polylines(img, [poly], False, _YELLOW, 1, cv2.LINE_AA)
+        q = np.rint((arc.points_raw + 0.5) * k - 0.5).astype(np.int64)
+        ok = (q[:, 0] >= 0) & (q[:, 0] < img.shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < img.shape[0])
+        img[q[ok, 1], q[ok, 0]] = np.where(arc.inliers[ok, None], np.array(_GREEN), np.array(_RED))
+    taught_raw = None
+    if taught is not None:
+        taught_raw = lens.distort(np.array([[taught.u_px, taught.v_px]]))[0]
+        _cross(img, taught_raw, k, _MAGENTA)
+    if m.corner_raw_px is not None:
+        _cross(img, m.corner_raw_px, k, _CYAN)
+        if taught_raw is not None:
+            a, b = _pt(taught_raw, k), _pt(m.corner_raw_px, k)
+            if a != b:
+                cv2.arrowedLine(img, a, b, _MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
+    lines = []
+    if m.ok and m.corner_px is not None and m.top is not None and m.right is not None:
+        lines.append(
+            f"corner u={m.corner_px[0]:.2f} v={m.corner_px[1]:.2f} px  theta={np.degrees(m.theta_rad or 0.0):+.4f} deg"
+        )
+        lines.append(
+            f"rms {m.top.quality.rms_px:.3f}/{m.right.quality.rms_px:.3f} px  inliers "
+            f"{m.top.quality.inliers}/{m.right.quality.inliers}  contrast {m.top.quality.contrast_dn:.0f}/"
+            f"{m.right.quality.contrast_dn:.0f} DN  sigma {m.corner_sigma_px:.3f} px"
+        )
+    else:
+        lines.append(f"REFUSED ({m.refusal.value if m.refusal else '?'}): {m.message}")
+    if offset is not None:
+        lines.append(
+            f"offset dx={offset.dx_mm:+.3f} mm dy={offset.dy_mm:+.3f} mm dtheta={np.degrees(offset.dtheta_rad):+.4f} deg"
+        )
+    scale = max(0.4, width_px / 2048.0)
+    y = int(22 * scale / 0.5)
+    for text in lines:
+        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, scale, _WHITE if m.ok else _RED, 1, cv2.LINE_AA)
+        y += int(20 * scale / 0.5)
+    ok, png = cv2.imencode(".png", img)
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the annotated image as PNG")
+    return png.tobytes()
