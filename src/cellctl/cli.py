@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cellctl.calibration import cli as calibration_cli
 from cellctl.config import ConfigError, load_config
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     p_align.add_argument("--seed", type=int, default=1)
     p_align.add_argument("--runs", type=int, default=3)
     p_align.set_defaults(func=_cmd_align)
+    calibration_cli.register(sub)
     return parser
 
 

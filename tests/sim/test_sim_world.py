@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from cellctl.config.sim import SimConfig, WorldConfig
 from cellctl.geometry.pose import invert_pose
@@ -25,16 +26,17 @@ def test_rounded_corner_of_the_opening() -> None:
     assert not world.in_opening([-1000.0, 1501.0])[0]
 
 
-def test_posture_stays_within_the_configured_ranges() -> None:
-    cfg = WorldConfig()
+@pytest.mark.parametrize("pivot", ["corner", "opening_centre"])
+def test_posture_stays_within_the_configured_ranges(pivot: str) -> None:
+    cfg = WorldConfig(posture_pivot=pivot)
     nominal = cfg.T_B_T_nominal()
-    centre_T = np.array([-cfg.opening_width_mm / 2, cfg.opening_height_mm / 2, 0.0])
+    centre_T = np.zeros(3) if pivot == "corner" else np.array([-cfg.opening_width_mm / 2, cfg.opening_height_mm / 2, 0.0])
     rng = np.random.default_rng(5)
     shifts, angles = [], []
     for _ in range(400):
         world = sample_world(cfg, rng)
         rel = invert_pose(nominal) @ world.T_B_T
-        shifts.append(rel[:3, :3] @ centre_T + rel[:3, 3] - centre_T)  # the opening centre's displacement
+        shifts.append(rel[:3, :3] @ centre_T + rel[:3, 3] - centre_T)  # the pivot's displacement
         alpha, beta, gamma = matrix_to_xyz_fixed(rel[:3, :3])
         angles.append(np.degrees([gamma, beta, alpha]))
     shifts_a, angles_a = np.abs(shifts), np.abs(angles)

@@ -37,7 +37,7 @@ from cellctl.compensate import (
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.vision import VisionConfig
 from cellctl.geometry.planar import PlanarOffset
-from cellctl.geometry.pose import Pose, invert_pose, make_pose
+from cellctl.geometry.pose import Pose, invert_pose, make_pose, mean_pose
 from cellctl.ports import (
     Camera,
     CartesianPose,
@@ -49,7 +49,7 @@ from cellctl.ports import (
     Robot,
     UnreachableTarget,
 )
-from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, detect_corner, offset_from_map
+from cellctl.vision import AffineMap, CornerFeatures, CornerMeasurement, Lens, annotate, detect_corner, offset_from_map
 
 
 @dataclass(frozen=True)
@@ -160,6 +160,7 @@ class _CycleRun:
         self.vision = vision
         self.rec = recorder
         self.motion = process.motion
+        self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
 
     async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
         speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s
@@ -244,54 +245,92 @@ class _CycleRun:
         return result, C_Pos_1
 
     async def shoot_and_compensate(self, C_Pos_1: Pose) -> tuple[Pose, tuple[ShotRecord, ...]]:
+        """The first shot at C_Pos_1, then verification shots at the corrected shooting pose.
+
+        Every shot re-anchors on the pose the robot reports and turns the measured offset into an
+        estimate of the workpiece frame (T2 = T1 @ T'). Verification shots are averaged; the loop
+        ends when the latest residual is under the threshold and enough shots were taken. If the
+        first shot finds the corner only roughly (too near the image border to measure), the
+        camera re-aims at it once and shoots again.
+        """
         cal, verify = self.cal, self.process.verify
-        T_est = workpiece_frame_after_alignment(cal.taught, C_Pos_1)
-        shots: list[ShotRecord] = []
-        for shot in range(verify.max_shots + 1):
-            await self.rec.step_started(CycleStep.SHOOT)
-            try:
-                frame = await self.dev.camera.grab(timeout_s=self.motion.grab_timeout_s)
-            except DeviceError as err:
-                raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_LOST, f"no image: {err}") from err
-            await self.rec.step_started(CycleStep.COMPENSATE)
-            m = await asyncio.to_thread(detect_corner, frame.image, cal.lens, self.vision)
-            offset = offset_from_map(cal.template, m.features, cal.nine_point) if m.ok else None
-            png = await asyncio.to_thread(annotate, frame.image, m, cal.lens, taught=cal.template, offset=offset)
-            await self.rec.image(f"shot{shot}", png)
-            if offset is None:
-                raise CycleFailed(CycleStep.COMPENSATE, AlarmCode.CORNER_NOT_FOUND, m.message)
-            shots.append(ShotRecord(shot, offset, float(m.corner_sigma_px or 0.0)))
-            T_est = corrected_workpiece_frame(T_est, offset)
-            moved_mm, turned_rad = _offset_size(offset)
-            small = moved_mm <= verify.residual_mm and turned_rad <= np.radians(verify.residual_deg)
-            await self.rec.step_figures(
-                CycleStep.COMPENSATE,
-                {
-                    "shot": shot,
-                    "corner_px": [m.features.u_px, m.features.v_px],
-                    "theta_deg": float(np.degrees(m.features.theta_rad)),
-                    "corner_sigma_px": m.corner_sigma_px,
-                    "offset_mm": [offset.dx_mm, offset.dy_mm],
-                    "offset_deg": float(np.degrees(offset.dtheta_rad)),
-                    "converged": bool(small and shot > 0),
-                },
+        T1 = workpiece_frame_after_alignment(cal.taught, C_Pos_1)
+        m, offset = await self._measure(0, first=True)
+        if offset is None and m.coarse_corner_px is not None:
+            rough = CornerFeatures(
+                float(m.coarse_corner_px[0]), float(m.coarse_corner_px[1]), cal.template.theta_rad,
+                cal.template.top_angle_rad, cal.template.right_angle_rad,
             )
-            if shot > 0 and small:
-                break
-            if shot == verify.max_shots:
-                raise CycleFailed(
-                    CycleStep.COMPENSATE,
-                    AlarmCode.RESIDUAL_OVER_LIMIT,
-                    f"after {shot} verification shots the corner still moves {moved_mm:.3f} mm and "
-                    f"{np.degrees(turned_rad):.4f} deg (limits {verify.residual_mm} mm, {verify.residual_deg} deg)",
-                )
+            aim = offset_from_map(cal.template, rough, cal.nine_point)
+            await self.rec.step_figures(CycleStep.COMPENSATE, {"re_aim_mm": [aim.dx_mm, aim.dy_mm], "refusal": m.message})
+            target = shooting_pose_in(cal.taught, corrected_workpiece_frame(T1, aim))
+            self.limit(CycleStep.COMPENSATE, C_Pos_1, target, "re-aimed shooting pose")
+            T1 = workpiece_frame_after_alignment(cal.taught, await self.move(CycleStep.COMPENSATE, target))
+            m, offset = await self._measure(0, first=True)
+        T_est = await self._estimate(0, m, offset, T1)
+        shots: list[ShotRecord] = [self._last_shot]
+        estimates: list[Pose] = []
+        moved_mm = turned_rad = float("nan")
+        for k in range(1, verify.max_shots + 1):
             here = await self._current_pose(CycleStep.COMPENSATE)
             target = shooting_pose_in(cal.taught, T_est)
-            self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=shot > 0)
+            self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=k > 1)
             reached = await self.move(CycleStep.COMPENSATE, target)
-            # Re-anchor on where the robot says it went, so the next offset is measured from there.
-            T_est = workpiece_frame_after_alignment(cal.taught, reached)
-        return T_est, tuple(shots)
+            m, offset = await self._measure(k)
+            estimates.append(await self._estimate(k, m, offset, workpiece_frame_after_alignment(cal.taught, reached)))
+            shots.append(self._last_shot)
+            T_est = mean_pose(np.stack(estimates))
+            moved_mm, turned_rad = _offset_size(self._last_shot.offset)
+            if k >= verify.min_shots and moved_mm <= verify.residual_mm and turned_rad <= np.radians(verify.residual_deg):
+                await self.rec.step_figures(CycleStep.COMPENSATE, {"converged": True, "averaged_shots": len(estimates)})
+                return T_est, tuple(shots)
+        raise CycleFailed(
+            CycleStep.COMPENSATE,
+            AlarmCode.RESIDUAL_OVER_LIMIT,
+            f"after {verify.max_shots} verification shots the corner still moves {moved_mm:.3f} mm and "
+            f"{np.degrees(turned_rad):.4f} deg between shots (limits {verify.residual_mm} mm, "
+            f"{verify.residual_deg} deg): the robot does not hold its pose or the image is unstable",
+        )
+
+    async def _measure(self, index: int, *, first: bool = False) -> tuple[CornerMeasurement, PlanarOffset | None]:
+        """Grab, find the corner and turn it into T' (None when the detector refused)."""
+        cal = self.cal
+        await self.rec.step_started(CycleStep.SHOOT)
+        try:
+            frame = await self.dev.camera.grab(timeout_s=self.motion.grab_timeout_s)
+        except DeviceError as err:
+            raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_LOST, f"no image: {err}") from err
+        await self.rec.step_started(CycleStep.COMPENSATE)
+        vision = self.vision
+        if first:  # the first shot aims the verification shots; they carry the precision
+            verify = self.process.verify
+            limits = vision.limits.model_copy(
+                update={"max_corner_sigma_px": verify.first_shot_sigma_px, "min_edge_points": verify.first_shot_min_edge_points}
+            )
+            vision = vision.model_copy(update={"limits": limits})
+        m = await asyncio.to_thread(detect_corner, frame.image, cal.lens, vision)
+        offset = offset_from_map(cal.template, m.features, cal.nine_point) if m.ok else None
+        png = await asyncio.to_thread(annotate, frame.image, m, cal.lens, taught=cal.template, offset=offset)
+        await self.rec.image(f"shot{index}", png)
+        return m, offset
+
+    async def _estimate(self, index: int, m: CornerMeasurement, offset: PlanarOffset | None, T1: Pose) -> Pose:
+        """T1 corrected by the shot's offset; a refused shot fails the cycle with the detector's reason."""
+        if offset is None:
+            raise CycleFailed(CycleStep.COMPENSATE, AlarmCode.CORNER_NOT_FOUND, m.message)
+        self._last_shot = ShotRecord(index, offset, float(m.corner_sigma_px or 0.0))
+        await self.rec.step_figures(
+            CycleStep.COMPENSATE,
+            {
+                "shot": index,
+                "corner_px": [m.features.u_px, m.features.v_px],
+                "theta_deg": float(np.degrees(m.features.theta_rad)),
+                "corner_sigma_px": m.corner_sigma_px,
+                "offset_mm": [offset.dx_mm, offset.dy_mm],
+                "offset_deg": float(np.degrees(offset.dtheta_rad)),
+            },
+        )
+        return corrected_workpiece_frame(T1, offset)
 
     async def _current_pose(self, step: CycleStep) -> Pose:
         try:

@@ -32,6 +32,10 @@ class WorldConfig(StrictModel):
     corner_radius_mm: Finite = Field(30.0, ge=0)
     posture_translation_mm: Vec3 = (20.0, 20.0, 20.0)
     posture_rotation_deg: Vec3 = (2.0, 2.0, 2.0)
+    # Where the posture's rotation turns about: "corner" (the workpiece frame T, the paper's posture)
+    # or "opening_centre". About the centre, +-2 deg swing the corner by up to +-44 mm more, so with
+    # the 156 mm view at 400 mm a straight edge can leave the image; such cycles are refused.
+    posture_pivot: Literal["corner", "opening_centre"] = "corner"
 
     @model_validator(mode="after")
     def _geometry(self) -> "WorldConfig":

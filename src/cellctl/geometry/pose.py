@@ -11,6 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry.rotation import (
     axis_angle_to_matrix,
+    nearest_rotation,
     is_rotation,
     matrix_to_axis_angle,
     matrix_to_xyz_fixed,
@@ -111,3 +112,14 @@ def pose_error(T_ref: ArrayLike, T: ArrayLike) -> tuple[NDArray[np.float64], NDA
     """
     E = invert_pose(T_ref) @ np.asarray(T, dtype=float)
     return translation(E), matrix_to_axis_angle(rotation(E))
+
+
+def mean_pose(poses: ArrayLike) -> Pose:
+    """The mean of nearby poses: mean translation, and the rotation nearest the summed rotations.
+
+    Meant for estimates of one frame that differ by small errors (chordal L2 mean on SO(3)).
+    """
+    P = np.asarray(poses, dtype=float)
+    if P.ndim != 3 or P.shape[1:] != (4, 4) or P.shape[0] == 0:
+        raise ValueError(f"mean_pose needs (N, 4, 4) poses with N >= 1, got shape {P.shape}")
+    return make_pose(nearest_rotation(P[:, :3, :3].sum(axis=0)), P[:, :3, 3].mean(axis=0))

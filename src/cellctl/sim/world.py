@@ -70,15 +70,19 @@ class World:
 def sample_world(config: WorldConfig, rng: np.random.Generator) -> World:
     """The car body at a random posture: a uniform draw within the configured half-ranges.
 
-    The posture is a rotation about the opening's centre (fixed-angle ranges about T's axes) and
-    a translation, both applied to the nominal placement.
+    The posture is a rotation about ``config.posture_pivot`` (the corner, i.e. T's origin, or the
+    opening's centre; fixed-angle ranges about T's axes) and a translation along T's axes, both
+    applied to the nominal placement.
     """
     T_nom = config.T_B_T_nominal()
     dt = rng.uniform(-1.0, 1.0, 3) * np.asarray(config.posture_translation_mm)
     angles = np.deg2rad(rng.uniform(-1.0, 1.0, 3) * np.asarray(config.posture_rotation_deg))
     R = xyz_fixed_to_matrix(angles[2], angles[1], angles[0])
-    centre_T = np.array([-config.opening_width_mm / 2.0, config.opening_height_mm / 2.0, 0.0])
-    # Rotate about the opening centre, expressed in T, then translate (translation in T's axes).
+    if config.posture_pivot == "corner":
+        centre_T = np.zeros(3)
+    else:
+        centre_T = np.array([-config.opening_width_mm / 2.0, config.opening_height_mm / 2.0, 0.0])
+    # Rotate about the pivot, expressed in T, then translate (translation in T's axes).
     T_T_Tnew = make_pose(np.eye(3), centre_T) @ make_pose(R, np.zeros(3)) @ make_pose(np.eye(3), -centre_T)
     T_T_Tnew[:3, 3] += dt
     return World(T_nom @ T_T_Tnew, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm)

@@ -104,6 +104,9 @@ class CornerMeasurement:
     arc: ArcMeasurement | None = None
     checks: tuple[Check, ...] = ()
     segments: F64 = field(default_factory=lambda: np.zeros((0, 4)))
+    coarse_corner_px: F64 | None = None
+    """Where the coarse stage put the corner (ideal image), kept on refusals after it: enough to
+    re-aim the camera when the corner lies too near the image border to be measured well."""
 
     @property
     def ok(self) -> bool:
@@ -443,7 +446,7 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
     except _Refused as r:
         return CornerMeasurement(
             r.refusal, r.message, roi, exclusion, top=edges.get("top"), right=edges.get("right"),
-            checks=tuple(checks), segments=coarse.segments,
+            checks=tuple(checks), segments=coarse.segments, coarse_corner_px=corner,
         )
 
     top, right = edges["top"], edges["right"]
@@ -486,6 +489,7 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
         arc=arc,
         checks=tuple(checks),
         segments=coarse.segments,
+        coarse_corner_px=corner,
     )
     if not inside:
         return CornerMeasurement(Refusal.CORNER_NOT_FOUND, "the corner lies outside the region of interest", **result)  # type: ignore[arg-type]

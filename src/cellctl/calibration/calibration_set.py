@@ -1,0 +1,557 @@
+"""The versioned calibration set: what the cycle needs, how it was obtained, and whether it is usable.
+
+One JSON document per version holds five parts, each with its values, when and how it was
+made (method, software, the dataset it came from), its quality figures and warnings, the ids of
+the parts it was computed with, and how long it stays valid:
+
+- ``camera``: A (``K``, 3x3), distortion ``dist`` (k1, k2, p1, p2, k3) and ``image_size`` (w, h);
+- ``hand_eye``: ``T_H_C`` (4x4, mm);
+- ``laser``: ``r`` (mm) and unit ``l`` in the flange frame;
+- ``pixel_map``: ``affine`` (2x3, undistorted px -> workpiece-plane mm) and ``scale_mm_per_px`` s;
+- ``teaching``: ``T0``, ``C_Pos_0``, ``g_Pos_0`` (4x4 in B) and the template ``u_d``, ``v_d``,
+  ``theta_d`` (with the two edge angles ``top_angle_d``, ``right_angle_d``).
+
+A part whose calibration failed is kept with ``status = "failed"`` and the reason, so the cell
+refuses production until it is redone. Loading validates every field and names the one that is
+wrong. :class:`CalibrationStore` keeps the history: ``set-000001.json``, ``set-000002.json``...
+in one folder and a ``current`` file naming the version in use; every change writes a new
+version (never edits an old one) and moves the pointer atomically. :func:`check_ready` lists
+everything that stops production: a part missing, failed, expired, dated in the future, or
+computed from a part that has since been replaced.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from cellctl.compensate import TaughtPoses
+from cellctl.geometry.pose import Pose, check_pose
+
+FORMAT = "cellctl-calibration-set"
+FORMAT_VERSION = 1
+PART_NAMES = ("camera", "hand_eye", "laser", "pixel_map", "teaching")
+# Which parts each part is computed from: a part is stale once one of these has been replaced.
+DEPENDS_ON: dict[str, tuple[str, ...]] = {
+    "camera": (),
+    "hand_eye": ("camera",),
+    "laser": (),
+    "teaching": ("camera", "hand_eye", "laser"),
+    "pixel_map": ("camera", "teaching"),
+}
+COMMANDS = {
+    "camera": "cellctl calibrate camera",
+    "hand_eye": "cellctl calibrate hand-eye",
+    "laser": "cellctl calibrate laser",
+    "pixel_map": "cellctl calibrate nine-point",
+    "teaching": "cellctl teach",
+}
+
+
+class CalibrationSetError(ValueError):
+    """A calibration set file cannot be used; the message names each bad field."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _finite_matrix(v: Any, shape: tuple[int, ...], what: str) -> list[Any]:
+    a = np.asarray(v, dtype=float)
+    if a.shape != shape:
+        raise ValueError(f"{what} must be a {' x '.join(map(str, shape))} array, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what} contains NaN or infinite values")
+    return a.tolist()  # type: ignore[no-any-return]
+
+
+def _pose(v: Any) -> list[list[float]]:
+    m = _finite_matrix(v, (4, 4), "pose")
+    check_pose(np.asarray(m), "pose", tol=1e-6)
+    return m
+
+
+class CameraValues(_Model):
+    K: list[list[float]]
+    dist: list[float]
+    image_size: tuple[int, int]
+
+    @field_validator("K")
+    @classmethod
+    def _k(cls, v: Any) -> list[list[float]]:
+        K = np.asarray(_finite_matrix(v, (3, 3), "K"))
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[1, 0]) + abs(K[2, 0]) + abs(K[2, 1]) > 0 or K[2, 2] != 1.0:
+            raise ValueError("K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+        return K.tolist()  # type: ignore[no-any-return]
+
+    @field_validator("dist")
+    @classmethod
+    def _dist(cls, v: Any) -> list[float]:
+        return _finite_matrix(v, (5,), "dist (k1, k2, p1, p2, k3)")
+
+    @model_validator(mode="after")
+    def _pp_inside(self) -> "CameraValues":
+        w, h = self.image_size
+        if w <= 0 or h <= 0:
+            raise ValueError(f"image_size must be positive (width, height), got {self.image_size}")
+        if not (0 <= self.K[0][2] < w and 0 <= self.K[1][2] < h):
+            raise ValueError("the principal point (K[0][2], K[1][2]) lies outside the image")
+        return self
+
+
+class HandEyeValues(_Model):
+    T_H_C: list[list[float]]
+
+    @field_validator("T_H_C")
+    @classmethod
+    def _pose_ok(cls, v: Any) -> list[list[float]]:
+        return _pose(v)
+
+
+class LaserValues(_Model):
+    r: list[float]
+    l: list[float]  # noqa: E741
+
+    @field_validator("r")
+    @classmethod
+    def _r(cls, v: Any) -> list[float]:
+        return _finite_matrix(v, (3,), "r")
+
+    @field_validator("l")
+    @classmethod
+    def _l(cls, v: Any) -> list[float]:
+        a = np.asarray(_finite_matrix(v, (3,), "l"))
+        if abs(np.linalg.norm(a) - 1.0) > 1e-6:
+            raise ValueError(f"l must be a unit vector, its length is {np.linalg.norm(a):.9f}")
+        return a.tolist()  # type: ignore[no-any-return]
+
+
+class PixelMapValues(_Model):
+    affine: list[list[float]]
+    scale_mm_per_px: float = Field(gt=0)
+
+    @field_validator("affine")
+    @classmethod
+    def _affine(cls, v: Any) -> list[list[float]]:
+        a = np.asarray(_finite_matrix(v, (2, 3), "affine"))
+        if abs(np.linalg.det(a[:, :2])) < 1e-12:
+            raise ValueError("affine: its 2x2 part is singular (it maps the image onto a line)")
+        return a.tolist()  # type: ignore[no-any-return]
+
+
+class TeachingValues(_Model):
+    T0: list[list[float]]
+    C_Pos_0: list[list[float]]
+    g_Pos_0: list[list[float]]
+    u_d: float
+    v_d: float
+    theta_d: float
+    top_angle_d: float
+    right_angle_d: float
+
+    @field_validator("T0", "C_Pos_0", "g_Pos_0")
+    @classmethod
+    def _pose_ok(cls, v: Any) -> list[list[float]]:
+        return _pose(v)
+
+    @field_validator("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")
+    @classmethod
+    def _finite(cls, v: float) -> float:
+        if not np.isfinite(v):
+            raise ValueError("must be a finite number")
+        return v
+
+
+class DatasetRef(_Model):
+    """Where the data of a part lies and a fingerprint of it, for audits and recomputation."""
+
+    kind: str
+    path: str
+    manifest_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    summary: dict[str, Any] = {}
+
+
+class _Part(_Model):
+    id: str = Field(min_length=1)
+    status: Literal["ok", "failed"]
+    calibrated_utc: datetime
+    valid_days: float = Field(gt=0)
+    method: str
+    software: dict[str, str] = {}
+    inputs: dict[str, str] = {}
+    dataset: DatasetRef | None = None
+    quality: dict[str, Any] = {}
+    warnings: list[str] = []
+    failure: str | None = None
+
+    @field_validator("calibrated_utc")
+    @classmethod
+    def _aware(cls, v: datetime) -> datetime:
+        if v.tzinfo is None:
+            raise ValueError("needs a time zone (write it as UTC, e.g. 2025-01-31T12:00:00Z)")
+        return v.astimezone(timezone.utc)
+
+    @model_validator(mode="after")
+    def _status(self) -> "_Part":
+        values = getattr(self, "values", None)
+        if self.status == "ok" and (values is None or self.failure is not None):
+            raise ValueError("a part with status 'ok' needs values and no failure")
+        if self.status == "failed" and not self.failure:
+            raise ValueError("a part with status 'failed' needs the failure reason")
+        return self
+
+
+class CameraPart(_Part):
+    values: CameraValues | None = None
+
+
+class HandEyePart(_Part):
+    values: HandEyeValues | None = None
+
+
+class LaserPart(_Part):
+    values: LaserValues | None = None
+
+
+class PixelMapPart(_Part):
+    values: PixelMapValues | None = None
+
+
+class TeachingPart(_Part):
+    values: TeachingValues | None = None
+
+
+AnyPart = CameraPart | HandEyePart | LaserPart | PixelMapPart | TeachingPart
+PART_MODELS: dict[str, type[_Part]] = {
+    "camera": CameraPart,
+    "hand_eye": HandEyePart,
+    "laser": LaserPart,
+    "pixel_map": PixelMapPart,
+    "teaching": TeachingPart,
+}
+
+
+class Parts(_Model):
+    camera: CameraPart | None = None
+    hand_eye: HandEyePart | None = None
+    laser: LaserPart | None = None
+    pixel_map: PixelMapPart | None = None
+    teaching: TeachingPart | None = None
+
+
+class CalibrationSet(_Model):
+    """One version of the calibration set (see the module docstring)."""
+
+    format: Literal["cellctl-calibration-set"] = FORMAT
+    format_version: Literal[1] = FORMAT_VERSION
+    version: int = Field(ge=1)
+    created_utc: datetime
+    parent_version: int | None = None
+    note: str = ""
+    parts: Parts = Parts()
+
+    def part(self, name: str) -> _Part | None:
+        if name not in PART_NAMES:
+            raise KeyError(f"unknown calibration part {name!r}; the parts are {', '.join(PART_NAMES)}")
+        return getattr(self.parts, name)  # type: ignore[no-any-return]
+
+    def _ok(self, name: str) -> Any:
+        p = self.part(name)
+        if p is None or p.status != "ok" or getattr(p, "values", None) is None:
+            state = "missing" if p is None else f"failed ({p.failure})"
+            raise CalibrationSetError(f"calibration part {name} is {state}; run `{COMMANDS[name]}`")
+        return p.values  # type: ignore[attr-defined]
+
+    # -- typed values for the cycle ----------------------------------------------------------
+
+    def camera_matrix(self) -> NDArray[np.float64]:
+        return np.asarray(self._ok("camera").K, dtype=float)
+
+    def dist_coeffs(self) -> NDArray[np.float64]:
+        return np.asarray(self._ok("camera").dist, dtype=float)
+
+    def image_size(self) -> tuple[int, int]:
+        return tuple(self._ok("camera").image_size)  # type: ignore[return-value]
+
+    def T_H_C(self) -> Pose:
+        return np.asarray(self._ok("hand_eye").T_H_C, dtype=float)
+
+    def laser_ray(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        v = self._ok("laser")
+        return np.asarray(v.r, dtype=float), np.asarray(v.l, dtype=float)
+
+    def pixel_affine(self) -> NDArray[np.float64]:
+        return np.asarray(self._ok("pixel_map").affine, dtype=float)
+
+    def pixel_scale(self) -> float:
+        return float(self._ok("pixel_map").scale_mm_per_px)
+
+    def taught(self) -> TaughtPoses:
+        v = self._ok("teaching")
+        return TaughtPoses(np.asarray(v.T0, dtype=float), np.asarray(v.C_Pos_0, dtype=float), np.asarray(v.g_Pos_0, dtype=float))
+
+    def template(self) -> dict[str, float]:
+        """u_d, v_d, theta_d and the two edge angles of the taught corner (ideal pixels, rad)."""
+        v = self._ok("teaching")
+        return {k: float(getattr(v, k)) for k in ("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")}
+
+    def with_part(self, name: str, part: _Part, *, version: int, created_utc: datetime, note: str = "") -> "CalibrationSet":
+        """A new version with ``part`` as ``name`` and every other part kept."""
+        if not isinstance(part, PART_MODELS[name]):
+            raise TypeError(f"part {name} must be a {PART_MODELS[name].__name__}, got {type(part).__name__}")
+        parts = self.parts.model_copy(update={name: part})
+        return CalibrationSet(version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts)
+
+
+def empty_set(created_utc: datetime) -> CalibrationSet:
+    """Version 0 of nothing: the parent of the first stored set (never stored itself)."""
+    return CalibrationSet.model_construct(version=0, created_utc=created_utc, parent_version=None, note="", parts=Parts())
+
+
+def _format_errors(source: str, err: ValidationError) -> str:
+    lines = [f"{source}: {err.error_count()} problem(s) in the calibration set:"]
+    for e in err.errors():
+        loc = ".".join(str(p) for p in e["loc"] if not str(p).startswith("function-after")) or "(top level)"
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg = "unknown field (was the file written by a newer cellctl, or edited by hand?)"
+        elif e["type"] == "missing":
+            msg = "required field is missing"
+        lines.append(f"  - {loc}: {msg}")
+    return "\n".join(lines)
+
+
+def parse_calibration_set(data: Any, source: str = "<calibration set>") -> CalibrationSet:
+    """Validate a parsed JSON document; raises CalibrationSetError naming each bad field."""
+    if not isinstance(data, dict):
+        raise CalibrationSetError(f"{source}: the calibration set must be a JSON object, got {type(data).__name__}")
+    if data.get("format") != FORMAT:
+        raise CalibrationSetError(f"{source}: format must be {FORMAT!r}, got {data.get('format')!r}: not a calibration set")
+    if data.get("format_version") != FORMAT_VERSION:
+        raise CalibrationSetError(
+            f"{source}: format_version {data.get('format_version')!r} is not supported (this cellctl reads {FORMAT_VERSION})"
+        )
+    try:
+        return CalibrationSet.model_validate(data)
+    except ValidationError as err:
+        raise CalibrationSetError(_format_errors(source, err)) from None
+
+
+def load_calibration_set(path: str | Path) -> CalibrationSet:
+    """Read and validate a calibration set file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise CalibrationSetError(f"{p}: calibration set file not found") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise CalibrationSetError(f"{p}: not valid JSON ({err.msg} at line {err.lineno}, column {err.colno})") from None
+    return parse_calibration_set(data, str(p))
+
+
+def dump_calibration_set(cal: CalibrationSet) -> str:
+    """The set as indented JSON (timestamps as UTC ISO 8601)."""
+    return cal.model_dump_json(indent=2, exclude_none=False)
+
+
+def part_id(name: str, values: dict[str, Any], when: datetime) -> str:
+    """An id naming the part, its time and a fingerprint of its values."""
+    digest = hashlib.sha256(json.dumps(values, sort_keys=True).encode("utf-8")).hexdigest()[:10]
+    return f"{name}-{when.astimezone(timezone.utc):%Y%m%dT%H%M%SZ}-{digest}"
+
+
+def make_part(
+    name: str,
+    *,
+    values: dict[str, Any] | None,
+    method: str,
+    when: datetime,
+    valid_days: float,
+    quality: dict[str, Any] | None = None,
+    warnings: list[str] | None = None,
+    inputs: dict[str, str] | None = None,
+    dataset: DatasetRef | None = None,
+    software: dict[str, str] | None = None,
+    failure: str | None = None,
+) -> _Part:
+    """A validated part record; ``values`` None with a ``failure`` makes a failed part."""
+    if name not in PART_MODELS:
+        raise KeyError(f"unknown calibration part {name!r}")
+    status = "ok" if failure is None else "failed"
+    pid = part_id(name, values or {"failure": failure}, when)
+    try:
+        return PART_MODELS[name].model_validate(
+            {
+                "id": pid,
+                "status": status,
+                "calibrated_utc": when,
+                "valid_days": valid_days,
+                "method": method,
+                "software": software or {},
+                "inputs": inputs or {},
+                "dataset": dataset,
+                "quality": _jsonable(quality or {}),
+                "warnings": warnings or [],
+                "failure": failure,
+                "values": values,
+            }
+        )
+    except ValidationError as err:
+        raise CalibrationSetError(_format_errors(f"new {name} part", err)) from None
+
+
+def _jsonable(x: Any) -> Any:
+    """Quality figures as plain JSON types (numpy scalars and arrays converted)."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.bool_,)):
+        return bool(x)
+    return x
+
+
+def check_ready(cal: CalibrationSet | None, now: datetime) -> list[str]:
+    """Everything that stops production, one line per problem (an empty list: ready).
+
+    A part is a problem when it is missing, failed, expired, dated in the future, or was
+    computed from a part that has since been replaced (stale).
+    """
+    if now.tzinfo is None:
+        raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
+    if cal is None:
+        return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
+    problems: list[str] = []
+    for name in PART_NAMES:
+        p = cal.part(name)
+        cmd = COMMANDS[name]
+        if p is None:
+            problems.append(f"{name}: missing; run `{cmd}`")
+            continue
+        if p.status == "failed":
+            problems.append(f"{name}: the last calibration failed ({p.failure}); fix the cause and run `{cmd}` again")
+            continue
+        expires = p.calibrated_utc + timedelta(days=p.valid_days)
+        if now >= expires:
+            problems.append(
+                f"{name}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
+                f"valid {p.valid_days:g} days); run `{cmd}`"
+            )
+        if p.calibrated_utc > now + timedelta(minutes=5):
+            problems.append(f"{name}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
+        for dep in DEPENDS_ON[name]:
+            used = p.inputs.get(dep)
+            have = cal.part(dep)
+            if used is None:
+                problems.append(f"{name}: does not record which {dep} it was computed with; run `{cmd}` again")
+            elif have is not None and have.status == "ok" and have.id != used:
+                problems.append(
+                    f"{name}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
+                )
+    return problems
+
+
+class CalibrationStore:
+    """The history of calibration sets in one folder: ``set-NNNNNN.json`` files and a ``current`` pointer.
+
+    Args:
+        root: the folder (created when the first set is written).
+    """
+
+    POINTER = "current"
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    def _path(self, version: int) -> Path:
+        return self.root / f"set-{version:06d}.json"
+
+    def versions(self) -> list[int]:
+        """Every stored version, oldest first."""
+        if not self.root.is_dir():
+            return []
+        out = []
+        for f in self.root.glob("set-*.json"):
+            stem = f.stem.removeprefix("set-")
+            if stem.isdigit():
+                out.append(int(stem))
+        return sorted(out)
+
+    def current_version(self) -> int | None:
+        """The version the pointer names, or None before the first set."""
+        ptr = self.root / self.POINTER
+        if not ptr.exists():
+            return None
+        name = ptr.read_text(encoding="utf-8").strip()
+        stem = name.removeprefix("set-").removesuffix(".json")
+        if not stem.isdigit():
+            raise CalibrationSetError(f"{ptr}: does not name a calibration set file (got {name!r})")
+        return int(stem)
+
+    def load(self, version: int) -> CalibrationSet:
+        cal = load_calibration_set(self._path(version))
+        if cal.version != version:
+            raise CalibrationSetError(f"{self._path(version)}: the file says version {cal.version}, its name {version}")
+        return cal
+
+    def current(self) -> CalibrationSet | None:
+        """The set in use, validated; None when nothing was calibrated yet."""
+        v = self.current_version()
+        return None if v is None else self.load(v)
+
+    def _write_atomic(self, path: Path, text: str) -> None:
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+    def commit(self, name: str, part: _Part, *, note: str = "", now: datetime | None = None) -> CalibrationSet:
+        """Store a new version with ``part`` replacing ``name`` and make it current."""
+        when = now or datetime.now(timezone.utc)
+        self.root.mkdir(parents=True, exist_ok=True)
+        base = self.current() or empty_set(when)
+        existing = self.versions()
+        version = (max(existing) if existing else 0) + 1
+        new = base.with_part(name, part, version=version, created_utc=when, note=note)
+        if base.version == 0:
+            new = new.model_copy(update={"parent_version": None})
+        path = self._path(version)
+        if path.exists():
+            raise CalibrationSetError(f"{path} exists already; another process is writing the calibration store")
+        self._write_atomic(path, dump_calibration_set(new))
+        self._write_atomic(self.root / self.POINTER, path.name + "\n")
+        return new
+
+    def history(self) -> list[dict[str, Any]]:
+        """One line per version: number, time, note and the status of each part."""
+        rows = []
+        for v in self.versions():
+            cal = self.load(v)
+            rows.append(
+                {
+                    "version": v,
+                    "created_utc": cal.created_utc.isoformat(),
+                    "note": cal.note,
+                    "parts": {n: (None if cal.part(n) is None else cal.part(n).status) for n in PART_NAMES},  # type: ignore[union-attr]
+                }
+            )
+        return rows

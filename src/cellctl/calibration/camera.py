@@ -1,0 +1,199 @@
+"""Camera intrinsics by Zhang's method (paper 2.2): camera matrix A and distortion (eq. 17).
+
+``cv2.calibrateCameraExtended`` on the board's inner corners from several views (found by
+cellctl.calibration.board). Bad views are taken out one at a time, worst first, while a view's
+reprojection RMS exceeds both ``reject_factor`` times the median of the views and
+``reject_floor_px`` (a view with a mis-ordered, blurred or partly hidden board); views whose
+board was not found are listed with the detector's reason. The result carries the RMS, every
+view's RMS, the standard deviations of the parameters (OpenCV's ``stdDeviationsIntrinsics``),
+how much of the image the corners covered, and the board pose in each view.
+
+Refused (CalibrationRefused, with the reason) when fewer than ``min_views`` views are left, when
+no view showed the board, or when the RMS stays above ``max_rms_px``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.geometry.pose import Pose, make_pose
+
+F64 = NDArray[np.float64]
+
+# Coverage is counted on this grid of image cells.
+COVERAGE_GRID = 8
+
+
+@dataclass(frozen=True)
+class CameraLimits:
+    """When camera calibration data is refused, and how bad views are recognised."""
+
+    min_views: int = 8
+    max_rms_px: float = 0.5
+    reject_factor: float = 3.0
+    reject_floor_px: float = 0.1
+
+
+@dataclass(frozen=True)
+class ViewCorners:
+    """One view: its name and the board's corners (N, 2) in raw pixels, or why it has none."""
+
+    name: str
+    corners_px: F64 | None
+    reason: str = "ok"
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """The calibrated camera: A, distortion (k1, k2, p1, p2, k3) and the image size (w, h)."""
+
+    K: F64
+    dist: F64
+    image_size: tuple[int, int]
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+
+@dataclass(frozen=True)
+class CameraCalibration:
+    """Intrinsics and the figures that say how far to trust them.
+
+    Attributes:
+        intrinsics: A, distortion and image size.
+        rms_px: overall reprojection RMS of the views used.
+        per_view_rms_px: each used view's RMS, by name.
+        rejected: (view name, reason) of every view left out.
+        std: standard deviation of fx, fy, cx, cy (px) and k1, k2, p1, p2, k3.
+        coverage: share of the image's 8 x 8 cells that held at least one corner.
+        board_poses: T_C_P of each used view, by name.
+        flags: the OpenCV flags used.
+    """
+
+    intrinsics: Intrinsics
+    rms_px: float
+    per_view_rms_px: dict[str, float]
+    rejected: list[tuple[str, str]]
+    std: dict[str, float]
+    coverage: float
+    board_poses: dict[str, Pose] = field(repr=False)
+    flags: int = 0
+
+
+_STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+def _coverage(points: Sequence[F64], size: tuple[int, int]) -> float:
+    w, h = size
+    hit = np.zeros((COVERAGE_GRID, COVERAGE_GRID), dtype=bool)
+    for p in points:
+        i = np.clip((p[:, 1] / h * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
+        j = np.clip((p[:, 0] / w * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
+        hit[i, j] = True
+    return float(hit.mean())
+
+
+def calibrate_camera(
+    views: Sequence[ViewCorners],
+    object_points: ArrayLike,
+    image_size: tuple[int, int],
+    *,
+    fix_k3: bool = False,
+    limits: CameraLimits = CameraLimits(),
+) -> CameraCalibration:
+    """Zhang's calibration on the views whose board was found; bad views rejected.
+
+    Args:
+        views: every view collected, with its corners or the reason it has none.
+        object_points: the board's inner corners (N, 3) in the board frame (mm).
+        image_size: (width, height) in pixels.
+        fix_k3: keep k3 at 0 (for a lens whose r^6 term the views cannot resolve).
+        limits: refusal thresholds.
+    """
+    obj = np.asarray(object_points, dtype=np.float64)
+    if obj.ndim != 2 or obj.shape[1] != 3:
+        raise ValueError(f"object_points must have shape (N, 3), got {obj.shape}")
+    w, h = int(image_size[0]), int(image_size[1])
+    if w <= 0 or h <= 0:
+        raise ValueError(f"image_size must be positive (width, height), got {image_size!r}")
+    rejected: list[tuple[str, str]] = []
+    used: list[ViewCorners] = []
+    for v in views:
+        if v.corners_px is None:
+            rejected.append((v.name, f"board not found: {v.reason}"))
+        elif np.shape(v.corners_px) != (len(obj), 2):
+            rejected.append((v.name, f"{len(v.corners_px)} corners for a board of {len(obj)}"))
+        else:
+            used.append(v)
+    if not used:
+        raise CalibrationRefused(
+            "camera", "board_not_found",
+            f"the board was not found in any of the {len(views)} views"
+            + (f" (first reason: {rejected[0][1]})" if rejected else "")
+            + "; check the board size in the configuration, the lighting and that the board is in view",
+        )
+    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    while True:
+        if len(used) < limits.min_views:
+            raise CalibrationRefused(
+                "camera", "too_few_views",
+                f"{len(used)} usable view(s) of {len(views)}; at least {limits.min_views} are needed"
+                + (f" (left out: {'; '.join(f'{n}: {r}' for n, r in rejected[:4])})" if rejected else "")
+                + ": collect more views of the board, tilted in different directions",
+            )
+        op = [obj.astype(np.float32).reshape(-1, 1, 3)] * len(used)
+        ip = [np.asarray(v.corners_px, dtype=np.float32).reshape(-1, 1, 2) for v in used]
+        rms, K, D, rvecs, tvecs, std_in, _, per_view = cv2.calibrateCameraExtended(
+            op, ip, (w, h), None, None, flags=flags,
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12),
+        )
+        per = np.asarray(per_view, dtype=float).reshape(-1)
+        worst = int(np.argmax(per))
+        median = float(np.median(per))
+        if per[worst] > limits.reject_factor * median and per[worst] > limits.reject_floor_px:
+            rejected.append(
+                (used[worst].name, f"reprojection {per[worst]:.3f} px, {per[worst] / median:.1f} x the median {median:.3f} px")
+            )
+            used = used[:worst] + used[worst + 1 :]
+            continue
+        break
+    if rms > limits.max_rms_px:
+        raise CalibrationRefused(
+            "camera", "rms_too_high",
+            f"reprojection RMS {rms:.3f} px exceeds {limits.max_rms_px:g} px: check the board's flatness and printed "
+            "square size, focus and that the camera and lens were fixed during the views",
+        )
+    std = np.asarray(std_in, dtype=float).reshape(-1)
+    poses = {}
+    for v, rv, tv in zip(used, rvecs, tvecs):
+        R, _ = cv2.Rodrigues(rv)
+        poses[v.name] = make_pose(R, np.asarray(tv, dtype=float).reshape(3))
+    return CameraCalibration(
+        intrinsics=Intrinsics(np.asarray(K, dtype=float), np.asarray(D, dtype=float).reshape(-1)[:5], (w, h)),
+        rms_px=float(rms),
+        per_view_rms_px={v.name: float(p) for v, p in zip(used, per)},
+        rejected=rejected,
+        std={n: float(s) for n, s in zip(_STD_NAMES, std[: len(_STD_NAMES)])},
+        coverage=_coverage([np.asarray(v.corners_px, dtype=float) for v in used], (w, h)),
+        board_poses=poses,
+        flags=flags,
+    )

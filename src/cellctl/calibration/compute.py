@@ -1,0 +1,516 @@
+"""From a saved dataset to a calibration part: the offline half of every calibration command.
+
+Each ``compute_*`` reads only the dataset (and, where a part builds on others, the current
+calibration set), so any calibration can be recomputed later from its folder and compared. The
+result is an :class:`Outcome`: the values for the calibration set, the quality figures, warnings,
+the ids of the parts used, and a few readable summary lines. Data that cannot give a trustworthy
+result raises CalibrationRefused with the reason.
+
+A dataset recorded in the simulated cell carries the simulator's truth under ``twin_truth``; it
+is never used in a computation, only compared with the result afterwards (``quality.twin_truth``),
+so a simulated run reports its true error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.align import AlignmentError, compute_alignment
+from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationSetError
+from cellctl.calibration.camera import CameraLimits, ViewCorners, calibrate_camera
+from cellctl.calibration.dataset import Dataset, pose_array
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.hand_eye import HandEyeLimits, board_pose, solve_hand_eye
+from cellctl.calibration.laser import LaserLimits, calibrate_laser
+from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
+from cellctl.calibration.teach import workpiece_frame_from_corner
+from cellctl.compensate import deviation_in_frame
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import pose_error
+from cellctl.geometry.rotation import angle_between_vectors, matrix_to_xyz_fixed, rotation_angle_between
+from cellctl.vision.corner import detect_corner
+from cellctl.vision.lens import Lens
+from cellctl.vision.ninepoint import NinePointError
+from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class Outcome:
+    """One computed calibration part, ready for the calibration set."""
+
+    part: str
+    method: str
+    values: dict[str, Any]
+    quality: dict[str, Any]
+    warnings: list[str] = field(default_factory=list)
+    inputs: dict[str, str] = field(default_factory=dict)
+    summary: list[str] = field(default_factory=list)
+    detail: Any = None
+
+
+def _board(ds: Dataset) -> BoardSpec:
+    b = ds.manifest.get("board")
+    if not isinstance(b, dict):
+        raise CalibrationRefused("camera", "bad_dataset", f"{ds.root}: the manifest does not describe the board")
+    return BoardSpec(tuple(b["inner_corners"]), float(b["square_mm"]))  # type: ignore[arg-type]
+
+
+def _lens(cal: CalibrationSet) -> Lens:
+    K, D = cal.camera_matrix(), cal.dist_coeffs()
+    w, h = cal.image_size()
+    return Lens(K[0, 0], K[1, 1], K[0, 2], K[1, 2], D[0], D[1], D[2], D[3], D[4], int(w), int(h))
+
+
+def _need(cal: CalibrationSet | None, part: str, name: str) -> str:
+    """The id of a part this calibration builds on, refusing when it is not usable."""
+    if cal is None:
+        raise CalibrationRefused(part, "missing_input", f"{name} is not calibrated yet: there is no calibration set")
+    p = cal.part(name)
+    if p is None or p.status != "ok":
+        state = "missing" if p is None else "failed"
+        raise CalibrationRefused(part, "missing_input", f"{name} is {state} in the calibration set; calibrate it first")
+    return p.id
+
+
+def detect_views(ds: Dataset, refine: str = "subpix") -> list[tuple[str, BoardDetection]]:
+    """The board in every view of a board_views dataset."""
+    spec = _board(ds)
+    return [(v["name"], find_board(ds.image(v["image"]), spec, refine=refine)) for v in ds.manifest["views"]]  # type: ignore[arg-type]
+
+
+# -- camera -------------------------------------------------------------------------------------
+
+
+def compute_camera(
+    ds: Dataset, config: CellConfig, detections: list[tuple[str, BoardDetection]] | None = None
+) -> Outcome:
+    """Intrinsics (Zhang) from a board_views dataset."""
+    cc = config.calibration.camera
+    spec = _board(ds)
+    dets = detections if detections is not None else detect_views(ds, cc.refine)
+    views = [ViewCorners(name, d.corners_px, d.reason) for name, d in dets]
+    size = tuple(int(x) for x in ds.manifest["image_size"])
+    limits = CameraLimits(cc.min_views, cc.max_rms_px, cc.reject_factor, cc.reject_floor_px)
+    res = calibrate_camera(views, spec.object_points(), size, fix_k3=cc.fix_k3, limits=limits)  # type: ignore[arg-type]
+    i = res.intrinsics
+    sharp = [d.sharpness_px for _, d in dets if d.sharpness_px is not None]
+    quality: dict[str, Any] = {
+        "rms_px": res.rms_px,
+        "per_view_rms_px": res.per_view_rms_px,
+        "rejected_views": [{"view": n, "reason": r} for n, r in res.rejected],
+        "views_used": len(res.per_view_rms_px),
+        "views_total": len(views),
+        "std": res.std,
+        "coverage": res.coverage,
+        "fix_k3": cc.fix_k3,
+        "board_sharpness_px": float(np.median(sharp)) if sharp else None,
+        "detection_s": float(sum(d.seconds for _, d in dets)),
+    }
+    warnings = []
+    if res.coverage < 0.3:
+        warnings.append(f"the corners covered only {res.coverage:.0%} of the image; add views reaching its corners")
+    if res.rejected:
+        warnings.append(f"{len(res.rejected)} view(s) left out: " + "; ".join(f"{n}: {r}" for n, r in res.rejected[:3]))
+    truth = ds.manifest.get("twin_truth", {}).get("intrinsics")
+    if truth:
+        quality["twin_truth"] = {
+            "fx_error_pct": 100.0 * (i.fx / truth["fx"] - 1.0),
+            "fy_error_pct": 100.0 * (i.fy / truth["fy"] - 1.0),
+            "cx_error_px": i.cx - truth["cx"],
+            "cy_error_px": i.cy - truth["cy"],
+        }
+    summary = [
+        f"fx {i.fx:.2f} +- {res.std['fx']:.2f} px, fy {i.fy:.2f} +- {res.std['fy']:.2f} px",
+        f"cx {i.cx:.2f} +- {res.std['cx']:.2f} px, cy {i.cy:.2f} +- {res.std['cy']:.2f} px",
+        "k1 k2 p1 p2 k3 " + " ".join(f"{v:.5g}" for v in i.dist),
+        f"RMS reprojection {res.rms_px:.4f} px over {len(res.per_view_rms_px)} of {len(views)} views, "
+        f"image coverage {res.coverage:.0%}",
+    ]
+    if "twin_truth" in quality:
+        t = quality["twin_truth"]
+        summary.append(
+            f"true error: fx {t['fx_error_pct']:+.4f} %, fy {t['fy_error_pct']:+.4f} %, "
+            f"cx {t['cx_error_px']:+.3f} px, cy {t['cy_error_px']:+.3f} px"
+        )
+    return Outcome(
+        "camera",
+        "zhang (cv2.calibrateCameraExtended), corners by findChessboardCornersSB" + f" + {cc.refine}",
+        {"K": i.K.tolist(), "dist": i.dist.tolist(), "image_size": list(size)},
+        quality,
+        warnings,
+        {},
+        summary,
+        res,
+    )
+
+
+# -- hand-eye -----------------------------------------------------------------------------------
+
+
+def compute_hand_eye(
+    ds: Dataset,
+    cal: CalibrationSet | None,
+    config: CellConfig,
+    detections: list[tuple[str, BoardDetection]] | None = None,
+) -> Outcome:
+    """T_H_C from a board_views dataset, the robot's reported poses and the calibrated camera."""
+    hc = config.calibration.hand_eye
+    camera_id = _need(cal, "hand_eye", "camera")
+    assert cal is not None
+    K, D = cal.camera_matrix(), cal.dist_coeffs()
+    spec = _board(ds)
+    obj = spec.object_points()
+    dets = dict(detections if detections is not None else detect_views(ds, config.calibration.camera.refine))
+    H, C, corners, names, pnp = [], [], [], [], []
+    missing = []
+    for v in ds.manifest["views"]:
+        d = dets.get(v["name"])
+        if d is None or not d.found:
+            missing.append(v["name"])
+            continue
+        T_C_P, rms = board_pose(obj, d.corners_px, K, D)
+        H.append(pose_array(v["T_B_H"], f"{v['name']}.T_B_H"))
+        C.append(T_C_P)
+        corners.append(d.corners_px)
+        names.append(v["name"])
+        pnp.append(rms)
+    if not H:
+        raise CalibrationRefused("hand_eye", "board_not_found", f"the board was not found in any of the {len(ds.manifest['views'])} views")
+    limits = HandEyeLimits(hc.min_views, hc.recommended_views, hc.min_pair_angle_deg, hc.min_max_pair_angle_deg, hc.min_axis_spread)
+    rep = solve_hand_eye(H, C, chosen=hc.method, limits=limits, object_points=obj, corners_px=corners, K=K, dist=D)
+    worst_mm = max(rep.agreement_mm.values())
+    worst_deg = max(rep.agreement_deg.values())
+    if worst_mm > hc.max_translation_disagreement_mm or worst_deg > hc.max_rotation_disagreement_deg:
+        raise CalibrationRefused(
+            "hand_eye", "methods_disagree",
+            f"the methods disagree by up to {worst_mm:.2f} mm and {worst_deg:.3f} deg (limits "
+            f"{hc.max_translation_disagreement_mm:g} mm, {hc.max_rotation_disagreement_deg:g} deg): the data is "
+            "inconsistent (board moved, poses and images mismatched, or poor motion); collect the views again",
+        )
+    X = rep.T_H_C
+    warnings = list(rep.warnings)
+    if missing:
+        warnings.append(f"board not found in {len(missing)} view(s): {', '.join(missing[:5])}")
+    per_method = {}
+    for m, s in rep.solutions.items():
+        per_method[m] = {
+            "translation_mm": s.T_H_C[:3, 3].tolist(),
+            "rotation_rows": s.T_H_C[:3, :3].tolist(),
+            "residual_rotation_rms_deg": s.residual.rotation_rms_deg,
+            "residual_translation_rms_mm": s.residual.translation_rms_mm,
+            "board_spread_mm": s.residual.board_spread_mm,
+            "board_spread_deg": s.residual.board_spread_deg,
+            "chain_reprojection_rms_px": s.residual.reprojection_rms_px,
+            "from_chosen_mm": rep.agreement_mm[m],
+            "from_chosen_deg": rep.agreement_deg[m],
+        }
+    d = rep.diversity
+    quality: dict[str, Any] = {
+        "chosen": rep.chosen,
+        "methods": per_method,
+        "views_used": len(H),
+        "views_without_board": missing,
+        "pnp_rms_px": {n: r for n, r in zip(names, pnp)},
+        "motion": {
+            "pairs": d.n_pairs,
+            "pairs_left_out": d.pairs_left_out,
+            "max_pair_angle_deg": d.max_pair_angle_deg,
+            "median_pair_angle_deg": d.median_pair_angle_deg,
+            "axis_spread": d.axis_spread,
+            "axis_spread_3d": d.axis_spread_3d,
+        },
+        "max_disagreement_mm": worst_mm,
+        "max_disagreement_deg": worst_deg,
+    }
+    truth = ds.manifest.get("twin_truth", {}).get("T_H_C")
+    summary = [
+        f"T_H_C translation {np.array2string(X[:3, 3], precision=3)} mm ({rep.chosen}, {len(H)} views, {d.n_pairs} motion pairs)",
+        f"residuals: AX=XB {rep.solutions[rep.chosen].residual.rotation_rms_deg:.4f} deg / "
+        f"{rep.solutions[rep.chosen].residual.translation_rms_mm:.3f} mm RMS, board spread "
+        f"{rep.solutions[rep.chosen].residual.board_spread_mm:.3f} mm, chain reprojection "
+        f"{rep.solutions[rep.chosen].residual.reprojection_rms_px:.3f} px",
+        "methods vs " + rep.chosen + ": " + ", ".join(
+            f"{m.replace('opencv_', 'cv2-')} {rep.agreement_mm[m]:.3f} mm/{rep.agreement_deg[m]:.4f} deg"
+            for m in rep.solutions if m != rep.chosen
+        ),
+        f"motion: axis spread {d.axis_spread:.2f} (3-D {d.axis_spread_3d:.2f}), pair angles up to {d.max_pair_angle_deg:.0f} deg",
+    ]
+    if truth is not None:
+        Xt = np.asarray(truth, dtype=float)
+        tq = {}
+        for m, s in rep.solutions.items():
+            tq[m] = {
+                "translation_error_mm": float(np.linalg.norm(s.T_H_C[:3, 3] - Xt[:3, 3])),
+                "rotation_error_deg": float(np.degrees(rotation_angle_between(s.T_H_C[:3, :3], Xt[:3, :3]))),
+            }
+        quality["twin_truth"] = tq
+        summary.append(
+            f"true error: {tq[rep.chosen]['translation_error_mm']:.3f} mm, {tq[rep.chosen]['rotation_error_deg']:.4f} deg "
+            "(robot poses are the controller's beliefs: its accuracy and repeatability are in them)"
+        )
+    return Outcome(
+        "hand_eye",
+        f"{rep.chosen} (" + ("own implementation of Tsai-Lenz" if rep.chosen == "tsai" else "cv2.calibrateHandEye") + ")",
+        {"T_H_C": X.tolist()},
+        quality,
+        warnings,
+        {"camera": camera_id},
+        summary,
+        rep,
+    )
+
+
+# -- laser --------------------------------------------------------------------------------------
+
+
+def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
+    """r and l from a laser_plane dataset."""
+    lc = config.calibration.laser
+    rows = ds.manifest["readings"]
+    ok = [r for r in rows if r["status"] == "ok" and r["distance_mm"] is not None]
+    dropped = len(rows) - len(ok)
+    H = np.array([pose_array(r["T_B_H"], "reading.T_B_H") for r in ok]).reshape(-1, 4, 4)
+    d = np.array([float(r["distance_mm"]) for r in ok])
+    g = np.array([int(r.get("group", 0)) for r in ok], dtype=int)
+    lo, hi = ds.manifest["sensor_range_mm"]
+    limits = LaserLimits(lc.min_poses, lc.min_direction_spread_deg, lc.max_rms_mm, lc.max_r_sigma_mm, lc.max_l_sigma_deg)
+    res = calibrate_laser(
+        H, d, ds.manifest["r_nominal"], ds.manifest["l_nominal"],
+        groups=g, linearity_terms=lc.linearity_terms, distance_range_mm=(float(lo), float(hi)), limits=limits,
+    )
+    quality: dict[str, Any] = {
+        "r_sigma_mm": res.r_sigma_mm.tolist(),
+        "l_sigma_deg": res.l_sigma_deg.tolist(),
+        "rms_mm": res.rms_mm,
+        "max_residual_mm": res.max_residual_mm,
+        "direction_spread_deg": list(res.direction_spread_deg),
+        "readings_used": res.n_poses,
+        "readings_without_value": dropped,
+        "groups": int(g.max()) + 1 if len(g) else 0,
+        "plane_normal": res.plane_normal.tolist(),
+        "plane_offsets_mm": res.plane_offsets_mm.tolist(),
+        "plane_known": res.plane_known,
+        "linearity_terms": lc.linearity_terms,
+    }
+    warnings = []
+    if dropped > 0.2 * len(rows):
+        warnings.append(f"{dropped} of {len(rows)} readings had no value; check the aim point and the sensor's range")
+    summary = [
+        f"r {np.array2string(res.r, precision=4)} mm +- {np.array2string(res.r_sigma_mm, precision=3)}",
+        f"l {np.array2string(res.l, precision=6)} +- {np.array2string(res.l_sigma_deg, precision=4)} deg",
+        f"plane residual {res.rms_mm:.4f} mm RMS (max {res.max_residual_mm:.4f}) over {res.n_poses} readings "
+        f"({dropped} without value), normal seen over {res.direction_spread_deg[0]:.1f} / {res.direction_spread_deg[1]:.1f} deg",
+    ]
+    truth = ds.manifest.get("twin_truth")
+    if truth and "r" in truth:
+        rt, ltrue = np.asarray(truth["r"], float), np.asarray(truth["l"], float)
+        quality["twin_truth"] = {
+            "r_error_mm": float(np.linalg.norm(res.r - rt)),
+            "r_error_components_mm": (res.r - rt).tolist(),
+            "l_error_deg": float(np.degrees(angle_between_vectors(res.l, ltrue))),
+        }
+        t = quality["twin_truth"]
+        summary.append(
+            f"true error: r {t['r_error_mm']:.3f} mm, l {t['l_error_deg']:.4f} deg (robot poses are the "
+            "controller's beliefs: its accuracy and repeatability are in them)"
+        )
+    method = "plane constraint, Levenberg-Marquardt, |l| = 1, plane estimated" + (
+        f", sensor linearity modelled ({lc.linearity_terms} Legendre terms)" if lc.linearity_terms else ""
+    )
+    return Outcome("laser", method, {"r": res.r.tolist(), "l": res.l.tolist()}, quality, warnings, {}, summary, res)
+
+
+# -- nine-point and scale -----------------------------------------------------------------------
+
+
+def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) -> Outcome:
+    """The nine-point map and the pixel scale s from a nine_point dataset."""
+    npc = config.calibration.nine_point
+    camera_id = _need(cal, "pixel_map", "camera")
+    teaching_id = _need(cal, "pixel_map", "teaching")
+    assert cal is not None
+    lens = _lens(cal)
+    taught = cal.taught()
+    views = ds.manifest["views"]
+    corners, poses, quality_px = [], [], []
+    for v in views:
+        m = detect_corner(ds.image(v["image"]), lens, config.vision)
+        if not m.ok:
+            raise CalibrationRefused("pixel_map", "corner_not_found", f"{v['name']}: the corner detector refused: {m.message}")
+        corners.append([m.features.u_px, m.features.v_px])
+        poses.append(pose_array(v["T_B_H"], f"{v['name']}.T_B_H"))
+        quality_px.append(m.corner_sigma_px)
+    offsets = offsets_from_poses(poses, taught.C_Pos_0, taught.T0)
+    try:
+        amap = nine_point_map(np.asarray(corners), offsets)
+        amap.check(npc.max_rms_mm)
+    except NinePointError as err:
+        raise CalibrationRefused("pixel_map", "nine_point", str(err)) from None
+    b = ds.manifest["scale_board"]
+    try:
+        scale = checkerboard_scale(ds.image(ds.manifest["scale_image"]), lens, tuple(b["inner_corners"]), float(b["square_mm"]))
+    except ScaleCalibrationError as err:
+        raise CalibrationRefused("pixel_map", "board_not_found", f"pixel scale: {err}") from None
+    s = scale.mm_per_px
+    agree = abs(amap.mm_per_px / s - 1.0)
+    quality: dict[str, Any] = {
+        "map_rms_mm": amap.rms_mm,
+        "map_max_mm": amap.max_mm,
+        "map_residuals_mm": amap.residuals_mm.tolist(),
+        "map_mm_per_px": amap.mm_per_px,
+        "map_rotation_deg": float(np.degrees(amap.rotation_rad)),
+        "corner_sigma_px": quality_px,
+        "offsets_mm": offsets.tolist(),
+        "scale_mm_per_px": s,
+        "scale_pairs": scale.n_pairs,
+        "scale_ratio_std": scale.ratio_std,
+        "scale_anisotropy": scale.anisotropy,
+        "map_vs_scale": agree,
+    }
+    warnings = []
+    if agree > 0.005:
+        warnings.append(
+            f"the nine-point map's scale ({amap.mm_per_px:.6f} mm/px) and the checkerboard's ({s:.6f} mm/px) differ by "
+            f"{agree:.2%}: is the checkerboard flat on the wall, and the camera at the taught pose?"
+        )
+    summary = [
+        f"nine-point map: {amap.mm_per_px:.6f} mm/px, image u axis at {np.degrees(amap.rotation_rad):+.4f} deg in T0, "
+        f"residual {amap.rms_mm:.4f} mm RMS (max {amap.max_mm:.4f})",
+        f"pixel scale s (eq. 15) {s:.6f} mm/px over {scale.n_pairs} corner pairs (spread {scale.ratio_std:.2e}); "
+        f"map and s differ by {agree:.3%}",
+    ]
+    return Outcome(
+        "pixel_map",
+        "nine-point by robot moves over the window corner (vision.fit_affine_map); scale by eq. 15 (vision.checkerboard_scale)",
+        {"affine": amap.matrix.tolist(), "scale_mm_per_px": s},
+        quality,
+        warnings,
+        {"camera": camera_id, "teaching": teaching_id},
+        summary,
+        (amap, scale),
+    )
+
+
+# -- teaching -----------------------------------------------------------------------------------
+
+
+def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) -> Outcome:
+    """T0, C_Pos_0, the template and g_Pos_0 from a teaching dataset and the calibrated sensors."""
+    ids = {n: _need(cal, "teaching", n) for n in ("camera", "hand_eye", "laser")}
+    assert cal is not None
+    ac = config.process.align
+    T_H_C = cal.T_H_C()
+    r, l = cal.laser_ray()  # noqa: E741
+    spots = ds.manifest["spots"]
+    H = np.array([pose_array(s["T_B_H"], "spot.T_B_H") for s in spots])
+    d = np.array([s["distance_mm"] for s in spots], dtype=float)
+    start = pose_array(ds.manifest["shooting_start"], "shooting_start")
+    try:
+        align = compute_alignment(
+            H, d, r, l, T_H_C, config.process.working_distance_mm,
+            T_B_H_current=start, range_mm=tuple(ds.manifest["sensor_range_mm"]),
+            inlier_threshold_mm=ac.inlier_threshold_mm, max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
+        )
+    except AlignmentError as err:
+        raise CalibrationRefused("teaching", "alignment", str(err)) from None
+    C_Pos_0 = pose_array(ds.manifest["C_Pos_0"], "C_Pos_0")
+    moved_mm, moved_rad = pose_error(align.T_B_H_aligned, C_Pos_0)
+    if np.linalg.norm(moved_mm) > 1.0 or np.linalg.norm(moved_rad) > np.radians(0.05):
+        raise CalibrationRefused(
+            "teaching", "pose_mismatch",
+            f"the image was taken {np.linalg.norm(moved_mm):.2f} mm / {np.degrees(np.linalg.norm(moved_rad)):.3f} deg away "
+            "from the aligned shooting pose these laser readings give; the dataset does not belong together",
+        )
+    lens = _lens(cal)
+    m = detect_corner(ds.image(ds.manifest["shooting_image"]), lens, config.vision)
+    if not m.ok:
+        raise CalibrationRefused("teaching", "corner_not_found", f"the corner detector refused the template image: {m.message}")
+    f = m.features
+    plane = align.wall.plane
+    T0 = workpiece_frame_from_corner(C_Pos_0, T_H_C, cal.camera_matrix(), [f.u_px, f.v_px], f.theta_rad, plane.normal, plane.offset)
+    g_Pos_0 = pose_array(ds.manifest["g_Pos_0"], "g_Pos_0")
+    nominal = pose_array(ds.manifest["T0_nominal"], "T0_nominal")
+    dn, rn = deviation_in_frame(nominal, T0)
+    quality: dict[str, Any] = {
+        "wall_rms_mm": plane.rms,
+        "spots_used": int(len(align.wall.inliers)),
+        "spots_rejected": [{"index": s.index, "reason": s.reason} for s in align.wall.rejected],
+        "normal_uncertainty_deg": None if align.wall.uncertainty is None else float(np.degrees(align.wall.uncertainty.rms_rad)),
+        "alignment_turn_deg": float(np.degrees(align.rotation_rad)),
+        "distance_correction_mm": align.distance.delta_d_mm,
+        "corner_sigma_px": m.corner_sigma_px,
+        "corner_angle_deg": None if m.corner_angle_rad is None else float(np.degrees(m.corner_angle_rad)),
+        "corner_checks": [{"name": c.name, "value": c.value, "limit": c.limit, "ok": c.passed} for c in m.checks],
+        "T0_from_layout_mm": dn.tolist(),
+        "T0_from_layout_deg": np.degrees(rn).tolist(),
+        "operator": ds.manifest.get("operator", {}),
+    }
+    summary = [
+        f"wall fit {plane.rms:.4f} mm RMS over {len(align.wall.inliers)} spots; C_Pos_0 at "
+        f"{np.array2string(C_Pos_0[:3, 3], precision=2)} mm",
+        f"template: u_d {f.u_px:.3f} px, v_d {f.v_px:.3f} px, theta_d {np.degrees(f.theta_rad):+.4f} deg "
+        f"(corner sigma {m.corner_sigma_px:.3f} px)",
+        f"T0 at {np.array2string(T0[:3, 3], precision=2)} mm, {np.linalg.norm(dn):.2f} mm from the layout's nominal corner",
+        f"g_Pos_0 at {np.array2string(g_Pos_0[:3, 3], precision=2)} mm (recorded after hand guiding)",
+    ]
+    truth = ds.manifest.get("twin_truth")
+    if truth:
+        Tt = np.asarray(truth["T_B_T"], dtype=float)
+        dt, dr = deviation_in_frame(Tt, T0)
+        quality["twin_truth"] = {
+            "T0_error_mm": dt.tolist(),
+            "T0_error_deg": np.degrees(dr).tolist(),
+            "g_Pos_0_install_error": truth.get("g_Pos_0_install_error"),
+        }
+        ie = truth.get("g_Pos_0_install_error") or {}
+        summary.append(
+            f"true error: T0 {np.array2string(dt, precision=3)} mm, {np.array2string(np.degrees(dr), precision=4)} deg; "
+            f"glass at g_Pos_0 off by ({ie.get('dx_mm', float('nan')):+.3f}, {ie.get('dy_mm', float('nan')):+.3f}, "
+            f"{ie.get('dz_mm', float('nan')):+.3f}) mm"
+        )
+    values = {
+        "T0": T0.tolist(),
+        "C_Pos_0": C_Pos_0.tolist(),
+        "g_Pos_0": g_Pos_0.tolist(),
+        "u_d": f.u_px,
+        "v_d": f.v_px,
+        "theta_d": f.theta_rad,
+        "top_angle_d": f.top_angle_rad,
+        "right_angle_d": f.right_angle_rad,
+    }
+    return Outcome(
+        "teaching",
+        "laser alignment (paper 3) at the standing car body, corner template (paper 4.2), T0 from corner ray and wall, "
+        "g_Pos_0 by hand guiding",
+        values,
+        quality,
+        [],
+        ids,
+        summary,
+        (align, m, T0),
+    )
+
+
+def xyz_deg(T: F64) -> list[float]:
+    """XYZ fixed angles (rx, ry, rz) of a pose's rotation in degrees, for summaries."""
+    a, b, c = matrix_to_xyz_fixed(T[:3, :3])
+    return [float(np.degrees(c)), float(np.degrees(b)), float(np.degrees(a))]
+
+
+__all__ = [
+    "CalibrationSetError",
+    "Outcome",
+    "compute_camera",
+    "compute_hand_eye",
+    "compute_laser",
+    "compute_nine_point",
+    "compute_teaching",
+    "detect_views",
+]

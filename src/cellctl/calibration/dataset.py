@@ -1,0 +1,124 @@
+"""Calibration datasets on disk: everything a calibration was computed from, to recompute and audit it.
+
+A dataset is a folder with ``manifest.json`` and the images as lossless PNG. The manifest holds
+the kind, when and where the data came from, the robot poses as the controller reported them
+(4x4, mm), the readings, and a SHA-256 of every image; reading a dataset checks them, so an
+image changed after the fact is refused. The calibration set records the manifest's own SHA-256
+with the part computed from it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.calibration.calibration_set import DatasetRef, _jsonable
+
+FORMAT = "cellctl-calibration-dataset"
+KINDS = ("board_views", "laser_plane", "nine_point", "teaching")
+
+
+class DatasetError(ValueError):
+    """A dataset folder cannot be used; the message says which file or field and why."""
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """A dataset read back: its folder and manifest; images are loaded on demand."""
+
+    root: Path
+    manifest: dict[str, Any]
+
+    @property
+    def kind(self) -> str:
+        return str(self.manifest["kind"])
+
+    def image(self, name: str) -> NDArray[np.uint8]:
+        """An image of the dataset, checked against its recorded SHA-256."""
+        files = self.manifest.get("files", {})
+        if name not in files:
+            raise DatasetError(f"{self.root}: the manifest lists no image {name!r}")
+        path = self.root / name
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            raise DatasetError(f"{path}: image missing from the dataset") from None
+        if hashlib.sha256(data).hexdigest() != files[name]:
+            raise DatasetError(f"{path}: the image changed since it was recorded (SHA-256 differs); the dataset is not the original")
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None or img.ndim != 2 or img.dtype != np.uint8:
+            raise DatasetError(f"{path}: not an 8-bit mono PNG")
+        return img
+
+    def ref(self, summary: dict[str, Any] | None = None) -> DatasetRef:
+        """The reference a calibration part keeps to this dataset."""
+        digest = hashlib.sha256((self.root / "manifest.json").read_bytes()).hexdigest()
+        return DatasetRef(kind=self.kind, path=str(self.root), manifest_sha256=digest, summary=_jsonable(summary or {}))
+
+
+def pose_list(T: NDArray[np.float64]) -> list[list[float]]:
+    return np.asarray(T, dtype=float).tolist()  # type: ignore[no-any-return]
+
+
+def pose_array(v: Any, what: str) -> NDArray[np.float64]:
+    a = np.asarray(v, dtype=float)
+    if a.shape != (4, 4) or not np.all(np.isfinite(a)):
+        raise DatasetError(f"{what}: expected a finite 4x4 pose, got shape {a.shape}")
+    return a
+
+
+def default_dataset_dir(store_root: str | Path, kind: str, when: datetime | None = None) -> Path:
+    """``<store>/datasets/<kind>-<UTC time>``: where a new dataset of ``kind`` goes."""
+    t = (when or datetime.now(timezone.utc)).astimezone(timezone.utc)
+    return Path(store_root) / "datasets" / f"{kind}-{t:%Y%m%dT%H%M%S}Z"
+
+
+def write_dataset(root: str | Path, kind: str, manifest: dict[str, Any], images: dict[str, NDArray[np.uint8]]) -> Dataset:
+    """Write the images and the manifest (with their checksums) into a new folder ``root``."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown dataset kind {kind!r}; the kinds are {', '.join(KINDS)}")
+    folder = Path(root)
+    if folder.exists() and any(folder.iterdir()):
+        raise DatasetError(f"{folder}: the folder is not empty; a dataset is never written over another one")
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for name, img in images.items():
+        if not name.endswith(".png") or "/" in name:
+            raise ValueError(f"image names must be plain '*.png' file names, got {name!r}")
+        ok, buf = cv2.imencode(".png", np.ascontiguousarray(img))
+        if not ok:
+            raise DatasetError(f"{name}: could not encode the image as PNG")
+        data = buf.tobytes()
+        (folder / name).write_bytes(data)
+        files[name] = hashlib.sha256(data).hexdigest()
+    doc = {"format": FORMAT, "kind": kind, "written_utc": datetime.now(timezone.utc).isoformat(), "files": files}
+    doc.update(_jsonable(manifest))
+    (folder / "manifest.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    return Dataset(folder, doc)
+
+
+def read_dataset(root: str | Path, kind: str) -> Dataset:
+    """Open a dataset folder of the expected ``kind`` (its images are checked when loaded)."""
+    folder = Path(root)
+    path = folder / "manifest.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{folder}: no manifest.json; not a calibration dataset folder") from None
+    except json.JSONDecodeError as err:
+        raise DatasetError(f"{path}: not valid JSON ({err.msg} at line {err.lineno})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise DatasetError(f"{path}: format must be {FORMAT!r}; not a calibration dataset")
+    if doc.get("kind") != kind:
+        raise DatasetError(f"{path}: this is a {doc.get('kind')!r} dataset, the command needs a {kind!r} dataset")
+    if not isinstance(doc.get("files"), dict):
+        raise DatasetError(f"{path}: the manifest has no 'files' table")
+    return Dataset(folder, doc)
