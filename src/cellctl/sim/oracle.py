@@ -1,11 +1,13 @@
 """Calibration and teaching taken from the twin's truth (the "true calibrations" of the error budget).
 
 A cell calibrated from measured data carries the calibrations' own errors; this oracle gives the
-cycle the true camera model, hand-eye and laser, and a teaching done with perfect hands, so the
-remaining error is what the cycle itself adds. Poses are robot beliefs, as teaching records them:
-the pose that truly puts the camera (or the glass) where it should be, through the robot's own
-absolute-accuracy error. The template features come from the real corner detector on a
-noise-free render at the taught shooting pose, as teaching would measure them.
+cycle the true camera model, hand-eye and laser, so the remaining error is what teaching and the
+cycle add. Teaching follows the paper's procedure (4.3 step 1) in the twin, with the car body at
+its nominal posture: the shooting pose C_Pos_0 by laser alignment (so the alignment's systematic
+errors, e.g. the robot's accuracy field across the spots, are the same in teaching and production
+and cancel), the template features by the real corner detector there, each averaged over
+``repeats`` fresh robot moves; the install pose g_Pos_0 as a perfect operator would record it (the
+belief that truly seats the glass); T0 the true workpiece frame.
 """
 
 from __future__ import annotations
@@ -14,19 +16,39 @@ from typing import Any
 
 import numpy as np
 
+from cellctl.align import compute_alignment, plan_spot_poses
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.compensate import TaughtPoses
 from cellctl.config.schema import CellConfig
-from cellctl.geometry.pose import apply_pose, invert_pose, make_pose
+from cellctl.geometry.pose import Pose, apply_pose, invert_pose, make_pose, mean_pose
 from cellctl.sim.rig import SimRig
 from cellctl.sim.world import nominal_world
-from cellctl.vision import Lens, detect_corner, fit_affine_map
+from cellctl.vision import CornerFeatures, Lens, detect_corner, fit_affine_map
 
 # The nine-point target's dots, in the workpiece plane around the corner (mm).
 NINE_POINTS_MM = np.array([(x, y) for y in (-50.0, 0.0, 50.0) for x in (-50.0, 0.0, 50.0)])
 
 
-def oracle_calibration(rig: SimRig, config: CellConfig) -> CycleCalibration:
+def _aligned_shooting_pose(rig: SimRig, config: CellConfig, T0: Pose, C_guess: Pose) -> Pose:
+    """One laser alignment (paper section 3) around the guessed shooting pose, as the cycle does it."""
+    cell, laser, align = rig.cell, config.sim.laser, config.process.align
+    planned = plan_spot_poses(T0, align.spots_mm, C_guess[:3, :3], laser.r, laser.l, align.laser_standoff_mm)
+    distances = []
+    for k, X in enumerate(planned):
+        cell.execute(X)
+        status, d = cell.laser_reading()
+        if d is None:
+            raise RuntimeError(f"teaching: laser spot {k} gave no distance ({status.value})")
+        distances.append(d)
+    result = compute_alignment(
+        planned, np.array(distances), laser.r, laser.l, config.sim.camera.hand_eye.T_H_C(),
+        config.process.working_distance_mm, T_B_H_current=C_guess,
+        range_mm=(laser.range_min_mm, laser.range_max_mm),
+    )  # fmt: skip
+    return result.T_B_H_aligned
+
+
+def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> CycleCalibration:
     """A cycle calibration from the twin's truth, taught with the car body at its nominal posture."""
     sim = config.sim
     cell = rig.cell
@@ -35,21 +57,28 @@ def oracle_calibration(rig: SimRig, config: CellConfig) -> CycleCalibration:
     T_H_C = sim.camera.hand_eye.T_H_C()
     lens = Lens.from_intrinsics(sim.camera.intrinsics)
     T0 = world.T_B_T
-    # Standard shooting pose: the camera's axes on T's, its optical centre over the corner.
+    # The guess: the camera's axes on T's, its optical centre 400 mm in front of the corner.
     T_B_C0 = T0 @ make_pose(np.eye(3), [0.0, 0.0, -config.process.working_distance_mm])
-    C_Pos_0 = cell.robot_model.command_for(T_B_C0 @ invert_pose(T_H_C))
+    C_guess = cell.robot_model.command_for(T_B_C0 @ invert_pose(T_H_C))
+    features = []
     try:
         cell.place_car_body(world)
+        C_Pos_0 = mean_pose(np.stack([_aligned_shooting_pose(rig, config, T0, C_guess) for _ in range(repeats)]))
+        for _ in range(repeats):
+            T_true = cell.execute(C_Pos_0)
+            frame = rig.renderer.render(T_true @ T_H_C, world, rng=rig.teach_rng)
+            measured = detect_corner(frame.image, lens, config.vision)
+            if not measured.ok:
+                raise RuntimeError(f"teaching: the template shot was refused: {measured.message}")
+            features.append(measured.features)
         g_Pos_0 = cell.install_command()
+        # The nine-point map: the camera model maps the wall plane at the taught pose.
+        T_B_C = cell.robot_model.deform(C_Pos_0) @ T_H_C
     finally:
         cell.place_car_body(current)
-    frame = rig.renderer.render(T_B_C0, world, noise=False)
-    measured = detect_corner(frame.image, lens, config.vision)
-    if not measured.ok:
-        raise RuntimeError(f"the oracle's template shot was refused: {measured.message}")
     K = lens.camera_matrix
     wall_B = apply_pose(T0, np.column_stack([NINE_POINTS_MM, np.zeros(len(NINE_POINTS_MM))]))
-    in_C = apply_pose(invert_pose(T_B_C0), wall_B)
+    in_C = apply_pose(invert_pose(T_B_C), wall_B)
     ideal_px = (in_C[:, :2] / in_C[:, 2:3]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
     laser = sim.laser
     return CycleCalibration(
@@ -60,8 +89,13 @@ def oracle_calibration(rig: SimRig, config: CellConfig) -> CycleCalibration:
         laser_range_mm=(laser.range_min_mm, laser.range_max_mm),
         nine_point=fit_affine_map(ideal_px, NINE_POINTS_MM),
         taught=TaughtPoses(T0, C_Pos_0, g_Pos_0),
-        template=measured.features,
+        template=_mean_features(features),
     )
+
+
+def _mean_features(features: list[CornerFeatures]) -> CornerFeatures:
+    a = np.array([[f.u_px, f.v_px, f.theta_rad, f.top_angle_rad, f.right_angle_rad] for f in features]).mean(axis=0)
+    return CornerFeatures(*(float(v) for v in a))
 
 
 class OracleCalibrationSource:

@@ -17,6 +17,7 @@ from cellctl.sim.devices import SimDisplacementSensor, SimRobot
 from cellctl.sim.streams import rng_stream
 
 CAMERA_NOISE = "camera.noise"
+TEACH_CAMERA_NOISE = "camera.noise.teach"
 
 
 class SimRig:
@@ -36,6 +37,7 @@ class SimRig:
         self.camera = SimCamera(
             self.renderer, self.cell.true_camera_pose, self.cell.world, rng_stream(self.cell.seed, CAMERA_NOISE)
         )
+        self.teach_rng = rng_stream(self.cell.seed, TEACH_CAMERA_NOISE)
 
     # SimTruth of the orchestrator
 
