@@ -147,7 +147,11 @@ def find_board(
     h, w = image.shape
     factor = max(1, int(np.ceil(max(h, w) / float(search_max_px))))
     small = image if factor == 1 else cv2.resize(image, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
-    ok, found = cv2.findChessboardCornersSB(small, (cols, rows), flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+    ok, found = False, None
+    for flags in (0, cv2.CALIB_CB_NORMALIZE_IMAGE):  # plain first; equalised for uneven lighting
+        ok, found = cv2.findChessboardCornersSB(small, (cols, rows), flags=flags)
+        if ok and found is not None:
+            break
     if not ok or found is None:
         return BoardDetection(
             False, None,

@@ -55,7 +55,7 @@ class _Progress:
 
 
 def _store(args: argparse.Namespace, config: CellConfig) -> CalibrationStore:
-    return CalibrationStore(Path(args.store) if args.store else Path(config.calibration.store_dir))
+    return CalibrationStore(Path(args.store) if args.store else Path(config.calibration.directory))
 
 
 def _now() -> datetime:
@@ -86,11 +86,9 @@ def _run_part(
 ) -> int:
     config = load_config(args.config)
     if args.method_override is not None:
-        config = config.model_copy(
-            update={"calibration": config.calibration.model_copy(
-                update={"hand_eye": config.calibration.hand_eye.model_copy(update={"method": args.method_override})}
-            )}
-        )
+        proc = config.calibration.procedure
+        proc = proc.model_copy(update={"hand_eye": proc.hand_eye.model_copy(update={"method": args.method_override})})
+        config = config.model_copy(update={"calibration": config.calibration.model_copy(update={"procedure": proc})})
     store = _store(args, config)
     try:
         current = store.current()
@@ -183,7 +181,7 @@ def _cmd_hand_eye(args: argparse.Namespace) -> int:
         return await collect_board_views(twin, config, dest, n_views=args.views, progress=_Progress("view"))
 
     def compute(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
-        return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.camera.refine))
+        return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
 
     return _run_part(args, "hand_eye", "board_views", collect, compute, args.method_override or "tsai")
 
@@ -242,7 +240,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser, *, collects: bool = True) -> None:
-    p.add_argument("--store", help="calibration store folder (default: calibration.store_dir of the configuration)")
+    p.add_argument("--store", help="calibration store folder (default: calibration.directory of the configuration)")
     p.add_argument("--dataset", help="compute offline from this saved dataset folder instead of collecting")
     p.add_argument("--no-store", action="store_true", help="compute and print only; do not record in the store")
     if collects:
@@ -258,18 +256,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
     p = sub.add_parser("camera", help="camera intrinsics by Zhang's method from checkerboard views")
     _common(p)
-    p.add_argument("--views", type=int, default=None, help="number of views (default: calibration.camera.n_views)")
+    p.add_argument("--views", type=int, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
     p.set_defaults(func=_cmd_camera)
 
     p = sub.add_parser("hand-eye", help="hand-eye T_H_C (Tsai; Park, Horaud, Andreff, Daniilidis compared)")
     _common(p)
-    p.add_argument("--views", type=int, default=None, help="number of views (default: calibration.camera.n_views)")
+    p.add_argument("--views", type=int, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
     p.add_argument("--method", dest="method_override", choices=METHODS, default=None, help="the method whose result is stored")
     p.set_defaults(func=_cmd_hand_eye)
 
     p = sub.add_parser("laser", help="laser origin r and direction l from a plane seen from many poses")
     _common(p)
-    p.add_argument("--poses", type=int, default=None, help="number of poses (default: calibration.laser.n_poses)")
+    p.add_argument("--poses", type=int, default=None, help="number of poses (default: calibration.procedure.laser.n_poses)")
     p.set_defaults(func=_cmd_laser)
 
     p = sub.add_parser("nine-point", help="pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")

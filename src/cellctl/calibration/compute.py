@@ -92,7 +92,7 @@ def compute_camera(
     ds: Dataset, config: CellConfig, detections: list[tuple[str, BoardDetection]] | None = None
 ) -> Outcome:
     """Intrinsics (Zhang) from a board_views dataset."""
-    cc = config.calibration.camera
+    cc = config.calibration.procedure.camera
     spec = _board(ds)
     dets = detections if detections is not None else detect_views(ds, cc.refine)
     views = [ViewCorners(name, d.corners_px, d.reason) for name, d in dets]
@@ -161,13 +161,13 @@ def compute_hand_eye(
     detections: list[tuple[str, BoardDetection]] | None = None,
 ) -> Outcome:
     """T_H_C from a board_views dataset, the robot's reported poses and the calibrated camera."""
-    hc = config.calibration.hand_eye
+    hc = config.calibration.procedure.hand_eye
     camera_id = _need(cal, "hand_eye", "camera")
     assert cal is not None
     K, D = cal.camera_matrix(), cal.dist_coeffs()
     spec = _board(ds)
     obj = spec.object_points()
-    dets = dict(detections if detections is not None else detect_views(ds, config.calibration.camera.refine))
+    dets = dict(detections if detections is not None else detect_views(ds, config.calibration.procedure.camera.refine))
     H, C, corners, names, pnp = [], [], [], [], []
     missing = []
     for v in ds.manifest["views"]:
@@ -272,7 +272,7 @@ def compute_hand_eye(
 
 def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
     """r and l from a laser_plane dataset."""
-    lc = config.calibration.laser
+    lc = config.calibration.procedure.laser
     rows = ds.manifest["readings"]
     ok = [r for r in rows if r["status"] == "ok" and r["distance_mm"] is not None]
     dropped = len(rows) - len(ok)
@@ -332,7 +332,7 @@ def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
 
 def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) -> Outcome:
     """The nine-point map and the pixel scale s from a nine_point dataset."""
-    npc = config.calibration.nine_point
+    npc = config.calibration.procedure.nine_point
     camera_id = _need(cal, "pixel_map", "camera")
     teaching_id = _need(cal, "pixel_map", "teaching")
     assert cal is not None

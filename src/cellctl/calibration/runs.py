@@ -41,7 +41,7 @@ def _quiet(done: int, total: int, what: str) -> None:
 
 
 def motion_settings(config: CellConfig) -> MotionSettings:
-    c = config.calibration
+    c = config.calibration.procedure
     return MotionSettings(c.speed_mm_s, c.speed_deg_s, c.move_timeout_s, c.read_timeout_s, c.grab_timeout_s)
 
 
@@ -76,7 +76,7 @@ async def collect_board_views(
     twin: TwinCell, config: CellConfig, dest: Path, *, n_views: int | None = None, seed: int = 0, progress: Progress = _quiet
 ) -> Dataset:
     """Stick the board on the wall, view it from a planned set of poses, save the dataset."""
-    cc = config.calibration.camera
+    cc = config.calibration.procedure.camera
     cam = config.sim.camera
     K_nom, D_nom = cam.intrinsics.camera_matrix(), cam.intrinsics.dist_coeffs()
     T_H_C_nom = cam.hand_eye.T_H_C()
@@ -129,7 +129,7 @@ async def collect_laser_plane(
     twin: TwinCell, config: CellConfig, dest: Path, *, n_poses: int | None = None, progress: Progress = _quiet
 ) -> Dataset:
     """Show the wall to the laser from many wrist orientations; save poses and distances."""
-    lc = config.calibration.laser
+    lc = config.calibration.procedure.laser
     laser = config.sim.laser
     r_nom, l_nom = cad_laser(config)
     T0 = _nominal_T0(config)
@@ -192,7 +192,7 @@ async def collect_teaching(
     C_Pos_0 = await move_and_report(twin.robot, align.T_B_H_aligned, motion)
     frame = await twin.camera.grab(timeout_s=motion.grab_timeout_s)
     progress(1, 2, "template image taken at the aligned shooting pose")
-    tc = config.calibration.teach
+    tc = config.calibration.procedure.teach
     guided = twin.operator_install_pose(tc.hand_guiding_position_mm, tc.hand_guiding_orientation_deg)
     g_Pos_0 = await move_and_report(twin.robot, guided, motion)
     progress(2, 2, "install pose recorded after hand guiding")
@@ -222,7 +222,7 @@ async def collect_nine_point(
     twin: TwinCell, config: CellConfig, cal: CalibrationSet, dest: Path, *, progress: Progress = _quiet
 ) -> Dataset:
     """Nine images over the window corner from the taught pose shifted in the wall plane, then the scale board."""
-    npc = config.calibration.nine_point
+    npc = config.calibration.procedure.nine_point
     motion = motion_settings(config)
     taught = cal.taught()
     offsets = nine_point_offsets(npc.step_mm)
@@ -256,7 +256,10 @@ async def collect_nine_point(
 
 
 def validity_days(config: CellConfig, part: str) -> float:
-    return float(getattr(config.calibration.validity_days, part))
+    """How long a new part stays valid: the configuration's ``calibration.max_age_days``."""
+    if part not in ("camera", "hand_eye", "laser", "pixel_map", "teaching"):
+        raise KeyError(f"unknown calibration part {part!r}")
+    return float(config.calibration.max_age_days)
 
 
 def record(store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config: CellConfig, when: datetime, note: str = "") -> CalibrationSet:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from cellctl.calibration.board import BoardSpec
-from cellctl.config.calibration import BoardConfig
+from cellctl.config.calibration_procedure import BoardConfig
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix

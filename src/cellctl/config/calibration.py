@@ -1,135 +1,23 @@
-"""How the cell is calibrated and taught: targets, pose plans, refusal limits, validity, storage.
-
-Positions on the car-body wall are in the nominal workpiece frame T0 (x right, y down from the
-opening's upper-right corner, z into the wall; the opening is x in [-width, 0], y in [0, height]).
-"""
+"""Where the cycle's calibration comes from."""
 
 from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field
 
-from cellctl.config.types import Finite, StrictModel, Vec2, Vec3
-
-
-class BoardConfig(StrictModel):
-    """A printed checkerboard: (columns, rows) of inner corners, one odd and one even."""
-
-    inner_corners: tuple[int, int] = (11, 8)
-    square_mm: Finite = Field(10.0, gt=0)
-    border_mm: Finite = Field(10.0, ge=0)
-
-    @model_validator(mode="after")
-    def _asymmetric(self) -> "BoardConfig":
-        cols, rows = self.inner_corners
-        if cols < 3 or rows < 3:
-            raise ValueError(f"inner_corners must both be at least 3, got {self.inner_corners}")
-        if (cols + rows) % 2 == 0:
-            raise ValueError(
-                f"inner_corners {self.inner_corners}: use one odd and one even number, otherwise the board looks "
-                "the same turned by 180 deg and its pose is ambiguous"
-            )
-        return self
-
-
-class CameraCalibrationConfig(StrictModel):
-    """Intrinsics by Zhang's method from views of the board stuck on the wall."""
-
-    board: BoardConfig = BoardConfig()
-    board_on_wall_mm: Vec2 = (100.0, 200.0)  # the board's first inner corner on the wall, in T0
-    n_views: int = Field(12, ge=3, le=200)
-    distance_mm: tuple[Finite, Finite] = (400.0, 470.0)  # camera to board centre
-    tilt_deg: tuple[Finite, Finite] = (12.0, 35.0)
-    spin_deg: Finite = Field(35.0, ge=0, le=180)
-    margin_px: Finite = Field(30.0, ge=0)
-    refine: Literal["subpix", "sb"] = "subpix"
-    fix_k3: bool = False
-    min_views: int = Field(8, ge=3)
-    max_rms_px: Finite = Field(0.5, gt=0)
-    reject_factor: Finite = Field(3.0, gt=1)  # a view above this times the median per-view RMS ...
-    reject_floor_px: Finite = Field(0.1, gt=0)  # ... and above this absolute RMS is rejected
-
-
-class HandEyeCalibrationConfig(StrictModel):
-    """Hand-eye T_H_C from the same kind of board views, with the robot's reported poses."""
-
-    method: Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"] = "tsai"
-    min_views: int = Field(6, ge=3)
-    recommended_views: int = Field(10, ge=3)
-    min_pair_angle_deg: Finite = Field(5.0, ge=0, le=45)
-    min_max_pair_angle_deg: Finite = Field(15.0, ge=0, le=180)
-    min_axis_spread: Finite = Field(0.05, ge=0, le=1)
-    max_translation_disagreement_mm: Finite = Field(1.0, gt=0)  # between methods, before it is refused
-    max_rotation_disagreement_deg: Finite = Field(0.1, gt=0)
-
-
-class LaserCalibrationConfig(StrictModel):
-    """r and l from a flat patch of the car-body wall seen from many wrist orientations."""
-
-    aim_mm: Vec2 = (900.0, 750.0)  # where the untilted beam meets the wall, in T0 (plain wall around it)
-    keep_off_opening_mm: Finite = Field(40.0, ge=0)
-    n_poses: int = Field(240, ge=3, le=5000)
-    standoff_mm: Finite = Field(350.0, gt=0)
-    depth_steps_mm: tuple[Finite, ...] = (-50.0, 0.0, 50.0)
-    tilt_deg: tuple[Finite, Finite] = (10.0, 40.0)
-    spin_deg: Finite = Field(30.0, ge=0, le=180)
-    range_margin_mm: Finite = Field(6.0, ge=0)  # keep nominal distances this far inside the sensor's range
-    wrist_in_flange_mm: Vec3 = (0.0, 0.0, -250.0)  # the wrist centre (axis 5) in the flange frame
-    linearity_terms: int = Field(5, ge=0, le=8)  # Legendre terms 2.. of the sensor's linearity curve
-    min_poses: int = Field(30, ge=12)
-    min_direction_spread_deg: Finite = Field(4.0, ge=0)
-    max_rms_mm: Finite = Field(0.1, gt=0)
-    max_r_sigma_mm: Finite = Field(0.3, gt=0)
-    max_l_sigma_deg: Finite = Field(0.05, gt=0)
-
-
-class NinePointConfig(StrictModel):
-    """Pixel scale (eq. 15) and the nine-point map at the taught shooting pose C_Pos_0.
-
-    The map comes from the robot moving the camera to a 3 x 3 grid of offsets in the wall plane
-    (``step_mm`` apart, along T0's axes) while the corner detector measures the window corner.
-    """
-
-    step_mm: Finite = Field(15.0, gt=0, le=50)
-    max_rms_mm: Finite = Field(0.1, gt=0)
-    scale_board: BoardConfig = BoardConfig()
-    scale_board_on_wall_mm: Vec2 = (-50.0, -35.0)  # first inner corner of the scale board, in T0
-
-
-class TeachConfig(StrictModel):
-    """Teaching (paper 4.3 step 1).
-
-    In the simulated cell the install pose g_Pos_0 is recorded as an operator guiding the robot
-    would leave it: the exact install plus a hand-guiding error, one sigma per axis.
-    """
-
-    hand_guiding_position_mm: Finite = Field(0.05, ge=0, le=5)
-    hand_guiding_orientation_deg: Finite = Field(0.02, ge=0, le=2)
-
-
-class ValidityConfig(StrictModel):
-    """How long each part of the calibration set stays valid (days)."""
-
-    camera: Finite = Field(365.0, gt=0)
-    hand_eye: Finite = Field(180.0, gt=0)
-    laser: Finite = Field(180.0, gt=0)
-    pixel_map: Finite = Field(180.0, gt=0)
-    teaching: Finite = Field(365.0, gt=0)
+from cellctl.config.calibration_procedure import CalibrationProcedureConfig
+from cellctl.config.types import Finite, StrictModel
 
 
 class CalibrationConfig(StrictModel):
-    """Everything the calibration and teaching commands read."""
+    """``source = "set"``: the versioned calibration set in ``directory`` (the production way).
+    ``source = "oracle"``: the simulated cell's true mountings, taught by the paper's procedure
+    in the twin (only with mode = "sim"; the error budget's "true calibrations").
+    """
 
-    store_dir: str = "var/calibration"
-    move_timeout_s: Finite = Field(60.0, gt=0)
-    read_timeout_s: Finite = Field(5.0, gt=0)
-    grab_timeout_s: Finite = Field(10.0, gt=0)
-    speed_mm_s: Finite = Field(250.0, gt=0, le=7000)
-    speed_deg_s: Finite = Field(30.0, gt=0, le=1000)
-    camera: CameraCalibrationConfig = CameraCalibrationConfig()
-    hand_eye: HandEyeCalibrationConfig = HandEyeCalibrationConfig()
-    laser: LaserCalibrationConfig = LaserCalibrationConfig()
-    nine_point: NinePointConfig = NinePointConfig()
-    teach: TeachConfig = TeachConfig()
-    validity_days: ValidityConfig = ValidityConfig()
+    source: Literal["set", "oracle"] = "set"
+    directory: str = "var/calibration"
+    max_age_days: Finite = Field(90.0, gt=0)  # a part older than this keeps the cell from production
+    auto_calibrate_in_sim: bool = True  # the simulated cell calibrates and teaches itself when a part is missing
+    procedure: CalibrationProcedureConfig = CalibrationProcedureConfig()  # targets, plans, limits of `cellctl calibrate`

@@ -17,7 +17,10 @@ class PlcConfig(StrictModel):
     port: int = Field(5020, ge=0, le=65535)  # 0: any free port (tests); the server reports the one it got
     unit_id: int = Field(1, ge=0, le=255)  # 0: answer every unit id
     float_word_order: Literal["big", "little"] = "big"  # 32-bit values; "big": high word first (ABCD)
-    heartbeat_timeout_s: Finite = Field(3.0, gt=0)  # plc_heartbeat unchanged this long: link lost
+    heartbeat_timeout_s: Finite = Field(3.0, gt=0)
+    # Raise the PLC_HEARTBEAT_LOST alarm (Hold, or Abort while the robot moves) when the PLC's
+    # heartbeat stops. Keep it on for a line; the simulated cell runs without a PLC and logs only.
+    heartbeat_alarm: bool = True  # plc_heartbeat unchanged this long: link lost
     cell_heartbeat_period_s: Finite = Field(0.5, gt=0)  # cell_heartbeat increments this often
     scan_period_s: Finite = Field(0.02, gt=0, le=1.0)  # PLC block read and status publish period
     facade_timeout_s: Finite = Field(5.0, gt=0)  # longest wait for one answer from the cell

@@ -25,9 +25,10 @@ class PlcCellLink:
     ``recipes`` maps the PLC's recipe number to the recipe name the cell records.
     """
 
-    def __init__(self, orch: CellOrchestrator, recipes: dict[int, str]) -> None:
+    def __init__(self, orch: CellOrchestrator, recipes: dict[int, str], *, heartbeat_alarm: bool = True) -> None:
         self._orch = orch
         self._recipes = recipes
+        self._heartbeat_alarm = heartbeat_alarm
         self._tasks: set[asyncio.Task[object]] = set()
 
     def status(self) -> CellStatus:
@@ -97,6 +98,10 @@ class PlcCellLink:
         return CommandReply.ACCEPTED
 
     def plc_link_lost(self, silent_for_s: float) -> None:
+        self._orch.events.publish("plc", {"link": "lost", "silent_for_s": silent_for_s})
+        if not self._heartbeat_alarm:
+            log.warning("PLC heartbeat lost for %.1f s (plc.heartbeat_alarm is off: no alarm)", silent_for_s)
+            return
         self._spawn(
             self._orch.alarms.raise_alarm(
                 AlarmCode.PLC_HEARTBEAT_LOST, source="plc", detail=f"no heartbeat for {silent_for_s:.1f} s",
@@ -105,6 +110,7 @@ class PlcCellLink:
         )
 
     def plc_link_restored(self) -> None:
+        self._orch.events.publish("plc", {"link": "up"})
         self._orch.alarms.clear(AlarmCode.PLC_HEARTBEAT_LOST, source="plc")
 
     def _spawn(self, coro: object) -> None:

@@ -1,0 +1,181 @@
+"""Build the whole cell from its configuration: the composition root (the only place drivers are imported).
+
+:func:`build_service` returns a :class:`Service` whose ``start`` recovers the store and starts the
+orchestrator, the device watchdog and the PLC server; ``serve`` runs the HTTP server beside them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.cycle import CellDevices
+from cellctl.cell.events import EventHub
+from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, TrackedRobot
+from cellctl.cell.packml import PackMLMachine
+from cellctl.cell.tags import PackMLState, UnitMode
+from cellctl.cell.watchdog import DeviceWatchdog, WatchdogSettings
+from cellctl.config.schema import CellConfig
+from cellctl.ports import Camera, DisplacementSensor, Robot
+from cellctl.service.plc_link import PlcCellLink
+from cellctl.store import AsyncCellStore
+
+log = logging.getLogger(__name__)
+
+Closer = Callable[[], Awaitable[None]]
+
+
+class ServiceError(RuntimeError):
+    """The service cannot be built from this configuration; the message says what to change."""
+
+
+@dataclass
+class Service:
+    """Everything the running cell is made of."""
+
+    config: CellConfig
+    store: AsyncCellStore
+    orchestrator: CellOrchestrator
+    plc_link: PlcCellLink
+    workdir: Path
+    closers: list[Closer] = field(default_factory=list)
+    plc_server: object | None = None
+
+    async def start(self) -> None:
+        await self.orchestrator.start()
+        if self.config.plc.enabled:
+            from cellctl.plc.server import PlcServer
+
+            server = PlcServer(self.config.plc, self.plc_link)
+            await server.start()
+            self.plc_server = server
+            log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
+
+    async def stop(self) -> None:
+        if self.plc_server is not None:
+            await self.plc_server.stop()  # type: ignore[attr-defined]
+        await self.plc_link.close()
+        await self.orchestrator.stop()
+        for close in reversed(self.closers):
+            with contextlib.suppress(Exception):
+                await close()
+        await self.store.close()
+
+    async def serve(self, *, ready: asyncio.Event | None = None) -> None:
+        """Run the REST API and dashboard until the process is told to stop (SIGINT/SIGTERM)."""
+        import uvicorn
+
+        from cellctl.api.app import create_app
+
+        app = create_app(self.orchestrator, self.config.api)
+        server = uvicorn.Server(
+            uvicorn.Config(app, host=self.config.api.host, port=self.config.api.port, log_level="info", lifespan="off")
+        )
+        await self.start()
+        try:
+            task = asyncio.create_task(server.serve())
+            while not server.started and not task.done():
+                await asyncio.sleep(0.05)
+            if ready is not None:
+                ready.set()
+            await task
+        finally:
+            await self.stop()
+
+
+def _sim_rig(config: CellConfig, holder: dict[str, object]) -> object:
+    if "rig" not in holder:
+        if config.mode != "sim":
+            raise ServiceError("a device of kind 'sim' needs mode = \"sim\" (the twin is only built in the simulated cell)")
+        from cellctl.sim.rig import SimRig
+
+        holder["rig"] = SimRig(config.sim)
+    return holder["rig"]
+
+
+def _build_devices(config: CellConfig, holder: dict[str, object]) -> tuple[DisplacementSensor, Camera, Robot]:
+    dev = config.devices
+    laser: DisplacementSensor
+    camera: Camera
+    robot: Robot
+    if dev.laser.kind == "sim":
+        laser = _sim_rig(config, holder).laser  # type: ignore[attr-defined]
+    else:
+        from keyence_lkg import KeyenceLkgSensor
+
+        laser = KeyenceLkgSensor.from_config(dev.laser.model_dump())
+    if dev.camera.kind == "sim":
+        camera = _sim_rig(config, holder).camera  # type: ignore[attr-defined]
+    else:
+        from genicam_camera import GenicamCamera
+
+        camera = GenicamCamera.from_config(dev.camera.model_dump())
+    if dev.robot.kind == "sim":
+        robot = _sim_rig(config, holder).robot  # type: ignore[attr-defined]
+    else:
+        from abb_robot import AbbRobotClient
+
+        robot = AbbRobotClient.from_config(dev.robot.model_dump())
+    return laser, camera, robot
+
+
+def _calibration_source(config: CellConfig, holder: dict[str, object]) -> CalibrationSource:
+    if config.calibration.source == "oracle":
+        if "rig" not in holder:
+            raise ServiceError(
+                "calibration.source = \"oracle\" needs the twin (mode = \"sim\" with at least one sim device); "
+                "use source = \"set\" with a calibrated cell"
+            )
+        from cellctl.sim.oracle import OracleCalibrationSource
+
+        return OracleCalibrationSource(holder["rig"], config)  # type: ignore[arg-type]
+    from cellctl.calibration.source import CalibrationSetSource
+
+    return CalibrationSetSource.from_config(config, rig=holder.get("rig"))
+
+
+async def build_service(config: CellConfig, *, workdir: Path | None = None) -> Service:
+    """Build (not start) the cell from ``config``. Relative paths are taken from ``workdir``."""
+    root = (workdir or Path.cwd()).resolve()
+    holder: dict[str, object] = {}
+    laser, camera, robot_port = _build_devices(config, holder)
+    robot = TrackedRobot(robot_port)
+    calibration = _calibration_source(config, holder)
+    db_path = Path(config.store.path)
+    db_path = db_path if db_path.is_absolute() else root / db_path
+    db_path.parent.mkdir(parents=True, exist_ok=True)
+    store = await AsyncCellStore.open(db_path, synchronous=config.store.synchronous, busy_timeout_s=config.store.busy_timeout_s)
+    pk = config.packml
+    machine = PackMLMachine(
+        initial_state=PackMLState[pk.initial_state.upper()],
+        initial_mode=UnitMode[pk.initial_mode.upper()],
+        mode_change_states={PackMLState[s.upper()] for s in pk.mode_change_states},
+    )
+    alarms = AlarmManager(machine, robot_moving=lambda: robot.moving, history=config.alarms.history)
+    alarms.install()
+    watchdog = DeviceWatchdog(alarms, defaults=WatchdogSettings(**config.alarms.watchdog.model_dump()))
+    watchdog.add("laser", laser)
+    watchdog.add("camera", camera)
+    watchdog.add("robot", robot)
+    rig = holder.get("rig")
+    orch = CellOrchestrator(
+        config=config,
+        devices=CellDevices(laser, camera, robot),
+        calibration=calibration,
+        store=store,
+        machine=machine,
+        alarms=alarms,
+        watchdog=watchdog,
+        events=EventHub(),
+        image_dir=db_path.parent / "images",
+        truth=rig,  # type: ignore[arg-type]
+    )
+    service = Service(config, store, orch, PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm), root)
+    for dev in (laser, camera, robot):
+        service.closers.append(dev.close)
+    return service
