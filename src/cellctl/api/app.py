@@ -44,7 +44,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig) -> FastAPI:
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = _field_errors(exc)
         summary = "; ".join(f"{e['in']} field '{e['field']}': {e['message']}" for e in errors)
-        return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_ENTITY, content={"detail": summary, "errors": errors})
+        return JSONResponse(status_code=422, content={"detail": summary, "errors": errors})
 
     app.include_router(routes_cycles.build_router(orch, guard, config.cycle_wait_max_s))
     app.include_router(routes_cell.build_router(orch, guard))

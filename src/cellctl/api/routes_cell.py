@@ -9,10 +9,10 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.responses import PlainTextResponse, StreamingResponse
 
-from cellctl.api.auth import TokenGuard
+from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.metrics import metric
 from cellctl.api.schemas import CommandResult
 from cellctl.cell.alarms import Alarm, UnknownAlarm
@@ -56,8 +56,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         return orch.status()
 
     @router.post("/commands/{name}", response_model=CommandResult, responses={409: {"description": "the state table forbids it now"}})
-    async def post_command(name: CommandName, request: Request) -> CommandResult:  # type: ignore[valid-type]
-        caller = guard.require(request)
+    async def post_command(name: CommandName, caller: Caller = Depends(guard.require)) -> CommandResult:  # type: ignore[valid-type]
         cmd = PackMLCommand[name.value.upper()]  # type: ignore[attr-defined]
         try:
             ev = await orch.command(cmd, actor=caller.actor, source=f"rest:{caller.source}")
@@ -66,8 +65,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         return CommandResult(command=cmd.name.lower(), state=ev.state_after.name, mode=ev.mode_after.name)
 
     @router.post("/mode/{name}", response_model=CommandResult, responses={409: {"description": "modes change only in some states"}})
-    async def post_mode(name: ModeName, request: Request) -> CommandResult:  # type: ignore[valid-type]
-        caller = guard.require(request)
+    async def post_mode(name: ModeName, caller: Caller = Depends(guard.require)) -> CommandResult:  # type: ignore[valid-type]
         mode = UnitMode[name.value.upper()]  # type: ignore[attr-defined]
         try:
             ev = await orch.machine.change_mode(mode, actor=caller.actor, source=f"rest:{caller.source}")
@@ -88,8 +86,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         return out
 
     @router.post("/alarms/{uid}/acknowledge")
-    async def acknowledge(uid: str, request: Request) -> dict[str, Any]:
-        caller = guard.require(request)
+    async def acknowledge(uid: str, caller: Caller = Depends(guard.require)) -> dict[str, Any]:
         try:
             alarm = orch.alarms.acknowledge(uid, by=caller.actor)
         except UnknownAlarm:
@@ -101,8 +98,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         return alarm_json(alarm)
 
     @router.post("/alarms/acknowledge-all")
-    async def acknowledge_all(request: Request) -> list[dict[str, Any]]:
-        caller = guard.require(request)
+    async def acknowledge_all(caller: Caller = Depends(guard.require)) -> list[dict[str, Any]]:
         done = orch.alarms.acknowledge_all(by=caller.actor)
         await orch.store.append_audit(
             actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge_all",

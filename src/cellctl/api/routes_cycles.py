@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter, Header, HTTPException, Query, Request, Response, status
+from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, Response, status
 from fastapi.responses import FileResponse
 
-from cellctl.api.auth import TokenGuard
+from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.schemas import CycleAccepted, CycleRequestBody
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.store import CycleRecord, CycleRequest, CycleState, IdempotencyConflict, UnknownCycle
@@ -72,19 +72,18 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
     )
     async def post_cycle(
         body: CycleRequestBody,
-        request: Request,
         response: Response,
         idempotency_key: str = Header(
             ..., alias="Idempotency-Key", min_length=1, max_length=128, description="one key per intended cycle"
         ),
         wait: bool = Query(False, description="answer when the cycle has finished (or after timeout_s)"),
         timeout_s: float = Query(120.0, gt=0, description="how long ?wait=true waits"),
+        caller: Caller = Depends(guard.require),
     ) -> Any:
-        caller = guard.require(request)
         known = sorted(orch.config.process.recipe_names().values())
         if body.recipe not in known:
             raise HTTPException(
-                status.HTTP_422_UNPROCESSABLE_ENTITY,
+                422,
                 detail=f"body field 'recipe': unknown recipe '{body.recipe}'; known recipes: {known}",
             )
         try:
@@ -97,7 +96,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
         except CycleRefused as err:
             raise HTTPException(status.HTTP_409_CONFLICT, detail=err.reason) from None
         except IdempotencyConflict as err:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err)) from None
+            raise HTTPException(422, detail=str(err)) from None
         cid = sub.cycle.id
         if wait:
             record = await orch.wait_cycle(cid, min(timeout_s, wait_max_s))
