@@ -39,8 +39,18 @@ def test_hand_eye_is_reorthonormalised_and_faces_the_wall_with_the_laser() -> No
     assert T_H_C[:3, 2] @ cfg.sim.laser.l > np.cos(np.radians(6))
 
 
-def test_code_defaults_equal_the_shipped_sim_toml() -> None:
-    assert load_config(SIM_TOML) == CellConfig()
+# Where config/sim.toml departs from the code defaults on purpose (the defaults suit a real cell).
+SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("calibration", "source")}
+
+
+def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() -> None:
+    shipped = load_config(SIM_TOML).model_dump()
+    defaults = CellConfig().model_dump()
+    for section, field in SIM_OVERRIDES:
+        assert shipped[section][field] != defaults[section][field]
+        shipped[section].pop(field)
+        defaults[section].pop(field)
+    assert shipped == defaults
 
 
 @pytest.mark.parametrize(
@@ -73,3 +83,16 @@ def test_missing_and_malformed_files(tmp_path: Path) -> None:
     bad.write_text("mode = \n")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_config(bad)
+
+
+def test_hardware_example_loads() -> None:
+    cfg = load_config(ROOT / "config" / "hardware.example.toml")
+    assert cfg.mode == "hardware"
+    assert (cfg.devices.laser.kind, cfg.devices.camera.kind, cfg.devices.robot.kind) == ("keyence_lkg", "genicam", "abb")
+
+
+def test_hardware_mode_refuses_simulated_devices() -> None:
+    data = sim_data()
+    data["mode"] = "hardware"
+    with pytest.raises(ConfigError, match=r"devices \['laser', 'camera', 'robot'\] are of kind \"sim\""):
+        parse_config(data, "x.toml")

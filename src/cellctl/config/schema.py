@@ -36,6 +36,26 @@ class CellConfig(StrictModel):
     sim: SimConfig = SimConfig()
 
     @model_validator(mode="after")
+    def _devices_fit_the_mode(self) -> "CellConfig":
+        if self.mode == "hardware":
+            sim = [name for name in ("laser", "camera", "robot") if getattr(self.devices, name).kind == "sim"]
+            if sim:
+                raise ValueError(
+                    f"mode = \"hardware\" but devices {sim} are of kind \"sim\": give each its real driver "
+                    "(see config/hardware.example.toml), or set mode = \"sim\""
+                )
+            if self.calibration.source == "oracle":
+                raise ValueError('calibration.source = "oracle" exists only in the simulated cell; use "set"')
+        return self
+
+    @model_validator(mode="after")
+    def _roi_in_the_image(self) -> "CellConfig":
+        if self.mode == "sim":
+            cam = self.sim.camera.intrinsics
+            self.vision.roi.check_inside(cam.width_px, cam.height_px)
+        return self
+
+    @model_validator(mode="after")
     def _corner_visible(self) -> "CellConfig":
         if self.mode != "sim":
             return self
