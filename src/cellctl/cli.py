@@ -19,20 +19,21 @@ import numpy as np
 
 from cellctl.client import DEFAULT_URL, CellClient, ServiceError
 from cellctl.config import ConfigError, load_config
+from cellctl.service.compose import ServiceError as BuildError
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from cellctl.service.compose import build_service
+    from cellctl.service.compose import build_service  # the composition root: imports the drivers
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = load_config(args.config)
 
     async def run() -> None:
         service = await build_service(config, workdir=Path(args.workdir))
-        print(f"cellctl serving on http://{config.api.host}:{config.api.port} (mode {config.mode}); Ctrl-C stops")
-        await service.serve()
+        print(f"cellctl serving on http://{config.api.host}:{config.api.port}/ (mode {config.mode}); Ctrl-C stops", flush=True)
+        await service.serve(demo_cycles=args.demo_cycles)
 
     asyncio.run(run())
     return 0
@@ -130,6 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("serve", help="run the cell service (REST API, dashboard, PLC Modbus server)")
     p.add_argument("--workdir", default=".", help="where var/ (database, images, calibration) lives")
+    p.add_argument("--demo-cycles", type=int, default=0, help="simulated cell: run this many cycles at start and print them")
     p.set_defaults(func=_cmd_serve)
 
     def remote(p: argparse.ArgumentParser) -> None:
@@ -178,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as err:
         print(f"configuration refused:\n{err}", file=sys.stderr)
         return 2
-    except ServiceError as err:
+    except (ServiceError, BuildError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import sys
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,7 +53,14 @@ class Service:
             from cellctl.plc.server import PlcServer
 
             server = PlcServer(self.config.plc, self.plc_link)
-            await server.start()
+            try:
+                await server.start()
+            except OSError as err:
+                await self.orchestrator.stop()
+                raise ServiceError(
+                    f"the PLC Modbus server cannot listen on {self.config.plc.host}:{self.config.plc.port} ({err}); "
+                    "is another cellctl running? change [plc] port or stop the other one"
+                ) from None
             self.plc_server = server
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
 
@@ -66,23 +74,38 @@ class Service:
                 await close()
         await self.store.close()
 
-    async def serve(self, *, ready: asyncio.Event | None = None) -> None:
-        """Run the REST API and dashboard until the process is told to stop (SIGINT/SIGTERM)."""
+    async def serve(self, *, ready: asyncio.Event | None = None, demo_cycles: int = 0) -> None:
+        """Run the REST API and dashboard until the process is told to stop (SIGINT/SIGTERM).
+
+        ``demo_cycles`` > 0 first brings the cell to Execute and installs that many windows.
+        """
         import uvicorn
 
         from cellctl.api.app import create_app
 
         app = create_app(self.orchestrator, self.config.api)
         server = uvicorn.Server(
-            uvicorn.Config(app, host=self.config.api.host, port=self.config.api.port, log_level="info", lifespan="off")
+            uvicorn.Config(app, host=self.config.api.host, port=self.config.api.port, log_level="warning", lifespan="off")
         )
         await self.start()
         try:
             task = asyncio.create_task(server.serve())
             while not server.started and not task.done():
                 await asyncio.sleep(0.05)
+            if not server.started:
+                with contextlib.suppress(BaseException):
+                    await task
+                raise ServiceError(
+                    f"the REST API cannot listen on {self.config.api.host}:{self.config.api.port}; "
+                    "is another cellctl running? change [api] port or stop the other one"
+                )
             if ready is not None:
                 ready.set()
+            if demo_cycles and not task.done():
+                from cellctl.service.demo import run_demo
+
+                await run_demo(self, demo_cycles, sys.stdout)
+                print(f"serving on http://{self.config.api.host}:{self.config.api.port}/ ; Ctrl-C stops", flush=True)
             await task
         finally:
             await self.stop()
