@@ -93,6 +93,15 @@ async def test_unreachable_targets_raise_unreachable_target() -> None:
         assert fake.robot.flange() == DEFAULT_HOME  # nothing moved
 
 
+async def test_motion_failure_is_interrupted_with_its_code() -> None:
+    async with fake_and_robot() as (fake, robot):
+        fake.set_motors(False)
+        with pytest.raises(MotionInterrupted, match=r"motors are off \(code 141 MOTION\)"):
+            await robot.move(MotionRequest(_target(dx=10.0)), timeout_s=3.0)
+        state = await robot.state(timeout_s=1.0)
+        assert not state.motors_on
+
+
 async def test_stop_interrupts_a_move_and_busy_is_typed() -> None:
     async with fake_and_robot(fake_kw={"time_scale": 1.0}) as (fake, robot):
         move = asyncio.create_task(robot.move(MotionRequest(_target(dx=100.0), speed_mm_s=50.0), timeout_s=10.0))

@@ -45,6 +45,7 @@ async def test_five_percent_loss_each_way_is_seen_exactly_and_survived() -> None
         assert math.dist(got.position_mm, target.position_mm) <= 0.1
         stats = fake.last_egm_stats
         assert stats is not None and stats.end == "converged" and stats.sent > 150
+        await asyncio.sleep(0.1)  # the last datagrams of the session reach the peer
         snap = robot.egm.snapshot()  # type: ignore[union-attr]
         peer = robot.egm.stats()  # type: ignore[union-attr]
         seen_until = snap.seqno
@@ -265,6 +266,12 @@ async def test_peer_drains_to_the_newest_datagram() -> None:
 async def test_peer_settings_and_port_clash_are_reported() -> None:
     with pytest.raises(ValueError, match="max_rate_hz"):
         EgmPeerSettings(max_rate_hz=0)
+    with pytest.raises(ValueError, match="isolation"):
+        EgmPeerSettings(isolation="fiber")  # type: ignore[arg-type]
+    idle = EgmPeer(EgmPeerSettings(port=0))
+    assert idle.snapshot().session == 0 and idle.snapshot().feedback is None and idle.stats().received == 0
+    with pytest.raises(RuntimeError, match="not started"):
+        _ = idle.port
     first = EgmPeer(EgmPeerSettings(port=0, bind_host=LOOPBACK))
     await first.start()
     second = EgmPeer(EgmPeerSettings(port=first.port, bind_host=LOOPBACK))

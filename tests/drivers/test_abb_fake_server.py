@@ -10,6 +10,7 @@ import pytest
 
 from _abb_testkit import LOOPBACK, free_udp_port, start_fake
 from abb_robot.fake import EgmDynamics, FakeController
+from cellctl.ports import CartesianPose
 
 
 class Raw:
@@ -227,4 +228,60 @@ async def test_egm_session_with_a_silent_sensor_ends_on_the_comm_timeout() -> No
         assert 0.3 <= stats.duration_s < 3.0 and stats.replies == 0
         assert stats.sent == pytest.approx(stats.duration_s / 0.004, rel=0.5)  # one EgmRobot per 4 ms cycle
     finally:
+        fake.stop_thread()
+
+
+async def test_motion_egm_state_and_internal_errors(fake: FakeController) -> None:
+    async with raw_client(fake) as c:
+        await _hello(c)
+        fake.set_motors(False)
+        await c.ask("2 POS 2050 0 1500")
+        await c.ask("3 ORI 0.7071068 0 0.7071068 0")
+        assert await c.ask("4 MOVEL", 2) == ["4 ACK", "4 ERR 141 motors are off"]
+        assert await c.ask("5 STATE") == ["5 OK 0 0"]
+        fake.set_motors(True)
+        fake.robot.set_flange(CartesianPose((3900.0, 0.0, 1500.0), (0.7071068, 0.0, 0.7071068, 0.0)))
+        reply = (await c.ask("6 GETJ"))[0]
+        assert reply.startswith("6 ERR 199 joints unavailable")
+
+
+async def test_egm_session_ends_with_code_152_on_motors_off_and_unreachable_references() -> None:
+    import socket as _socket
+
+    from abb_robot.egm import egm_pb2 as pb
+
+    sensor = _socket.socket(_socket.AF_INET, _socket.SOCK_DGRAM)
+    sensor.bind((LOOPBACK, 0))
+    sensor.settimeout(1.0)
+    fake = start_fake(egm_sensor_port=sensor.getsockname()[1], egm=EgmDynamics(comm_timeout_s=2.0))
+
+    def answer(x: float) -> None:
+        data, addr = sensor.recvfrom(4096)
+        reply = pb.EgmSensor()
+        reply.header.seqno, reply.header.mtype = 0, pb.EgmHeader.MSGTYPE_CORRECTION
+        p = reply.planned.cartesian
+        p.pos.x, p.pos.y, p.pos.z = x, 0.0, 1500.0
+        p.orient.u0, p.orient.u1, p.orient.u2, p.orient.u3 = 0.7071068, 0.0, 0.7071068, 0.0
+        sensor.sendto(reply.SerializeToString(), addr)
+
+    try:
+        async with raw_client(fake) as c:
+            await _hello(c)
+            assert await c.ask("2 EGM 0.1 0.1 5") == ["2 ACK"]
+            await asyncio.to_thread(answer, 2000.0)
+            fake.set_motors(False)
+            assert (await c.line()).startswith("2 ERR 152 motors off during the EGM session")
+            fake.set_motors(True)
+            sensor.setblocking(False)
+            while True:  # datagrams of the first session
+                try:
+                    sensor.recvfrom(4096)
+                except BlockingIOError:
+                    break
+            sensor.settimeout(1.0)
+            assert await c.ask("3 EGM 0.1 0.1 5") == ["3 ACK"]
+            await asyncio.to_thread(answer, 4500.0)  # far outside the reach sphere
+            assert (await c.line()).startswith("3 ERR 152 EGM reference refused: wrist centre")
+    finally:
+        sensor.close()
         fake.stop_thread()

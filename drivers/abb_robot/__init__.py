@@ -1,0 +1,32 @@
+"""cellctl's ABB robot driver: a RAPID socket server module, its asyncio client, EGM, and a fake.
+
+- ``rapid/CellctlServer.mod`` and ``rapid/CellctlMotion.mod``: the server that runs on the IRC5
+  or OmniCore controller (loading and controller configuration: ``README.md`` next to this file).
+- :mod:`abb_robot.protocol`: the line protocol, defined once (codec, limits, error codes, the
+  README's table).
+- :class:`AbbRobot` (:mod:`abb_robot.client`): implements ``cellctl.ports.Robot`` over the line
+  protocol and ``cellctl.ports.FineCorrection`` through EGM.
+- :mod:`abb_robot.egm`: the EGM schema (``egm.proto``, compiled to ``egm_pb2``) and the
+  sensor-side UDP peer :class:`~abb_robot.egm.EgmPeer`.
+- :mod:`abb_robot.fake`: a fake controller serving both protocols, run as
+  ``python -m abb_robot.fake --rapid-port P --egm-port Q``.
+- :mod:`abb_robot.bench`: ``python -m abb_robot.bench [--seconds 60]``, the EGM loop's rate and
+  reply latency against the fake.
+
+From the core this package imports only ``cellctl.ports``.
+"""
+
+from abb_robot.client import AbbRobot, AbbRobotSettings, ControllerInfo
+from abb_robot.egm.peer import EgmPeer, EgmPeerSettings, EgmSnapshot
+from abb_robot.protocol import PROTOCOL_VERSION, ErrorCode
+
+__all__ = [
+    "PROTOCOL_VERSION",
+    "AbbRobot",
+    "AbbRobotSettings",
+    "ControllerInfo",
+    "EgmPeer",
+    "EgmPeerSettings",
+    "EgmSnapshot",
+    "ErrorCode",
+]

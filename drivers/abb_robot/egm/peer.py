@@ -1,0 +1,561 @@
+"""The sensor side of EGM: a UDP peer that answers the controller with the newest pose reference.
+
+The controller is the UDP client: once per EGM cycle (4 ms) it sends ``EgmRobot`` to the port
+configured in its UDPUC device ("Remote Port Number"). :class:`EgmPeer` binds that port, locks
+onto the first sender's address (datagrams from any other address are counted and ignored),
+and answers each received cycle with one ``EgmSensor`` holding the newest reference, so it
+replies at the controller's rate, capped at ``max_rate_hz`` (250 Hz) by a token bucket that lets
+a late cycle catch up but never lets the average exceed the cap.
+
+The receive loop (:mod:`abb_robot.egm.peer_core`) runs in a child process of its own by default
+(``isolation="process"``: no interpreter lock shared with the cell's code, state in shared
+memory, see :mod:`abb_robot.egm.peer_process`) or in a thread (``isolation="thread"``). It drains
+the socket to the newest datagram each time it wakes (older ones are counted as superseded,
+never answered late) and supervises:
+
+- sequence numbers: gaps (lost datagrams), duplicates, and datagrams older than the last one
+  (stale, discarded); seqno 0 or a new sender after silence starts a new session;
+- silence: no datagram for ``receive_timeout_s`` ends the session as far as the peer knows;
+- motor, RAPID and MCI state: motors off, RAPID stopped and MCI_ERROR are faults, MCI_STOPPED
+  ends the session (RAPID_UNDEFINED is accepted: controllers report it after a restart);
+- convergence: consecutive cycles with the feedback pose within the tolerance of the reference.
+
+Before a reference is set, the peer answers with the pose the robot had when the session began,
+so the robot holds still. Poses are TCP poses in the frame the RAPID side gave to EGMActPose
+(cellctl's module uses the current tool and work object, as for MoveL).
+
+:meth:`EgmPeer.correct_to` implements :class:`cellctl.ports.FineCorrection` on its own, for a
+controller whose RAPID program runs the EGM session; :class:`abb_robot.AbbRobot` uses the peer
+together with its RAPID link, which starts the session itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import ipaddress
+import json
+import logging
+import math
+import socket
+import subprocess
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from multiprocessing.shared_memory import SharedMemory
+from typing import Literal
+
+import numpy as np
+
+from abb_robot import quat
+from abb_robot.egm.peer_core import (
+    R_HAS_REF,
+    R_POS,
+    R_QUAT,
+    REF_LEN,
+    S_CONV_MET,
+    S_CONVERGED,
+    S_CTRL_IP,
+    S_CTRL_PORT,
+    S_FB,
+    S_GENERATION,
+    S_HAS_REF,
+    S_JOINTS,
+    S_LAST_RX,
+    S_MCI,
+    S_MOTORS,
+    S_NJ,
+    S_POS_ERR,
+    S_RAPID,
+    S_REF,
+    S_ROT_ERR,
+    S_SEQNO,
+    S_SESSION,
+    S_STATS,
+    STAT_NAMES,
+    STATUS_LEN,
+    Hooks,
+    LatencySink,
+    empty_status,
+    PeerCore,
+    reference_vector,
+    serve,
+    set_realtime_priority,
+    warm_up,
+)
+from abb_robot.egm.peer_process import RING, RING_AT, REF_AT, STATUS_AT, TOTAL, SeqBlock, command
+from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceTimeout, MotionInterrupted
+
+log = logging.getLogger(__name__)
+
+_MOTORS = {0: "undefined", 1: "on", 2: "off"}
+_MCI = {0: "undefined", 1: "error", 2: "stopped", 3: "running"}
+_RAPID = {0: "undefined", 1: "stopped", 2: "running"}
+
+
+@dataclass(frozen=True)
+class EgmPeerSettings:
+    """How the sensor-side peer listens and supervises.
+
+    Attributes:
+        port: UDP port to bind (the controller's UDPUC "Remote Port Number").
+        bind_host: local address to bind ("0.0.0.0": every interface).
+        controller_host: if set, only datagrams from this IP are accepted.
+        max_rate_hz: average reply rate cap (token bucket, bursts of up to 3 replies).
+        receive_timeout_s: silence after which the session counts as ended (or never started).
+        settle_cycles: consecutive converged cycles :meth:`EgmPeer.correct_to` waits for.
+        rt_priority: if set, the receive loop asks for SCHED_FIFO at this priority (1..99;
+            needs CAP_SYS_NICE; refused with a logged warning otherwise).
+        isolation: "process" runs the loop in a child process, "thread" in this one.
+        name: the device name in errors.
+    """
+
+    port: int = 6511
+    bind_host: str = "0.0.0.0"
+    controller_host: str | None = None
+    max_rate_hz: float = 250.0
+    receive_timeout_s: float = 0.5
+    settle_cycles: int = 5
+    rt_priority: int | None = None
+    isolation: Literal["process", "thread"] = "process"
+    name: str = "robot EGM"
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.port <= 65535):
+            raise ValueError(f"port must be 0..65535, got {self.port}")
+        if not (0 < self.max_rate_hz <= 1000):
+            raise ValueError(f"max_rate_hz must be in (0, 1000], got {self.max_rate_hz}")
+        if not (0 < self.receive_timeout_s <= 60):
+            raise ValueError(f"receive_timeout_s must be in (0, 60], got {self.receive_timeout_s}")
+        if self.settle_cycles < 1:
+            raise ValueError(f"settle_cycles must be >= 1, got {self.settle_cycles}")
+        if self.isolation not in ("process", "thread"):
+            raise ValueError(f"isolation must be 'process' or 'thread', got {self.isolation!r}")
+        if self.rt_priority is not None and not (1 <= self.rt_priority <= 99):
+            raise ValueError(f"rt_priority must be 1..99 or None, got {self.rt_priority}")
+
+
+@dataclass
+class EgmPeerStats:
+    """Counters since the peer started (read them through :meth:`EgmPeer.stats`)."""
+
+    received: int = 0
+    replied: int = 0
+    sessions: int = 0
+    lost: int = 0
+    gap_events: int = 0
+    duplicates: int = 0
+    stale: int = 0
+    superseded: int = 0
+    foreign: int = 0
+    bad: int = 0
+    rate_limited: int = 0
+    max_interarrival_s: float = 0.0
+    reply_latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=RING))
+    """Receive-to-send time of the latest replies (up to 131072), seconds."""
+
+
+@dataclass(frozen=True)
+class EgmSnapshot:
+    """What the peer knows now; a copy, safe to keep.
+
+    Attributes:
+        session: number of sessions seen so far (0: none yet).
+        controller: the address the peer is locked onto.
+        seqno: sequence number of the newest accepted datagram.
+        received_at: ``time.monotonic()`` of the newest accepted datagram.
+        feedback: the robot's pose as the controller reports it.
+        joints_rad: the robot's joints as reported.
+        motors, mci, rapid: "on"/"off"/"undefined", "running"/"stopped"/"error"/"undefined",
+            "running"/"stopped"/"undefined".
+        convergence_met: the controller's own convergence flag.
+        reference: the reference sent from the next cycle on (None: the session's start pose).
+        reference_generation: the generation of the reference the newest cycle was judged
+            against (:meth:`EgmPeer.set_reference` returns it).
+        converged_cycles: consecutive cycles with the feedback within tolerance of the reference.
+        position_error_mm, rotation_error_rad: feedback against reference in the newest cycle.
+        fault: why the session cannot go on (motors off, MCI error, RAPID stopped), or None.
+        ended: the controller ended the session (MCI_STOPPED or MCI_ERROR).
+    """
+
+    session: int
+    controller: tuple[str, int] | None
+    seqno: int | None
+    received_at: float | None
+    feedback: CartesianPose | None
+    joints_rad: tuple[float, ...]
+    motors: str
+    mci: str
+    rapid: str
+    convergence_met: bool
+    reference: CartesianPose | None
+    reference_generation: int
+    converged_cycles: int
+    position_error_mm: float | None
+    rotation_error_rad: float | None
+    fault: str | None
+    ended: bool
+
+
+class EgmPeer:
+    """Sensor-side EGM peer; implements :class:`cellctl.ports.FineCorrection`.
+
+    Use ``await peer.start()`` (binds the port, starts the loop) and ``await peer.close()``.
+    With ``isolation="process"`` (the default) the loop runs in a child process, so the cell's
+    own Python work never holds it up; ``"thread"`` keeps it in this process.
+    """
+
+    def __init__(self, settings: EgmPeerSettings = EgmPeerSettings()) -> None:
+        self.settings = settings
+        self._running = False
+        self._port: int | None = None
+        self._generation = 0
+        self._reference_vec = reference_vector(0, None, 0.0, 0.0)
+        self._core_status = empty_status()
+        # thread isolation
+        self._lock = threading.Lock()
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._core: PeerCore | None = None
+        # process isolation
+        self._process: subprocess.Popen[bytes] | None = None
+        self._shm: SharedMemory | None = None
+        self._ref_block: SeqBlock | None = None
+        self._status_block: SeqBlock | None = None
+        self._ring: np.ndarray | None = None
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    @property
+    def port(self) -> int:
+        """The bound UDP port (useful when the settings asked for port 0)."""
+        if self._port is None:
+            raise RuntimeError("EGM peer not started")
+        return self._port
+
+    @property
+    def running(self) -> bool:
+        """Started, not closed, and (with process isolation) the child still alive."""
+        if self._process is not None and self._process.poll() is not None:
+            return False
+        return self._running
+
+    async def start(self, *, timeout_s: float = 30.0) -> None:
+        """Bind the UDP port and start the receive loop. Safe to call twice.
+
+        With process isolation the child interpreter needs about half a second to start;
+        ``timeout_s`` bounds that (DeviceTimeout when it does not report in time).
+        """
+        if self._running:
+            return
+        self._running = True
+        try:
+            if self.settings.isolation == "thread":
+                self._start_thread()
+            else:
+                await self._start_process(timeout_s)
+        except BaseException:
+            self._running = False
+            raise
+
+    def _bind_error(self, detail: str) -> DeviceDisconnected:
+        return DeviceDisconnected(self.settings.name, f"{detail}; is another EGM peer running on that port?")
+
+    def _start_thread(self) -> None:
+        s = self.settings
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.bind((s.bind_host, s.port))
+        except OSError as exc:
+            sock.close()
+            raise self._bind_error(f"cannot bind UDP {s.bind_host}:{s.port} ({exc.strerror})") from exc
+        sock.setblocking(False)
+        self._sock = sock
+        self._port = int(sock.getsockname()[1])
+        self._core = PeerCore(controller_host=s.controller_host, receive_timeout_s=s.receive_timeout_s,
+                              latency=LatencySink())
+        self._thread = threading.Thread(target=self._thread_main, name=f"egm-peer-{self._port}", daemon=True)
+        self._thread.start()
+
+    def _thread_main(self) -> None:
+        assert self._sock is not None and self._core is not None
+        warm_up()
+        if self.settings.rt_priority is not None:
+            refused = set_realtime_priority(self.settings.rt_priority)
+            if refused:
+                log.warning("%s: %s", self.settings.name, refused)
+        serve(self._sock, self._core, self.settings.max_rate_hz,
+              Hooks(lock=self._lock, keep_going=lambda: self._running, wake_fds=[]))
+
+    async def _start_process(self, timeout_s: float) -> None:
+        s = self.settings
+        shm = SharedMemory(create=True, size=TOTAL * 8)
+        array = np.ndarray((TOTAL,), dtype=np.float64, buffer=shm.buf)
+        array[:] = 0.0
+        self._shm = shm
+        self._ref_block = SeqBlock(array, REF_AT, REF_LEN)
+        self._status_block = SeqBlock(array, STATUS_AT, STATUS_LEN)
+        self._ring = array[RING_AT : RING_AT + RING]
+        self._status_block.write(empty_status())  # "nothing yet" until the child publishes
+        self._ref_block.write(self._reference_vec)
+        process = subprocess.Popen(command(s, shm.name), stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self._process = process
+        assert process.stdout is not None
+        loop = asyncio.get_running_loop()
+        try:
+            line = await asyncio.wait_for(loop.run_in_executor(None, process.stdout.readline), timeout_s)
+            reply = json.loads(line) if line else {"error": "the EGM process ended before it started"}
+        except asyncio.TimeoutError:
+            await self._stop_process()
+            raise DeviceTimeout(s.name, f"the EGM process did not start within {timeout_s:g} s") from None
+        except ValueError:
+            reply = {"error": "the EGM process answered garbage when starting"}
+        if "port" not in reply:
+            await self._stop_process()
+            raise self._bind_error(str(reply.get("error")))
+        self._port = int(reply["port"])
+        if reply.get("warning"):
+            log.warning("%s: %s", s.name, reply["warning"])
+
+    async def close(self) -> None:
+        """Stop the loop and release the port. Safe to call twice."""
+        if not self._running:
+            return
+        self._running = False
+        if self.settings.isolation == "thread":
+            thread = self._thread
+            if thread is not None:
+                await asyncio.get_running_loop().run_in_executor(None, thread.join, 2.0)
+            if self._sock is not None:
+                self._sock.close()
+        else:
+            await self._stop_process()
+
+    async def _stop_process(self) -> None:
+        process = self._process
+        if process is not None:
+            if process.stdin is not None:
+                try:
+                    process.stdin.write(b"stop\n")
+                    process.stdin.close()
+                except (OSError, ValueError):
+                    pass
+            loop = asyncio.get_running_loop()
+            try:
+                await asyncio.wait_for(loop.run_in_executor(None, process.wait), 3.0)
+            except asyncio.TimeoutError:
+                process.kill()
+                await loop.run_in_executor(None, process.wait)
+            if process.stdout is not None:
+                process.stdout.close()
+        # Keep the last status and latencies readable after the process is gone.
+        if self._status_block is not None:
+            values = self._status_block.read()
+            if values is not None:
+                self._core_status = values
+        if self._ring is not None:
+            self._ring = self._ring.copy()
+        self._ref_block = self._status_block = None
+        if self._shm is not None:
+            try:
+                self._shm.close()
+            except BufferError:
+                pass
+            self._shm.unlink()
+            self._shm = None
+        self._process = None
+
+    # -- references ---------------------------------------------------------------------------
+
+    def set_reference(self, target: CartesianPose, *, tolerance_mm: float, tolerance_rad: float) -> int:
+        """Send ``target`` from the next cycle on; convergence is judged with these tolerances.
+
+        Returns the reference generation, which :class:`EgmSnapshot` echoes once the loop uses it.
+        """
+        if not (tolerance_mm > 0 and math.isfinite(tolerance_mm)):
+            raise ValueError(f"tolerance_mm must be > 0, got {tolerance_mm}")
+        if not (tolerance_rad > 0 and math.isfinite(tolerance_rad)):
+            raise ValueError(f"tolerance_rad must be > 0, got {tolerance_rad}")
+        pose = (tuple(map(float, target.position_mm)), quat.normalise(target.quaternion_wxyz))
+        self._generation += 1
+        self._publish_reference(reference_vector(self._generation, pose, tolerance_mm, tolerance_rad))
+        return self._generation
+
+    def clear_reference(self) -> None:
+        """Go back to holding the pose the session started at."""
+        self._generation += 1
+        self._publish_reference(reference_vector(self._generation, None, 0.0, 0.0))
+
+    def _publish_reference(self, vec: list[float]) -> None:
+        self._reference_vec = vec
+        if self.settings.isolation == "thread":
+            if self._core is not None:
+                with self._lock:
+                    self._core.apply_reference(vec)
+        elif self._ref_block is not None:
+            self._ref_block.write(vec)
+
+    def _status(self) -> np.ndarray:
+        if self.settings.isolation == "thread":
+            if self._core is not None:
+                with self._lock:
+                    self._core.export(self._core_status)
+            return self._core_status.copy()
+        if self._status_block is not None:
+            values = self._status_block.read()
+            if values is not None:
+                self._core_status = values
+        return self._core_status.copy()
+
+    def snapshot(self) -> EgmSnapshot:
+        snap = snapshot_from_status(self._status())
+        v = self._reference_vec  # what the next cycle sends, whether or not a cycle used it yet
+        reference = None
+        if v[R_HAS_REF] > 0.5:
+            reference = CartesianPose(
+                (v[R_POS], v[R_POS + 1], v[R_POS + 2]), quat.normalise(v[R_QUAT : R_QUAT + 4])
+            )
+        return dataclasses.replace(snap, reference=reference)
+
+    def stats(self) -> EgmPeerStats:
+        v = self._status()
+        counts = {name: v[S_STATS + i] for i, name in enumerate(STAT_NAMES)}
+        st = EgmPeerStats(**{k: int(counts[k]) for k in (
+            "received", "replied", "sessions", "lost", "gap_events", "duplicates", "stale", "superseded",
+            "foreign", "bad", "rate_limited")})
+        st.max_interarrival_s = float(counts["max_interarrival_s"])
+        n = int(counts["latency_samples"])
+        if self.settings.isolation == "thread":
+            samples = self._core.latency.samples() if self._core is not None else np.zeros(0)
+        else:
+            ring = self._ring if self._ring is not None else np.zeros(0)
+            samples = ring[: min(n, ring.size)].copy()
+        st.reply_latency_s = deque(samples.tolist(), maxlen=RING)
+        return st
+
+    # -- FineCorrection -----------------------------------------------------------------------
+
+    async def correct_to(
+        self, target: CartesianPose, *, tolerance_mm: float, tolerance_rad: float, timeout_s: float
+    ) -> CartesianPose:
+        """Stream ``target`` until the reported pose stays within the tolerances for
+        ``settle_cycles`` cycles; returns that reported pose.
+
+        Needs an EGM session run by the controller's program. Raises DeviceTimeout when no EGM
+        data arrives or the pose does not converge in ``timeout_s``, MotionInterrupted when the
+        session ends or faults first.
+        """
+        if not (timeout_s > 0 and math.isfinite(timeout_s)):
+            raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
+        await self.start(timeout_s=timeout_s)
+        generation = self.set_reference(target, tolerance_mm=tolerance_mm, tolerance_rad=tolerance_rad)
+        return await self.wait_converged(generation, deadline=time.monotonic() + timeout_s, timeout_s=timeout_s)
+
+    async def wait_converged(
+        self, generation: int, *, deadline: float, timeout_s: float, min_session: int = 1
+    ) -> CartesianPose:
+        """Wait until the reference of ``generation`` has converged in a session numbered
+        ``min_session`` or later; see :meth:`correct_to` for the errors."""
+        started = time.monotonic()
+        name = self.settings.name
+        while True:
+            snap = self.snapshot()
+            now = time.monotonic()
+            fresh = (
+                snap.session >= min_session
+                and snap.received_at is not None
+                and snap.received_at >= started - self.settings.receive_timeout_s
+            )
+            if fresh and snap.received_at is not None and now - snap.received_at > self.settings.receive_timeout_s:
+                raise MotionInterrupted(
+                    name, f"EGM data stopped: nothing for {now - snap.received_at:.2f} s on UDP port {self.port}"
+                )
+            if fresh and snap.fault is not None:
+                raise MotionInterrupted(name, f"EGM session faulted: {snap.fault}")
+            if (
+                fresh
+                and snap.reference_generation == generation
+                and snap.converged_cycles >= self.settings.settle_cycles
+                and snap.feedback is not None
+            ):
+                return snap.feedback
+            if fresh and snap.ended:
+                raise MotionInterrupted(name, f"EGM session ended ({snap.mci}) before the pose converged")
+            if not fresh and now - started > self.settings.receive_timeout_s:
+                raise DeviceTimeout(
+                    name,
+                    f"no EGM data on UDP port {self.port} within {self.settings.receive_timeout_s:g} s: check the "
+                    "controller's UDPUC remote address and port, the PC firewall, and that RAPID runs EGM",
+                )
+            if now >= deadline:
+                err = "" if snap.position_error_mm is None else (
+                    f"; last error {snap.position_error_mm:.3f} mm, {math.degrees(snap.rotation_error_rad or 0.0):.3f} deg"
+                )
+                raise DeviceTimeout(name, f"pose did not converge within {timeout_s:g} s{err}")
+            await asyncio.sleep(0.004)
+
+def _mono(perf_t: float) -> float:
+    """A perf_counter time (CLOCK_MONOTONIC, shared by processes) as time.monotonic()."""
+    return time.monotonic() - (time.perf_counter() - perf_t)
+
+
+def _opt(v: float) -> float | None:
+    return None if math.isnan(v) else float(v)
+
+
+def snapshot_from_status(v: np.ndarray) -> EgmSnapshot:
+    """The :class:`EgmSnapshot` of a status vector (see :mod:`abb_robot.egm.peer_core`)."""
+    motors = _MOTORS.get(int(v[S_MOTORS]), "undefined")
+    mci = _MCI.get(int(v[S_MCI]), "undefined")
+    rapid = _RAPID.get(int(v[S_RAPID]), "undefined")
+    fault = None
+    if motors == "off":
+        fault = "motors are off"
+    elif mci == "error":
+        fault = "the controller reports an EGM error (MCI_ERROR)"
+    elif rapid == "stopped":
+        fault = "RAPID execution is stopped"
+    controller = None
+    if not math.isnan(v[S_CTRL_IP]):
+        controller = (str(ipaddress.IPv4Address(int(v[S_CTRL_IP]))), int(v[S_CTRL_PORT]))
+    feedback = None
+    if not math.isnan(v[S_FB]):
+        feedback = CartesianPose(
+            (float(v[S_FB]), float(v[S_FB + 1]), float(v[S_FB + 2])),
+            quat.normalise(v[S_FB + 3 : S_FB + 7]),
+        )
+    reference = None
+    if v[S_HAS_REF] > 0.5:
+        reference = CartesianPose(
+            (float(v[S_REF]), float(v[S_REF + 1]), float(v[S_REF + 2])), quat.normalise(v[S_REF + 3 : S_REF + 7])
+        )
+    seqno = _opt(v[S_SEQNO])
+    last_rx = _opt(v[S_LAST_RX])
+    return EgmSnapshot(
+        session=int(v[S_SESSION]),
+        controller=controller,
+        seqno=None if seqno is None else int(seqno),
+        received_at=None if last_rx is None else _mono(last_rx),
+        feedback=feedback,
+        joints_rad=tuple(float(j) for j in v[S_JOINTS : S_JOINTS + int(v[S_NJ])]),
+        motors=motors,
+        mci=mci,
+        rapid=rapid,
+        convergence_met=bool(v[S_CONV_MET] > 0.5),
+        reference=reference,
+        reference_generation=int(v[S_GENERATION]),
+        converged_cycles=int(v[S_CONVERGED]),
+        position_error_mm=_opt(v[S_POS_ERR]),
+        rotation_error_rad=_opt(v[S_ROT_ERR]),
+        fault=fault,
+        ended=mci in ("stopped", "error"),
+    )
+
+
+def latency_percentiles_ms(samples: "deque[float] | list[float]") -> tuple[float, float, float]:
+    """p50, p99 and max of latency samples given in seconds, in milliseconds."""
+    if not samples:
+        return (float("nan"), float("nan"), float("nan"))
+    a = np.asarray(samples, dtype=float) * 1000.0
+    return (float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()))

@@ -1,0 +1,448 @@
+"""The robot side of EGM in the fake controller: a pose-mode session like ``EGMRunPose``.
+
+While a session runs, a dedicated thread sends an ``EgmRobot`` datagram every ``period_s``
+(4 ms) from its own UDP socket to the sensor's address, with seqno counting from 0, ``tm`` in
+ms since the session started, the TCP pose (current tool, work object) as feedback, the
+reference in use as planned pose, and motor, MCI and RAPID states. Between two sends it drains
+the ``EgmSensor`` replies and keeps the newest reference. The robot follows the reference after
+a dead time, as a first-order lag limited in speed; without new replies it holds the last
+reference (without repeatability noise: EGM converges on the controller's own measurement of
+the robot, which is what the feedback reports). The session ends
+
+- converged: every axis within the band for ``cond_s`` (after the first reference), or
+- on a communication timeout: no reply for ``comm_timeout_s`` (ERR_UDPUC_COMM, elog 41822), or
+- on STOP, on motors off, or on an unreachable reference.
+
+The last datagram of a session carries MCI_STOPPED (converged, stopped) or MCI_ERROR.
+Optional seeded loss drops outgoing datagrams and incoming replies at the given rates.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import logging
+import math
+import select
+import socket
+import threading
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from abb_robot import quat
+from abb_robot.egm import egm_pb2 as pb
+from abb_robot.egm.peer_core import set_realtime_priority
+from abb_robot.fake.robot import FakeRobot, interpolate
+from cellctl.ports import CartesianPose
+
+
+log = logging.getLogger(__name__)
+
+
+class EgmEnd(enum.Enum):
+    """How a session ended."""
+
+    CONVERGED = "converged"
+    COMM_TIMEOUT = "comm_timeout"
+    STOPPED = "stopped"
+    MOTORS_OFF = "motors_off"
+    UNREACHABLE = "unreachable"
+
+
+@dataclass(frozen=True)
+class EgmSessionParams:
+    """What the EGM request asked for: convergence band per axis and the time to hold it."""
+
+    band_mm: float
+    band_deg: float
+    cond_s: float
+
+
+@dataclass(frozen=True)
+class EgmDynamics:
+    """How the fake robot follows EGM references."""
+
+    period_s: float = 0.004
+    comm_timeout_s: float = 1.0
+    dead_time_s: float = 0.008
+    tau_s: float = 0.015
+    max_speed_mm_s: float = 250.0
+    max_speed_deg_s: float = 30.0
+
+
+@dataclass
+class EgmSessionStats:
+    """What the controller side saw during one session (for tests and the benchmark)."""
+
+    sent: int = 0
+    dropped_out: int = 0
+    replies: int = 0
+    dropped_in: int = 0
+    bad_replies: int = 0
+    missed_cycles: int = 0
+    missed_while_late: int = 0  # of those, cycles where this loop itself woke late (its own stall)
+    tick_overruns: int = 0
+    duration_s: float = 0.0
+    end: str = ""
+    detail: str = ""
+    rtt_ms: list[float] = field(default_factory=list)
+    dropped_seqnos: list[int] = field(default_factory=list)
+    missed_seqnos: list[int] = field(default_factory=list)
+
+    def summary(self) -> dict[str, object]:
+        d = asdict(self)
+        del d["dropped_seqnos"]
+        rtt = np.asarray(self.rtt_ms)
+        d["rtt_ms"] = {
+            "count": int(rtt.size),
+            "p50": float(np.percentile(rtt, 50)) if rtt.size else None,
+            "p99": float(np.percentile(rtt, 99)) if rtt.size else None,
+            "max": float(rtt.max()) if rtt.size else None,
+        }
+        return d
+
+
+@dataclass(frozen=True)
+class EgmOutcome:
+    end: EgmEnd
+    detail: str
+    stats: EgmSessionStats
+
+
+class EgmRobotSide:
+    """Runs EGM sessions against one sensor address (the controller's UDPUC remote address).
+
+    Args:
+        robot: the shared fake robot.
+        sensor_address: (host, port) the EgmRobot datagrams go to.
+        dynamics: timing and following behaviour.
+        loss_out: probability that an outgoing EgmRobot is dropped.
+        loss_in: probability that an incoming EgmSensor is dropped.
+        seed: seed of the loss generator.
+        stats_file: if set, each session's summary is written there as JSON when it ends.
+        rt_priority: if set, the EGM thread asks for SCHED_FIFO at this priority.
+    """
+
+    def __init__(
+        self,
+        robot: FakeRobot,
+        sensor_address: tuple[str, int],
+        *,
+        dynamics: EgmDynamics = EgmDynamics(),
+        loss_out: float = 0.0,
+        loss_in: float = 0.0,
+        seed: int = 0,
+        stats_file: str | None = None,
+        rt_priority: int | None = None,
+    ) -> None:
+        for name, p in (("loss_out", loss_out), ("loss_in", loss_in)):
+            if not (0.0 <= p < 1.0):
+                raise ValueError(f"{name} must be in [0, 1), got {p}")
+        self.robot = robot
+        self.sensor_address = sensor_address
+        self.dynamics = dynamics
+        self.loss_out = loss_out
+        self.loss_in = loss_in
+        self.stats_file = stats_file
+        self.rt_priority = rt_priority
+        self._rng = np.random.default_rng(seed)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind(("0.0.0.0" if sensor_address[0] not in ("127.0.0.1", "localhost") else "127.0.0.1", 0))
+        self._sock.setblocking(False)
+        self._wake = threading.Event()
+        self._stop_request = threading.Event()
+        self._closed = False
+        self._lock = threading.Lock()
+        self._pending: tuple[EgmSessionParams, Callable[[EgmOutcome], None]] | None = None
+        self._active = False
+        self.last_stats: EgmSessionStats | None = None
+        self._thread = threading.Thread(target=self._run, name="fake-egm-robot", daemon=True)
+        self._thread.start()
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        return self._sock.getsockname()
+
+    @property
+    def active(self) -> bool:
+        with self._lock:
+            return self._active or self._pending is not None
+
+    def begin(self, params: EgmSessionParams, on_end: Callable[[EgmOutcome], None]) -> None:
+        """Start a session; ``on_end`` is called from the EGM thread when it ends."""
+        with self._lock:
+            if self._active or self._pending is not None:
+                raise RuntimeError("an EGM session is already running")
+            self._stop_request.clear()
+            self._pending = (params, on_end)
+        self._wake.set()
+
+    def request_stop(self) -> None:
+        self._stop_request.set()
+
+    def close(self) -> None:
+        self._closed = True
+        self._stop_request.set()
+        self._wake.set()
+        self._thread.join(timeout=2.0)
+        self._sock.close()
+
+    # -- thread -------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        if self.rt_priority is not None:
+            refused = set_realtime_priority(self.rt_priority)
+            if refused:
+                log.warning("fake EGM thread: %s", refused)
+        while not self._closed:
+            self._wake.wait(0.2)
+            self._wake.clear()
+            with self._lock:
+                job = self._pending
+                self._pending = None
+                self._active = job is not None
+            if job is None:
+                continue
+            params, on_end = job
+            try:
+                outcome = self._session(params)
+            finally:
+                with self._lock:
+                    self._active = False
+            self.last_stats = outcome.stats
+            if self.stats_file:
+                with open(self.stats_file, "w", encoding="utf-8") as fh:
+                    json.dump(outcome.stats.summary(), fh)
+            on_end(outcome)
+
+    def _drain(self) -> list[tuple[bytes, float]]:
+        out: list[tuple[bytes, float]] = []
+        while True:
+            try:
+                data, _addr = self._sock.recvfrom(2048)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError:
+                return out
+            out.append((data, time.perf_counter()))
+
+    def _session(self, params: EgmSessionParams) -> EgmOutcome:
+        dyn = self.dynamics
+        robot = self.robot
+        stats = EgmSessionStats()
+        self._drain()  # stale replies of an earlier session
+        t0 = time.perf_counter()
+        wall0 = time.time()
+        next_tick = t0
+        last_reply = t0
+        seq = 0
+        reference: CartesianPose | None = None  # newest TCP reference received (wobj frame)
+        delayed: deque[tuple[float, CartesianPose]] = deque()
+        active_ref: CartesianPose | None = None
+        goal_flange = robot.flange()
+        converged_since: float | None = None
+        awaiting = False
+        last_send = t0
+        end: EgmEnd | None = None
+        detail = ""
+        prev_flange = robot.flange()
+        joints = robot.joints()
+
+        while True:
+            now = time.perf_counter()
+            loop_late = now - next_tick > dyn.period_s / 2
+            # -- physics: apply references whose dead time has passed, then follow them
+            while delayed and delayed[0][0] <= now:
+                _, active_ref = delayed.popleft()
+                flange_target, refusal = robot.check(active_ref)
+                if refusal is not None:
+                    end, detail = EgmEnd.UNREACHABLE, f"EGM reference refused: {refusal.reason}"
+                    break
+                goal_flange = flange_target  # judged on the controller's own measurement: no repeatability noise
+            current = robot.flange()
+            if end is None:
+                current = _follow(current, goal_flange, dyn)
+                robot.set_flange(current)
+            tcp = robot.flange_to_tcp(current)
+
+            # -- supervision
+            converged = False
+            if reference is not None:
+                converged = _within_band(tcp, reference, params.band_mm, params.band_deg)
+                if converged:
+                    converged_since = now if converged_since is None else converged_since
+                else:
+                    converged_since = None
+            if end is None:
+                if self._stop_request.is_set() or self._closed:
+                    end, detail = EgmEnd.STOPPED, "EGM session stopped"
+                elif not robot.motors_on:
+                    end, detail = EgmEnd.MOTORS_OFF, "motors off during the EGM session"
+                elif now - last_reply > dyn.comm_timeout_s:
+                    end, detail = EgmEnd.COMM_TIMEOUT, (
+                        f"no data from the sensor for {dyn.comm_timeout_s:g} s (41822 No data from the UdpUc device)"
+                    )
+                elif converged_since is not None and now - converged_since >= params.cond_s:
+                    end, detail = EgmEnd.CONVERGED, "converged"
+
+            # -- send one EgmRobot
+            if awaiting:
+                stats.missed_cycles += 1
+                stats.missed_seqnos.append(seq - 1)
+                if loop_late:
+                    stats.missed_while_late += 1
+            if end is None:
+                mci = pb.EgmMCIState.MCI_RUNNING
+            elif end in (EgmEnd.CONVERGED, EgmEnd.STOPPED):
+                mci = pb.EgmMCIState.MCI_STOPPED
+            else:
+                mci = pb.EgmMCIState.MCI_ERROR
+            speed = float(np.linalg.norm(np.subtract(current.position_mm, prev_flange.position_mm))) / dyn.period_s
+            prev_flange = current
+            try:
+                joints = robot.model.joints(current)
+            except ValueError:
+                pass  # noise put the pose a hair past a limit: report the last joints
+            msg = _robot_message(
+                seq, now - t0, wall0 + (now - t0), tcp, joints,
+                active_ref or tcp, robot.motors_on, mci, converged, min(100.0, 100.0 * speed / dyn.max_speed_mm_s),
+            )
+            data = msg.SerializeToString()
+            if self.loss_out > 0 and self._rng.random() < self.loss_out:
+                stats.dropped_out += 1
+                stats.dropped_seqnos.append(seq)
+                awaiting = False
+            else:
+                try:
+                    self._sock.sendto(data, self.sensor_address)
+                    awaiting = True
+                except OSError:
+                    awaiting = False  # ICMP unreachable and the like: the sensor is not there
+            stats.sent += 1
+            last_send = time.perf_counter()
+            seq = (seq + 1) & 0xFFFFFFFF
+            if end is not None:
+                break
+
+            # -- until the next tick: collect replies
+            next_tick += dyn.period_s
+            late = time.perf_counter() - next_tick
+            if late > dyn.period_s / 2:
+                stats.tick_overruns += 1
+                next_tick = time.perf_counter() + dyn.period_s / 2
+            while True:
+                remaining = next_tick - time.perf_counter()
+                if remaining <= 0:
+                    break
+                try:
+                    ready, _, _ = select.select([self._sock], [], [], remaining)
+                except (OSError, ValueError):
+                    break
+                if not ready:
+                    break
+                for raw, t_rx in self._drain():
+                    if self.loss_in > 0 and self._rng.random() < self.loss_in:
+                        stats.dropped_in += 1
+                        continue
+                    ref = _parse_sensor(raw)
+                    if ref is None:
+                        stats.bad_replies += 1
+                        continue
+                    stats.replies += 1
+                    last_reply = t_rx
+                    if awaiting:
+                        stats.rtt_ms.append((t_rx - last_send) * 1000.0)
+                        awaiting = False
+                    if reference is None or ref != reference:
+                        reference = ref
+                        delayed.append((t_rx + dyn.dead_time_s, ref))
+
+        stats.duration_s = time.perf_counter() - t0
+        stats.end = end.value
+        stats.detail = detail
+        return EgmOutcome(end, detail, stats)
+
+
+def _follow(current: CartesianPose, goal: CartesianPose, dyn: EgmDynamics) -> CartesianPose:
+    """One period of a first-order lag toward ``goal``, limited in linear and angular speed."""
+    alpha = 1.0 - math.exp(-dyn.period_s / dyn.tau_s)
+    dp = np.subtract(goal.position_mm, current.position_mm)
+    dist = float(np.linalg.norm(dp))
+    ang = quat.angle_between(current.quaternion_wxyz, goal.quaternion_wxyz)
+    s = alpha
+    max_step = dyn.max_speed_mm_s * dyn.period_s
+    if dist * s > max_step:
+        s = max_step / dist
+    max_rot = math.radians(dyn.max_speed_deg_s) * dyn.period_s
+    if ang * s > max_rot:
+        s = min(s, max_rot / ang)
+    return interpolate(current, goal, s)
+
+
+def _within_band(actual: CartesianPose, reference: CartesianPose, band_mm: float, band_deg: float) -> bool:
+    """Every axis (x, y, z in mm; rx, ry, rz in deg) of the deviation within its band."""
+    d = np.subtract(actual.position_mm, reference.position_mm)
+    if np.any(np.abs(d) > band_mm):
+        return False
+    w, x, y, z = reference.quaternion_wxyz
+    rel = quat.multiply((w, -x, -y, -z), actual.quaternion_wxyz)
+    return all(abs(a) <= band_deg for a in quat.to_euler_zyx_deg(rel))
+
+
+def _robot_message(
+    seq: int, t_s: float, wall_s: float, tcp: CartesianPose, joints_rad: tuple[float, ...], planned: CartesianPose,
+    motors_on: bool, mci: int, converged: bool, utilization: float,
+) -> pb.EgmRobot:
+    msg = pb.EgmRobot()
+    msg.header.seqno = seq
+    msg.header.tm = int(t_s * 1000.0) & 0xFFFFFFFF
+    msg.header.mtype = pb.EgmHeader.MSGTYPE_DATA
+    _fill_pose(msg.feedBack.cartesian, tcp)
+    msg.feedBack.joints.joints.extend(math.degrees(j) for j in joints_rad)
+    msg.feedBack.time.sec = int(wall_s)
+    msg.feedBack.time.usec = int((wall_s - int(wall_s)) * 1e6)
+    _fill_pose(msg.planned.cartesian, planned)
+    msg.planned.time.sec = int(wall_s)
+    msg.planned.time.usec = int((wall_s - int(wall_s)) * 1e6)
+    msg.motorState.state = pb.EgmMotorState.MOTORS_ON if motors_on else pb.EgmMotorState.MOTORS_OFF
+    msg.mciState.state = mci
+    msg.mciConvergenceMet = converged
+    msg.rapidExecState.state = pb.EgmRapidCtrlExecState.RAPID_RUNNING
+    msg.utilizationRate = utilization
+    return msg
+
+
+def _fill_pose(target: pb.EgmPose, pose: CartesianPose) -> None:
+    target.pos.x, target.pos.y, target.pos.z = pose.position_mm
+    q = pose.quaternion_wxyz
+    target.orient.u0, target.orient.u1, target.orient.u2, target.orient.u3 = q
+
+
+def _parse_sensor(raw: bytes) -> CartesianPose | None:
+    """The pose reference in an EgmSensor datagram; None if it is not a usable one."""
+    msg = pb.EgmSensor()
+    try:
+        msg.ParseFromString(raw)
+    except Exception:  # noqa: BLE001 - protobuf raises DecodeError and friends; any of them means garbage
+        return None
+    if msg.header.mtype != pb.EgmHeader.MSGTYPE_CORRECTION or not msg.planned.HasField("cartesian"):
+        return None
+    cart = msg.planned.cartesian
+    if not cart.HasField("pos"):
+        return None
+    if cart.HasField("euler"):
+        rx, ry, rz = (math.radians(v) for v in (cart.euler.x, cart.euler.y, cart.euler.z))
+        q = quat.multiply(quat.multiply(quat.from_rotation_vector((0, 0, rz)), quat.from_rotation_vector((0, ry, 0))),
+                          quat.from_rotation_vector((rx, 0, 0)))
+    elif cart.HasField("orient"):
+        q = (cart.orient.u0, cart.orient.u1, cart.orient.u2, cart.orient.u3)
+    else:
+        return None
+    try:
+        return CartesianPose((cart.pos.x, cart.pos.y, cart.pos.z), quat.normalise(q))
+    except ValueError:
+        return None

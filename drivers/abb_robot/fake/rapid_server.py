@@ -1,0 +1,367 @@
+"""The line-protocol server of the fake controller: what ``rapid/CellctlServer.mod`` does, in asyncio.
+
+It behaves as the RAPID module does, verb for verb and error for error:
+
+- one client at a time (a second connection waits, unanswered, until the first one ends);
+- HELLO first on every connection; staged POS/ORI are cleared by HELLO and consumed by a move;
+- motions and EGM sessions run in the background: ``ACK`` at once, ``DONE`` or ``ERR`` later,
+  while PING, GETC, GETJ, STATE, STOP, POS and ORI are still answered; settings and new motions
+  get ``ERR 110`` (BUSY) meanwhile;
+- a line longer than 80 bytes gets ``0 ERR 101`` and is dropped up to its newline;
+- a client that sends nothing for ``idle_timeout_s`` is dropped; when the client goes away
+  during a motion, the motion is stopped (the module does the same: no motion without its client).
+
+For tests it can also go silent (read and answer nothing) and drop its client on request.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from dataclasses import dataclass, field
+
+from abb_robot import protocol as P
+from abb_robot.fake.egm_robot import EgmEnd, EgmOutcome, EgmRobotSide, EgmSessionParams
+from abb_robot.fake.robot import FakeRobot
+from cellctl.ports import CartesianPose
+
+log = logging.getLogger(__name__)
+
+_EGM_ERRORS = {
+    EgmEnd.COMM_TIMEOUT: P.ErrorCode.EGM_COMM,
+    EgmEnd.STOPPED: P.ErrorCode.STOPPED,
+    EgmEnd.MOTORS_OFF: P.ErrorCode.EGM_STATE,
+    EgmEnd.UNREACHABLE: P.ErrorCode.EGM_STATE,
+}
+
+
+@dataclass
+class ServerIdentity:
+    """What HELLO reports about the controller."""
+
+    robot_type: str = "IRB 7600-325/3.1"
+    rw_version: str = "fake-6.16"
+
+
+@dataclass
+class _Session:
+    writer: asyncio.StreamWriter
+    hello: bool = False
+    staged_pos: tuple[float, float, float] | None = None
+    staged_ori: tuple[float, float, float, float] | None = None
+    tasks: set[asyncio.Task[None]] = field(default_factory=set)
+
+
+class RapidLineServer:
+    """Serves the cellctl line protocol for one :class:`FakeRobot` (and its EGM side)."""
+
+    def __init__(
+        self,
+        robot: FakeRobot,
+        egm: EgmRobotSide | None,
+        *,
+        identity: ServerIdentity = ServerIdentity(),
+        idle_timeout_s: float = 10.0,
+    ) -> None:
+        self.robot = robot
+        self.egm = egm
+        self.identity = identity
+        self.idle_timeout_s = idle_timeout_s
+        self.silent = False
+        self.lines_received: list[str] = []
+        self._server: asyncio.base_events.Server | None = None
+        self._one_client = asyncio.Lock()
+        self._current: _Session | None = None
+        self._motion_task: asyncio.Task[None] | None = None
+        self._stop_event: asyncio.Event | None = None
+
+    async def start(self, host: str, port: int) -> int:
+        self._server = await asyncio.start_server(self._serve, host, port, limit=4096)
+        return int(self._server.sockets[0].getsockname()[1])
+
+    async def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+        self.drop_client()
+        await self._halt_motion()
+        if self._server is not None:
+            try:
+                await asyncio.wait_for(self._server.wait_closed(), 1.0)
+            except asyncio.TimeoutError:
+                pass
+
+    def drop_client(self) -> None:
+        """Close the current connection abruptly (as a cable pull or controller restart would)."""
+        if self._current is not None:
+            transport = self._current.writer.transport
+            transport.abort()
+
+    @property
+    def busy(self) -> bool:
+        return self._motion_task is not None and not self._motion_task.done()
+
+    # -- connection ---------------------------------------------------------------------------
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        async with self._one_client:
+            session = _Session(writer)
+            self._current = session
+            try:
+                await self._session(reader, session)
+            except (ConnectionError, asyncio.IncompleteReadError, OSError):
+                pass
+            finally:
+                self._current = None
+                if self.busy:
+                    log.info("client gone during a motion: stopping it")
+                    await self._halt_motion()
+                writer.close()
+
+    async def _session(self, reader: asyncio.StreamReader, session: _Session) -> None:
+        pending = b""
+        discarding = False
+        while True:
+            try:
+                chunk = await asyncio.wait_for(reader.read(256), self.idle_timeout_s)
+            except asyncio.TimeoutError:
+                log.info("client silent for %.1f s: dropping it", self.idle_timeout_s)
+                return
+            if not chunk:
+                return
+            if self.silent:
+                continue
+            pending += chunk
+            while True:
+                nl = pending.find(b"\n")
+                if nl < 0:
+                    if len(pending) > P.MAX_LINE - 1:
+                        if not discarding:
+                            await self._send(session, P.format_error(0, P.ErrorCode.TOO_LONG, "line over 80 chars"))
+                        discarding = True
+                        pending = b""
+                    break
+                raw, pending = pending[:nl], pending[nl + 1 :]
+                if discarding:
+                    discarding = False
+                    continue
+                if len(raw) + 1 > P.MAX_LINE:
+                    await self._send(session, P.format_error(0, P.ErrorCode.TOO_LONG, "line over 80 chars"))
+                    continue
+                if await self._line(session, raw):
+                    return
+
+    async def _send(self, session: _Session, data: bytes) -> None:
+        if self.silent:
+            return
+        session.writer.write(data)
+        await session.writer.drain()
+
+    # -- requests -----------------------------------------------------------------------------
+
+    async def _line(self, s: _Session, raw: bytes) -> bool:
+        """Handle one line; True when the connection is to be closed (BYE)."""
+        try:
+            text = P.strip_line(raw.decode("ascii"))
+        except UnicodeDecodeError:
+            await self._send(s, P.format_error(0, P.ErrorCode.SYNTAX, "line is not ASCII"))
+            return False
+        self.lines_received.append(text)
+        try:
+            req = P.parse_request(text)
+        except P.ProtocolError as exc:
+            await self._send(s, P.format_error(exc.req_id, exc.code, str(exc)))
+            return False
+        rid, verb, args = req.req_id, req.verb, req.args
+        spec = P.VERBS[verb]
+        if not s.hello and verb not in ("HELLO", "BYE"):
+            await self._send(s, P.format_error(rid, P.ErrorCode.NO_HELLO, "send HELLO first"))
+            return False
+        if self.busy and not spec.while_moving:
+            await self._send(s, P.format_error(rid, P.ErrorCode.BUSY, f"{verb} refused: a motion is running"))
+            return False
+        handler = getattr(self, f"_do_{verb.lower()}")
+        return bool(await handler(s, rid, *args))
+
+    async def _ok(self, s: _Session, rid: int, *fields: str) -> None:
+        await self._send(s, P.format_reply(rid, P.Status.OK, *fields))
+
+    async def _err(self, s: _Session, rid: int, code: P.ErrorCode, text: str) -> None:
+        await self._send(s, P.format_error(rid, code, text))
+
+    async def _do_hello(self, s: _Session, rid: int, version: int) -> None:
+        if version != P.PROTOCOL_VERSION:
+            await self._err(s, rid, P.ErrorCode.VERSION, f"version {version} not supported, server speaks {P.PROTOCOL_VERSION}")
+            return
+        s.hello = True
+        s.staged_pos = s.staged_ori = None
+        robot_type = "_".join(self.identity.robot_type.split(" "))[:28] or "-"
+        rw = "_".join(self.identity.rw_version.split(" "))[:28] or "-"
+        await self._ok(s, rid, str(P.PROTOCOL_VERSION), robot_type, rw)
+
+    async def _do_ping(self, s: _Session, rid: int) -> None:
+        await self._send(s, P.format_reply(rid, P.Status.PONG))
+
+    async def _do_bye(self, s: _Session, rid: int) -> bool:
+        await self._ok(s, rid)
+        return True
+
+    async def _do_tool(self, s: _Session, rid: int, name: str) -> None:
+        if name not in self.robot.tools:
+            await self._err(s, rid, P.ErrorCode.UNKNOWN_TOOL, f"no tooldata {name}")
+            return
+        with self.robot.lock:
+            self.robot.tool_name = name
+        await self._ok(s, rid, name)
+
+    async def _do_wobj(self, s: _Session, rid: int, name: str) -> None:
+        if name not in self.robot.wobjs:
+            await self._err(s, rid, P.ErrorCode.UNKNOWN_WOBJ, f"no wobjdata {name}")
+            return
+        with self.robot.lock:
+            self.robot.wobj_name = name
+        await self._ok(s, rid, name)
+
+    async def _do_speed(self, s: _Session, rid: int, v_tcp: float, v_ori: float) -> None:
+        if not (0 < v_tcp <= 7000 and 0 < v_ori <= 1000):
+            await self._err(s, rid, P.ErrorCode.RANGE, "speed needs 0<v_tcp<=7000 mm/s, 0<v_ori<=1000 deg/s")
+            return
+        with self.robot.lock:
+            self.robot.speed = (v_tcp, v_ori)
+        await self._ok(s, rid, P.format_num(v_tcp, 1), P.format_num(v_ori, 1))
+
+    async def _do_zone(self, s: _Session, rid: int, zone_mm: float) -> None:
+        if not (0 <= zone_mm <= 2000):
+            await self._err(s, rid, P.ErrorCode.RANGE, "zone needs 0<=zone_mm<=2000 (0 = fine)")
+            return
+        with self.robot.lock:
+            self.robot.zone_mm = zone_mm
+        await self._ok(s, rid, P.format_num(zone_mm, 1))
+
+    async def _do_pos(self, s: _Session, rid: int, x: float, y: float, z: float) -> None:
+        if max(abs(x), abs(y), abs(z)) > P.MAX_ABS_POSITION_MM:
+            await self._err(s, rid, P.ErrorCode.RANGE, "position beyond +-99999 mm")
+            return
+        s.staged_pos, s.staged_ori = (x, y, z), None
+        await self._ok(s, rid)
+
+    async def _do_ori(self, s: _Session, rid: int, q1: float, q2: float, q3: float, q4: float) -> None:
+        if s.staged_pos is None:
+            await self._err(s, rid, P.ErrorCode.SEQUENCE, "ORI needs a POS before it")
+            return
+        norm = math.sqrt(q1 * q1 + q2 * q2 + q3 * q3 + q4 * q4)
+        if abs(norm - 1.0) > 1e-3:
+            await self._err(s, rid, P.ErrorCode.RANGE, f"quaternion norm {norm:.6f} is not 1")
+            return
+        s.staged_ori = (q1 / norm, q2 / norm, q3 / norm, q4 / norm)
+        await self._ok(s, rid)
+
+    async def _do_movel(self, s: _Session, rid: int) -> None:
+        await self._move(s, rid, linear=True)
+
+    async def _do_movej(self, s: _Session, rid: int) -> None:
+        await self._move(s, rid, linear=False)
+
+    async def _move(self, s: _Session, rid: int, *, linear: bool) -> None:
+        if s.staged_pos is None or s.staged_ori is None:
+            await self._err(s, rid, P.ErrorCode.NO_TARGET, "stage POS and ORI before a move")
+            return
+        target = CartesianPose(s.staged_pos, s.staged_ori)
+        s.staged_pos = s.staged_ori = None
+        await self._send(s, P.format_reply(rid, P.Status.ACK))
+        self._start_background(s, self._run_move(s, rid, target, linear))
+
+    def _start_background(self, s: _Session, coro: "asyncio.Future[None] | object") -> None:
+        self._stop_event = asyncio.Event()
+        self._motion_task = asyncio.ensure_future(coro)  # type: ignore[arg-type]
+
+    async def _run_move(self, s: _Session, rid: int, target: CartesianPose, linear: bool) -> None:
+        flange_target, refusal = self.robot.check(target)
+        if refusal is not None:
+            code = P.ErrorCode.REACH if refusal.kind == "reach" else P.ErrorCode.JOINT_LIMIT
+            await self._reply_quietly(s, P.format_error(rid, code, refusal.reason))
+            return
+        if not self.robot.motors_on:
+            await self._reply_quietly(s, P.format_error(rid, P.ErrorCode.MOTION, "motors are off"))
+            return
+        motion = self.robot.begin_motion(flange_target, linear)
+        assert self._stop_event is not None
+        try:
+            await asyncio.wait_for(self._stop_event.wait(), motion.duration_s)
+        except asyncio.TimeoutError:
+            self.robot.finish_motion(motion)
+            await self._reply_quietly(s, P.format_reply(rid, P.Status.DONE))
+            return
+        self.robot.halt()
+        await self._reply_quietly(s, P.format_error(rid, P.ErrorCode.STOPPED, "motion stopped"))
+
+    async def _reply_quietly(self, s: _Session, data: bytes) -> None:
+        """A completion reply; the client may be gone by then (the motion ends all the same)."""
+        try:
+            await self._send(s, data)
+        except (ConnectionError, OSError, RuntimeError):
+            pass
+
+    async def _do_egm(self, s: _Session, rid: int, band_mm: float, band_deg: float, cond_s: float) -> None:
+        if not (band_mm > 0 and band_deg > 0 and 0 < cond_s <= 3600):
+            await self._err(s, rid, P.ErrorCode.RANGE, "EGM needs band_mm>0, band_deg>0, 0<cond_s<=3600")
+            return
+        await self._send(s, P.format_reply(rid, P.Status.ACK))
+        if self.egm is None:  # the module finds this out in the motion task, after its ACK
+            await self._send(s, P.format_error(rid, P.ErrorCode.EGM_SETUP, "EGM setup failed: no UdpUc device"))
+            return
+        self._start_background(s, self._run_egm(s, rid, EgmSessionParams(band_mm, band_deg, cond_s)))
+
+    async def _run_egm(self, s: _Session, rid: int, params: EgmSessionParams) -> None:
+        assert self.egm is not None and self._stop_event is not None
+        loop = asyncio.get_running_loop()
+        done: asyncio.Future[EgmOutcome] = loop.create_future()
+
+        def on_end(outcome: EgmOutcome) -> None:
+            loop.call_soon_threadsafe(lambda: done.done() or done.set_result(outcome))
+
+        self.egm.begin(params, on_end)
+        stop_wait = asyncio.ensure_future(self._stop_event.wait())
+        try:
+            await asyncio.wait({done, stop_wait}, return_when=asyncio.FIRST_COMPLETED)
+            if not done.done():
+                self.egm.request_stop()
+            outcome = await done
+        finally:
+            stop_wait.cancel()
+        if outcome.end is EgmEnd.CONVERGED:
+            await self._reply_quietly(s, P.format_reply(rid, P.Status.DONE))
+        else:
+            await self._reply_quietly(s, P.format_error(rid, _EGM_ERRORS[outcome.end], outcome.detail))
+
+    async def _do_stop(self, s: _Session, rid: int) -> None:
+        was = self.busy
+        if was and self._stop_event is not None:
+            self._stop_event.set()
+        await self._ok(s, rid, "1" if was else "0")
+
+    async def _halt_motion(self) -> None:
+        if self._motion_task is None or self._motion_task.done():
+            return
+        if self._stop_event is not None:
+            self._stop_event.set()
+        try:
+            await asyncio.wait_for(asyncio.shield(self._motion_task), 3.0)
+        except (asyncio.TimeoutError, Exception):  # noqa: BLE001 - shutting down whatever it was
+            self._motion_task.cancel()
+
+    async def _do_getc(self, s: _Session, rid: int) -> None:
+        tcp = self.robot.tcp()
+        await self._send(s, P.format_reply(rid, P.Status.DATA, "POS", *P.format_position_fields(tcp.position_mm)))
+        await self._ok(s, rid, "ORI", *P.format_quaternion_fields(tcp.quaternion_wxyz))
+
+    async def _do_getj(self, s: _Session, rid: int) -> None:
+        try:
+            joints = self.robot.joints()
+        except ValueError as exc:
+            await self._err(s, rid, P.ErrorCode.INTERNAL, f"joints unavailable: {exc}")
+            return
+        await self._ok(s, rid, *(P.format_num(math.degrees(j), P.JOINT_DECIMALS) for j in joints))
+
+    async def _do_state(self, s: _Session, rid: int) -> None:
+        await self._ok(s, rid, "1" if self.robot.motors_on else "0", "1" if self.busy else "0")

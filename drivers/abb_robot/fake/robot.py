@@ -1,0 +1,183 @@
+"""The fake controller's robot: current pose, tool and work object frames, a running motion.
+
+Shared between the RAPID line server (asyncio) and the EGM thread, so every access takes the
+lock. Frames: the model works on flange poses in the base frame; RAPID speaks TCP poses in the
+current work object, ``T_wobj_tcp = inv(T_base_wobj) @ T_base_flange @ T_flange_tcp``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from abb_robot import quat
+from abb_robot.fake.model import RobotModel, Unreachable
+from cellctl.ports import CartesianPose
+
+IDENTITY = CartesianPose((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+
+
+def pose_matrix(p: CartesianPose) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = quat.to_matrix(p.quaternion_wxyz)
+    T[:3, 3] = p.position_mm
+    return T
+
+
+def matrix_pose(T: np.ndarray) -> CartesianPose:
+    return CartesianPose((float(T[0, 3]), float(T[1, 3]), float(T[2, 3])), quat.from_matrix(T[:3, :3]))
+
+
+def interpolate(a: CartesianPose, b: CartesianPose, s: float) -> CartesianPose:
+    """The pose a fraction ``s`` (0..1) of the way from a to b (straight line, slerp)."""
+    pa, pb = np.asarray(a.position_mm), np.asarray(b.position_mm)
+    p = pa + s * (pb - pa)
+    return CartesianPose((float(p[0]), float(p[1]), float(p[2])), quat.slerp(a.quaternion_wxyz, b.quaternion_wxyz, s))
+
+
+@dataclass
+class Motion:
+    """A point-to-point move in progress (flange poses)."""
+
+    start: CartesianPose
+    end: CartesianPose
+    t0: float
+    duration_s: float
+
+    def pose_at(self, now: float) -> CartesianPose:
+        if self.duration_s <= 0:
+            return self.end
+        u = min(1.0, max(0.0, (now - self.t0) / self.duration_s))
+        s = u * u * (3.0 - 2.0 * u)  # smooth start and stop
+        return interpolate(self.start, self.end, s)
+
+
+class FakeRobot:
+    """The simulated arm as the controller sees it.
+
+    Args:
+        model: the physics (reach, timing, noise, joints).
+        home: the flange pose at start.
+        tools: tool name -> TCP in the flange frame (tframe). "tool0" is always present.
+        wobjs: work object name -> work object frame in the base frame. "wobj0" is always present.
+        time_scale: motion durations are multiplied by this (tests may speed moves up).
+        clock: monotonic clock in seconds.
+    """
+
+    def __init__(
+        self,
+        model: RobotModel,
+        home: CartesianPose,
+        *,
+        tools: dict[str, CartesianPose] | None = None,
+        wobjs: dict[str, CartesianPose] | None = None,
+        time_scale: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        refusal = model.reachable(home)
+        if refusal is not None:
+            raise ValueError(f"home pose is not reachable: {refusal.reason}")
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ValueError(f"time_scale must be > 0, got {time_scale}")
+        self.model = model
+        self.lock = threading.RLock()
+        self.tools = {"tool0": IDENTITY, **(tools or {})}
+        self.wobjs = {"wobj0": IDENTITY, **(wobjs or {})}
+        self.tool_name = "tool0"
+        self.wobj_name = "wobj0"
+        self.speed = (100.0, 30.0)
+        self.zone_mm = 0.0
+        self.motors_on = True
+        self.time_scale = time_scale
+        self.clock = clock
+        self._flange = home
+        self._motion: Motion | None = None
+
+    # -- frames -------------------------------------------------------------------------------
+
+    def _frames(self) -> tuple[CartesianPose, CartesianPose] | None:
+        """Current (tool, wobj), or None when both are identity (tool0 in wobj0)."""
+        with self.lock:
+            tool, wobj = self.tools[self.tool_name], self.wobjs[self.wobj_name]
+        if tool == IDENTITY and wobj == IDENTITY:
+            return None
+        return tool, wobj
+
+    def tcp_to_flange(self, tcp_in_wobj: CartesianPose) -> CartesianPose:
+        """The flange pose (base frame) that puts the current TCP at ``tcp_in_wobj``."""
+        frames = self._frames()
+        if frames is None:
+            return tcp_in_wobj
+        tool, wobj = frames
+        T = pose_matrix(wobj) @ pose_matrix(tcp_in_wobj) @ np.linalg.inv(pose_matrix(tool))
+        return matrix_pose(T)
+
+    def flange_to_tcp(self, flange: CartesianPose) -> CartesianPose:
+        frames = self._frames()
+        if frames is None:
+            return flange
+        tool, wobj = frames
+        T = np.linalg.inv(pose_matrix(wobj)) @ pose_matrix(flange) @ pose_matrix(tool)
+        return matrix_pose(T)
+
+    # -- state --------------------------------------------------------------------------------
+
+    def flange(self) -> CartesianPose:
+        """Current flange pose (base frame), mid-motion if a move runs."""
+        with self.lock:
+            if self._motion is not None:
+                return self._motion.pose_at(self.clock())
+            return self._flange
+
+    def tcp(self) -> CartesianPose:
+        """Current TCP pose in the current work object (what CRobT reports)."""
+        return self.flange_to_tcp(self.flange())
+
+    def joints(self) -> tuple[float, ...]:
+        return self.model.joints(self.flange())
+
+    def set_flange(self, pose: CartesianPose) -> None:
+        """Place the flange (used by the EGM loop, which moves the robot itself)."""
+        with self.lock:
+            self._flange = pose
+
+    @property
+    def moving(self) -> bool:
+        with self.lock:
+            return self._motion is not None
+
+    # -- motions ------------------------------------------------------------------------------
+
+    def check(self, tcp_target: CartesianPose) -> tuple[CartesianPose, Unreachable | None]:
+        """The flange target for a TCP target, and the model's refusal if any."""
+        flange_target = self.tcp_to_flange(tcp_target)
+        return flange_target, self.model.reachable(flange_target)
+
+    def begin_motion(self, flange_target: CartesianPose, linear: bool) -> Motion:
+        """Start a move to a (reachable) flange target; returns it with its duration."""
+        with self.lock:
+            start = self.flange()
+            end = self.model.execute(flange_target)
+            duration = self.model.motion_time(start, flange_target, self.speed[0], self.speed[1], linear)
+            self._motion = Motion(start, end, self.clock(), duration * self.time_scale)
+            return self._motion
+
+    def finish_motion(self, motion: Motion) -> None:
+        with self.lock:
+            if self._motion is motion:
+                self._flange = motion.end
+                self._motion = None
+
+    def halt(self) -> bool:
+        """Stop a running move where it is now; True if one was running."""
+        with self.lock:
+            if self._motion is None:
+                return False
+            self._flange = self._motion.pose_at(self.clock())
+            self._motion = None
+            return True
