@@ -117,7 +117,7 @@ def _run_part(
         outcome = compute(ds, current, config)
     except CalibrationRefused as err:
         print(f"{part}: REFUSED ({err.reason}): {err.detail}")
-        if not args.no_store:
+        if not args.no_store and err.reason != "missing_input":
             from cellctl.calibration.runs import record_failure
 
             saved = record_failure(store, part, err, ds, config, when, method_hint)

@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from cellctl.align import AlignmentError, compute_alignment
 from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationSetError
+from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.camera import CameraLimits, ViewCorners, calibrate_camera
 from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
@@ -32,13 +31,12 @@ from cellctl.calibration.teach import workpiece_frame_from_corner
 from cellctl.compensate import deviation_in_frame
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import pose_error
-from cellctl.geometry.rotation import angle_between_vectors, matrix_to_xyz_fixed, rotation_angle_between
+from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
 from cellctl.vision.corner import detect_corner
 from cellctl.vision.lens import Lens
 from cellctl.vision.ninepoint import NinePointError
 from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
 
-F64 = NDArray[np.float64]
 
 
 @dataclass
@@ -298,6 +296,7 @@ def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
         "plane_offsets_mm": res.plane_offsets_mm.tolist(),
         "plane_known": res.plane_known,
         "linearity_terms": lc.linearity_terms,
+        "linearity_coefficients_mm": res.linearity_coefficients_mm.tolist(),
     }
     warnings = []
     if dropped > 0.2 * len(rows):
@@ -498,14 +497,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     )
 
 
-def xyz_deg(T: F64) -> list[float]:
-    """XYZ fixed angles (rx, ry, rz) of a pose's rotation in degrees, for summaries."""
-    a, b, c = matrix_to_xyz_fixed(T[:3, :3])
-    return [float(np.degrees(c)), float(np.degrees(b)), float(np.degrees(a))]
-
-
 __all__ = [
-    "CalibrationSetError",
     "Outcome",
     "compute_camera",
     "compute_hand_eye",

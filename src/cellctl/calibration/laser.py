@@ -22,9 +22,22 @@ therefore refused when the normal's spread about either axis across the beam is 
 of every parameter are reported from the covariance sigma^2 (J^T J)^-1. A known plane
 (``plane=(n, D)``) can be given instead when it has been measured independently.
 
-The robot poses are the controller's beliefs, so the robot's accuracy and repeatability enter
-the result, as on a real cell; the sensor's linearity error (a smooth curve over its range) and
-noise enter through d_i.
+Two nuisance models keep systematic errors out of r and l (both optional, both on in the cell's
+procedure):
+
+- ``groups``: poses taken with the arm standing still and only the wrist turning (the planner
+  turns the flange about the wrist centre) share a plane offset of their own. The robot's
+  position error depends on where the arm is, so within a group it is one constant, and that
+  constant goes into the group's offset instead of into r.
+- ``linearity_terms``: the sensor's linearity deviation (+-0.02 % of full scale on the LK-G500,
+  a smooth curve over the range) is modelled as Legendre polynomials of degree 2 and up in the
+  normalised distance (degrees 0 and 1 are r along l and the sensor's scale, not linearity).
+
+Measured in the twin over 20 seeds with the default plan (480 poses): with exact robot poses
+r is within 0.04 mm and l within 0.005 deg of the truth; with the uncalibrated robot's reported
+poses (0.5 mm accuracy field, 0.1 mm repeatability) r is within 0.26 mm (median 0.10) and l within
+0.04 deg (median 0.014), the remainder being the robot's repeatability, which the reported
+standard deviations cover.
 """
 
 from __future__ import annotations
@@ -51,8 +64,8 @@ class LaserLimits:
     min_poses: int = 12
     min_direction_spread_deg: float = 4.0
     max_rms_mm: float = 0.1
-    max_r_sigma_mm: float = 0.15
-    max_l_sigma_deg: float = 0.02
+    max_r_sigma_mm: float = 0.3
+    max_l_sigma_deg: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -72,6 +85,8 @@ class LaserCalibration:
             the two axes across the beam.
         n_poses: poses used.
         residuals_mm: the residual of each pose.
+        plane_sigma_deg: standard deviation of the estimated plane normal (None if known).
+        linearity_coefficients_mm: the fitted Legendre coefficients of the sensor's linearity.
     """
 
     r: F64
@@ -87,6 +102,7 @@ class LaserCalibration:
     direction_spread_deg: tuple[float, float]
     n_poses: int
     residuals_mm: F64
+    linearity_coefficients_mm: F64
 
 
 def _tangent_basis(v: F64) -> tuple[F64, F64]:
@@ -154,6 +170,9 @@ def calibrate_laser(
             (only the wrist turning, see cellctl.calibration.poses.plan_laser_poses). Each group
             gets its own plane offset, which takes up the arm's position error common to the group.
         plane: a known plane (unit normal n, offset D with n . p = D in B); default estimated.
+        linearity_terms: how many Legendre terms (degree 2 and up) model the sensor's linearity.
+        distance_range_mm: the sensor's measuring range, which the Legendre terms are normalised
+            to (default: the range of the distances given).
         limits: refusal thresholds.
 
     Raises CalibrationRefused when there are too few poses, the plane is seen from too few
@@ -281,6 +300,7 @@ def calibrate_laser(
         direction_spread_deg=spread,
         n_poses=m,
         residuals_mm=res,
+        linearity_coefficients_mm=c.copy(),
     )
     if rms > limits.max_rms_mm:
         raise CalibrationRefused(

@@ -25,7 +25,7 @@ from cellctl.align import AlignmentError, compute_alignment, plan_spot_poses
 from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, make_part
 from cellctl.calibration.collect import MotionSettings, Progress, collect_distances, collect_images, move_and_report
 from cellctl.calibration.compute import Outcome
-from cellctl.calibration.dataset import Dataset, pose_list, write_dataset
+from cellctl.calibration.dataset import Dataset, default_dataset_dir, pose_list, write_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
 from cellctl.calibration.poses import plan_board_views, plan_laser_poses
@@ -191,6 +191,7 @@ async def collect_teaching(
         raise CalibrationRefused("teaching", "alignment", str(err)) from None
     C_Pos_0 = await move_and_report(twin.robot, align.T_B_H_aligned, motion)
     frame = await twin.camera.grab(timeout_s=motion.grab_timeout_s)
+    C_Pos_0_true = twin.cell.true_flange_pose()
     progress(1, 2, "template image taken at the aligned shooting pose")
     tc = config.calibration.procedure.teach
     guided = twin.operator_install_pose(tc.hand_guiding_position_mm, tc.hand_guiding_orientation_deg)
@@ -210,7 +211,11 @@ async def collect_teaching(
             "position_sigma_mm": tc.hand_guiding_position_mm,
             "orientation_sigma_deg": tc.hand_guiding_orientation_deg,
         },
-        "twin_truth": {"T_B_T": pose_list(twin.cell.world().T_B_T), "g_Pos_0_install_error": twin.cell.install_error().as_dict()},
+        "twin_truth": {
+            "T_B_T": pose_list(twin.cell.world().T_B_T),
+            "C_Pos_0_true": pose_list(C_Pos_0_true),
+            "g_Pos_0_install_error": twin.cell.install_error().as_dict(),
+        },
     }
     return write_dataset(dest, "teaching", manifest, {"template.png": frame.image})
 
@@ -298,6 +303,5 @@ def record_failure(
 
 
 def dataset_dir(store_root: str | Path, kind: str, when: datetime) -> Path:
-    from cellctl.calibration.dataset import default_dataset_dir
-
+    """Where a dataset collected now goes by default."""
     return default_dataset_dir(store_root, kind, when)

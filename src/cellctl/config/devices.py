@@ -135,9 +135,30 @@ class AbbRobotDevice(StrictModel):
         return self
 
 
-LaserDevice = Annotated[Union[SimLaserDevice, KeyenceLkgDevice], Field(discriminator="kind")]
+class SimKeyenceLkgDevice(StrictModel):
+    """The real LK-G driver against its protocol fake over a pseudo-terminal; distances from the twin.
+
+    The simulated cell's way of exercising the serial driver: the same code path as a real
+    controller, down to the bytes on the line.
+    """
+
+    kind: Literal["sim_keyence_lkg"]
+    dialect: Literal["LK-G3001", "LK-G5001"] = "LK-G5001"
+    display_unit: Literal["0.01mm", "0.001mm", "0.0001mm", "0.00001mm", "0.1um", "0.01um"] = "0.001mm"
+    exchange_timeout_s: Finite = Field(0.5, gt=0, le=10)
+
+
+class SimAbbDevice(StrictModel):
+    """The real ABB driver against the fake controller on loopback; the fake moves the twin's robot."""
+
+    kind: Literal["sim_abb"]
+    request_timeout_s: Finite = Field(2.0, gt=0, le=60)
+    heartbeat_period_s: Finite = Field(1.0, gt=0, lt=10)
+
+
+LaserDevice = Annotated[Union[SimLaserDevice, KeyenceLkgDevice, SimKeyenceLkgDevice], Field(discriminator="kind")]
 CameraDevice = Annotated[Union[SimCameraDevice, GenicamCameraDevice], Field(discriminator="kind")]
-RobotDevice = Annotated[Union[SimRobotDevice, AbbRobotDevice], Field(discriminator="kind")]
+RobotDevice = Annotated[Union[SimRobotDevice, AbbRobotDevice, SimAbbDevice], Field(discriminator="kind")]
 
 
 class DevicesConfig(StrictModel):

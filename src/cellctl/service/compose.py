@@ -121,29 +121,46 @@ def _sim_rig(config: CellConfig, holder: dict[str, object]) -> object:
     return holder["rig"]
 
 
-def _build_devices(config: CellConfig, holder: dict[str, object]) -> tuple[DisplacementSensor, Camera, Robot]:
+def _build_devices(
+    config: CellConfig, holder: dict[str, object], closers: list[Closer]
+) -> tuple[DisplacementSensor, Camera, Robot]:
+    """The three devices per [devices]. Closers of drivers (and their fakes) go to ``closers``; the
+    twin's own devices are closed with the rig."""
     dev = config.devices
     laser: DisplacementSensor
     camera: Camera
     robot: Robot
     if dev.laser.kind == "sim":
         laser = _sim_rig(config, holder).laser  # type: ignore[attr-defined]
+    elif dev.laser.kind == "sim_keyence_lkg":
+        from cellctl.service.sim_fakes import lkg_on_fake
+
+        laser, close = lkg_on_fake(_sim_rig(config, holder).cell, dev.laser)  # type: ignore[attr-defined]
+        closers.append(close)
     else:
         from keyence_lkg import KeyenceLkgSensor
 
         laser = KeyenceLkgSensor.from_config(dev.laser.model_dump())
+        closers.append(laser.close)
     if dev.camera.kind == "sim":
         camera = _sim_rig(config, holder).camera  # type: ignore[attr-defined]
     else:
         from genicam_camera import GenicamCamera
 
         camera = GenicamCamera.from_config(dev.camera.model_dump())
+        closers.append(camera.close)
     if dev.robot.kind == "sim":
         robot = _sim_rig(config, holder).robot  # type: ignore[attr-defined]
-    else:
-        from abb_robot import AbbRobotClient
+    elif dev.robot.kind == "sim_abb":
+        from cellctl.service.sim_fakes import abb_on_fake
 
-        robot = AbbRobotClient.from_config(dev.robot.model_dump())
+        robot, close = abb_on_fake(_sim_rig(config, holder).cell, dev.robot)  # type: ignore[attr-defined]
+        closers.append(close)
+    else:
+        from abb_robot import AbbRobot, AbbRobotSettings
+
+        robot = AbbRobot(AbbRobotSettings(**dev.robot.model_dump(exclude={"kind"})))
+        closers.append(robot.close)
     return laser, camera, robot
 
 
@@ -166,7 +183,8 @@ async def build_service(config: CellConfig, *, workdir: Path | None = None) -> S
     """Build (not start) the cell from ``config``. Relative paths are taken from ``workdir``."""
     root = (workdir or Path.cwd()).resolve()
     holder: dict[str, object] = {}
-    laser, camera, robot_port = _build_devices(config, holder)
+    closers: list[Closer] = []
+    laser, camera, robot_port = _build_devices(config, holder, closers)
     robot = TrackedRobot(robot_port)
     calibration = _calibration_source(config, holder)
     db_path = Path(config.store.path)
@@ -199,6 +217,7 @@ async def build_service(config: CellConfig, *, workdir: Path | None = None) -> S
         truth=rig,  # type: ignore[arg-type]
     )
     service = Service(config, store, orch, PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm), root)
-    for dev in (laser, camera, robot):
-        service.closers.append(dev.close)
+    service.closers.extend(closers)
+    if rig is not None:
+        service.closers.append(rig.close)  # type: ignore[attr-defined]
     return service

@@ -1,0 +1,115 @@
+"""The simulated cell with real drivers: the LK-G and ABB protocol fakes, their physics from the twin.
+
+Part of the composition root (it imports drivers). The fakes keep their own wire format and time;
+the twin (:class:`cellctl.sim.cell.SimCell`) supplies what a real sensor and arm would do:
+the laser's status and distance where the flange truly stands, and the true pose an arm reaches
+for a commanded (belief) target. The controller reports the belief back, as a real one does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+
+from abb_robot import AbbRobot, AbbRobotSettings
+from abb_robot.fake.controller import FakeController, FakeControllerConfig
+from abb_robot.fake.model import SimpleArmModel, Unreachable
+from keyence_lkg import KeyenceLkgSensor
+from keyence_lkg.fake import FakeLkgController
+
+from cellctl.config.devices import SimAbbDevice, SimKeyenceLkgDevice
+from cellctl.ports import CartesianPose, LaserStatus
+from cellctl.sim.cell import SimCell
+from cellctl.sim.robot import ReachError
+
+Closer = Callable[[], Awaitable[None]]
+
+
+class TwinArmModel:
+    """The ABB fake's RobotModel over the twin's robot (reach, timing, accuracy field and noise)."""
+
+    def __init__(self, cell: SimCell) -> None:
+        self._cell = cell
+        self._joints = SimpleArmModel(seed=cell.seed)  # joint angles for GETJ only
+
+    def reachable(self, target: CartesianPose) -> Unreachable | None:
+        try:
+            self._cell.robot_model.check_reach(target.to_matrix())
+        except ReachError as err:
+            return Unreachable("reach", str(err))
+        return None
+
+    def motion_time(
+        self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, linear: bool
+    ) -> float:
+        return self._cell.motion_time(start.to_matrix(), target.to_matrix(), speed_mm_s, speed_deg_s)
+
+    def execute(self, target: CartesianPose) -> CartesianPose:
+        self._cell.execute(target.to_matrix())  # the twin's arm now truly stands there (with its errors)
+        return target  # the controller reports its belief
+
+    def joints(self, pose: CartesianPose) -> tuple[float, ...]:
+        return self._joints.joints(pose)
+
+
+def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSensor, Closer]:
+    """The real LK-G driver on a pseudo-terminal served by the fake controller."""
+    laser = cell.config.laser
+    reference = 0.5 * (laser.range_min_mm + laser.range_max_mm)
+
+    def distance() -> float | LaserStatus:
+        status, d = cell.laser_reading()
+        return d if status is LaserStatus.OK and d is not None else status
+
+    fake = FakeLkgController(
+        dev.dialect,
+        distance,
+        display_unit=dev.display_unit,
+        reference_distance_mm=reference,
+        measuring_range_mm=0.5 * laser.full_scale_mm,
+    ).start()
+    driver = KeyenceLkgSensor.from_config(
+        {
+            "port": fake.path,
+            "dialect": dev.dialect,
+            "display_unit": dev.display_unit,
+            "reference_distance_mm": reference,
+            "displacement_positive": "away_from_head",
+            "exchange_timeout_s": dev.exchange_timeout_s,
+        }
+    )
+
+    async def close() -> None:
+        await driver.close()
+        fake.stop()
+
+    return driver, close
+
+
+def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer]:
+    """The real ABB client talking to the fake controller (its own thread and loop) on loopback."""
+    fake = FakeController(
+        FakeControllerConfig(
+            rapid_port=0,
+            egm_sensor_port=None,
+            time_scale=max(cell.time_scale, 1e-6),
+            home=CartesianPose.from_matrix(cell.belief_flange_pose()),
+            seed=cell.seed,
+        ),
+        TwinArmModel(cell),
+    )
+    port = fake.start_in_thread()
+    driver = AbbRobot(
+        AbbRobotSettings(
+            host="127.0.0.1",
+            rapid_port=port,
+            egm_port=None,
+            request_timeout_s=dev.request_timeout_s,
+            heartbeat_period_s=dev.heartbeat_period_s,
+        )
+    )
+
+    async def close() -> None:
+        await driver.close()
+        fake.stop_thread()
+
+    return driver, close

@@ -1,0 +1,70 @@
+"""Shared data for the calibration tests: the twin's board views, collected once per test process.
+
+Rendering is the expensive part (a 2048 x 2048 frame per view), so one seeded collection of ten
+views serves the camera and the hand-eye tests; every test asserts against the twin's truth.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+from cellctl.calibration.board import BoardDetection
+from cellctl.calibration.calibration_set import CalibrationStore
+from cellctl.calibration.compute import Outcome, compute_camera, detect_views
+from cellctl.calibration.dataset import Dataset
+from cellctl.calibration.runs import collect_board_views, record
+from cellctl.calibration.twin import TwinCell
+from cellctl.cli import DEFAULT_CONFIG
+from cellctl.config import load_config
+from cellctl.config.schema import CellConfig
+
+SEED = 11
+N_VIEWS = 10
+NOW = datetime(2026, 1, 15, 12, 0, tzinfo=timezone.utc)
+
+
+@functools.lru_cache(maxsize=1)
+def config() -> CellConfig:
+    return load_config(DEFAULT_CONFIG)
+
+
+def with_robot(cfg: CellConfig, **robot: float) -> CellConfig:
+    """The configuration with some of the twin robot's error sources changed."""
+    return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"robot": cfg.sim.robot.model_copy(update=robot)})})
+
+
+def scratch(name: str) -> Path:
+    return Path(tempfile.mkdtemp(prefix=f"calib-{name}-"))
+
+
+@functools.lru_cache(maxsize=1)
+def board_views() -> tuple[Dataset, list[tuple[str, BoardDetection]]]:
+    """Ten views of the board on the wall of the seeded twin, and the board found in each."""
+
+    async def go() -> Dataset:
+        twin = TwinCell(config(), seed=SEED)
+        try:
+            return await collect_board_views(twin, config(), scratch("views") / "ds", n_views=N_VIEWS, seed=SEED)
+        finally:
+            await twin.close()
+
+    ds = asyncio.run(go())
+    return ds, detect_views(ds)
+
+
+@functools.lru_cache(maxsize=1)
+def camera_outcome() -> Outcome:
+    ds, dets = board_views()
+    return compute_camera(ds, config(), dets)
+
+
+def store_with_camera() -> CalibrationStore:
+    """A fresh store holding the camera calibrated from the shared views."""
+    ds, _ = board_views()
+    store = CalibrationStore(scratch("store"))
+    record(store, camera_outcome(), ds, config(), NOW)
+    return store

@@ -1,0 +1,134 @@
+"""Laser r and l from plane constraints against the twin's mounting, and the refusals."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+from calib_test_support import config, scratch, with_robot
+
+from cellctl.calibration.compute import compute_laser
+from cellctl.calibration.dataset import Dataset
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.laser import LaserLimits, calibrate_laser
+from cellctl.calibration.poses import plan_laser_poses
+from cellctl.calibration.runs import cad_laser, collect_laser_plane
+from cellctl.calibration.twin import TwinCell
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.rotation import angle_between_vectors, axis_angle_to_matrix
+from cellctl.ports import LaserStatus
+from cellctl.sim.cell import SimCell
+from cellctl.sim.world import nominal_world
+
+EXACT_ROBOT = {"absolute_accuracy_mm": 0.0, "absolute_accuracy_deg": 0.0, "repeatability_mm": 0.0, "repeatability_orientation_deg": 0.0}
+
+
+def _collect(cfg: CellConfig, seed: int) -> Dataset:
+    async def go() -> Dataset:
+        twin = TwinCell(cfg, seed=seed)
+        try:
+            return await collect_laser_plane(twin, cfg, scratch("laser") / "ds")
+        finally:
+            await twin.close()
+
+    return asyncio.run(go())
+
+
+def _errors(ds: Dataset, o) -> tuple[np.ndarray, float]:  # type: ignore[no-untyped-def]
+    t = ds.manifest["twin_truth"]
+    return np.asarray(o.values["r"]) - np.asarray(t["r"]), float(np.degrees(angle_between_vectors(o.values["l"], t["l"])))
+
+
+def test_recovers_r_and_l_when_the_robot_reports_its_true_pose() -> None:
+    # Sensor linearity (+-0.04 mm) and noise stay on; only the robot's pose error is removed,
+    # as with a robot whose poses are measured (e.g. by a laser tracker).
+    cfg = with_robot(config(), **EXACT_ROBOT)
+    ds = _collect(cfg, seed=5)
+    o = compute_laser(ds, cfg)
+    dr, dl = _errors(ds, o)
+    assert np.linalg.norm(dr) < 0.3
+    assert dl < 0.02
+    assert o.quality["rms_mm"] < 0.02
+
+
+def test_default_twin_gives_r_within_tolerance_and_honest_uncertainty() -> None:
+    # The robot poses are the controller's beliefs: an uncalibrated IRB 7600 (0.5 mm absolute
+    # accuracy field, 0.1 mm repeatability). r stays within 0.3 mm; l is limited by the
+    # repeatability (see the report), and its error lies within the reported uncertainty.
+    cfg = config()
+    ds = _collect(cfg, seed=3)
+    o = compute_laser(ds, cfg)
+    dr, dl = _errors(ds, o)
+    assert np.linalg.norm(dr) < 0.3
+    assert dl < 0.05
+    sig_r = np.asarray(o.quality["r_sigma_mm"])
+    sig_l = np.asarray(o.quality["l_sigma_deg"])
+    assert np.all(np.abs(dr) < 3.5 * sig_r + 0.02)
+    assert dl < 3.5 * float(np.hypot(*sig_l)) + 0.005
+    assert o.quality["readings_used"] >= 400 and o.quality["direction_spread_deg"][0] > 4.0
+
+
+def test_modelling_the_sensor_linearity_removes_its_bias() -> None:
+    cfg = with_robot(config(), **EXACT_ROBOT)
+    ds = _collect(cfg, seed=7)
+    lc = cfg.calibration.procedure.laser
+    without = cfg.model_copy(
+        update={"calibration": cfg.calibration.model_copy(
+            update={"procedure": cfg.calibration.procedure.model_copy(update={"laser": lc.model_copy(update={"linearity_terms": 0})})}
+        )}
+    )
+    dr5, dl5 = _errors(ds, compute_laser(ds, cfg))
+    dr0, dl0 = _errors(ds, compute_laser(ds, without))
+    assert np.linalg.norm(dr5) < np.linalg.norm(dr0) and dl5 < dl0
+
+
+def _readings(cell: SimCell, poses: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    H, d = [], []
+    for X in poses:
+        cell.execute(X)
+        status, dist = cell.laser_reading()
+        if status is LaserStatus.OK:
+            H.append(X)
+            d.append(dist)
+    return np.array(H), np.array(d)
+
+
+def test_a_plane_seen_from_too_few_directions_is_refused() -> None:
+    cfg = config()
+    cell = SimCell(cfg.sim, seed=2)
+    W = nominal_world(cfg.sim.world)
+    cell.place_car_body(W)
+    r_nom, l_nom = cad_laser(cfg)
+    R0 = W.T_B_T[:3, :3] @ cfg.sim.camera.hand_eye.T_H_C()[:3, :3].T
+    # Only spins about the beam and depth steps: the wall is always seen square-on.
+    plan = plan_laser_poses(W.T_B_T, (900.0, 750.0), R0, r_nom, l_nom, 60, cell.robot_model.check_reach, tilt_deg=(0.0, 0.0))
+    H, d = _readings(cell, plan.flange_poses)
+    with pytest.raises(CalibrationRefused) as err:
+        calibrate_laser(H, d, r_nom, l_nom, groups=plan.group)
+    assert err.value.reason == "plane_too_few_directions"
+    assert "too few directions" in str(err.value)
+    # Tilts about one axis only: seen from many directions, but all in one plane.
+    base = plan.flange_poses[0]
+    beam = base[:3, :3] @ l_nom
+    axis = np.cross(beam, W.T_B_T[:3, 1])
+    axis /= np.linalg.norm(axis)
+    one_axis = []
+    across = axis  # the spots move across the tilt axis; shift along it
+    for k, a in enumerate(np.linspace(-12.0, 12.0, 40)):
+        X = base.copy()
+        Q = axis_angle_to_matrix(axis * np.deg2rad(a))
+        X[:3, :3] = Q @ base[:3, :3]
+        X[:3, 3] = (base[:3, :3] @ r_nom + base[:3, 3]) - X[:3, :3] @ r_nom  # turn about the sensor
+        X[:3, 3] += (k % 5 - 2) * 40.0 * across  # and shift sideways, so the spots cover an area
+        one_axis.append(X)
+    H, d = _readings(cell, one_axis)
+    with pytest.raises(CalibrationRefused) as err:
+        calibrate_laser(H, d, r_nom, l_nom)
+    assert err.value.reason == "plane_too_few_directions"
+
+
+def test_too_few_readings_are_refused() -> None:
+    with pytest.raises(CalibrationRefused) as err:
+        calibrate_laser(np.tile(np.eye(4), (5, 1, 1)), np.full(5, 350.0), [40, -40, 90], [1, 0, 0], limits=LaserLimits(min_poses=12))
+    assert err.value.reason == "too_few_poses"
