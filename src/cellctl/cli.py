@@ -169,6 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
         register = None
     if register is not None:
         register(sub)
+    from cellctl.bench.cli import register as register_bench
+    register_bench(sub)
     return parser
 
 

@@ -25,7 +25,7 @@ def _write_config(path: Path, port: int) -> None:
     text = (ROOT / "config" / "sim.toml").read_text()
     # Slow the simulated motion so the install step lasts long enough to be killed in.
     text = re.sub(r"(?m)^time_scale = .*$", "time_scale = 0.3", text, count=1)
-    text += f"\n[api]\nhost = \"127.0.0.1\"\nport = {port}\n"
+    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text, count=1)
     text = text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true",
                         "[plc]\nenabled = false")  # fmt: skip
     path.write_text(text)

@@ -12,7 +12,7 @@ from fastapi.staticfiles import StaticFiles
 from swagger_ui_bundle import swagger_ui_path
 
 import cellctl
-from cellctl.api import routes_cell, routes_cycles
+from cellctl.api import dashboard, routes_cell, routes_cycles
 from cellctl.api.auth import TokenGuard
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.config.api import ApiConfig
@@ -48,6 +48,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig) -> FastAPI:
 
     app.include_router(routes_cycles.build_router(orch, guard, config.cycle_wait_max_s))
     app.include_router(routes_cell.build_router(orch, guard))
+    dashboard.install(app, orch, guard)
 
     app.mount("/static/swagger-ui", StaticFiles(directory=str(swagger_ui_path)), name="swagger-ui")
 

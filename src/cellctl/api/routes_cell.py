@@ -24,7 +24,10 @@ from cellctl.store import CycleState
 CommandName = enum.Enum("CommandName", {c.name.lower(): c.name.lower() for c in PackMLCommand if c.value})  # type: ignore[misc]
 ModeName = enum.Enum("ModeName", {m.name.lower(): m.name.lower() for m in UnitMode if m.value})  # type: ignore[misc]
 
-SSE_KEEPALIVE_S = 15.0
+SSE_STATUS_PERIOD_S = 2.0
+"""/events sends a fresh ``status`` event at least this often: device heartbeat ages stay current on
+the dashboard, and a client that hears nothing for a few periods knows its data is stale (an SSE
+comment would not do: EventSource never shows comments to the page)."""
 
 
 def alarm_json(a: Alarm) -> dict[str, Any]:
@@ -127,11 +130,16 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         async def stream() -> AsyncIterator[str]:
             try:
                 yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
+                last_status = time.monotonic()
                 while not await request.is_disconnected():
+                    wait_s = last_status + SSE_STATUS_PERIOD_S - time.monotonic()
+                    if wait_s <= 0:
+                        yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
+                        last_status = time.monotonic()
+                        continue
                     try:
-                        ev = await asyncio.wait_for(queue.get(), SSE_KEEPALIVE_S)
+                        ev = await asyncio.wait_for(queue.get(), wait_s)
                     except asyncio.TimeoutError:
-                        yield ": keepalive\n\n"
                         continue
                     yield f"id: {ev.seq}\nevent: {ev.kind}\ndata: {json.dumps(ev.data)}\n\n"
             finally:

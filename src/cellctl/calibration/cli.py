@@ -26,17 +26,10 @@ from cellctl.calibration.calibration_set import (
     CalibrationStore,
     check_ready,
 )
-from cellctl.calibration.compute import (
-    Outcome,
-    compute_camera,
-    compute_hand_eye,
-    compute_laser,
-    compute_nine_point,
-    compute_teaching,
-    detect_views,
-)
+from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.procedures import PROCEDURES, check_inputs
 from cellctl.config import ConfigError, load_config
 from cellctl.config.schema import CellConfig
 
@@ -155,63 +148,26 @@ async def _collect(
         await twin.close()
 
 
-def _need_set(cal: CalibrationSet | None, part: str, *names: str) -> CalibrationSet:
-    for n in names:
-        p = None if cal is None else cal.part(n)
-        if p is None or p.status != "ok":
-            raise CalibrationRefused(part, "missing_input", f"{n} must be calibrated first")
-    assert cal is not None
-    return cal
+def _procedure_command(part: str, **option_names: str) -> Callable[[argparse.Namespace], int]:
+    """The CLI command running one part's procedure; ``option_names`` maps collect options to args."""
+    proc = PROCEDURES[part]
+
+    def command(args: argparse.Namespace) -> int:
+        async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
+            check_inputs(cal, part, proc.needs)  # refuse before moving the robot when an input part is missing
+            options = {opt: getattr(args, name) for opt, name in option_names.items()}
+            return await proc.collect(twin, config, cal, dest, progress=_Progress(proc.kind.replace("_", " ")), **options)
+
+        return _run_part(args, part, proc.kind, collect, proc.compute, args.method_override or proc.method)
+
+    return command
 
 
-def _cmd_camera(args: argparse.Namespace) -> int:
-    from cellctl.calibration.runs import collect_board_views
-
-    async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
-        return await collect_board_views(twin, config, dest, n_views=args.views, progress=_Progress("view"))
-
-    return _run_part(args, "camera", "board_views", collect, lambda ds, cal, cfg: compute_camera(ds, cfg), "zhang")
-
-
-def _cmd_hand_eye(args: argparse.Namespace) -> int:
-    from cellctl.calibration.runs import collect_board_views
-
-    async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
-        _need_set(cal, "hand_eye", "camera")
-        return await collect_board_views(twin, config, dest, n_views=args.views, progress=_Progress("view"))
-
-    def compute(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
-        return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
-
-    return _run_part(args, "hand_eye", "board_views", collect, compute, args.method_override or "tsai")
-
-
-def _cmd_laser(args: argparse.Namespace) -> int:
-    from cellctl.calibration.runs import collect_laser_plane
-
-    async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
-        return await collect_laser_plane(twin, config, dest, n_poses=args.poses, progress=_Progress("laser pose"))
-
-    return _run_part(args, "laser", "laser_plane", collect, lambda ds, cal, cfg: compute_laser(ds, cfg), "plane constraint")
-
-
-def _cmd_nine_point(args: argparse.Namespace) -> int:
-    from cellctl.calibration.runs import collect_nine_point
-
-    async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
-        return await collect_nine_point(twin, config, _need_set(cal, "pixel_map", "camera", "teaching"), dest, progress=_Progress("offset"))
-
-    return _run_part(args, "pixel_map", "nine_point", collect, compute_nine_point, "nine-point")
-
-
-def _cmd_teach(args: argparse.Namespace) -> int:
-    from cellctl.calibration.runs import collect_teaching
-
-    async def collect(twin: Any, config: CellConfig, cal: CalibrationSet | None, dest: Path) -> Dataset:
-        cal = _need_set(cal, "teaching", "camera", "hand_eye", "laser")
-        return await collect_teaching(twin, config, cal, dest, progress=_Progress("teach"))
-
-    return _run_part(args, "teaching", "teaching", collect, compute_teaching, "teaching")
+_cmd_camera = _procedure_command("camera", views="views")
+_cmd_hand_eye = _procedure_command("hand_eye", views="views")
+_cmd_laser = _procedure_command("laser", poses="poses")
+_cmd_nine_point = _procedure_command("pixel_map")
+_cmd_teach = _procedure_command("teaching")
 
 
 def _cmd_status(args: argparse.Namespace) -> int:

@@ -21,7 +21,7 @@ import numpy as np
 from cellctl.cell.alarms import AlarmCode, AlarmManager
 from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleFailed, CycleResult, run_cycle
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import MachineEvent, PackMLMachine
+from cellctl.cell.packml import CycleStepNotAllowed, MachineEvent, PackMLMachine
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState
 from cellctl.cell.watchdog import DeviceWatchdog
@@ -176,6 +176,13 @@ class CellOrchestrator:
         self._current: int | None = None
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
+        self._finishing = False
+        self._links: dict[str, str] = {}
+
+    def note_link(self, name: str, state: str) -> None:
+        """A link outside the devices (the PLC) reports its state, for /status and the dashboard."""
+        self._links[name] = state
+        self.events.publish(name, {"link": state})
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -254,6 +261,10 @@ class CellOrchestrator:
         task = self._cycle_task
         if task is None or task.done():
             return
+        if self._finishing:  # it is recording its outcome already: let it
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            return
         self._stop_reason = f"the cell went to {state.name.lower()}"
         with contextlib.suppress(DeviceError):
             await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
@@ -313,45 +324,74 @@ class CellOrchestrator:
 
     async def _run(self, cycle_id: int) -> None:
         self._current = cycle_id
+        self._finishing = False
         rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir)
         started = time.monotonic()
         await self.store.start_cycle(cycle_id)
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
         self._stop_reason = None
+        result: CycleResult | None = None
+        failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
         try:
-            await rec.step_started(CycleStep.CALIBRATE)
-            problems = self.calibration.problems()
-            if problems:
-                try:
-                    await self.calibration.calibrate()
-                except Exception as err:  # noqa: BLE001 - reported as the cycle's reason
-                    raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, f"{'; '.join(problems)} ({err})") from err
-                problems = self.calibration.problems()
-                if problems:
-                    raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
-            await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.summary()})
-            if self.truth is not None:
-                self.truth.new_car_body()
-            result = await run_cycle(
-                self.devices, self.calibration.cycle_calibration(), self.config.process, self.config.vision, rec
-            )
-            await rec.close_step(ok=True)
-            await self.store.complete_cycle(
-                cycle_id, result=_result_fields(result, time.monotonic() - started), true_error=self._true_error()
-            )
-            self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done"})
+            result = await self._cycle(rec)
         except CycleFailed as f:
-            await self._fail(rec, cycle_id, f.reason if f.step is CycleStep.NONE else str(f), int(f.code), started)
-            await self.alarms.raise_alarm(f.code, source="cycle", detail=f.reason, cycle_id=cycle_id)
+            failure = (str(f), int(f.code), f.code)
+        except CycleStepNotAllowed:
+            # A Hold, Suspend, Stop or Abort landed between two steps; what caused it is recorded.
+            stop = self.alarms.stop_reason
+            failure = (f"stopped: the cell left Execute ({self.machine.state.name.lower()})",
+                       int(stop.code) if stop else int(AlarmCode.TASK_FAILED), None)  # fmt: skip
         except asyncio.CancelledError:
-            reason = self._stop_reason or "the service is stopping"
             if self._stop_reason is None:
                 raise  # shutdown: leave it running; the next start marks it interrupted
-            await self._fail(rec, cycle_id, f"stopped: {reason}", int(AlarmCode.TASK_FAILED), started)
+            failure = (f"stopped: {self._stop_reason}", int(AlarmCode.TASK_FAILED), None)
         except Exception as err:  # noqa: BLE001 - any bug still ends the cycle with a record and an alarm
             log.exception("cycle %d failed", cycle_id)
-            await self._fail(rec, cycle_id, f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), started)
-            await self.alarms.raise_alarm(AlarmCode.TASK_FAILED, source="cycle", detail=str(err), cycle_id=cycle_id)
+            failure = (f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), AlarmCode.TASK_FAILED)
+        finally:
+            self._finishing = True
+        # Recording the outcome must not be cut short by a stop arriving now.
+        await asyncio.shield(self._record(rec, cycle_id, started, result, failure))
+
+    async def _cycle(self, rec: StoreRecorder) -> CycleResult:
+        await rec.step_started(CycleStep.CALIBRATE)
+        problems = self.calibration.problems()
+        if problems:
+            try:
+                await self.calibration.calibrate()
+            except Exception as err:  # noqa: BLE001 - reported as the cycle's reason
+                raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, f"{'; '.join(problems)} ({err})") from err
+            problems = self.calibration.problems()
+            if problems:
+                raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
+        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.summary()})
+        if self.truth is not None:
+            self.truth.new_car_body()
+        return await run_cycle(self.devices, self.calibration.cycle_calibration(), self.config.process, self.config.vision, rec)
+
+    async def _record(
+        self,
+        rec: StoreRecorder,
+        cycle_id: int,
+        started: float,
+        result: CycleResult | None,
+        failure: tuple[str, int, AlarmCode | None] | None,
+    ) -> None:
+        try:
+            elapsed = time.monotonic() - started
+            if failure is None and result is not None:
+                await rec.close_step(ok=True)
+                await self.store.complete_cycle(cycle_id, result=_result_fields(result, elapsed), true_error=self._true_error())
+                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done"})
+            elif failure is not None:
+                reason, code, alarm = failure
+                await rec.close_step(ok=False, error=reason)
+                await self.store.fail_cycle(
+                    cycle_id, error=reason, result={"error_code": code, "cycle_time_s": elapsed}, true_error=self._true_error()
+                )
+                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
+                if alarm is not None:
+                    await self.alarms.raise_alarm(alarm, source="cycle", detail=reason, cycle_id=cycle_id)
         finally:
             self._current = None
             with contextlib.suppress(Exception):
@@ -359,16 +399,6 @@ class CellOrchestrator:
             ev = self._finished.pop(cycle_id, None)
             if ev is not None:
                 ev.set()
-
-    async def _fail(self, rec: StoreRecorder, cycle_id: int, error: str, code: int, started: float) -> None:
-        await rec.close_step(ok=False, error=error)
-        await self.store.fail_cycle(
-            cycle_id,
-            error=error,
-            result={"error_code": code, "cycle_time_s": time.monotonic() - started},
-            true_error=self._true_error(),
-        )
-        self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": error})
 
     def _true_error(self) -> dict[str, float] | None:
         return None if self.truth is None else dict(self.truth.install_error())
@@ -402,6 +432,7 @@ class CellOrchestrator:
                 }
                 for name, h in (self.watchdog.health().items() if self.watchdog else [])
             },
+            "links": dict(self._links),
             "calibration": {"problems": self.calibration.problems()},
         }
 

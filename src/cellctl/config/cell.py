@@ -31,9 +31,19 @@ class AlignConfig(StrictModel):
         (-2060.0, 750.0),
     )
     laser_standoff_mm: Finite = Field(350.0, gt=0)
+    laser_range_mm: Vec2 = (250.0, 450.0)  # the sensor head's measuring range (LK-G500); readings outside are refused
     max_rms_mm: Finite = Field(0.2, gt=0)
     inlier_threshold_mm: Finite = Field(0.5, gt=0)
     min_collinearity: Finite = Field(1e-3, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _standoff_in_range(self) -> "AlignConfig":
+        lo, hi = self.laser_range_mm
+        if not 0 < lo < hi:
+            raise ValueError(f"laser_range_mm must be [min, max] with 0 < min < max, got {list(self.laser_range_mm)}")
+        if not lo < self.laser_standoff_mm < hi:
+            raise ValueError(f"laser_standoff_mm ({self.laser_standoff_mm:g}) must lie inside laser_range_mm {list(self.laser_range_mm)}")
+        return self
 
     @model_validator(mode="after")
     def _enough_spots(self) -> "AlignConfig":

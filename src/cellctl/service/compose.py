@@ -164,7 +164,7 @@ def _build_devices(
     return laser, camera, robot
 
 
-def _calibration_source(config: CellConfig, holder: dict[str, object]) -> CalibrationSource:
+def _calibration_source(config: CellConfig, holder: dict[str, object], workdir: Path) -> CalibrationSource:
     if config.calibration.source == "oracle":
         if "rig" not in holder:
             raise ServiceError(
@@ -176,7 +176,7 @@ def _calibration_source(config: CellConfig, holder: dict[str, object]) -> Calibr
         return OracleCalibrationSource(holder["rig"], config)  # type: ignore[arg-type]
     from cellctl.calibration.source import CalibrationSetSource
 
-    return CalibrationSetSource.from_config(config, rig=holder.get("rig"))
+    return CalibrationSetSource.from_config(config, workdir=workdir)
 
 
 async def build_service(config: CellConfig, *, workdir: Path | None = None) -> Service:
@@ -186,7 +186,7 @@ async def build_service(config: CellConfig, *, workdir: Path | None = None) -> S
     closers: list[Closer] = []
     laser, camera, robot_port = _build_devices(config, holder, closers)
     robot = TrackedRobot(robot_port)
-    calibration = _calibration_source(config, holder)
+    calibration = _calibration_source(config, holder, root)
     db_path = Path(config.store.path)
     db_path = db_path if db_path.is_absolute() else root / db_path
     db_path.parent.mkdir(parents=True, exist_ok=True)

@@ -98,7 +98,7 @@ class PlcCellLink:
         return CommandReply.ACCEPTED
 
     def plc_link_lost(self, silent_for_s: float) -> None:
-        self._orch.events.publish("plc", {"link": "lost", "silent_for_s": silent_for_s})
+        self._orch.note_link("plc", "lost")
         if not self._heartbeat_alarm:
             log.warning("PLC heartbeat lost for %.1f s (plc.heartbeat_alarm is off: no alarm)", silent_for_s)
             return
@@ -110,7 +110,7 @@ class PlcCellLink:
         )
 
     def plc_link_restored(self) -> None:
-        self._orch.events.publish("plc", {"link": "up"})
+        self._orch.note_link("plc", "up")
         self._orch.alarms.clear(AlarmCode.PLC_HEARTBEAT_LOST, source="plc")
 
     def _spawn(self, coro: object) -> None:

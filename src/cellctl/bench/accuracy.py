@@ -1,0 +1,525 @@
+"""The paper's experiment (section 5.3) in the simulated cell: N install cycles at random car-body postures.
+
+Every trial goes the way production goes: the composition root builds the service (store, PackML
+machine, alarms, orchestrator, the twin's devices, the calibration source), the cell is brought to
+Execute, and each cycle is submitted to the orchestrator under an idempotency key, as the PLC link
+and the REST API do; a new car body arrives at a random posture for each one. The figures come
+from the finished cycle records: ``true_error`` (the twin's six figures of the installed glass
+against the true opening) for the accuracy, ``result`` for corrections, shots and cycle time. A
+cycle that fails is counted and listed with its reason; the bench then acknowledges the alarm and
+brings the cell back to Execute, as an operator would, and goes on.
+
+:func:`run_budget` runs the same trials (same seed, so the same postures and draws) once per
+error-source setting to show which source dominates each axis.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from cellctl.bench.progress import Progress
+from cellctl.bench.sources import (
+    CALIBRATION_SOURCE,
+    ERROR_SOURCES,
+    BenchSettingsError,
+    CalibrationMode,
+    DevicesMode,
+    data_calibration_available,
+    run_config,
+)
+from cellctl.bench.stats import (
+    AXES,
+    PAPER_TRIALS,
+    AxisStats,
+    axis_stats,
+    percentile,
+    quadrature_share,
+    within_tolerance_all_axes,
+)
+from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
+from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.config import CellConfig
+from cellctl.store import CycleRecord, CycleRequest, CycleState
+
+log = logging.getLogger(__name__)
+
+Outcome = Literal["done", "failed", "refused", "interrupted", "timeout"]
+BudgetMode = Literal["alone-on", "alone-off"]
+
+ACTOR = "bench"
+# How an operator brings the cell back to Execute from each resting state.
+RECOVERY: dict[PackMLState, tuple[PackMLCommand, ...]] = {
+    PackMLState.ABORTED: (PackMLCommand.CLEAR, PackMLCommand.RESET, PackMLCommand.START),
+    PackMLState.STOPPED: (PackMLCommand.RESET, PackMLCommand.START),
+    PackMLState.COMPLETE: (PackMLCommand.RESET, PackMLCommand.START),
+    PackMLState.IDLE: (PackMLCommand.START,),
+    PackMLState.HELD: (PackMLCommand.UNHOLD,),
+    PackMLState.SUSPENDED: (PackMLCommand.UNSUSPEND,),
+}
+SETTLE_TIMEOUT_S = 30.0
+
+
+class BenchRunError(RuntimeError):
+    """The benchmark could not go on (the cell would not calibrate or return to Execute); says why."""
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One install cycle of the benchmark, from its record."""
+
+    index: int
+    cycle_id: int | None
+    outcome: Outcome
+    reason: str | None
+    true_error: dict[str, float] | None
+    cycle_time_s: float | None
+    shots: int | None
+    correction_mm: list[float] | None
+
+    @property
+    def installed(self) -> bool:
+        return self.outcome == "done" and self.true_error is not None
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """What a run was asked to do."""
+
+    trials: int
+    seed: int
+    off: tuple[str, ...] = ()
+    calibration: CalibrationMode = "oracle"
+    time_scale: float | None = None
+    config_source: str = "config/sim.toml"
+    label: str = ""
+    devices: DevicesMode = "twin"
+
+    def __post_init__(self) -> None:
+        if self.trials < 1:
+            raise BenchSettingsError(f"--trials must be at least 1, got {self.trials}")
+        if self.time_scale is not None and not (0.0 <= self.time_scale <= 10.0):
+            raise BenchSettingsError(f"--time-scale must lie in 0..10, got {self.time_scale}")
+
+
+@dataclass
+class AccuracyRun:
+    """The outcome of a run: every trial, the per-axis figures and how the run went."""
+
+    settings: RunSettings
+    trials: list[Trial]
+    axes: list[AxisStats]
+    tolerance_mm: float
+    tolerance_deg: float
+    calibration_summary: dict[str, Any]
+    calibration_s: float
+    wall_s: float
+    recoveries: int
+    within_tolerance: int
+    workdir: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def installed(self) -> list[Trial]:
+        return [t for t in self.trials if t.installed]
+
+    @property
+    def not_installed(self) -> list[Trial]:
+        return [t for t in self.trials if not t.installed]
+
+    def counts(self) -> dict[str, int]:
+        out = {"requested": self.settings.trials, "run": len(self.trials), "installed": len(self.installed)}
+        for o in ("failed", "refused", "interrupted", "timeout"):
+            out[o] = sum(1 for t in self.trials if t.outcome == o)
+        out["within_tolerance_all_axes"] = self.within_tolerance
+        return out
+
+    def cycle_time(self) -> dict[str, float]:
+        times = [t.cycle_time_s for t in self.installed if t.cycle_time_s is not None]
+        shots = [float(t.shots) for t in self.installed if t.shots is not None]
+        return {
+            "median_s": percentile(times, 50),
+            "p99_s": percentile(times, 99),
+            "median_shots": percentile(shots, 50),
+            "max_shots": max(shots) if shots else float("nan"),
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "benchmark": "accuracy",
+            "settings": {**asdict(self.settings), "off": list(self.settings.off)},
+            "tolerance": {"position_mm": self.tolerance_mm, "orientation_deg": self.tolerance_deg},
+            "paper": {"trials": PAPER_TRIALS, "max_abs": {a.label: a.paper_max for a in AXES}},
+            "axes": [s.as_dict() for s in self.axes],
+            "counts": self.counts(),
+            "cycle_time": self.cycle_time(),
+            "failures": [
+                {"trial": t.index, "cycle_id": t.cycle_id, "outcome": t.outcome, "reason": t.reason}
+                for t in self.not_installed
+            ],
+            "calibration": {"summary": self.calibration_summary, "prepare_s": self.calibration_s},
+            "recoveries": self.recoveries,
+            "wall_s": self.wall_s,
+            "workdir": self.workdir,
+            "notes": self.notes,
+            "trials": [asdict(t) for t in self.trials],
+        }
+
+
+def trial_from_record(index: int, record: CycleRecord) -> Trial:
+    """A trial's figures from its finished cycle record."""
+    res = dict(record.result or {})
+    outcome: Outcome
+    if record.state is CycleState.DONE:
+        outcome = "done"
+    elif record.state is CycleState.FAILED:
+        outcome = "failed"
+    elif record.state is CycleState.INTERRUPTED:
+        outcome = "interrupted"
+    else:
+        outcome = "timeout"
+    reason = record.error if outcome != "timeout" else f"still {record.state.value} in {record.current_step.name.lower()}"
+    te = record.true_error
+    return Trial(
+        index=index,
+        cycle_id=record.id,
+        outcome=outcome,
+        reason=reason,
+        true_error=None if te is None else {k: float(v) for k, v in te.items()},
+        cycle_time_s=None if res.get("cycle_time_s") is None else float(res["cycle_time_s"]),
+        shots=None if res.get("shots") is None else int(res["shots"]),
+        correction_mm=None if res.get("correction_mm") is None else [float(v) for v in res["correction_mm"]],
+    )
+
+
+async def settle(orch: CellOrchestrator, timeout_s: float = SETTLE_TIMEOUT_S) -> PackMLState:
+    """Wait until the machine leaves its acting state (Clearing, Resetting, Starting, ...)."""
+    deadline = time.monotonic() + timeout_s
+    while orch.machine.state.name.endswith("ING") and time.monotonic() < deadline:
+        await asyncio.sleep(0.005)
+    return orch.machine.state
+
+
+async def bring_to_execute(orch: CellOrchestrator) -> int:
+    """Acknowledge the alarms and send the commands that lead back to Execute; returns commands sent."""
+    sent = 0
+    for _ in range(4):
+        state = await settle(orch)
+        if state is PackMLState.EXECUTE:
+            return sent
+        orch.alarms.acknowledge_all(by=ACTOR)
+        plan = RECOVERY.get(state)
+        if plan is None:
+            raise BenchRunError(f"the cell rests in {state.name} and the bench does not know how to leave it")
+        for cmd in plan:
+            try:
+                await orch.command(cmd, actor=ACTOR, source=ACTOR)
+            except Exception as err:  # noqa: BLE001 - the machine's refusal says why
+                active = "; ".join(a.summary() for a in orch.alarms.active()) or "none"
+                raise BenchRunError(f"{cmd.name} refused in {state.name}: {err} (active alarms: {active})") from err
+            sent += 1
+            await settle(orch)
+    raise BenchRunError(f"the cell did not reach EXECUTE (it is {orch.machine.state.name})")
+
+
+async def prepare_calibration(orch: CellOrchestrator, config: CellConfig, timeout_s: float) -> float:
+    """Make the calibration source ready before the first trial; returns the seconds it took.
+
+    From data: runs the calibrations and teaching on the simulated cell (the source's
+    ``calibrate``). From the oracle: teaches in the twin. Either way, the first trial's cycle
+    time is then a production cycle's.
+    """
+    t0 = time.monotonic()
+    source = orch.calibration
+    problems = source.problems()
+    if problems:
+        if not config.calibration.auto_calibrate_in_sim:
+            raise BenchRunError("calibration not ready: " + "; ".join(problems))
+        try:
+            await asyncio.wait_for(source.calibrate(), timeout_s)
+        except TimeoutError:
+            raise BenchRunError(f"the calibration from simulated data did not finish within {timeout_s:g} s") from None
+        except Exception as err:  # noqa: BLE001 - reported with the source's reason
+            raise BenchRunError(f"calibration from simulated data failed: {type(err).__name__}: {err}") from err
+        problems = source.problems()
+        if problems:
+            raise BenchRunError("calibration still not ready after calibrating: " + "; ".join(problems))
+    await asyncio.to_thread(source.cycle_calibration)
+    return time.monotonic() - t0
+
+
+async def _run_async(
+    config: CellConfig,
+    settings: RunSettings,
+    workdir: Path,
+    progress: Progress,
+    cycle_timeout_s: float,
+    calibrate_timeout_s: float,
+) -> AccuracyRun:
+    from cellctl.service.compose import build_service
+
+    t_start = time.monotonic()
+    service = await build_service(config, workdir=workdir)
+    await service.start()
+    trials: list[Trial] = []
+    recoveries = 0
+    notes: list[str] = []
+    try:
+        orch = service.orchestrator
+        what = "from simulated data" if settings.calibration == "data" else "from the twin's truth (oracle)"
+        progress.message(f"{settings.label or 'run'}: preparing the calibration {what} ...")
+        cal_s = await prepare_calibration(orch, config, calibrate_timeout_s)
+        summary = dict(orch.calibration.summary())
+        await bring_to_execute(orch)
+        recipe = next(iter(config.process.recipe_names().values()))
+        for k in range(1, settings.trials + 1):
+            if orch.machine.state is not PackMLState.EXECUTE:
+                recoveries += 1
+                try:
+                    await bring_to_execute(orch)
+                except BenchRunError as err:
+                    notes.append(f"the run stopped before trial {k}: {err}")
+                    break
+            request = CycleRequest(recipe, f"bench-{k}", car_id=f"seed{settings.seed}-{k}", source=ACTOR)
+            try:
+                sub = await orch.submit_cycle(request, scope=ACTOR, key=f"bench-{settings.seed}-{k}", actor=ACTOR)
+            except CycleRefused as err:
+                trials.append(Trial(k, None, "refused", err.reason, None, None, None, None))
+                progress.advance("refused")
+                continue
+            record = await orch.wait_cycle(sub.cycle.id, cycle_timeout_s)
+            trial = trial_from_record(k, record)
+            trials.append(trial)
+            if trial.outcome == "timeout":
+                notes.append(f"trial {k}: no result within {cycle_timeout_s:g} s; the run stopped there")
+                progress.advance("timeout")
+                break
+            progress.advance("ok" if trial.installed else f"{trial.outcome}: {(trial.reason or '')[:60]}")
+    finally:
+        await service.stop()
+    installed = [t.true_error for t in trials if t.installed and t.true_error is not None]
+    tol = config.process.tolerance
+    return AccuracyRun(
+        settings=settings,
+        trials=trials,
+        axes=axis_stats(installed, tolerance_mm=tol.position_mm, tolerance_deg=tol.orientation_deg),
+        tolerance_mm=tol.position_mm,
+        tolerance_deg=tol.orientation_deg,
+        calibration_summary=_jsonable(summary),
+        calibration_s=cal_s,
+        wall_s=time.monotonic() - t_start,
+        recoveries=recoveries,
+        within_tolerance=within_tolerance_all_axes(installed, tolerance_mm=tol.position_mm, tolerance_deg=tol.orientation_deg),
+        notes=notes,
+    )
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+@contextlib.contextmanager
+def _workdir(keep: Path | None) -> Iterator[Path]:
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        if any(keep.iterdir()):
+            raise BenchSettingsError(f"--workdir {keep} is not empty; give a new or empty folder (the run's store goes there)")
+        yield keep
+        return
+    with tempfile.TemporaryDirectory(prefix="cellctl-bench-") as tmp:
+        yield Path(tmp)
+
+
+def run_accuracy(
+    base: CellConfig,
+    settings: RunSettings,
+    *,
+    progress: bool = True,
+    workdir: Path | None = None,
+    cycle_timeout_s: float = 300.0,
+    calibrate_timeout_s: float = 3600.0,
+) -> AccuracyRun:
+    """Run ``settings.trials`` install cycles of the simulated cell and score them against its truth.
+
+    ``workdir`` keeps the run's store, images and calibration set there (default: a temporary
+    folder, removed afterwards).
+    """
+    if settings.calibration == "data" and not data_calibration_available():
+        raise BenchSettingsError(
+            "--calibration data needs the calibration set computed from simulated data "
+            "(cellctl.calibration.source), which this installation lacks; use --calibration oracle"
+        )
+    bar = Progress(settings.label or "accuracy trials", settings.trials, enabled=progress)
+    with _workdir(workdir) as wd:
+        config = run_config(
+            base, workdir=wd, seed=settings.seed, off=settings.off, calibration=settings.calibration,
+            time_scale=settings.time_scale, devices=settings.devices,
+        )  # fmt: skip
+        run = asyncio.run(_run_async(config, settings, wd, bar, cycle_timeout_s, calibrate_timeout_s))
+        run.workdir = str(wd) if workdir is not None else None
+    return run
+
+
+# -- error budget ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BudgetRow:
+    """One setting of the budget: which sources are on, and what it gave."""
+
+    label: str
+    source: str | None  # the source this row isolates (None: the floor or everything on)
+    off: tuple[str, ...]
+    calibration: CalibrationMode
+    run: AccuracyRun
+
+
+@dataclass
+class Budget:
+    """The error budget: one run per setting, and per axis the source that adds the most."""
+
+    mode: BudgetMode
+    trials: int
+    seed: int
+    rows: list[BudgetRow]
+    reference: BudgetRow  # alone-on: the floor (all off); alone-off: everything on
+    notes: list[str] = field(default_factory=list)
+
+    def shares(self) -> dict[str, dict[str, float]]:
+        """Source -> axis -> RMS it adds (quadrature difference between the runs with and without it).
+
+        Alone on: a source's row has it, the reference (the floor) does not. Alone off, and the
+        calibration row in either mode: the reference has it, the source's row does not.
+        """
+        ref = {s.axis: s.rms for s in self.reference.run.axes}
+        out: dict[str, dict[str, float]] = {}
+        for row in self.rows:
+            if row.source is None:
+                continue
+            rms = {s.axis: s.rms for s in row.run.axes}
+            if self.mode == "alone-on" and row.source != CALIBRATION_SOURCE:
+                out[row.source] = {a: quadrature_share(rms[a], ref[a]) for a in rms}
+            else:
+                out[row.source] = {a: quadrature_share(ref[a], rms[a]) for a in rms}
+        return out
+
+    def dominant(self) -> dict[str, str | None]:
+        """Axis -> the source whose share is largest (None when no source adds anything)."""
+        shares = self.shares()
+        out: dict[str, str | None] = {}
+        for a in AXES:
+            best = max(shares, key=lambda s: shares[s][a.label], default=None)
+            out[a.label] = best if best is not None and shares[best][a.label] > 0 else None
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "benchmark": "accuracy-budget",
+            "mode": self.mode,
+            "trials": self.trials,
+            "seed": self.seed,
+            "rows": [
+                {
+                    "label": r.label,
+                    "source": r.source,
+                    "off": list(r.off),
+                    "calibration": r.calibration,
+                    "axes": [s.as_dict() for s in r.run.axes],
+                    "counts": r.run.counts(),
+                    "failures": [
+                        {"trial": t.index, "outcome": t.outcome, "reason": t.reason} for t in r.run.not_installed
+                    ],
+                }
+                for r in self.rows
+            ],
+            "reference": self.reference.label,
+            "rms_added": self.shares(),
+            "dominant": self.dominant(),
+            "notes": self.notes,
+        }
+
+
+PlanRow = tuple[str, str | None, tuple[str, ...], CalibrationMode]
+
+
+def budget_plan(mode: BudgetMode, calibration: CalibrationMode, *, data_available: bool) -> list[PlanRow]:
+    """The settings of a budget: (label, isolated source, sources off, calibration).
+
+    Every row uses ``calibration``, so a source also acts through the calibration data it spoils.
+    With ``"data"``, one more row runs on the true calibrations: the difference is the
+    calibrations' own share. Sources that act only through the calibration from data (the
+    operator's hand guiding in teaching) are left out with the oracle.
+    """
+    if mode not in ("alone-on", "alone-off"):
+        raise BenchSettingsError(f"--budget must be alone-on or alone-off, got {mode!r}")
+    if calibration == "data" and not data_available:
+        raise BenchSettingsError("a budget with --calibration data needs cellctl.calibration.source; use --calibration oracle")
+    every = tuple(s for s in ERROR_SOURCES if calibration == "data" or not ERROR_SOURCES[s].data_calibration_only)
+    cal_word = "calibration from data" if calibration == "data" else "true calibrations"
+    plan: list[PlanRow] = []
+    if mode == "alone-on":
+        plan.append((f"none (floor), {cal_word}", None, tuple(ERROR_SOURCES), calibration))
+        for s in every:
+            plan.append((f"{s} alone", s, tuple(x for x in ERROR_SOURCES if x != s), calibration))
+        if calibration == "data":
+            plan.append(("none, true calibrations", CALIBRATION_SOURCE, tuple(ERROR_SOURCES), "oracle"))
+        plan.append((f"all on, {cal_word}", None, (), calibration))
+    else:
+        plan.append((f"all on, {cal_word}", None, (), calibration))
+        for s in every:
+            plan.append((f"all but {s}", s, (s,), calibration))
+        if calibration == "data":
+            plan.append(("all on, true calibrations", CALIBRATION_SOURCE, (), "oracle"))
+    return plan
+
+
+def run_budget(
+    base: CellConfig,
+    *,
+    mode: BudgetMode,
+    trials: int,
+    seed: int,
+    calibration: CalibrationMode,
+    time_scale: float | None = None,
+    config_source: str = "config/sim.toml",
+    devices: DevicesMode = "twin",
+    progress: bool = True,
+    cycle_timeout_s: float = 300.0,
+) -> Budget:
+    """The same ``trials`` (same seed) once per source setting; see :func:`budget_plan`."""
+    plan = budget_plan(mode, calibration, data_available=data_calibration_available())
+    notes = []
+    if calibration == "oracle":
+        notes.append(
+            "true calibrations (oracle) in every row: the calibrations' share and the teaching hand-guiding error "
+            "are not in this budget (use --calibration data)"
+        )
+    rows = []
+    for n, (label, source, off, cal) in enumerate(plan, 1):
+        settings = RunSettings(
+            trials, seed, off, cal, time_scale, config_source, label=f"[{n}/{len(plan)}] {label}", devices=devices
+        )
+        run = run_accuracy(base, settings, progress=progress, cycle_timeout_s=cycle_timeout_s)
+        rows.append(BudgetRow(label, source, off, cal, run))
+    # alone-on: the floor (everything off); alone-off: everything on. Both are the plan's first row.
+    return Budget(mode, trials, seed, rows, rows[0], notes)
+
+
+def trial_errors(run: AccuracyRun) -> Sequence[dict[str, float]]:
+    """The six figures of every installed trial, in trial order."""
+    return [t.true_error for t in run.installed if t.true_error is not None]

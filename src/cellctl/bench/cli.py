@@ -1,0 +1,171 @@
+"""``cellctl bench accuracy`` and ``cellctl bench speed``.
+
+Exit status: 0 the run finished and met its targets, 1 it finished and missed a target (the
+report says which), 2 a usage or configuration problem, 3 the run could not finish.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from cellctl.config import load_config
+
+
+def _write_json(path: Path | None, data: dict[str, Any]) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1, allow_nan=True) + "\n", encoding="utf-8")
+    print(f"figures written to {path}")
+
+
+def _cmd_accuracy(args: argparse.Namespace) -> int:
+    from cellctl.bench.accuracy import BenchRunError, RunSettings, run_accuracy, run_budget
+    from cellctl.bench.plots import PlotsUnavailable, check_plots_available
+    from cellctl.bench.report import format_accuracy, format_budget
+    from cellctl.bench.sources import BenchSettingsError, parse_off
+
+    try:
+        config = load_config(args.config)
+        off = tuple(sorted(parse_off(args.off)))
+        if args.plots is not None:
+            check_plots_available()  # refuse before the run rather than after it
+        if args.budget:
+            if off:
+                raise BenchSettingsError("--off and --budget do not go together: the budget switches the sources itself")
+            budget = run_budget(
+                config, mode=args.budget, trials=args.trials, seed=args.seed, calibration=args.calibration,
+                time_scale=args.time_scale, config_source=str(args.config), devices=args.devices,
+                progress=not args.quiet,
+            )  # fmt: skip
+            print(format_budget(budget))
+            _write_json(args.json, budget.as_dict())
+            if args.plots is not None:
+                from cellctl.bench.plots import write_budget_plot
+
+                print(f"plot written: {write_budget_plot(budget, args.plots)}")
+            return 0
+        settings = RunSettings(
+            args.trials, args.seed, off, args.calibration, args.time_scale, str(args.config), devices=args.devices
+        )
+        run = run_accuracy(config, settings, progress=not args.quiet, workdir=args.workdir)
+    except (BenchSettingsError, PlotsUnavailable) as err:
+        print(f"bench accuracy: {err}", file=sys.stderr)
+        return 2
+    except BenchRunError as err:
+        print(f"bench accuracy could not finish: {err}", file=sys.stderr)
+        return 3
+    print(format_accuracy(run))
+    _write_json(args.json, run.as_dict())
+    if args.plots is not None:
+        from cellctl.bench.plots import write_accuracy_plots
+
+        for p in write_accuracy_plots(run, args.plots):
+            print(f"plot written: {p}")
+    if run.workdir:
+        print(f"the run's store, images and calibration set are in {run.workdir}")
+    return 0 if all(a.p99_met for a in run.axes) else 1
+
+
+def _cmd_speed(args: argparse.Namespace) -> int:
+    from cellctl.bench.sources import BenchSettingsError
+    from cellctl.bench.speed import SpeedSettings, format_speed, run_speed
+
+    try:
+        config = load_config(args.config)
+        settings = SpeedSettings(
+            frames=args.frames, alignments=args.alignments, cycles=args.cycles, clients=args.clients,
+            requests=args.requests, max_seconds=args.seconds, drivers=not args.no_drivers,
+            abb_seconds=args.abb_seconds, seed=args.seed,
+        )  # fmt: skip
+        report = run_speed(config, settings, progress=not args.quiet)
+    except BenchSettingsError as err:
+        print(f"bench speed: {err}", file=sys.stderr)
+        return 2
+    print(format_speed(report))
+    _write_json(args.json, report.as_dict())
+    return 0 if report.targets_met() else 1
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, got {v}")
+    return v
+
+
+def register(subparsers: Any) -> None:
+    """Add ``bench accuracy`` and ``bench speed`` to ``cellctl``'s sub-commands."""
+    bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment) and speed")
+    sub = bench.add_subparsers(dest="bench_command", required=True)
+
+    p = sub.add_parser(
+        "accuracy",
+        help="N install cycles of the simulated cell at random postures, scored against the truth",
+        description="Runs the paper's experiment (section 5.3) in the simulated cell through the orchestrator and "
+        "prints per axis max |error|, mean, std and p99 beside the paper's figures and the tolerance.",
+    )
+    p.add_argument("--trials", type=_positive_int, default=20, help="install cycles (default 20, as the paper)")
+    p.add_argument("--seed", type=_seed, default=1, help="the twin's seed: postures and every error source (default 1)")
+    p.add_argument("--json", type=Path, default=None, help="write every trial and figure to this JSON file")
+    p.add_argument("--plots", type=Path, default=None, help="write PNG plots (paper Figs. 5 and 6) into this folder")
+    p.add_argument(
+        "--off", default=None,
+        help="error sources to switch off, comma-separated: laser_noise, laser_linearity, robot_repeatability, "
+        "robot_accuracy, image_noise (or all)",
+    )  # fmt: skip
+    p.add_argument(
+        "--calibration", choices=["data", "oracle"], default="data",
+        help="data: the calibration set computed from simulated data (default); oracle: the twin's true mountings",
+    )  # fmt: skip
+    p.add_argument(
+        "--budget", nargs="?", const="alone-on", choices=["alone-on", "alone-off"], default=None,
+        help="error budget: run the same trials with each source alone on (default) or alone off, and show which "
+        "source dominates each axis",
+    )  # fmt: skip
+    p.add_argument(
+        "--devices", choices=["twin", "config"], default="twin",
+        help="twin: the twin's in-process devices (default); config: the devices of --config (in config/sim.toml "
+        "the real drivers against their protocol fakes)",
+    )  # fmt: skip
+    p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
+    p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=_cmd_accuracy)
+
+    p = sub.add_parser(
+        "speed",
+        help="vision, alignment, cycle compute overhead, GET /status under load, driver figures",
+        description="Medians and ratios of the cell's compute: corner detection per frame (vs cv2.Canny), "
+        "compute_alignment, the cycle's compute overhead, GET /status latency under concurrent load, and the "
+        "driver packages' own benchmarks.",
+    )
+    p.add_argument("--frames", type=_positive_int, default=30, help="timed corner detections (default 30)")
+    p.add_argument("--alignments", type=_positive_int, default=200, help="timed compute_alignment calls (default 200)")
+    p.add_argument("--cycles", type=_positive_int, default=15, help="cycles for the compute overhead (default 15)")
+    p.add_argument("--clients", type=_positive_int, default=16, help="concurrent GET /status clients (default 16)")
+    p.add_argument("--requests", type=_positive_int, default=2000, help="GET /status requests per phase (default 2000)")
+    p.add_argument("--seconds", type=float, default=20.0, help="time bound of each /status phase (default 20 s)")
+    p.add_argument("--abb-seconds", type=float, default=5.0, help="python -m abb_robot.bench --seconds (default 5)")
+    p.add_argument("--no-drivers", action="store_true", help="leave out the driver packages' benchmarks")
+    p.add_argument("--seed", type=_seed, default=1)
+    p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=_cmd_speed)

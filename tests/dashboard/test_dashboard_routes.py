@@ -1,0 +1,185 @@
+"""The dashboard's routes over real HTTP: the page and its files come from the package and name no
+outside host; the digest of recent cycles, the thumbnails and the periodic status events agree
+with the cycle records and the configuration."""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Iterator
+from datetime import datetime, timezone
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+from dashboard_test_support import AUTH, LiveCell, sim_config, to_execute
+
+from cellctl.api.dashboard import STALE_AFTER_S, STATIC_DIR, deviation_digest, scale_png
+from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
+from cellctl.cell.tags import CycleStep
+from cellctl.store import CycleRecord, CycleRequest, CycleState
+from cellctl.store.records import ImageRef, StepRecord
+
+pytestmark = pytest.mark.timeout(120)
+
+SVG_NAMESPACE = "http://www.w3.org/2000/svg"
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
+    config = sim_config(**{"process.tolerance": {"position_mm": 0.4, "orientation_deg": 0.8}})
+    live = LiveCell(tmp_path_factory.mktemp("dashboard-routes"), config)
+    live.start()
+    try:
+        yield live
+    finally:
+        live.stop()
+
+
+@pytest.fixture(scope="module")
+def client(cell: LiveCell) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=cell.url, timeout=30.0) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def two_cycles(client: httpx.Client) -> list[dict]:
+    to_execute(client)
+    out = []
+    for i in range(2):
+        r = client.post(
+            "/cycle",
+            params={"wait": "true", "timeout_s": 60},
+            json={"recipe": "side-window", "part_id": f"P-R{i}", "car_id": f"C-{i}"},
+            headers={**AUTH, "Idempotency-Key": f"routes-{i}"},
+        )
+        assert r.status_code == 200, r.text
+        assert r.json()["state"] == "done", r.json()
+        out.append(r.json())
+    return out
+
+
+def test_the_page_and_its_files_come_from_the_package(client: httpx.Client) -> None:
+    r = client.get("/")
+    assert r.status_code == 200
+    assert r.headers["content-type"].startswith("text/html")
+    html = r.text
+    local = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert "/ui/app.js" in local and "/ui/style.css" in local and "/ui/favicon.svg" in local
+    # Every referenced file is served from the package with its media type.
+    kinds = {"app.js": "javascript", "style.css": "text/css", "favicon.svg": "image/svg+xml"}
+    for name, kind in kinds.items():
+        f = client.get(f"/ui/{name}")
+        assert f.status_code == 200, name
+        assert kind in f.headers["content-type"], (name, f.headers["content-type"])
+        assert f.content == (STATIC_DIR / name).read_bytes()
+    # Nothing names an outside host: no CDN, no web font, no absolute URL but the SVG namespace.
+    for path in STATIC_DIR.iterdir():
+        text = path.read_text(encoding="utf-8")
+        urls = set(re.findall(r"(?:https?:)?//[A-Za-z0-9.-]+\.[A-Za-z]{2,}[^\s\"')]*", text)) - {SVG_NAMESPACE}
+        assert urls == set(), (path.name, urls)
+        assert "@import" not in text and "@font-face" not in text, path.name
+    for href in local:
+        assert href.startswith(("/", "#")), href
+    assert client.get("/ui/../dashboard.py").status_code == 404
+
+
+def test_the_dashboard_config_comes_from_the_cell_config(client: httpx.Client) -> None:
+    cfg = client.get("/dashboard/config").json()
+    assert cfg["tolerance"] == {"position_mm": 0.4, "orientation_deg": 0.8}
+    assert cfg["simulation"] is True
+    assert cfg["mode_change_states"] == ["STOPPED", "IDLE", "ABORTED"]
+    assert cfg["status_period_s"] == SSE_STATUS_PERIOD_S
+    assert cfg["stale_after_s"] == STALE_AFTER_S > SSE_STATUS_PERIOD_S
+
+
+def test_the_cycle_digest_agrees_with_the_records(client: httpx.Client, two_cycles: list[dict]) -> None:
+    digest = client.get("/dashboard/cycles", params={"limit": 5}).json()
+    assert [d["id"] for d in digest] == [c["id"] for c in reversed(two_cycles)]
+    for d in digest:
+        rec = client.get(f"/cycles/{d['id']}").json()
+        assert d["state"] == "done" and d["part_id"] == rec["part_id"] and d["car_id"] == rec["car_id"]
+        assert d["true_error"] == pytest.approx(rec["true_error"])
+        assert set(d["true_error"]) == {"dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"}
+        res = rec["result"]
+        assert [d["correction"][k] for k in ("dx_mm", "dy_mm", "dz_mm")] == pytest.approx(res["correction_mm"])
+        assert [d["correction"][k] for k in ("drx_deg", "dry_deg", "drz_deg")] == pytest.approx(res["correction_deg"])
+        assert d["cycle_time_s"] == pytest.approx(res["cycle_time_s"])
+        last_comp = [s for s in rec["steps"] if s["step"] == "compensate"][-1]["figures"]
+        assert [d["residual"]["dx_mm"], d["residual"]["dy_mm"]] == pytest.approx(last_comp["offset_mm"])
+        assert d["residual"]["drz_deg"] == pytest.approx(last_comp["offset_deg"])
+        assert d["residual"]["dz_mm"] is None
+        assert d["image"]["url"] == rec["images"][-1]["url"]
+    assert client.get("/dashboard/cycles", params={"limit": 0}).status_code == 422
+
+
+def test_a_thumbnail_is_the_image_scaled_down(client: httpx.Client, two_cycles: list[dict]) -> None:
+    cid = two_cycles[-1]["id"]
+    name = two_cycles[-1]["images"][-1]["name"]
+    full_png = client.get(f"/cycles/{cid}/images/{name}").content
+    full = cv2.imdecode(np.frombuffer(full_png, np.uint8), cv2.IMREAD_UNCHANGED)
+    r = client.get(f"/dashboard/thumbs/{cid}/{name}", params={"width": 240})
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    thumb = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    h, w = full.shape[:2]
+    assert thumb.shape[:2] == (round(h * 240 / w), 240)
+    expected = cv2.resize(full, (240, round(h * 240 / w)), interpolation=cv2.INTER_AREA)
+    assert np.array_equal(thumb, expected)
+    assert client.get(f"/dashboard/thumbs/{cid}/no-such-shot").status_code == 404
+    assert client.get(f"/dashboard/thumbs/99999/{name}").status_code == 404
+    assert client.get(f"/dashboard/thumbs/{cid}/{name}", params={"width": 8}).status_code == 422
+
+
+def test_events_repeat_the_status_while_the_cell_is_quiet(client: httpx.Client) -> None:
+    """The dashboard's stale mark relies on a status event at least every SSE_STATUS_PERIOD_S."""
+    stamps: list[float] = []
+    with client.stream("GET", "/events", timeout=10.0) as r:
+        assert r.headers["content-type"].startswith("text/event-stream")
+        for line in r.iter_lines():
+            if line == "event: status":
+                stamps.append(time.monotonic())
+                if len(stamps) == 3:
+                    break
+    gaps = np.diff(stamps)
+    assert gaps.max() < SSE_STATUS_PERIOD_S + 1.0, gaps
+
+
+def _record(**changes: object) -> CycleRecord:
+    t0 = datetime(2026, 1, 5, 8, 0, tzinfo=timezone.utc)
+    base = dict(
+        id=7, idempotency_scope="rest", idempotency_key="k", request=CycleRequest("side-window", "P-9", None),
+        actor="operator", state=CycleState.FAILED, current_step=CycleStep.NONE, result=None, error="corner not found",
+        true_error=None, created_at=t0, started_at=t0, finished_at=t0, install_started_at=None,
+        interrupted_step=None, interrupted_at=None,
+    )  # fmt: skip
+    base.update(changes)
+    return CycleRecord(**base)  # type: ignore[arg-type]
+
+
+def test_the_digest_of_a_refused_cycle_has_no_figures_it_did_not_measure() -> None:
+    d = deviation_digest(_record())
+    assert d["correction"] is None and d["residual"] is None and d["true_error"] is None and d["image"] is None
+    assert d["cycle_time_s"] is None and d["state"] == "failed" and d["error"] == "corner not found"
+    t = datetime(2026, 1, 5, 8, 0, 1, tzinfo=timezone.utc)
+    steps = (
+        StepRecord(CycleStep.COMPENSATE, 1, t, t, 0.1, True, {"offset_mm": [1.5, -2.0], "offset_deg": 0.25}, None),
+        StepRecord(CycleStep.COMPENSATE, 2, t, t, 0.1, False, {"corner_sigma_px": 9.0}, "corner not found"),
+    )
+    images = (ImageRef(CycleStep.COMPENSATE, "shot0", "cycle-7-shot0.png", t),)
+    d = deviation_digest(_record(steps=steps, images=images, result={"error_code": 1302, "cycle_time_s": 4.5}))
+    # The last step that measured an offset gives the residual; the failed shot measured none.
+    assert d["residual"] == {"dx_mm": 1.5, "dy_mm": -2.0, "dz_mm": None, "drx_deg": None, "dry_deg": None, "drz_deg": 0.25}
+    assert d["cycle_time_s"] == 4.5 and d["correction"] is None
+    assert d["image"] == {"name": "shot0", "step": "compensate", "url": "/cycles/7/images/shot0", "thumb": "/dashboard/thumbs/7/shot0"}
+
+
+def test_scale_png_refuses_what_is_not_an_image(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="not a readable PNG"):
+        scale_png(b"not a png", 100)
+    img = np.full((10, 20), 128, np.uint8)
+    ok, png = cv2.imencode(".png", img)
+    assert ok
+    same = cv2.imdecode(np.frombuffer(scale_png(png.tobytes(), 64), np.uint8), cv2.IMREAD_UNCHANGED)
+    assert same.shape == (10, 20)  # never enlarged
