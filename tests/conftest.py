@@ -1,8 +1,10 @@
-"""Shared test setup: the PLC emulator of tests/plc is importable from every test folder."""
+"""Shared test setup: the PLC emulator (tests/plc) and the service harness (tests/service) are
+importable from every test folder."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).parent / "plc"))
+for folder in ("plc", "service"):
+    sys.path.insert(0, str(Path(__file__).parent / folder))

@@ -11,7 +11,7 @@ import pytest
 
 from cellctl.bench.accuracy import RunSettings, budget_plan, run_accuracy
 from cellctl.bench.report import format_accuracy
-from cellctl.bench.sources import ERROR_SOURCES, BenchSettingsError, data_calibration_available
+from cellctl.bench.sources import ERROR_SOURCES, BenchSettingsError
 from cellctl.bench.stats import AXES
 from cellctl.cli import main
 from cellctl.config import load_config, parse_config

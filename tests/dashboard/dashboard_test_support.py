@@ -14,7 +14,6 @@ import shutil
 import socket
 import threading
 import time
-import tomllib
 from collections.abc import Coroutine
 from pathlib import Path
 from typing import Any, TypeVar
@@ -23,7 +22,9 @@ import httpx
 import uvicorn
 
 from cellctl.api.app import create_app
-from cellctl.config import CellConfig, parse_config
+from service_test_support import sim_config as service_sim_config
+
+from cellctl.config import CellConfig
 from cellctl.service.compose import Service, build_service
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -46,15 +47,9 @@ T = TypeVar("T")
 
 
 def sim_config(**sections: dict[str, Any]) -> CellConfig:
-    """config/sim.toml with some sections' fields replaced (PLC server off: no port to clash)."""
-    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
+    """The service harness's config with the PLC server off by default (no port to clash)."""
     sections.setdefault("plc", {"enabled": False})
-    for name, fields in sections.items():
-        node = data
-        for part in name.split("."):
-            node = node.setdefault(part, {})
-        node.update(fields)
-    return parse_config(data, "sim.toml (dashboard test)")
+    return service_sim_config(**sections)
 
 
 def chromium_missing_reason() -> str | None:

@@ -331,8 +331,10 @@ async def test_a_late_reply_is_never_taken_for_the_current_one(fake: FakeLkgCont
     reading = await guarded(quick.read(timeout_s=2.0))
     assert_true_reading(reading, fake)
     assert quick.stats.late_replies >= 1
-    measured = [e for e in fake.exchanges if e.values_mm]
-    assert len({e.values_mm for e in measured}) == len(measured)  # every reply carried a new value
+    # Every reply that carried a number carried a new one (resync reads of an output with no value,
+    # "XXXXXXXX", may repeat under load and are left out).
+    measured = [e for e in fake.exchanges if e.values_mm and any(v is not None for v in e.values_mm)]
+    assert len({e.values_mm for e in measured}) == len(measured)
     for _ in range(5):
         assert_true_reading(await guarded(quick.read(timeout_s=1.0)), fake)
 

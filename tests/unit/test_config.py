@@ -40,7 +40,7 @@ def test_hand_eye_is_reorthonormalised_and_faces_the_wall_with_the_laser() -> No
 
 
 # Where config/sim.toml departs from the code defaults on purpose (the defaults suit a real cell).
-SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("calibration", "source")}
+SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("devices", "laser"), ("devices", "robot")}
 
 
 def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() -> None:
@@ -94,5 +94,5 @@ def test_hardware_example_loads() -> None:
 def test_hardware_mode_refuses_simulated_devices() -> None:
     data = sim_data()
     data["mode"] = "hardware"
-    with pytest.raises(ConfigError, match=r"devices \['laser', 'camera', 'robot'\] are of kind \"sim\""):
+    with pytest.raises(ConfigError, match=r"devices \['laser', 'camera', 'robot'\] are simulated"):
         parse_config(data, "x.toml")

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cellctl.bench.vision import DISTURBANCES, measure_accuracy, shooting_scene
+from cellctl.bench.vision import DISTURBANCES, measure_accuracy
 from cellctl.compensate import corrected_workpiece_frame
 from cellctl.config.render import DisturbanceConfig, OcclusionConfig
 from cellctl.config.sim import SimConfig

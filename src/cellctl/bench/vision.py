@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  ratio detection / Canny                      {detect_s / canny_s:8.2f} x")
     print(f"  target <= 50 ms: {'met' if detect_s <= 0.05 else 'NOT met'}")
 
-    print(f"accuracy against the twin's truth (raw image, corner error = distance to the true corner):")
+    print("accuracy against the twin's truth (raw image, corner error = distance to the true corner):")
     acc = measure_accuracy(renderer, sim, lens, config, args.renders, rng)
     _report(f"default noise, {args.renders} renders", acc, 1.0)
     all_met = acc.meets(1.0) and acc.accepted == acc.renders

@@ -38,10 +38,10 @@ class CellConfig(StrictModel):
     @model_validator(mode="after")
     def _devices_fit_the_mode(self) -> "CellConfig":
         if self.mode == "hardware":
-            sim = [name for name in ("laser", "camera", "robot") if getattr(self.devices, name).kind == "sim"]
+            sim = [name for name in ("laser", "camera", "robot") if getattr(self.devices, name).kind.startswith("sim")]
             if sim:
                 raise ValueError(
-                    f"mode = \"hardware\" but devices {sim} are of kind \"sim\": give each its real driver "
+                    f"mode = \"hardware\" but devices {sim} are simulated (kind \"sim...\"): give each its real driver "
                     "(see config/hardware.example.toml), or set mode = \"sim\""
                 )
             if self.calibration.source == "oracle":
