@@ -22,16 +22,16 @@ from typing import Any
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, FastAPI, HTTPException, Query, Request, status
+from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
+from cellctl.api.routes_cycles import image_file
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.tags import CycleStep
 from cellctl.store import CycleRecord, UnknownCycle
-from cellctl.store.records import MAX_TEXT_LEN
 
 STATIC_DIR = Path(str(resources.files("cellctl.api") / "static"))
 STALE_AFTER_S = 2.5 * SSE_STATUS_PERIOD_S
@@ -154,16 +154,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         key = (cycle_id, name, width)
         png = thumbs.get(key)
         if png is None:
-            try:
-                record = await orch.store.cycle(cycle_id)
-            except UnknownCycle:
-                raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
-            ref = next((i for i in record.images if i.name == name), None)
-            if ref is None or len(name) > MAX_TEXT_LEN:
-                raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"cycle {cycle_id} has no image '{name}'")
-            path = orch.image_dir / ref.uri
-            if not path.is_file():
-                raise HTTPException(status.HTTP_410_GONE, detail=f"image file {ref.uri} is no longer on disk")
+            path = await image_file(orch, cycle_id, name)
             png = await asyncio.to_thread(lambda: scale_png(path.read_bytes(), width))
             thumbs[key] = png
             while len(thumbs) > THUMB_CACHE_SIZE:

@@ -2,15 +2,31 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, Header, HTTPException, Query, Request, Response, status
+from fastapi import (
+    APIRouter,
+    Depends,
+    Header,
+    HTTPException,
+    Query,
+    Request,
+    Response,
+    status,
+)
 from fastapi.responses import FileResponse
 
 from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.schemas import CycleAccepted, CycleRequestBody
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
-from cellctl.store import CycleRecord, CycleRequest, CycleState, IdempotencyConflict, UnknownCycle
+from cellctl.store import (
+    CycleRecord,
+    CycleRequest,
+    CycleState,
+    IdempotencyConflict,
+    UnknownCycle,
+)
 from cellctl.store.records import MAX_TEXT_LEN
 
 
@@ -53,6 +69,21 @@ def cycle_json(record: CycleRecord, *, full: bool = True) -> dict[str, Any]:
             for i in record.images
         ]
     return out
+
+
+async def image_file(orch: CellOrchestrator, cycle_id: int, name: str) -> Path:
+    """The file of a cycle's image, or the HTTP error that says why there is none."""
+    try:
+        record = await orch.store.cycle(cycle_id)
+    except UnknownCycle:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
+    ref = next((i for i in record.images if i.name == name), None)
+    if ref is None or len(name) > MAX_TEXT_LEN:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"cycle {cycle_id} has no image '{name}'")
+    path = orch.image_dir / ref.uri
+    if not path.is_file():
+        raise HTTPException(status.HTTP_410_GONE, detail=f"image file {ref.uri} is no longer on disk")
+    return path
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -> APIRouter:
@@ -132,16 +163,6 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
     @router.get("/cycles/{cycle_id}/images/{name}", response_class=FileResponse)
     async def get_image(cycle_id: int, name: str, request: Request) -> FileResponse:
         guard.read(request)
-        try:
-            record = await orch.store.cycle(cycle_id)
-        except UnknownCycle:
-            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
-        ref = next((i for i in record.images if i.name == name), None)
-        if ref is None or len(name) > MAX_TEXT_LEN:
-            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"cycle {cycle_id} has no image '{name}'")
-        path = orch.image_dir / ref.uri
-        if not path.is_file():
-            raise HTTPException(status.HTTP_410_GONE, detail=f"image file {ref.uri} is no longer on disk")
-        return FileResponse(path, media_type="image/png")
+        return FileResponse(await image_file(orch, cycle_id, name), media_type="image/png")
 
     return router

@@ -24,21 +24,19 @@ Regenerate the docs with ``python -m cellctl.cell.alarms -o docs/alarm_reactions
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import enum
-import sys
 import uuid
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
-from pathlib import Path
 from types import MappingProxyType
 
 from cellctl.cell.observers import Fanout
 from cellctl.cell.packml import CommandRefused, MachineEvent, PackMLMachine, next_state
 from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.markdown_doc import markdown_doc_main
 
 C = PackMLCommand
 
@@ -522,16 +520,7 @@ def render_markdown() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cellctl.cell.alarms", description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, help="write the Markdown here instead of stdout")
-    args = parser.parse_args(argv)
-    text = render_markdown()
-    if args.output is None:
-        sys.stdout.write(text)
-    else:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(text, encoding="utf-8")
-    return 0
+    return markdown_doc_main(argv, prog="python -m cellctl.cell.alarms", description=__doc__.splitlines()[0], render=render_markdown)
 
 
 if __name__ == "__main__":

@@ -17,18 +17,16 @@ Regenerate the docs with ``python -m cellctl.cell.packml -o docs/packml_states.m
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import enum
-import sys
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from pathlib import Path
 from types import MappingProxyType
 
 from cellctl.cell.observers import Fanout
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
+from cellctl.markdown_doc import markdown_doc_main
 
 S = PackMLState
 C = PackMLCommand
@@ -596,16 +594,7 @@ def render_markdown(mode_change_states: Iterable[PackMLState] = DEFAULT_MODE_CHA
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m cellctl.cell.packml", description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=Path, help="write the Markdown here instead of stdout")
-    args = parser.parse_args(argv)
-    text = render_markdown()
-    if args.output is None:
-        sys.stdout.write(text)
-    else:
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-        args.output.write_text(text, encoding="utf-8")
-    return 0
+    return markdown_doc_main(argv, prog="python -m cellctl.cell.packml", description=__doc__.splitlines()[0], render=render_markdown)
 
 
 if __name__ == "__main__":
