@@ -161,6 +161,7 @@ class _CycleRun:
         self.rec = recorder
         self.motion = process.motion
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
+        self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
 
     async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
         speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s
@@ -283,7 +284,9 @@ class _CycleRun:
             moved_mm, turned_rad = _offset_size(self._last_shot.offset)
             if k >= verify.min_shots and moved_mm <= verify.residual_mm and turned_rad <= np.radians(verify.residual_deg):
                 await self.rec.step_figures(CycleStep.COMPENSATE, {"converged": True, "averaged_shots": len(estimates)})
+                await self.annotate_last()
                 return T_est, tuple(shots)
+        await self.annotate_last()
         raise CycleFailed(
             CycleStep.COMPENSATE,
             AlarmCode.RESIDUAL_OVER_LIMIT,
@@ -310,9 +313,19 @@ class _CycleRun:
             vision = vision.model_copy(update={"limits": limits})
         m = await asyncio.to_thread(detect_corner, frame.image, cal.lens, vision)
         offset = offset_from_map(cal.template, m.features, cal.nine_point) if m.ok else None
-        png = await asyncio.to_thread(annotate, frame.image, m, cal.lens, taught=cal.template, offset=offset)
-        await self.rec.image(f"shot{index}", png)
+        self._last_image = (index, frame.image, m, offset)
+        if offset is None:  # a refusal is always shown, for whoever has to find out why
+            await self.annotate_last()
         return m, offset
+
+    async def annotate_last(self) -> None:
+        """The annotated picture of the latest shot, recorded (only refusals and final shots get one)."""
+        if self._last_image is None:
+            return
+        index, image, m, offset = self._last_image
+        self._last_image = None
+        png = await asyncio.to_thread(annotate, image, m, self.cal.lens, taught=self.cal.template, offset=offset)
+        await self.rec.image(f"shot{index}", png)
 
     async def _estimate(self, index: int, m: CornerMeasurement, offset: PlanarOffset | None, T1: Pose) -> Pose:
         """T1 corrected by the shot's offset; a refused shot fails the cycle with the detector's reason."""

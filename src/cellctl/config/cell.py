@@ -90,10 +90,14 @@ class VerifyConfig(StrictModel):
 
 
 class LimitsConfig(StrictModel):
-    """How far a correction may move the robot from its taught pose."""
+    """How far a correction may move the robot from its taught pose.
 
-    max_correction_mm: Finite = Field(80.0, gt=0)
-    max_correction_deg: Finite = Field(5.0, gt=0, le=45)
+    Keep them above what the car body's posture range can ask for: +-20 mm and +-2 deg about each
+    axis move the install pose (the flange ~1.25 m from the corner) by up to ~110 mm and 3.5 deg.
+    """
+
+    max_correction_mm: Finite = Field(150.0, gt=0)
+    max_correction_deg: Finite = Field(8.0, gt=0, le=45)
     max_verify_step_mm: Finite = Field(5.0, gt=0)  # one verification shot's correction
     max_verify_step_deg: Finite = Field(0.5, gt=0)
 
