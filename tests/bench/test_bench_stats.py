@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cellctl.bench.stats import AXES, axis_stats, error_matrix, quadrature_share, within_tolerance_all_axes
+from cellctl.bench.stats import AXES, axis_stats, error_matrix, within_tolerance_all_axes
 
 FIELDS = [a.field for a in AXES]
 
@@ -44,8 +44,3 @@ def test_a_record_without_the_six_figures_is_refused() -> None:
         error_matrix([{k: 0.0 for k in FIELDS[:5]}])
     with pytest.raises(ValueError, match="not finite"):
         error_matrix([_te(0, 0, 0, 0, 0, float("nan"))])
-
-
-def test_quadrature_share() -> None:
-    assert quadrature_share(0.05, 0.03) == pytest.approx(0.04)
-    assert quadrature_share(0.03, 0.05) == 0.0

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from cellctl.bench.sources import ERROR_SOURCES
 from cellctl.config import load_config
 
 
@@ -128,8 +129,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--plots", type=Path, default=None, help="write PNG plots (paper Figs. 5 and 6) into this folder")
     p.add_argument(
         "--off", default=None,
-        help="error sources to switch off, comma-separated: laser_noise, laser_linearity, robot_repeatability, "
-        "robot_accuracy, image_noise (or all)",
+        help=f"error sources to switch off, comma-separated: {', '.join(ERROR_SOURCES)} (or all)",
     )  # fmt: skip
     p.add_argument(
         "--calibration", choices=["data", "oracle"], default="data",

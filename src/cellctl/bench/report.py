@@ -102,10 +102,15 @@ def format_budget(budget: Budget) -> str:
         vals = "  ".join(_f(s.p99_abs, 9) for s in r.run.axes)
         c = r.run.counts()
         lines.append(f"  {r.label[:36]:36s} {vals}  {c['installed']}/{c['requested']}")
+    lines += ["", "bias and spread: mean / std of the signed error per axis:", f"  {'setting':36s} " + "  ".join(
+        f"{a.label + ' ' + a.unit:>15s}" for a in AXES
+    )]
+    for r in budget.rows:
+        lines.append(f"  {r.label[:36]:36s} " + "  ".join(f"{s.mean:+8.4f}/{s.std:.4f}"[:15].rjust(15) for s in r.run.axes))
     shares = budget.shares()
     ref = budget.reference.label
     what = f"over '{ref}'" if budget.mode == "alone-on" else f"to '{ref}' (what removing it takes away)"
-    lines += ["", f"RMS each source adds {what}, in quadrature:", f"  {'source':36s} {axes_head}"]
+    lines += ["", f"p99 |error| each source adds {what}:", f"  {'source':36s} {axes_head}"]
     for src, per_axis in shares.items():
         lines.append(f"  {src:36s} " + "  ".join(_f(per_axis[a.label], 9) for a in AXES))
     dom = budget.dominant()

@@ -130,12 +130,6 @@ def within_tolerance_all_axes(true_errors: Sequence[Mapping[str, float]], *, tol
     return int(np.count_nonzero(ok))
 
 
-def quadrature_share(with_source_rms: float, without_source_rms: float) -> float:
-    """The RMS a source adds, assuming independent sources add in quadrature (0 when it adds none)."""
-    d = with_source_rms**2 - without_source_rms**2
-    return float(np.sqrt(d)) if d > 0 else 0.0
-
-
 def percentile(values: Sequence[float], q: float) -> float:
     """The q-th percentile (NaN for no values)."""
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")

@@ -24,7 +24,7 @@ from cellctl.sim.streams import rng_stream
 from cellctl.sim.targets import Checkerboard, PlacedTarget, place_on_world_plane
 from cellctl.sim.world import nominal_world
 
-CAMERA_NOISE = "camera.noise"
+CAMERA_NOISE = "camera.noise.calibration"  # its own draws, not the production camera's
 OPERATOR = "calibration.operator"
 
 
