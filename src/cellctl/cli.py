@@ -163,12 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, default=3)
     p.set_defaults(func=_cmd_align)
 
-    try:
-        from cellctl.calibration.cli import register
-    except ImportError:
-        register = None
-    if register is not None:
-        register(sub)
+    from cellctl.calibration.cli import register as register_calibration
+
+    register_calibration(sub)
     from cellctl.bench.cli import register as register_bench
     register_bench(sub)
     return parser
