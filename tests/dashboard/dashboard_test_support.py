@@ -92,6 +92,13 @@ class LiveCell:
         self.thread.start()
         self.run(self._start(), timeout_s=90.0)
 
+    def __enter__(self) -> "LiveCell":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
     def stop(self) -> None:
         try:
             self.run(self._stop(), timeout_s=30.0)

@@ -41,12 +41,8 @@ _keys = itertools.count(1)
 
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
-    live = LiveCell(tmp_path_factory.mktemp("dashboard-cell"))
-    live.start()
-    try:
+    with LiveCell(tmp_path_factory.mktemp("dashboard-cell")) as live:
         yield live
-    finally:
-        live.stop()
 
 
 @pytest.fixture(scope="module")
@@ -246,12 +242,9 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
 def strict_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
     """A cell whose correction limit (0.5 mm) is far below the car bodies' spread (+-20 mm): the
     alignment's correction is refused, the cycle fails and the cell holds for the operator."""
-    live = LiveCell(tmp_path_factory.mktemp("dashboard-strict"), sim_config(**{"process.limits": {"max_correction_mm": 0.5}}))
-    live.start()
-    try:
+    config = sim_config(**{"process.limits": {"max_correction_mm": 0.5}})
+    with LiveCell(tmp_path_factory.mktemp("dashboard-strict"), config) as live:
         yield live
-    finally:
-        live.stop()
 
 
 @pytest.fixture(scope="module")

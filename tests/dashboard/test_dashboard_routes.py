@@ -30,12 +30,8 @@ SVG_NAMESPACE = "http://www.w3.org/2000/svg"
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
     config = sim_config(**{"process.tolerance": {"position_mm": 0.4, "orientation_deg": 0.8}})
-    live = LiveCell(tmp_path_factory.mktemp("dashboard-routes"), config)
-    live.start()
-    try:
+    with LiveCell(tmp_path_factory.mktemp("dashboard-routes"), config) as live:
         yield live
-    finally:
-        live.stop()
 
 
 @pytest.fixture(scope="module")

@@ -31,9 +31,17 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from cellctl.compensate import TaughtPoses
+from cellctl.config.loader import format_validation_errors
 from cellctl.geometry.pose import Pose, check_pose
 
 FORMAT = "cellctl-calibration-set"
@@ -316,17 +324,11 @@ def empty_set(created_utc: datetime) -> CalibrationSet:
     return CalibrationSet.model_construct(version=0, created_utc=created_utc, parent_version=None, note="", parts=Parts())
 
 
-def _format_errors(source: str, err: ValidationError) -> str:
-    lines = [f"{source}: {err.error_count()} problem(s) in the calibration set:"]
-    for e in err.errors():
-        loc = ".".join(str(p) for p in e["loc"] if not str(p).startswith("function-after")) or "(top level)"
-        msg = e["msg"].removeprefix("Value error, ")
-        if e["type"] == "extra_forbidden":
-            msg = "unknown field (was the file written by a newer cellctl, or edited by hand?)"
-        elif e["type"] == "missing":
-            msg = "required field is missing"
-        lines.append(f"  - {loc}: {msg}")
-    return "\n".join(lines)
+def _set_errors(source: str, err: ValidationError) -> str:
+    return format_validation_errors(
+        source, err, what="the calibration set",
+        unknown_field="unknown field (was the file written by a newer cellctl, or edited by hand?)",
+    )  # fmt: skip
 
 
 def parse_calibration_set(data: Any, source: str = "<calibration set>") -> CalibrationSet:
@@ -342,7 +344,7 @@ def parse_calibration_set(data: Any, source: str = "<calibration set>") -> Calib
     try:
         return CalibrationSet.model_validate(data)
     except ValidationError as err:
-        raise CalibrationSetError(_format_errors(source, err)) from None
+        raise CalibrationSetError(_set_errors(source, err)) from None
 
 
 def load_calibration_set(path: str | Path) -> CalibrationSet:
@@ -407,7 +409,7 @@ def make_part(
             }
         )
     except ValidationError as err:
-        raise CalibrationSetError(_format_errors(f"new {name} part", err)) from None
+        raise CalibrationSetError(_set_errors(f"new {name} part", err)) from None
 
 
 def _jsonable(x: Any) -> Any:

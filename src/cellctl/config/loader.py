@@ -15,13 +15,20 @@ class ConfigError(ValueError):
     """The configuration cannot be used. The message names each bad field and what to do."""
 
 
-def _format_validation_error(source: str, err: ValidationError) -> str:
-    lines = [f"{source}: {err.error_count()} problem(s) in the configuration:"]
+def format_validation_errors(
+    source: str,
+    err: ValidationError,
+    *,
+    what: str = "the configuration",
+    unknown_field: str = "unknown field; check its spelling against config/sim.toml",
+) -> str:
+    """One readable message naming every bad field of a pydantic validation error."""
+    lines = [f"{source}: {err.error_count()} problem(s) in {what}:"]
     for e in err.errors():
-        where = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        where = ".".join(str(p) for p in e["loc"] if not str(p).startswith("function-after")) or "(top level)"
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
-            msg = "unknown field; check its spelling against config/sim.toml"
+            msg = unknown_field
         elif e["type"] == "missing":
             msg = "required field is missing"
         lines.append(f"  - {where}: {msg}")
@@ -33,7 +40,7 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> CellConfig:
     try:
         return CellConfig.model_validate(data)
     except ValidationError as err:
-        raise ConfigError(_format_validation_error(source, err)) from None
+        raise ConfigError(format_validation_errors(source, err)) from None
 
 
 def load_config(path: str | Path) -> CellConfig:
