@@ -29,6 +29,7 @@ from cellctl.store import AsyncCellStore
 log = logging.getLogger(__name__)
 
 Closer = Callable[[], Awaitable[None]]
+STOP_STEP_TIMEOUT_S = 10.0
 
 
 class ServiceError(RuntimeError):
@@ -65,14 +66,20 @@ class Service:
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
 
     async def stop(self) -> None:
+        """Stop everything; each part gets ``STOP_STEP_TIMEOUT_S``, so a stuck one cannot hang the rest."""
+        steps: list[tuple[str, Closer]] = []
         if self.plc_server is not None:
-            await self.plc_server.stop()  # type: ignore[attr-defined]
-        await self.plc_link.close()
-        await self.orchestrator.stop()
-        for close in reversed(self.closers):
-            with contextlib.suppress(Exception):
-                await close()
-        await self.store.close()
+            steps.append(("PLC server", self.plc_server.stop))  # type: ignore[attr-defined]
+        steps += [("PLC link", self.plc_link.close), ("orchestrator", self.orchestrator.stop)]
+        steps += [(getattr(close, "__qualname__", "device"), close) for close in reversed(self.closers)]
+        steps.append(("store", self.store.close))
+        for name, step in steps:
+            try:
+                await asyncio.wait_for(step(), STOP_STEP_TIMEOUT_S)
+            except asyncio.TimeoutError:
+                log.error("stopping %s took over %.0f s; went on without it", name, STOP_STEP_TIMEOUT_S)
+            except Exception:  # a failing part must not keep the others running; logged with its trace
+                log.exception("stopping %s failed", name)
 
     async def serve(self, *, ready: asyncio.Event | None = None, demo_cycles: int = 0) -> None:
         """Run the REST API and dashboard until the process is told to stop (SIGINT/SIGTERM).
