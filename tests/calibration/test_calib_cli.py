@@ -65,3 +65,18 @@ def test_a_dataset_of_the_wrong_kind_is_refused(tmp_path: Path, capsys: pytest.C
     assert _run("calibrate", "laser", "--store", str(tmp_path / "s"), "--dataset", str(tmp_path / "d")) == 2
     assert "needs a 'laser_plane' dataset" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()  # nothing recorded for a usage error
+
+
+def test_workdir_puts_the_store_where_the_service_reads_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from cellctl.calibration.source import CalibrationSetSource
+    from cellctl.config import load_config
+
+    work = tmp_path / "cell"
+    assert _run("calibrate", "laser", "--workdir", str(work), "--seed", "4", "--poses", "120") == 0
+    config = load_config(DEFAULT_CONFIG)
+    service_store = CalibrationSetSource.from_config(config, workdir=work).store
+    cal = service_store.current()
+    assert cal is not None and cal.part("laser").status == "ok"
+    assert str(work / config.calibration.directory) in capsys.readouterr().out
+    assert _run("calibrate", "status", "--workdir", str(work)) == 1  # found, and not ready: parts missing
+    assert "1 version(s), current 1" in capsys.readouterr().out

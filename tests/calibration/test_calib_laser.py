@@ -52,21 +52,58 @@ def test_recovers_r_and_l_when_the_robot_reports_its_true_pose() -> None:
     assert o.quality["rms_mm"] < 0.02
 
 
-def test_default_twin_gives_r_within_tolerance_and_honest_uncertainty() -> None:
-    # The robot poses are the controller's beliefs: an uncalibrated IRB 7600 (0.5 mm absolute
-    # accuracy field, 0.1 mm repeatability). r stays within 0.3 mm; l is limited by the
-    # repeatability (see the report), and its error lies within the reported uncertainty.
+@pytest.mark.parametrize("seed", [3, 8, 13])
+def test_default_twin_recovers_r_and_l_within_the_bar_and_honest_uncertainty(seed: int) -> None:
+    # The robot poses are the controller's beliefs: an uncalibrated IRB 7600 (0.5 mm / 0.015 deg
+    # absolute-accuracy field, 0.1 mm / 0.005 deg repeatability), the sensor's linearity and
+    # noise on. The bar: r within 0.3 mm, l within 0.02 deg (`cellctl bench calibration` runs 20
+    # seeds); the error lies within the reported uncertainty.
     cfg = config()
-    ds = _collect(cfg, seed=3)
+    ds = _collect(cfg, seed=seed)
     o = compute_laser(ds, cfg)
     dr, dl = _errors(ds, o)
     assert np.linalg.norm(dr) < 0.3
-    assert dl < 0.05
+    assert dl < 0.02
     sig_r = np.asarray(o.quality["r_sigma_mm"])
     sig_l = np.asarray(o.quality["l_sigma_deg"])
     assert np.all(np.abs(dr) < 3.5 * sig_r + 0.02)
     assert dl < 3.5 * float(np.hypot(*sig_l)) + 0.005
-    assert o.quality["readings_used"] >= 400 and o.quality["direction_spread_deg"][0] > 4.0
+    assert float(np.max(sig_l)) < 0.01  # the plan reads every direction near and far (poses.plan_laser_poses)
+    assert o.quality["readings_used"] >= 450 and o.quality["direction_spread_deg"][0] > 4.0
+
+
+def test_the_laser_plan_reads_every_direction_near_and_far_one_arm_stand_at_a_time() -> None:
+    cfg = config()
+    cell = SimCell(cfg.sim, seed=2)
+    W = nominal_world(cfg.sim.world)
+    cell.place_car_body(W)
+    lc = cfg.calibration.procedure.laser
+    r_nom, l_nom = cad_laser(cfg)
+    R0 = W.T_B_T[:3, :3] @ cfg.sim.camera.hand_eye.T_H_C()[:3, :3].T
+    plan = plan_laser_poses(
+        W.T_B_T, lc.aim_mm, R0, r_nom, l_nom, 240, cell.robot_model.check_reach, pivot_H_mm=lc.wrist_in_flange_mm,
+        standoff_mm=lc.standoff_mm, wrist_depths_mm=lc.wrist_depths_mm(), tilt_deg=lc.tilt_deg, spin_deg=lc.spin_deg,
+        range_mm=(260.0, 440.0),
+    )
+    assert len(plan.flange_poses) == 240
+    H = np.array(plan.flange_poses)
+    d = np.array(plan.distance_mm)
+    g = np.array(plan.group)
+    # One visit per stand, and at a stand only the wrist turns: the wrist centre stays put.
+    assert np.all(np.diff([lc.wrist_depths_mm()[k] for k in g]) >= 0)
+    wrist = np.einsum("nij,j->ni", H[:, :3, :3], np.asarray(lc.wrist_in_flange_mm)) + H[:, :3, 3]
+    for k in np.unique(g):
+        assert np.ptp(wrist[g == k], axis=0).max() < 1e-6
+    assert len(np.unique(g)) >= 8
+    # Distances sweep the range, and the beam's tilt towards each flange axis across it is read
+    # near and far alike: the wall normal seen from the flange is uncorrelated with the distance.
+    assert d.min() < 275.0 and d.max() > 425.0
+    m = np.einsum("nji,j->ni", H[:, :3, :3], W.T_B_T[:3, 2])
+    for axis in (1, 2):
+        assert abs(np.corrcoef(m[:, axis], d)[0, 1]) < 0.15
+        near, far = m[d < 320.0, axis], m[d > 380.0, axis]
+        assert np.ptp(near) > 0.6 and np.ptp(far) > 0.6
+    assert np.all((np.array(plan.tilt_deg) >= 0.0) & (np.array(plan.tilt_deg) <= lc.tilt_deg[1] + 1e-9))
 
 
 def test_modelling_the_sensor_linearity_removes_its_bias() -> None:

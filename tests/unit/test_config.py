@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import tomllib
 from pathlib import Path
 
@@ -65,6 +66,20 @@ def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() ->
         (lambda d: d["sim"]["world"].update(corner_radius_mm=150.0), "corner_radius_mm", "reduce corner_radius_mm"),
         (lambda d: d["sim"]["camera"]["hand_eye"].update(rotation_rows=[[1, 0, 0], [0, 1, 0], [0, 0, 5]]), "hand_eye", "rotation"),
         (lambda d: d.update(mode="production"), "mode", "'sim' or 'hardware'"),
+        (
+            lambda d: d.setdefault("calibration", {}).setdefault("procedure", {}).setdefault("laser", {}).update(
+                wrist_depth_range_mm=[100.0, -100.0]
+            ),
+            "calibration.procedure.laser",
+            "(nearest, farthest)",
+        ),
+        (
+            lambda d: d.setdefault("calibration", {}).setdefault("procedure", {}).setdefault("laser", {}).update(
+                wrist_depth_step_mm=0.1
+            ),
+            "calibration.procedure.laser",
+            "at least 1/200 of the range",
+        ),
     ],
 )
 def test_bad_config_is_refused_naming_the_field(edit, field: str, hint: str) -> None:
@@ -96,3 +111,10 @@ def test_hardware_mode_refuses_simulated_devices() -> None:
     data["mode"] = "hardware"
     with pytest.raises(ConfigError, match=r"devices \['laser', 'camera', 'robot'\] are simulated"):
         parse_config(data, "x.toml")
+
+
+def test_laser_arm_stands_span_the_configured_range() -> None:
+    lc = CellConfig().calibration.procedure.laser
+    stands = lc.wrist_depths_mm()
+    assert stands[0] == lc.wrist_depth_range_mm[0] and stands[-1] == lc.wrist_depth_range_mm[1]
+    assert len(stands) == 24 and all(abs(b - a - lc.wrist_depth_step_mm) < 1e-9 for a, b in itertools.pairwise(stands))

@@ -1,4 +1,4 @@
-"""``cellctl bench accuracy`` and ``cellctl bench speed``.
+"""``cellctl bench accuracy``, ``cellctl bench speed`` and ``cellctl bench calibration``.
 
 Exit status: 0 the run finished and met its targets, 1 it finished and missed a target (the
 report says which), 2 a usage or configuration problem, 3 the run could not finish.
@@ -92,6 +92,21 @@ def _cmd_speed(args: argparse.Namespace) -> int:
     return 0 if report.targets_met() else 1
 
 
+def _cmd_calibration(args: argparse.Namespace) -> int:
+    from cellctl.bench.calibration import format_calibration_bench, run_calibration_bench
+
+    try:
+        config = load_config(args.config)
+        parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+        bench = run_calibration_bench(config, range(args.seed, args.seed + args.seeds), parts, progress=not args.quiet)
+    except ValueError as err:
+        print(f"bench calibration: {err}", file=sys.stderr)
+        return 2
+    print(format_calibration_bench(bench))
+    _write_json(args.json, bench.as_dict())
+    return 0 if bench.bars_met() else 1
+
+
 def _positive_int(text: str) -> int:
     try:
         v = int(text)
@@ -113,7 +128,7 @@ def _seed(text: str) -> int:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``bench accuracy`` and ``bench speed`` to ``cellctl``'s sub-commands."""
+    """Add ``bench accuracy``, ``bench speed`` and ``bench calibration`` to ``cellctl``'s sub-commands."""
     bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment) and speed")
     sub = bench.add_subparsers(dest="bench_command", required=True)
 
@@ -169,3 +184,19 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_cmd_speed)
+
+    p = sub.add_parser(
+        "calibration",
+        help="commissioning calibrations on one twin per seed, compared with the twin's true mountings",
+        description="Runs the calibration procedures (as `cellctl calibrate` does) on --seeds simulated cells and "
+        "prints each figure per seed, its median and worst beside the bar it must meet.",
+    )
+    p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
+    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+    p.add_argument(
+        "--parts", default="laser",
+        help="comma-separated: laser, camera, hand_eye (default laser; camera and hand_eye render board views)",
+    )  # fmt: skip
+    p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=_cmd_calibration)

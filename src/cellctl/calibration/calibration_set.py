@@ -470,6 +470,13 @@ def check_ready(cal: CalibrationSet | None, now: datetime) -> list[str]:
     return problems
 
 
+def store_root(directory: str | Path, workdir: str | Path) -> Path:
+    """The store folder for the configured ``calibration.directory``: a relative one is taken from
+    ``workdir`` (the service's ``--workdir``; the calibration commands take the same option)."""
+    root = Path(directory)
+    return root if root.is_absolute() else Path(workdir) / root
+
+
 class CalibrationStore:
     """The history of calibration sets in one folder: ``set-NNNNNN.json`` files and a ``current`` pointer.
 

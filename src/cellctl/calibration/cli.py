@@ -25,6 +25,7 @@ from cellctl.calibration.calibration_set import (
     CalibrationSetError,
     CalibrationStore,
     check_ready,
+    store_root,
 )
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, DatasetError, read_dataset
@@ -48,7 +49,7 @@ class _Progress:
 
 
 def _store(args: argparse.Namespace, config: CellConfig) -> CalibrationStore:
-    return CalibrationStore(Path(args.store) if args.store else Path(config.calibration.directory))
+    return CalibrationStore(Path(args.store) if args.store else store_root(config.calibration.directory, Path(args.workdir)))
 
 
 def _now() -> datetime:
@@ -195,8 +196,16 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return 0 if not problems else 1
 
 
-def _common(p: argparse.ArgumentParser, *, collects: bool = True) -> None:
+def _store_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", help="calibration store folder (default: calibration.directory of the configuration)")
+    p.add_argument(
+        "--workdir", default=".",
+        help="the folder a relative calibration.directory is taken from, as `cellctl serve --workdir` (default: .)",
+    )  # fmt: skip
+
+
+def _common(p: argparse.ArgumentParser, *, collects: bool = True) -> None:
+    _store_options(p)
     p.add_argument("--dataset", help="compute offline from this saved dataset folder instead of collecting")
     p.add_argument("--no-store", action="store_true", help="compute and print only; do not record in the store")
     if collects:
@@ -231,7 +240,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=_cmd_nine_point)
 
     p = sub.add_parser("status", help="the current calibration set, its history and whether production may start")
-    p.add_argument("--store", help="calibration store folder")
+    _store_options(p)
     p.add_argument("--history", action="store_true", help="list every version")
     p.set_defaults(func=_cmd_status)
 

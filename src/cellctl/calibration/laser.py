@@ -33,11 +33,14 @@ procedure):
   a smooth curve over the range) is modelled as Legendre polynomials of degree 2 and up in the
   normalised distance (degrees 0 and 1 are r along l and the sensor's scale, not linearity).
 
-Measured in the twin over 20 seeds with the default plan (480 poses): with exact robot poses
-r is within 0.04 mm and l within 0.005 deg of the truth; with the uncalibrated robot's reported
-poses (0.5 mm accuracy field, 0.1 mm repeatability) r is within 0.26 mm (median 0.10) and l within
-0.04 deg (median 0.014), the remainder being the robot's repeatability, which the reported
-standard deviations cover.
+Measured in the twin over 20 seeds with the default plan (480 poses, ``cellctl bench calibration
+--seeds 20``): with exact robot poses r is within 0.009 mm and l within 0.001 deg of the truth;
+with the uncalibrated robot's reported poses (0.5 mm / 0.015 deg accuracy field, 0.1 mm / 0.005 deg
+repeatability) r is within 0.17 mm (median 0.06) and l within 0.016 deg (median 0.006). The
+robot's repeatability alone gives l within 0.014 deg, which the reported standard deviations
+(about 0.007 deg per axis) cover; the accuracy field alone gives 0.009 deg, which they do not:
+its orientation part, one small rotation of the flange per arm stand, moves the laser point
+differently at every turn of the wrist, and no nuisance term models it.
 """
 
 from __future__ import annotations

@@ -10,9 +10,10 @@ reach check supplied by the caller (the robot controller's, or the twin's):
   have axes spread over all three directions (Tsai needs at least two non-parallel axes;
   translation along an axis is unobservable when every rotation is about it). Every pose keeps
   the whole board with its border ``margin_px`` inside the image.
-- :func:`plan_laser_poses` for the laser's r and l: the beam hits spots spread over a patch of a
-  flat wall, from stand-offs spread over the sensor's range, with the beam tilted about axes
-  spread around it, so the wall is seen from many directions (see cellctl.calibration.laser).
+- :func:`plan_laser_poses` for the laser's r and l: from a set of arm stands (the wrist centre
+  held still, only the wrist turning), the beam tilts about axes spread around it and meets a
+  flat wall at distances swept over the sensor's range, so every direction is read near and far
+  (see cellctl.calibration.laser).
 
 A candidate that fails a check is retried with a smaller tilt; the reasons for every dropped
 candidate are kept so the operator can see why the plan is shorter than asked.
@@ -20,7 +21,7 @@ candidate are kept so the operator can see why the plan is shorter than asked.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -28,12 +29,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry.pose import Pose, apply_pose, check_pose, invert_pose, make_pose
-from cellctl.geometry.rotation import axis_angle_to_matrix, rot_z
+from cellctl.geometry.rotation import (
+    axis_angle_to_matrix,
+    rot_z,
+    rotation_angle_between,
+)
 
 F64 = NDArray[np.float64]
 ReachCheck = Callable[[Pose], None]
 
 GOLDEN_ANGLE_RAD = float(np.pi * (3.0 - np.sqrt(5.0)))
+# Additive recurrences k * a mod 1 with these a fill [0, 1) evenly and are mutually independent
+# (1/phi, and 1/rho for the plastic number rho, the 2-D generalisation of the golden ratio).
+_GOLDEN_RATIO_FRAC = 0.6180339887498949
+_PLASTIC_RATIO_FRAC = 0.7548776662466927
 _RETRIES = 5
 
 
@@ -124,7 +133,7 @@ def plan_board_views(
         if k == 0:
             tilt0, phi, spin = 0.0, 0.0, 0.0
         else:
-            frac = (k * 0.6180339887) % 1.0
+            frac = (k * _GOLDEN_RATIO_FRAC) % 1.0
             tilt0 = np.deg2rad(t_lo + (t_hi - t_lo) * frac)
             phi = k * GOLDEN_ANGLE_RAD
             spin = np.deg2rad(spin_deg) * np.sin(2.3999 * k + 0.7)
@@ -169,23 +178,35 @@ def plan_laser_poses(
     reach_check: ReachCheck,
     *,
     pivot_H_mm: ArrayLike = (0.0, 0.0, -250.0),
-    standoff_mm: float = 330.0,
-    depth_steps_mm: tuple[float, ...] = (-60.0, 0.0, 60.0),
-    tilt_deg: tuple[float, float] = (10.0, 40.0),
-    spin_deg: float = 30.0,
+    standoff_mm: float = 350.0,
+    wrist_depths_mm: Sequence[float] = tuple(float(v) for v in range(-300, 161, 20)),
+    tilt_deg: tuple[float, float] = (20.0, 45.0),
+    spin_deg: float = 90.0,
     range_mm: tuple[float, float] = (265.0, 435.0),
     on_wall: Callable[[F64], bool] | None = None,
 ) -> PosePlan:
-    """Flange poses that show one flat wall to the laser from many directions.
+    """Flange poses that show one flat wall to the laser from many directions and distances.
 
-    The flange turns about a fixed pivot, by default the robot's wrist centre (``pivot_H_mm`` in
-    the flange frame, 250 mm behind the flange on an IRB 7600), so only the wrist axes move
-    between poses at one depth: the arm's own position error, which depends on where the wrist
-    centre is (axes 1-3), stays the same for all of them and goes into the plane's offset
-    instead of into r. The pivot steps along the wall normal by ``depth_steps_mm`` to spread the
-    distances over the sensor's range; the beam tilts away from the normal by angles spread over
-    ``tilt_deg`` about axes turning by the golden angle, and spins about itself by up to
-    ``spin_deg``.
+    Arm stands: the wrist centre (``pivot_H_mm`` in the flange frame, 250 mm behind the flange
+    on an IRB 7600) is placed at one of ``wrist_depths_mm``, offsets along the wall normal from
+    where it is when the untilted beam meets the aim point from ``standoff_mm`` (positive: away
+    from the wall). At one stand only the wrist axes turn, so the arm's own position error, which
+    depends on where the wrist centre is (axes 1-3), is one constant for all the stand's poses
+    and goes into the stand's plane offset instead of into r (``PosePlan.group`` is the stand).
+
+    Directions and distances: pose k tilts the beam away from the wall normal by an angle spread
+    over ``tilt_deg`` (golden-ratio sequence) about an axis turning by the golden angle, spins it
+    about itself by up to ``spin_deg``, and takes the stand whose beam length comes nearest a
+    target distance that sweeps ``range_mm`` (a second low-discrepancy sequence, independent of
+    the tilt). Every direction is thereby seen near and far. This matters because the wrist
+    centre sits beside the beam, not on it: turning about it swings the laser's origin along the
+    beam, so at one stand the distance follows the tilt, and r across the beam can only be told
+    from l by the same tilt read at other distances. In the twin this design gives l about three
+    times better than tilting at three fixed stands (see cellctl.calibration.laser).
+
+    The poses are returned ordered by stand, so the arm moves to each stand once and the wrist
+    does the rest, and within a stand from each pose to the nearest unvisited orientation (the
+    wrist's turns dominate the collection time).
 
     Args:
         T_B_W: the wall frame (x, y in the wall, z into it) in the base frame, roughly known.
@@ -195,7 +216,11 @@ def plan_laser_poses(
         r, l: the laser's nominal origin and direction in the flange frame (CAD).
         n_poses: how many poses.
         reach_check: raises ValueError for a flange pose out of reach.
-        standoff_mm: beam length to the aim point at depth step 0, untilted.
+        pivot_H_mm: the wrist centre in the flange frame.
+        standoff_mm: beam length to the aim point at wrist depth 0, untilted.
+        wrist_depths_mm: the arm stands (at least one).
+        tilt_deg: the range of beam tilts from the wall normal.
+        spin_deg: the largest turn of the flange about the beam.
         range_mm: the nominal distance at every pose must lie in this range.
         on_wall: optional check that a spot (x, y in W) is on usable wall (not in the opening).
     """
@@ -204,8 +229,9 @@ def plan_laser_poses(
     W = check_pose(T_B_W, "wall frame T_B_W")
     t_lo, t_hi = _check_ranges("tilt_deg", tilt_deg)
     d_lo, d_hi = _check_ranges("range_mm", range_mm, 0.0)
-    if not depth_steps_mm:
-        raise ValueError("depth_steps_mm needs at least one step")
+    stands = [float(v) for v in wrist_depths_mm]
+    if not stands:
+        raise ValueError("wrist_depths_mm needs at least one arm stand")
     rv = np.asarray(r, dtype=float)
     lv = np.asarray(l, dtype=float) / np.linalg.norm(l)
     R0 = np.asarray(R_B_H_nominal, dtype=float)
@@ -220,12 +246,6 @@ def plan_laser_poses(
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(beam_B, e1)
     W_inv = invert_pose(W)
-    poses: list[Pose] = []
-    tilts: list[float] = []
-    spins: list[float] = []
-    dists: list[float] = []
-    dropped: list[str] = []
-    groups: list[int] = []
 
     def candidate(tilt: float, phi: float, spin: float, depth: float) -> tuple[Pose, float] | str:
         axis = np.cos(phi) * e1 + np.sin(phi) * e2
@@ -249,34 +269,51 @@ def plan_laser_poses(
             return f"out of reach ({err})"
         return flange, dist
 
-    # Poses come in pairs tilted by the same angle in opposite directions at the same depth and
-    # spin: an error of the sensor that depends on the distance (its linearity) then pulls both
-    # alike and cancels from r across the beam and from l to first order.
+    planned: list[tuple[int, Pose, float, float, float]] = []  # stand, flange, tilt, spin, distance
+    dropped: list[str] = []
     m = 0
-    while len(poses) < n_poses and m < 2 * n_poses + 8:
-        depth = float(depth_steps_mm[m % len(depth_steps_mm)])
-        frac = (m * 0.6180339887 + 0.3) % 1.0
-        tilt0 = np.deg2rad(t_lo + (t_hi - t_lo) * frac)
+    while len(planned) < n_poses and m < 4 * n_poses + 8:
+        tilt0 = np.deg2rad(t_lo + (t_hi - t_lo) * ((m * _GOLDEN_RATIO_FRAC + 0.3) % 1.0))
         phi = m * GOLDEN_ANGLE_RAD
         spin = np.deg2rad(spin_deg) * np.sin(2.3999 * m + 0.4)
+        target = d_lo + (d_hi - d_lo) * ((m * _PLASTIC_RATIO_FRAC + 0.1) % 1.0)
         reason = ""
         for attempt in range(_RETRIES):
             tilt = tilt0 * (0.85**attempt)
-            pair = [candidate(tilt, phi + side * np.pi, spin, depth) for side in (0, 1)]
-            bad = [p for p in pair if isinstance(p, str)]
-            if bad:
-                reason = bad[0]
-                continue
-            for flange, dist in pair:  # type: ignore[misc]
-                if len(poses) < n_poses:
-                    poses.append(flange)
-                    tilts.append(float(np.rad2deg(tilt)))
-                    spins.append(float(np.rad2deg(spin)))
-                    dists.append(dist)
-                    groups.append(m % len(depth_steps_mm))
-            reason = ""
-            break
+            options: list[tuple[float, int, Pose, float]] = []
+            for k, depth in enumerate(stands):
+                found = candidate(tilt, phi, spin, depth)
+                if isinstance(found, str):
+                    reason = found
+                else:
+                    options.append((abs(found[1] - target), k, found[0], found[1]))
+            if options:
+                _, k, flange, dist = min(options, key=lambda o: o[0])
+                planned.append((k, flange, float(np.rad2deg(tilt)), float(np.rad2deg(spin)), dist))
+                reason = ""
+                break
         if reason:
-            dropped.append(f"pair {m} (tilt {np.rad2deg(tilt0):.0f} deg): {reason}")
+            dropped.append(f"pose {m} (tilt {np.rad2deg(tilt0):.0f} deg): {reason}")
         m += 1
-    return PosePlan(poses, tilts, spins, dists, dropped, groups)
+    planned = _visit_order(planned, stands)
+    return PosePlan(
+        [p[1] for p in planned], [p[2] for p in planned], [p[3] for p in planned], [p[4] for p in planned],
+        dropped, [p[0] for p in planned],
+    )
+
+
+def _visit_order(
+    planned: list[tuple[int, Pose, float, float, float]], stands: Sequence[float]
+) -> list[tuple[int, Pose, float, float, float]]:
+    """Stand by stand (nearest to the wall first), each stand's poses by greedy nearest rotation."""
+    ordered: list[tuple[int, Pose, float, float, float]] = []
+    for k in sorted({p[0] for p in planned}, key=lambda k: stands[k]):
+        left = [p for p in planned if p[0] == k]
+        while left:
+            if ordered:
+                R_prev = ordered[-1][1][:3, :3]
+                turn = [rotation_angle_between(R_prev, p[1][:3, :3]) for p in left]
+                ordered.append(left.pop(int(np.argmin(turn))))
+            else:
+                ordered.append(left.pop(0))
+    return ordered

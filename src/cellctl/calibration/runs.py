@@ -137,7 +137,7 @@ async def collect_laser_plane(
     lo, hi = laser.range_min_mm + lc.range_margin_mm, laser.range_max_mm - lc.range_margin_mm
     plan = plan_laser_poses(
         T0, lc.aim_mm, R_nom, r_nom, l_nom, n_poses if n_poses is not None else lc.n_poses, twin.cell.robot_model.check_reach,
-        pivot_H_mm=lc.wrist_in_flange_mm, standoff_mm=lc.standoff_mm, depth_steps_mm=lc.depth_steps_mm,
+        pivot_H_mm=lc.wrist_in_flange_mm, standoff_mm=lc.standoff_mm, wrist_depths_mm=lc.wrist_depths_mm(),
         tilt_deg=lc.tilt_deg, spin_deg=lc.spin_deg, range_mm=(lo, hi), on_wall=_on_wall(config, lc.keep_off_opening_mm),
     )
     samples = await collect_distances(twin.robot, twin.laser, plan.flange_poses, plan.group, motion_settings(config), progress=progress)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, check_ready
+from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, check_ready, store_root
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.procedures import ORDER, PROCEDURES
 from cellctl.calibration.runs import dataset_dir, record
@@ -60,8 +60,7 @@ class CalibrationSetSource:
 
     @classmethod
     def from_config(cls, config: CellConfig, *, workdir: Path, rig: object | None = None) -> "CalibrationSetSource":
-        root = Path(config.calibration.directory)
-        return cls(CalibrationStore(root if root.is_absolute() else workdir / root), config)
+        return cls(CalibrationStore(store_root(config.calibration.directory, workdir)), config)
 
     def _current(self) -> CalibrationSet | None:
         return self.store.current()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from cellctl.config.types import Finite, StrictModel, Vec2, Vec3
@@ -65,15 +66,25 @@ class HandEyeCalibrationConfig(StrictModel):
 
 
 class LaserCalibrationConfig(StrictModel):
-    """r and l from a flat patch of the car-body wall seen from many wrist orientations."""
+    """r and l from a flat patch of the car-body wall seen from many wrist orientations.
+
+    The wrist centre stands at offsets along the wall normal from ``wrist_depth_range_mm[0]`` to
+    ``[1]`` in steps of ``wrist_depth_step_mm`` (one arm stand each; see
+    cellctl.calibration.poses.plan_laser_poses); each pose picks the stand that puts its distance
+    where the plan wants it. The twin checks every pose for reach and for a spot on plain wall,
+    not for collisions: on a real cell, check the largest tilt and spin against the gripper's
+    clearance to the car body before the first run (and narrow them if needed; fewer directions
+    make l less certain, and the calibration reports by how much).
+    """
 
     aim_mm: Vec2 = (900.0, 750.0)  # where the untilted beam meets the wall, in T0 (plain wall around it)
     keep_off_opening_mm: Finite = Field(40.0, ge=0)
     n_poses: int = Field(480, ge=3, le=5000)
     standoff_mm: Finite = Field(350.0, gt=0)
-    depth_steps_mm: tuple[Finite, ...] = (-50.0, 0.0, 50.0)
-    tilt_deg: tuple[Finite, Finite] = (10.0, 40.0)
-    spin_deg: Finite = Field(30.0, ge=0, le=180)
+    wrist_depth_range_mm: tuple[Finite, Finite] = (-300.0, 160.0)  # positive: away from the wall
+    wrist_depth_step_mm: Finite = Field(20.0, gt=0)
+    tilt_deg: tuple[Finite, Finite] = (20.0, 45.0)
+    spin_deg: Finite = Field(90.0, ge=0, le=180)
     range_margin_mm: Finite = Field(6.0, ge=0)  # keep nominal distances this far inside the sensor's range
     wrist_in_flange_mm: Vec3 = (0.0, 0.0, -250.0)  # the wrist centre (axis 5) in the flange frame
     linearity_terms: int = Field(5, ge=0, le=8)  # Legendre terms 2.. of the sensor's linearity curve
@@ -82,6 +93,27 @@ class LaserCalibrationConfig(StrictModel):
     max_rms_mm: Finite = Field(0.1, gt=0)
     max_r_sigma_mm: Finite = Field(0.3, gt=0)
     max_l_sigma_deg: Finite = Field(0.05, gt=0)
+
+    @model_validator(mode="after")
+    def _stands(self) -> "LaserCalibrationConfig":
+        lo, hi = self.wrist_depth_range_mm
+        if hi < lo:
+            raise ValueError(f"wrist_depth_range_mm {self.wrist_depth_range_mm}: give (nearest, farthest), the first not above the second")
+        if (hi - lo) / self.wrist_depth_step_mm > 200:
+            raise ValueError(
+                f"wrist_depth_step_mm {self.wrist_depth_step_mm:g} makes {int((hi - lo) / self.wrist_depth_step_mm) + 1} arm stands "
+                "over wrist_depth_range_mm; use a step of at least 1/200 of the range"
+            )
+        lo_t, hi_t = self.tilt_deg
+        if not 0 <= lo_t <= hi_t <= 80:
+            raise ValueError(f"tilt_deg {self.tilt_deg}: give (smallest, largest) between 0 and 80 deg")
+        return self
+
+    def wrist_depths_mm(self) -> tuple[float, ...]:
+        """The arm stands: wrist-centre offsets along the wall normal."""
+        lo, hi = self.wrist_depth_range_mm
+        count = int(np.floor((hi - lo) / self.wrist_depth_step_mm + 1e-9)) + 1
+        return tuple(float(lo + k * self.wrist_depth_step_mm) for k in range(count))
 
 
 class NinePointConfig(StrictModel):
