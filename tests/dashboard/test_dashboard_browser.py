@@ -4,6 +4,7 @@ the stale-data mark. Screenshots go to test-artifacts/dashboard/."""
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 from collections.abc import Iterator
 from pathlib import Path
@@ -334,3 +335,34 @@ def test_dashboard_marks_stale_data_and_recovers(cell: LiveCell, page: tuple[Pag
     expect(pg.locator("#live")).to_have_text("live", timeout=20_000)
     assert not pg.evaluate("document.body.classList.contains('stale')")
     assert log.foreign() == [], log.foreign()
+
+
+def test_a_page_opened_after_the_plc_came_up_shows_its_link(tmp_path_factory: pytest.TempPathFactory, page: tuple[Page, PageLog]) -> None:
+    from plc_test_support import PlcClient
+    from pymodbus.client import AsyncModbusTcpClient
+
+    pg, log = page
+    config = sim_config(plc={"enabled": True, "port": 0, "scan_period_s": 0.01, "heartbeat_alarm": False, "heartbeat_timeout_s": 0.5})
+    with LiveCell(tmp_path_factory.mktemp("dashboard-plc"), config) as live:
+        assert live.orch.status()["links"]["plc"]["link"] == "waiting"
+        port = live.service.plc_server.port  # type: ignore[union-attr]
+
+        async def beat_until_up() -> None:
+            client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=1)
+            assert await client.connect()
+            plc = PlcClient(client, config.plc.float_word_order, unit_id=config.plc.unit_id)
+            try:
+                for n in range(1, 100):
+                    await plc.write(plc_heartbeat=n)
+                    if live.orch.status()["links"]["plc"]["link"] == "up":
+                        return
+                    await asyncio.sleep(0.02)
+                raise AssertionError("the PLC link never came up")
+            finally:
+                client.close()
+
+        live.run(beat_until_up())
+        # The page opens after the change: it learns the link from /status, not from an event.
+        _open(pg, live)
+        expect(pg.locator('#devices li[data-device="plc"]')).to_contain_text("up since")
+        assert log.errors == [], log.errors

@@ -37,6 +37,11 @@ def test_heartbeat_watch_reports_loss_once_and_recovery_once() -> None:
     lost = w.observe(2, 107.0)  # unchanged since 105.9: 1.1 s
     assert lost is not None and lost.event is LinkEvent.LOST and not w.alive
     assert w.observe(1, 107.1).event is LinkEvent.RESTORED  # a toggle back counts as a change
+    # A heartbeat that starts within the timeout is reported once, as started.
+    w = HeartbeatWatch(timeout_s=1.0, start_s=0.0)
+    started = w.observe(1, 0.5)
+    assert started is not None and started.event is LinkEvent.STARTED and w.alive
+    assert w.observe(2, 0.6) is None
     with pytest.raises(ValueError, match="timeout"):
         HeartbeatWatch(timeout_s=0.0, start_s=0.0)
 
@@ -46,21 +51,21 @@ async def test_plc_heartbeat_loss_is_detected_and_recovery_reported() -> None:
     async with running_cell(cell, heartbeat_timeout_s=0.3) as (server, plc):
         plc.start_heartbeat(0.03)
         await plc.wait_cell(lambda c: c["plc_heartbeat_ok"], "plc_heartbeat_ok")
-        await asyncio.sleep(0.5)  # beating: no loss
-        assert cell.link_events == [] and server.plc_link_alive
+        await asyncio.sleep(0.5)  # beating: reported up once, no loss
+        assert cell.link_events == [("restored", 0.0)] and server.plc_link_alive
         await plc.stop_heartbeat()
-        await _wait(lambda: cell.link_events, "PLC heartbeat lost")
-        (event, silent), = cell.link_events
+        await _wait(lambda: len(cell.link_events) == 2, "PLC heartbeat lost")
+        event, silent = cell.link_events[1]
         assert event == "lost" and silent > 0.3
         c = await plc.read_cell()
         assert not c["plc_heartbeat_ok"] and not server.plc_link_alive
         # a PLC that keeps writing the same value is still silent
         await plc.write(plc_heartbeat=plc.heartbeat)
         await asyncio.sleep(0.1)
-        assert len(cell.link_events) == 1
+        assert len(cell.link_events) == 2
         plc.start_heartbeat(0.03)
-        await _wait(lambda: len(cell.link_events) == 2, "PLC heartbeat restored")
-        assert cell.link_events[1][0] == "restored"
+        await _wait(lambda: len(cell.link_events) == 3, "PLC heartbeat restored")
+        assert cell.link_events[2][0] == "restored"
         await plc.wait_cell(lambda c: c["plc_heartbeat_ok"], "plc_heartbeat_ok again")
 
 

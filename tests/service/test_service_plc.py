@@ -68,3 +68,30 @@ async def test_a_plc_runs_twenty_cycles_and_every_install_is_within_tolerance(tm
             corr = by_key[req_id].result["correction_mm"]
             assert abs(done["dx_mm"] - corr[0]) < 1e-3 and abs(done["dz_mm"] - corr[2]) < 1e-3
         await asyncio.sleep(0)
+
+
+async def test_the_plc_link_is_in_every_status_waiting_up_then_lost(tmp_path: Path) -> None:
+    cfg = sim_config(plc={"port": 0, "scan_period_s": 0.005, "heartbeat_alarm": False, "heartbeat_timeout_s": 0.3})
+    async with running_service(tmp_path, cfg) as service:
+        links = service.orchestrator.status()["links"]
+        assert links["plc"]["link"] == "waiting" and links["plc"]["since_utc"]
+        client = AsyncModbusTcpClient("127.0.0.1", port=service.plc_server.port, timeout=2, retries=1)  # type: ignore[attr-defined]
+        assert await client.connect()
+        plc = PlcClient(client, cfg.plc.float_word_order, unit_id=cfg.plc.unit_id)
+        plc.start_heartbeat(0.05)
+
+        async def link_becomes(state: str) -> dict:
+            for _ in range(200):
+                report = service.orchestrator.status()["links"]["plc"]
+                if report["link"] == state:
+                    return report
+                await asyncio.sleep(0.02)
+            raise AssertionError(f"the PLC link never became {state}: {service.orchestrator.status()['links']}")
+
+        try:
+            up = await link_becomes("up")
+        finally:
+            await plc.stop_heartbeat()
+            client.close()
+        lost = await link_becomes("lost")
+        assert lost["silent_for_s"] >= 0.3 and lost["since_utc"] >= up["since_utc"]

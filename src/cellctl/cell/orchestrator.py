@@ -13,6 +13,7 @@ import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -177,12 +178,18 @@ class CellOrchestrator:
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
         self._finishing = False
-        self._links: dict[str, str] = {}
+        self._links: dict[str, dict[str, Any]] = {}
 
-    def note_link(self, name: str, state: str) -> None:
-        """A link outside the devices (the PLC) reports its state, for /status and the dashboard."""
-        self._links[name] = state
-        self.events.publish(name, {"link": state})
+    def note_link(self, name: str, state: str, **details: float) -> None:
+        """A link outside the devices (the PLC) reports its state, for /status and the dashboard.
+
+        The state is kept with the time it was reported (``since_utc``) and any figures given
+        (e.g. ``silent_for_s`` when the PLC's heartbeat stopped), so a page opened later sees
+        what an event would have told it.
+        """
+        report: dict[str, Any] = {"link": state, "since_utc": datetime.now(timezone.utc).isoformat(), **details}
+        self._links[name] = report
+        self.events.publish(name, report)
 
     # -- lifecycle --------------------------------------------------------------------------
 
@@ -432,7 +439,7 @@ class CellOrchestrator:
                 }
                 for name, h in (self.watchdog.health().items() if self.watchdog else [])
             },
-            "links": dict(self._links),
+            "links": {name: dict(report) for name, report in self._links.items()},
             "calibration": {"problems": self.calibration.problems()},
         }
 

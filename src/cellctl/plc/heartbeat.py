@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 
 class LinkEvent(enum.Enum):
+    STARTED = "started"
     LOST = "lost"
     RESTORED = "restored"
 
@@ -20,12 +21,13 @@ class LinkEvent(enum.Enum):
 class LinkChange:
     event: LinkEvent
     silent_for_s: float
-    """How long the heartbeat had been unchanged (for LOST); 0 for RESTORED."""
+    """How long the heartbeat had been unchanged (for LOST); 0 otherwise."""
 
 
 class HeartbeatWatch:
-    """Reports LOST once when the heartbeat stays unchanged for ``timeout_s`` (also when it never
-    started), and RESTORED once when it changes again after a reported loss."""
+    """Reports STARTED at the heartbeat's first change, LOST once when it stays unchanged for
+    ``timeout_s`` (also when it never started), and RESTORED once when it changes again after a
+    reported loss."""
 
     def __init__(self, timeout_s: float, start_s: float, initial_value: int = 0) -> None:
         if not timeout_s > 0:
@@ -35,6 +37,7 @@ class HeartbeatWatch:
         self._last_change_s = start_s
         self._alive = False
         self._lost_reported = False
+        self._started = False
 
     @property
     def alive(self) -> bool:
@@ -49,7 +52,11 @@ class HeartbeatWatch:
             self._alive = True
             if self._lost_reported:
                 self._lost_reported = False
+                self._started = True
                 return LinkChange(LinkEvent.RESTORED, 0.0)
+            if not self._started:
+                self._started = True
+                return LinkChange(LinkEvent.STARTED, 0.0)
             return None
         silent = now_s - self._last_change_s
         if silent > self._timeout_s:

@@ -275,7 +275,7 @@ class PlcServer:
                 log.warning("PLC heartbeat lost: plc_heartbeat unchanged for %.2f s", silent_for_s)
                 self._cell.plc_link_lost(silent_for_s)
             else:
-                log.info("PLC heartbeat restored")
+                log.info("PLC heartbeat %s", "started" if event is LinkEvent.STARTED else "restored")
                 self._cell.plc_link_restored()
         except Exception:
             log.exception("the cell failed to take the PLC link report (%s)", event.value)

@@ -63,6 +63,7 @@ class Service:
                     "is another cellctl running? change [plc] port or stop the other one"
                 ) from None
             self.plc_server = server
+            self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
 
     async def stop(self) -> None:

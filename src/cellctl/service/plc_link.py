@@ -98,7 +98,7 @@ class PlcCellLink:
         return CommandReply.ACCEPTED
 
     def plc_link_lost(self, silent_for_s: float) -> None:
-        self._orch.note_link("plc", "lost")
+        self._orch.note_link("plc", "lost", silent_for_s=round(float(silent_for_s), 2))
         if not self._heartbeat_alarm:
             log.warning("PLC heartbeat lost for %.1f s (plc.heartbeat_alarm is off: no alarm)", silent_for_s)
             return

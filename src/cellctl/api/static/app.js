@@ -227,8 +227,15 @@
     );
   }
 
+  // The newer of the PLC link report in a status and the last "plc" event.
+  function takePlcLink(status) {
+    const p = status && status.links ? status.links.plc : null;
+    if (p && (!model.plc || (p.since_utc || "") >= (model.plc.since_utc || ""))) model.plc = p;
+  }
+
   async function refreshStatus() {
     model.status = await getJSON("/status");
+    takePlcLink(model.status);
     await refreshCurrentCycle();
     renderStatus();
   }
@@ -337,13 +344,14 @@
       items.push(li);
     }
     if (model.config.plc_enabled) {
-      // The PLC link is reported only when it changes (event "plc"); a lost heartbeat is an
-      // abnormal state only where the configuration supervises it.
+      // The PLC link comes with every status (links.plc) and as an event when it changes; a
+      // lost heartbeat is an abnormal state only where the configuration supervises it.
       const p = model.plc;
       const supervised = model.config.plc_heartbeat_alarm;
       let text = "no report yet";
-      if (p && p.link === "lost") text = `silent ${num(p.silent_for_s, 1)} s${supervised ? "" : " (not supervised)"}`;
-      else if (p) text = p.link;
+      if (p && p.link === "lost") text = `silent since ${clock(p.since_utc)}${supervised ? "" : " (not supervised)"}`;
+      else if (p && p.link === "waiting") text = "waiting for its first heartbeat";
+      else if (p) text = `${p.link} since ${clock(p.since_utc)}`;
       const li = el("li", { "data-device": "plc" }, el("span", { class: "name", text: "PLC" }), ` ${text}`);
       setClass(li, "is-alarm", p && p.link === "lost" && supervised);
       items.push(li);
@@ -921,6 +929,7 @@
     switch (kind) {
       case "status":
         model.status = data;
+        takePlcLink(data);
         if (wasStale) schedule("all", refreshAll, 0);
         else if ((data.current_cycle ?? null) !== (model.currentCycle ? model.currentCycle.id : null)) schedule("status", refreshStatus);
         renderStatus();
