@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import asyncio
 import functools
+from pathlib import Path
 
 import numpy as np
+import pytest
 from calib_test_support import NOW, SEED, board_views, config, scratch, store_with_camera
 
 from cellctl.calibration.calibration_set import CalibrationStore, check_ready
 from cellctl.calibration.compute import Outcome, compute_hand_eye, compute_laser, compute_nine_point, compute_teaching
 from cellctl.calibration.runs import collect_laser_plane, collect_nine_point, collect_teaching, record
+from cellctl.calibration.compute import _taught_install
+from cellctl.calibration.dataset import Dataset
+from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.twin import TwinCell
+from cellctl.geometry.pose import make_pose
+from cellctl.geometry.rotation import axis_angle_to_matrix
 from cellctl.compensate import deviation_in_frame
 from cellctl.geometry.rotation import angle_between_vectors
 from cellctl.sim.camera_model import CameraModel
@@ -73,6 +80,42 @@ def test_teaching_finds_the_workpiece_frame_and_the_template() -> None:
     assert max(abs(ie["dx_mm"]), abs(ie["dy_mm"]), abs(ie["dz_mm"])) < 0.3
     assert max(abs(ie["drx_deg"]), abs(ie["dry_deg"]), abs(ie["drz_deg"])) < 0.1
     assert set(teach.inputs) == {"camera", "hand_eye", "laser"}
+    # g_Pos_0 is the mean of the configured hand-guided installs, which agreed within their spread.
+    installs = teach.quality["g_Pos_0_installs"]
+    assert installs["count"] == cfg.calibration.procedure.teach.hand_guided_installs == 3
+    assert 0.0 < installs["spread_mm"] < 0.3 and 0.0 < installs["spread_deg"] < 0.1
+
+
+def _install_dataset(installs: list[np.ndarray]) -> Dataset:
+    return Dataset(Path("unused"), {"g_Pos_0_installs": [h.tolist() for h in installs], "g_Pos_0": installs[0].tolist()})
+
+
+def test_g_pos_0_is_the_mean_install_and_installs_far_apart_are_refused() -> None:
+    cfg = config()
+    base = make_pose(axis_angle_to_matrix([0.0, np.pi / 2, 0.0]), [1500.0, 200.0, 900.0])
+    offsets = ([0.06, 0.0, -0.03], [-0.03, 0.05, 0.0], [-0.03, -0.05, 0.03])
+    installs = [base @ make_pose(np.eye(3), o) for o in offsets]
+    T0 = make_pose(np.eye(3), [1500.0, 1450.0, 1400.0])  # the window corner, 1.35 m from the flange
+    g, info = _taught_install(_install_dataset(installs), cfg, T0)
+    assert np.allclose(g, base, atol=1e-9)  # the offsets sum to zero
+    assert info["count"] == 3 and abs(info["spread_mm"] - np.linalg.norm(offsets[0])) < 1e-9
+    # An install turned 0.03 deg about the corner: the flange moves 0.7 mm, the corner does not.
+    turn = axis_angle_to_matrix([0.0, 0.0, np.radians(0.03)])
+    about_corner = T0 @ make_pose(turn, [0.0, 0.0, 0.0]) @ np.linalg.inv(T0)
+    turned = [*installs[:2], about_corner @ installs[2]]
+    assert np.linalg.norm(turned[2][:3, 3] - installs[2][:3, 3]) > 0.6
+    g, info = _taught_install(_install_dataset(turned), cfg, T0)
+    assert info["spread_mm"] < 0.1 and 0.015 < info["spread_deg"] < 0.03
+    # One install 1 mm off: the operator is asked to guide again.
+    far = [*installs[:2], base @ make_pose(np.eye(3), [1.0, 0.0, 0.0])]
+    with pytest.raises(CalibrationRefused) as err:
+        _taught_install(_install_dataset(far), cfg, T0)
+    assert err.value.reason == "install_spread" and "guide the glass in again" in str(err.value)
+    # A dataset from before repeated installs is one install.
+    old = Dataset(Path("unused"), {"g_Pos_0": base.tolist()})
+    g, info = _taught_install(old, cfg, T0)
+    assert np.allclose(g, base) and info["count"] == 1
+    assert info["spread_mm"] < 1e-9 and info["spread_deg"] < 1e-9
 
 
 def test_nine_point_map_and_pixel_scale_match_the_camera() -> None:

@@ -127,6 +127,11 @@ def _seed(text: str) -> int:
     return v
 
 
+def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figures to this JSON file") -> None:
+    p.add_argument("--json", type=Path, default=None, help=json_help)
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
 def register(subparsers: Any) -> None:
     """Add ``bench accuracy``, ``bench speed`` and ``bench calibration`` to ``cellctl``'s sub-commands."""
     bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment) and speed")
@@ -140,7 +145,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--trials", type=_positive_int, default=20, help="install cycles (default 20, as the paper)")
     p.add_argument("--seed", type=_seed, default=1, help="the twin's seed: postures and every error source (default 1)")
-    p.add_argument("--json", type=Path, default=None, help="write every trial and figure to this JSON file")
+    _report_options(p, "write every trial and figure to this JSON file")
     p.add_argument("--plots", type=Path, default=None, help="write PNG plots (paper Figs. 5 and 6) into this folder")
     p.add_argument(
         "--off", default=None,
@@ -162,7 +167,6 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
     p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=_cmd_accuracy)
 
     p = sub.add_parser(
@@ -181,8 +185,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--abb-seconds", type=float, default=5.0, help="python -m abb_robot.bench --seconds (default 5)")
     p.add_argument("--no-drivers", action="store_true", help="leave out the driver packages' benchmarks")
     p.add_argument("--seed", type=_seed, default=1)
-    p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    _report_options(p)
     p.set_defaults(func=_cmd_speed)
 
     p = sub.add_parser(
@@ -197,6 +200,5 @@ def register(subparsers: Any) -> None:
         "--parts", default="laser",
         help="comma-separated: laser, camera, hand_eye (default laser; camera and hand_eye render board views)",
     )  # fmt: skip
-    p.add_argument("--json", type=Path, default=None, help="write the figures to this JSON file")
-    p.add_argument("--quiet", action="store_true", help="no progress display")
+    _report_options(p)
     p.set_defaults(func=_cmd_calibration)

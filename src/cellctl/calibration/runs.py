@@ -32,6 +32,7 @@ from cellctl.calibration.poses import plan_board_views, plan_laser_poses
 from cellctl.calibration.teach import nominal_shooting_pose
 from cellctl.calibration.twin import TwinCell, board_spec
 from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import mean_pose
 from cellctl.ports import LaserStatus
 from cellctl.sim.targets import Checkerboard, place_on_world_plane
 
@@ -194,15 +195,21 @@ async def collect_teaching(
     C_Pos_0_true = twin.cell.true_flange_pose()
     progress(1, 2, "template image taken at the aligned shooting pose")
     tc = config.calibration.procedure.teach
-    guided = twin.operator_install_pose(tc.hand_guiding_position_mm, tc.hand_guiding_orientation_deg)
-    g_Pos_0 = await move_and_report(twin.robot, guided, motion)
-    progress(2, 2, "install pose recorded after hand guiding")
+    installs = []
+    for k in range(tc.hand_guided_installs):
+        guided = twin.operator_install_pose(tc.hand_guiding_position_mm, tc.hand_guiding_orientation_deg)
+        installs.append(await move_and_report(twin.robot, guided, motion))
+        progress(1, 2, f"hand-guided install {k + 1} of {tc.hand_guided_installs} recorded")
+    # The robot goes to the mean, where the twin scores the taught install pose.
+    g_Pos_0 = await move_and_report(twin.robot, mean_pose(installs), motion)
+    progress(2, 2, "install pose taught: the mean of the hand-guided installs")
     manifest = {
         "source": twin.describe(),
         "spots": [{"T_B_H": pose_list(h), "distance_mm": d} for h, d in zip(samples.T_B_H, samples.distances_mm)],
         "shooting_start": pose_list(start),
         "C_Pos_0": pose_list(C_Pos_0),
         "shooting_image": "template.png",
+        "g_Pos_0_installs": [pose_list(h) for h in installs],
         "g_Pos_0": pose_list(g_Pos_0),
         "T0_nominal": pose_list(T0_nom),
         "sensor_range_mm": [laser.range_min_mm, laser.range_max_mm],

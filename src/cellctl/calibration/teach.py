@@ -12,8 +12,11 @@ With the car body standing where it stands at teaching:
    camera at C_Pos_0) meets the measured wall plane, z the wall normal into the wall, x along the
    top edge's image direction (theta_d) carried onto the wall, y = z x x (down). So T0, C_Pos_0
    and the template describe one and the same corner.
-4. g_Pos_0 is the flange pose with the glass correctly installed, recorded after the operator
-   has guided the robot there by hand.
+4. g_Pos_0 is the flange pose with the glass correctly installed: the operator guides the glass
+   in by hand several times (``calibration.procedure.teach.hand_guided_installs``), the
+   controller's pose is recorded each time, and g_Pos_0 is their mean; how far the installs
+   put the window corner from the mean is reported, and too wide a spread is refused
+   (cellctl.calibration.compute).
 """
 
 from __future__ import annotations

@@ -132,10 +132,19 @@ class NinePointConfig(StrictModel):
 class TeachConfig(StrictModel):
     """Teaching (paper 4.3 step 1).
 
-    In the simulated cell the install pose g_Pos_0 is recorded as an operator guiding the robot
-    would leave it: the exact install plus a hand-guiding error, one sigma per axis.
+    The install pose g_Pos_0 is taught by guiding the glass into the opening by hand
+    ``hand_guided_installs`` times and taking the mean of the poses the controller reports: the
+    operator's random error shrinks as 1/sqrt(n), and the spread between the installs, reported
+    with the result, shows how well they agreed. Installs further than ``max_install_spread_mm``
+    / ``max_install_spread_deg`` from their mean are refused (guide again).
+
+    In the simulated cell each install is left as an operator would leave it: the exact install
+    plus a hand-guiding error, one sigma per axis (``hand_guiding_*``).
     """
 
+    hand_guided_installs: int = Field(3, ge=1, le=20)
+    max_install_spread_mm: Finite = Field(0.5, gt=0)
+    max_install_spread_deg: Finite = Field(0.2, gt=0)
     hand_guiding_position_mm: Finite = Field(0.05, ge=0, le=5)
     hand_guiding_orientation_deg: Finite = Field(0.02, ge=0, le=2)
 
