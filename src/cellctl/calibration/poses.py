@@ -168,6 +168,15 @@ def plan_board_views(
     return PosePlan(poses, tilts, spins, dists, dropped)
 
 
+@dataclass(frozen=True)
+class _LaserPose:
+    stand: int  # index into the wrist depths
+    flange: Pose
+    tilt_deg: float
+    spin_deg: float
+    distance_mm: float
+
+
 def plan_laser_poses(
     T_B_W: ArrayLike,
     aim_W_mm: tuple[float, float],
@@ -269,7 +278,7 @@ def plan_laser_poses(
             return f"out of reach ({err})"
         return flange, dist
 
-    planned: list[tuple[int, Pose, float, float, float]] = []  # stand, flange, tilt, spin, distance
+    planned: list[_LaserPose] = []
     dropped: list[str] = []
     m = 0
     while len(planned) < n_poses and m < 4 * n_poses + 8:
@@ -289,7 +298,7 @@ def plan_laser_poses(
                     options.append((abs(found[1] - target), k, found[0], found[1]))
             if options:
                 _, k, flange, dist = min(options, key=lambda o: o[0])
-                planned.append((k, flange, float(np.rad2deg(tilt)), float(np.rad2deg(spin)), dist))
+                planned.append(_LaserPose(k, flange, float(np.rad2deg(tilt)), float(np.rad2deg(spin)), dist))
                 reason = ""
                 break
         if reason:
@@ -297,22 +306,20 @@ def plan_laser_poses(
         m += 1
     planned = _visit_order(planned, stands)
     return PosePlan(
-        [p[1] for p in planned], [p[2] for p in planned], [p[3] for p in planned], [p[4] for p in planned],
-        dropped, [p[0] for p in planned],
+        [p.flange for p in planned], [p.tilt_deg for p in planned], [p.spin_deg for p in planned],
+        [p.distance_mm for p in planned], dropped, [p.stand for p in planned],
     )
 
 
-def _visit_order(
-    planned: list[tuple[int, Pose, float, float, float]], stands: Sequence[float]
-) -> list[tuple[int, Pose, float, float, float]]:
+def _visit_order(planned: list[_LaserPose], stands: Sequence[float]) -> list[_LaserPose]:
     """Stand by stand (nearest to the wall first), each stand's poses by greedy nearest rotation."""
-    ordered: list[tuple[int, Pose, float, float, float]] = []
-    for k in sorted({p[0] for p in planned}, key=lambda k: stands[k]):
-        left = [p for p in planned if p[0] == k]
+    ordered: list[_LaserPose] = []
+    for k in sorted({p.stand for p in planned}, key=lambda k: stands[k]):
+        left = [p for p in planned if p.stand == k]
         while left:
             if ordered:
-                R_prev = ordered[-1][1][:3, :3]
-                turn = [rotation_angle_between(R_prev, p[1][:3, :3]) for p in left]
+                R_prev = ordered[-1].flange[:3, :3]
+                turn = [rotation_angle_between(R_prev, p.flange[:3, :3]) for p in left]
                 ordered.append(left.pop(int(np.argmin(turn))))
             else:
                 ordered.append(left.pop(0))
