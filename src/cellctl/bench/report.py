@@ -16,8 +16,9 @@ REMEDIES: dict[str, str] = {
     "laser_noise": "average several readings per spot, or use more spots",
     "laser_linearity": "keep the spots at the standoff used in teaching, or calibrate the sensor's linearity",
     "image_noise": "average more verification shots, or more light / longer exposure",
-    "teach_hand_guiding": "teach g_Pos_0 as the mean of several hand-guided installs, or refine it from measured "
-    "installs (the paper scores against the manual install itself, so its figures cannot show this bias)",
+    "teach_hand_guiding": "average more hand-guided installs into g_Pos_0 (calibration.procedure.teach."
+    "hand_guided_installs; its error shrinks as 1/sqrt(n)), or refine it from measured installs (the paper scores "
+    "against the manual install itself, so its figures cannot show this bias)",
     CALIBRATION_SOURCE: "more calibration data (views, poses, spots) and a check of each calibration's residuals; "
     "the laser and hand-eye parts feed the alignment, the nine-point map and template the offsets",
 }
