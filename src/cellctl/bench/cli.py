@@ -134,7 +134,7 @@ def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figu
 
 def register(subparsers: Any) -> None:
     """Add ``bench accuracy``, ``bench speed`` and ``bench calibration`` to ``cellctl``'s sub-commands."""
-    bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment) and speed")
+    bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment), speed, calibration")
     sub = bench.add_subparsers(dest="bench_command", required=True)
 
     p = sub.add_parser(
