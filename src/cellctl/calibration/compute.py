@@ -415,7 +415,7 @@ def _taught_install(ds: Dataset, config: CellConfig, T0: np.ndarray) -> tuple[np
     installs = np.array([pose_array(p, f"g_Pos_0_installs[{k}]") for k, p in enumerate(rows)])
     g_Pos_0 = mean_pose(installs)
     corner = np.append(T0[:3, 3], 1.0)
-    moved = [installs[k] @ invert_pose(g_Pos_0) @ corner for k in range(len(installs))]
+    moved = [h @ invert_pose(g_Pos_0) @ corner for h in installs]
     spread_mm = max(float(np.linalg.norm(m[:3] - corner[:3])) for m in moved)
     spread_deg = max(float(np.degrees(rotation_angle_between(g_Pos_0[:3, :3], h[:3, :3]))) for h in installs)
     if spread_mm > tc.max_install_spread_mm or spread_deg > tc.max_install_spread_deg:
