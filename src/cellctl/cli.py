@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.client import DEFAULT_URL, CellClient, ServiceError
+from cellctl.cli_args import positive_int
+from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
 from cellctl.service.compose import ServiceError as BuildError
 
@@ -25,7 +26,7 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    from cellctl.service.compose import build_service  # the composition root: imports the drivers
+    from cellctl.service import build_service  # the composition root: imports the drivers
 
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = load_config(args.config)
@@ -40,7 +41,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace) -> CellClient:
-    return CellClient(args.url, args.token)
+    config = load_config(args.config)
+    return CellClient(service_url(args.url, config.api.host, config.api.port), args.token)
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
@@ -135,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_serve)
 
     def remote(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--url", default=DEFAULT_URL, help="the service (default: %(default)s)")
+        p.add_argument("--url", default=None, help="the running service (default: $CELLCTL_URL, else the configuration's [api])")
         p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
 
     p = sub.add_parser("status", help="the running cell's state, devices and calibration")
@@ -163,9 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=int, default=3)
     p.set_defaults(func=_cmd_align)
 
-    from cellctl.calibration.cli import register as register_calibration
+    from cellctl.commissioning.cli import register as register_commissioning
 
-    register_calibration(sub)
+    register_commissioning(sub, positive_int)
     from cellctl.bench.cli import register as register_bench
     register_bench(sub)
     return parser

@@ -1,16 +1,31 @@
-"""A small HTTP client of the cell service for the CLI (and scripts): status, commands, cycles."""
+"""A small HTTP client of the cell service for the CLI (and scripts): status, commands, cycles, jobs, events."""
 
 from __future__ import annotations
 
+import json
 import os
 import time
 import uuid
+from collections.abc import Iterator
 from typing import Any
 
 import httpx
 
 DEFAULT_URL = "http://127.0.0.1:8080"
 TOKEN_ENV = "CELLCTL_TOKEN"
+URL_ENV = "CELLCTL_URL"
+
+
+def service_url(given: str | None, api_host: str | None = None, api_port: int | None = None) -> str:
+    """The service's URL: ``given``, else $CELLCTL_URL, else the configuration's [api] (a wildcard host as loopback)."""
+    if given:
+        return given
+    if os.environ.get(URL_ENV):
+        return os.environ[URL_ENV]
+    if api_port is None:
+        return DEFAULT_URL
+    host = api_host if api_host and api_host not in ("0.0.0.0", "::", "") else "127.0.0.1"
+    return f"http://{host}:{api_port}"
 
 
 class ServiceError(RuntimeError):
@@ -65,6 +80,45 @@ class CellClient:
 
     def cycle(self, cycle_id: int) -> dict[str, Any]:
         return self._call("GET", f"/cycles/{cycle_id}")
+
+    # commissioning jobs
+    def plan_job(self, procedure: str, options: dict[str, Any], *, poses: bool = False) -> dict[str, Any]:
+        body = {"procedure": procedure, "options": options}
+        return self._call("POST", "/jobs/plan", json=body, params={"poses": str(poses).lower()}, headers=self._headers())
+
+    def start_job(self, procedure: str, options: dict[str, Any]) -> dict[str, Any]:
+        return self._call("POST", "/jobs", json={"procedure": procedure, "options": options}, headers=self._headers())
+
+    def job(self, job_id: int) -> dict[str, Any]:
+        return self._call("GET", f"/jobs/{job_id}", headers=self._headers())
+
+    def cancel_job(self, job_id: int) -> dict[str, Any]:
+        return self._call("POST", f"/jobs/{job_id}/cancel", headers=self._headers())
+
+    def answer_prompt(self, job_id: int, prompt_id: int, action: str, value: float | None = None) -> dict[str, Any]:
+        return self._call(
+            "POST", f"/jobs/{job_id}/prompts/{prompt_id}", json={"action": action, "value": value}, headers=self._headers()
+        )
+
+    def events(self, *, read_timeout_s: float = 15.0) -> Iterator[tuple[str, dict[str, Any]]]:
+        """The service's event stream (server-sent events) as (kind, data) pairs, until the caller stops."""
+        timeout = httpx.Timeout(10.0, read=read_timeout_s)
+        try:
+            with self._http.stream("GET", "/events", headers=self._headers({"Accept": "text/event-stream"}), timeout=timeout) as r:
+                if r.status_code >= 400:
+                    raise ServiceError(f"GET /events -> {r.status_code}")
+                kind, data = "message", ""
+                for line in r.iter_lines():
+                    if line.startswith("event:"):
+                        kind = line[6:].strip()
+                    elif line.startswith("data:"):
+                        data += line[5:].strip()
+                    elif not line:
+                        if data:
+                            yield kind, json.loads(data)
+                        kind, data = "message", ""
+        except httpx.HTTPError as err:
+            raise ServiceError(f"the event stream of {self.url} ended: {err}") from None
 
     def bring_to_execute(self) -> str:
         """Send Clear/Reset/Start as the state needs to reach Execute; returns the state reached."""

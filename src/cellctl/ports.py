@@ -273,6 +273,19 @@ class Robot(Protocol):
 
 
 @runtime_checkable
+class Identified(Protocol):
+    """A device that can say what it is (model, serial number, firmware, address) without a call.
+
+    Optional beside the device's port: commissioning datasets record it, so a calibration can be
+    traced to the very robot, camera and laser it was made with.
+    """
+
+    def identity(self) -> dict[str, str]:
+        """What the device said about itself when it was opened (empty values when unknown)."""
+        ...
+
+
+@runtime_checkable
 class FineCorrection(Protocol):
     """Streaming fine correction of the flange pose (ABB EGM), for small moves near a target."""
 

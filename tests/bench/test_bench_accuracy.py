@@ -124,7 +124,7 @@ def test_data_calibration_missing_is_refused_with_the_fix(monkeypatch: pytest.Mo
 
 async def test_data_calibration_runs_use_a_fresh_calibration_set_in_the_workdir(tmp_path: Path) -> None:
     from cellctl.bench.sources import run_config
-    from cellctl.service.compose import build_service
+    from cellctl.service import build_service
 
     cfg = run_config(load_config(CONFIG), workdir=tmp_path, seed=1, calibration="data")
     service = await build_service(cfg, workdir=tmp_path)

@@ -25,7 +25,8 @@ from cellctl.api.app import create_app
 from service_test_support import sim_config as service_sim_config
 
 from cellctl.config import CellConfig
-from cellctl.service.compose import Service, build_service
+from cellctl.service import build_service
+from cellctl.service.compose import Service
 
 ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "sim-operator-token-change-me"
@@ -124,7 +125,7 @@ class LiveCell:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(("127.0.0.1", self.port))
         self.port = int(sock.getsockname()[1])
-        app = create_app(self.service.orchestrator, self.service.config.api)
+        app = create_app(self.service.orchestrator, self.service.config.api, self.service.jobs)
         self._server = uvicorn.Server(
             uvicorn.Config(app, lifespan="off", log_level="warning", timeout_graceful_shutdown=1)
         )

@@ -11,7 +11,8 @@ from typing import Any
 import httpx
 
 from cellctl.config import CellConfig, parse_config
-from cellctl.service.compose import Service, build_service
+from cellctl.service import build_service
+from cellctl.service.compose import Service
 
 ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "sim-operator-token-change-me"
@@ -49,7 +50,7 @@ async def running_service(workdir: Path, config: CellConfig | None = None) -> As
 async def api_client(service: Service) -> AsyncIterator[httpx.AsyncClient]:
     from cellctl.api.app import create_app
 
-    app = create_app(service.orchestrator, service.config.api)
+    app = create_app(service.orchestrator, service.config.api, service.jobs)
     async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://cell") as client:
         yield client
 

@@ -8,35 +8,36 @@ from typing import Any
 from service_test_support import AUTH, api_client, running_service, to_execute
 
 from cellctl.cell.alarms import AlarmCode
+from cellctl.cell.cycle import CellDevices
 from cellctl.cell.tags import PackMLState
 
 
-class HoldingCalibration:
-    """Wraps the real source; its self-calibration raises a Hold-class alarm, as a failing sensor would."""
+class HoldingLaser:
+    """Wraps the real laser; its first reading raises a Hold-class alarm, as a failing measurement would."""
 
     def __init__(self, inner: Any, alarms: Any) -> None:
         self._inner = inner
         self._alarms = alarms
         self._pending = True
 
-    def problems(self) -> list[str]:
-        return ["camera: missing"] if self._pending else self._inner.problems()
+    async def read(self, *, timeout_s: float) -> Any:
+        if self._pending:
+            self._pending = False
+            await self._alarms.raise_alarm(AlarmCode.CORNER_NOT_FOUND, source="vision", detail="test: mid-cycle hold")
+        return await self._inner.read(timeout_s=timeout_s)
 
-    def cycle_calibration(self) -> Any:
-        return self._inner.cycle_calibration()
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self._inner.ping(timeout_s=timeout_s)
 
-    def summary(self) -> dict[str, Any]:
-        return self._inner.summary()
-
-    async def calibrate(self) -> None:
-        self._pending = False
-        await self._alarms.raise_alarm(AlarmCode.CORNER_NOT_FOUND, source="vision", detail="test: mid-cycle hold")
+    async def close(self) -> None:
+        await self._inner.close()
 
 
 async def test_a_hold_mid_cycle_ends_the_cycle_as_stopped_and_the_cell_is_held(tmp_path: Path) -> None:
     async with running_service(tmp_path) as service, api_client(service) as client:
         orch = service.orchestrator
-        orch.calibration = HoldingCalibration(orch.calibration, orch.alarms)
+        d = orch.devices
+        orch.devices = CellDevices(HoldingLaser(d.laser, orch.alarms), d.camera, d.robot)
         await to_execute(client)
         r = await client.post(
             "/cycle?wait=true&timeout_s=30", json={"recipe": "side-window", "part_id": "P"}, headers={**AUTH, "Idempotency-Key": "h"}

@@ -135,13 +135,14 @@ def test_migrations_run_once_and_track_user_version(tmp_path: Path, monkeypatch:
     db = tmp_path / "cell.db"
     CellStore.open(db).close()
     raw = sqlite3.connect(db)
-    assert raw.execute("PRAGMA user_version").fetchone()[0] == len(schema.MIGRATIONS) == 1
+    n = len(schema.MIGRATIONS)
+    assert raw.execute("PRAGMA user_version").fetchone()[0] == n >= 2
     raw.close()
-    v2 = "ALTER TABLE cycles ADD COLUMN operator_note TEXT;"
-    monkeypatch.setattr(schema, "MIGRATIONS", (*schema.MIGRATIONS, v2))
+    extra = "ALTER TABLE cycles ADD COLUMN operator_note TEXT;"
+    monkeypatch.setattr(schema, "MIGRATIONS", (*schema.MIGRATIONS, extra))
     conn = sqlite3.connect(db, isolation_level=None)
-    assert schema.migrate(conn, schema.MIGRATIONS) == (1, 2)
-    assert schema.migrate(conn, schema.MIGRATIONS) == (2, 2)  # nothing left to do
+    assert schema.migrate(conn, schema.MIGRATIONS) == (n, n + 1)
+    assert schema.migrate(conn, schema.MIGRATIONS) == (n + 1, n + 1)  # nothing left to do
     cols = [r[1] for r in conn.execute("PRAGMA table_info(cycles)")]
     assert cols.count("operator_note") == 1
     conn.close()
@@ -152,9 +153,10 @@ def test_a_failing_migration_leaves_the_previous_version(tmp_path: Path) -> None
     CellStore.open(db).close()
     conn = sqlite3.connect(db, isolation_level=None)
     bad = "CREATE TABLE extra (x INTEGER); INSERT INTO no_such_table VALUES (1);"
-    with pytest.raises(StoreError, match="migration to schema version 2 failed"):
+    n = len(schema.MIGRATIONS)
+    with pytest.raises(StoreError, match=f"migration to schema version {n + 1} failed"):
         schema.migrate(conn, (*schema.MIGRATIONS, bad))
-    assert schema.schema_version(conn) == 1
+    assert schema.schema_version(conn) == n
     assert conn.execute("SELECT name FROM sqlite_master WHERE name = 'extra'").fetchone() is None
     conn.close()
 

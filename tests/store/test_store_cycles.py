@@ -13,6 +13,7 @@ import pytest
 
 from cellctl.cell.alarms import AlarmCode, AlarmManager
 from cellctl.cell.tags import CycleStep, PackMLCommand
+from cellctl.store import schema
 from cellctl.store import (
     CellStore,
     CycleRequest,
@@ -45,7 +46,7 @@ REQ = CycleRequest(recipe="side-window-A", part_id="P-0001", car_id="CAR-17", so
 
 def test_opens_in_wal_with_full_sync_and_refuses_bad_paths(store: CellStore, tmp_path: Path) -> None:
     info = store.info()
-    assert (info.journal_mode, info.synchronous, info.schema_version) == ("wal", "FULL", 1)
+    assert (info.journal_mode, info.synchronous, info.schema_version) == ("wal", "FULL", len(schema.MIGRATIONS))
     with pytest.raises(ValueError, match="file path"):
         CellStore.open(":memory:")
     with pytest.raises(StoreError, match="does not exist"):

@@ -62,8 +62,10 @@ def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() ->
         (lambda d: d["sim"]["laser"].update(range_min_mm=500.0), "sim.laser", "range_min_mm"),
         (lambda d: d["process"].update(working_distnce_mm=400.0), "process.working_distnce_mm", "spelling"),
         (lambda d: d["process"]["align"].update(spots_mm=[[0.0, 0.0], [1.0, 1.0]]), "process.align", "at least 3"),
-        (lambda d: d["sim"]["world"].update(up=[1.0, 0.0, 0.0]), "sim.world", "perpendicular"),
-        (lambda d: d["sim"]["world"].update(corner_radius_mm=150.0), "corner_radius_mm", "reduce corner_radius_mm"),
+        (lambda d: d["layout"]["opening"].update(up=[1.0, 0.0, 0.0]), "layout.opening", "perpendicular"),
+        (lambda d: d["layout"]["opening"].update(corner_radius_mm=150.0), "corner_radius_mm", "reduce corner_radius_mm"),
+        (lambda d: d["sim"]["world"].update(corner_radius_mm=10.0), "sim.world.corner_radius_mm", "layout.opening.corner_radius_mm"),
+        (lambda d: d["sim"]["robot"].update(reach_mm=2800.0), "sim.robot.reach_mm", "layout.robot.reach_mm"),
         (lambda d: d["sim"]["camera"]["hand_eye"].update(rotation_rows=[[1, 0, 0], [0, 1, 0], [0, 0, 5]]), "hand_eye", "rotation"),
         (lambda d: d.update(mode="production"), "mode", "'sim' or 'hardware'"),
         (

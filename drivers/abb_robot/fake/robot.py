@@ -146,6 +146,19 @@ class FakeRobot:
         with self.lock:
             self._flange = pose
 
+    def jog(self, flange: CartesianPose) -> CartesianPose:
+        """Someone jogs the robot on the teach pendant (or leads it by hand) to ``flange``.
+
+        Any running move is ended first; the model executes the pose (the arm truly goes there,
+        with its errors) and the controller reports the jogged pose from now on, as a real one
+        reports wherever its arm was jogged to.
+        """
+        with self.lock:
+            self._motion = None
+            self.model.execute(flange)
+            self._flange = flange
+            return flange
+
     @property
     def moving(self) -> bool:
         with self.lock:

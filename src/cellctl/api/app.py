@@ -12,9 +12,10 @@ from fastapi.staticfiles import StaticFiles
 from swagger_ui_bundle import swagger_ui_path
 
 import cellctl
-from cellctl.api import dashboard, routes_cell, routes_cycles
+from cellctl.api import dashboard, routes_cell, routes_cycles, routes_jobs
 from cellctl.api.auth import TokenGuard
 from cellctl.cell.orchestrator import CellOrchestrator
+from cellctl.commissioning.jobs import JobManager
 from cellctl.config.api import ApiConfig
 
 
@@ -28,8 +29,8 @@ def _field_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
     return out
 
 
-def create_app(orch: CellOrchestrator, config: ApiConfig) -> FastAPI:
-    """The cell's HTTP face. The orchestrator must be started by whoever runs the app."""
+def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | None = None) -> FastAPI:
+    """The cell's HTTP face. The orchestrator (and the job manager) must be started by whoever runs the app."""
     app = FastAPI(
         title="cellctl",
         version=cellctl.__version__,
@@ -48,6 +49,8 @@ def create_app(orch: CellOrchestrator, config: ApiConfig) -> FastAPI:
 
     app.include_router(routes_cycles.build_router(orch, guard, config.cycle_wait_max_s))
     app.include_router(routes_cell.build_router(orch, guard))
+    if jobs is not None:
+        app.include_router(routes_jobs.build_router(jobs, guard))
     dashboard.install(app, orch, guard)
 
     app.mount("/static/swagger-ui", StaticFiles(directory=str(swagger_ui_path)), name="swagger-ui")

@@ -112,15 +112,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @router.get("/calibration")
     async def get_calibration(request: Request) -> dict[str, Any]:
         guard.read(request)
-        kinds = await orch.store.calibration_kinds()
-        history = {
-            k: [
-                {"version": v.version, "created_at": v.created_at.isoformat(), "created_by": v.created_by, "metadata": v.metadata}
-                for v in await orch.store.calibration_history(k)
-            ]
-            for k in kinds
-        }
-        return {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "history": history}
+        versions = await asyncio.to_thread(orch.calibration.history)
+        return {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
 
     @router.get("/events")
     async def events(request: Request) -> StreamingResponse:

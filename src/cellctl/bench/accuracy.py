@@ -262,7 +262,7 @@ async def _run_async(
     cycle_timeout_s: float,
     calibrate_timeout_s: float,
 ) -> AccuracyRun:
-    from cellctl.service.compose import build_service
+    from cellctl.service import build_service
 
     t_start = time.monotonic()
     service = await build_service(config, workdir=workdir)

@@ -10,10 +10,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from collections.abc import Callable
 from typing import Any
 
 from cellctl.bench.sources import ERROR_SOURCES
+from cellctl.cli_args import non_negative_int, positive_int
 from cellctl.config import load_config
 
 
@@ -108,23 +108,8 @@ def _cmd_calibration(args: argparse.Namespace) -> int:
     return 0 if bench.bars_met() else 1
 
 
-def _whole_number(minimum: int, rule: str) -> Callable[[str], int]:
-    """An argparse type: a whole number not below ``minimum`` (``rule`` says so when it is)."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"{rule}, got {v}")
-        return v
-
-    return parse
-
-
-_positive_int = _whole_number(1, "must be at least 1")
-_seed = _whole_number(0, "must not be negative")
+_positive_int = positive_int
+_seed = non_negative_int
 
 
 def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figures to this JSON file") -> None:

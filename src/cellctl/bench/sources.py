@@ -69,8 +69,8 @@ ERROR_SOURCES: Mapping[str, ErrorSource] = {
             "teach_hand_guiding",
             "operator's hand-guiding error in the taught install pose g_Pos_0",
             {
-                "calibration.procedure.teach.hand_guiding_position_mm": 0.0,
-                "calibration.procedure.teach.hand_guiding_orientation_deg": 0.0,
+                "sim.operator.hand_guiding_position_mm": 0.0,
+                "sim.operator.hand_guiding_orientation_deg": 0.0,
             },
             data_calibration_only=True,
         ),

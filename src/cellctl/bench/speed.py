@@ -257,7 +257,7 @@ class _DeviceTimer:
 
 async def _overhead_async(config: CellConfig, cycles: int, workdir: Path, progress: Progress) -> dict[str, Any]:
     from cellctl.cell.cycle import CellDevices
-    from cellctl.service.compose import build_service
+    from cellctl.service import build_service
     from cellctl.store import CycleRequest, CycleState
 
     service = await build_service(config, workdir=workdir)
@@ -366,7 +366,7 @@ def _serve_child(config_json: str, workdir: str, log_path: str) -> None:
     log = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(log, 1)
     os.dup2(log, 2)
-    from cellctl.service.compose import build_service
+    from cellctl.service import build_service
 
     config = parse_config(json.loads(config_json), "bench speed server")
 

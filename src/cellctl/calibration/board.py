@@ -68,6 +68,13 @@ class BoardSpec:
     def as_dict(self) -> dict[str, object]:
         return {"inner_corners": list(self.inner_corners), "square_mm": float(self.square_mm)}
 
+    def outline(self, border_mm: float) -> F64:
+        """The printed plate's four corners (4, 3) in P: the squares and a white border of ``border_mm``."""
+        cols, rows = self.inner_corners
+        s, m = float(self.square_mm), float(border_mm)
+        x0, x1, y0, y1 = -s - m, cols * s + m, -s - m, rows * s + m
+        return np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+
 
 @dataclass(frozen=True)
 class BoardDetection:

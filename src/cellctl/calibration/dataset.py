@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from cellctl.calibration.calibration_set import DatasetRef, _jsonable
 
 FORMAT = "cellctl-calibration-dataset"
-KINDS = ("board_views", "laser_plane", "nine_point", "teaching")
+KINDS = ("board_views", "laser_plane", "nine_point", "teaching", "verify")
 
 
 class DatasetError(ValueError):
@@ -105,8 +105,11 @@ def write_dataset(root: str | Path, kind: str, manifest: dict[str, Any], images:
     return Dataset(folder, doc)
 
 
-def read_dataset(root: str | Path, kind: str) -> Dataset:
-    """Open a dataset folder of the expected ``kind`` (its images are checked when loaded)."""
+def read_dataset(root: str | Path, kind: str, *, allow_partial: bool = False) -> Dataset:
+    """Open a dataset folder of the expected ``kind`` (its images are checked when loaded).
+
+    A partial dataset (its job was cancelled or failed) is refused unless ``allow_partial``.
+    """
     folder = Path(root)
     path = folder / "manifest.json"
     try:
@@ -121,4 +124,9 @@ def read_dataset(root: str | Path, kind: str) -> Dataset:
         raise DatasetError(f"{path}: this is a {doc.get('kind')!r} dataset, the command needs a {kind!r} dataset")
     if not isinstance(doc.get("files"), dict):
         raise DatasetError(f"{path}: the manifest has no 'files' table")
+    if doc.get("partial") and not allow_partial:
+        raise DatasetError(
+            f"{folder}: a partial dataset ({doc.get('ended', 'the job ended early')}); it is kept for the record, "
+            "but a calibration needs a complete one: collect again"
+        )
     return Dataset(folder, doc)

@@ -1,14 +1,13 @@
 """The cycle's calibration from the versioned calibration set (the cell's CalibrationSource).
 
 The set is read from its folder before every cycle (a new version is picked up at once), checked
-for completeness, validity and age (:func:`check_ready`), and turned into what a cycle needs. The
-simulated cell may calibrate and teach itself: :meth:`CalibrationSetSource.calibrate` runs the
-missing or failed procedures in commissioning order on a twin of the same cell (same seed).
+for completeness, validity and age (:func:`check_ready`), and turned into what a cycle needs.
+The set changes only through commissioning jobs (:mod:`cellctl.commissioning`) or
+``cellctl calibrate ... --dataset``.
 """
 
 from __future__ import annotations
 
-import logging
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -17,14 +16,9 @@ import numpy as np
 
 from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, check_ready, store_root
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.procedures import ORDER, PROCEDURES
-from cellctl.calibration.runs import dataset_dir, record
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
 from cellctl.vision import AffineMap, CornerFeatures, Lens
-
-log = logging.getLogger(__name__)
-
 
 def cycle_calibration_from_set(cal: CalibrationSet, laser_range_mm: tuple[float, float]) -> CycleCalibration:
     """The parts a cycle needs, from a set that :func:`check_ready` accepts."""
@@ -59,7 +53,7 @@ class CalibrationSetSource:
         self._cached: tuple[int, CycleCalibration] | None = None
 
     @classmethod
-    def from_config(cls, config: CellConfig, *, workdir: Path, rig: object | None = None) -> "CalibrationSetSource":
+    def from_config(cls, config: CellConfig, *, workdir: Path) -> "CalibrationSetSource":
         return cls(CalibrationStore(store_root(config.calibration.directory, workdir)), config)
 
     def _current(self) -> CalibrationSet | None:
@@ -89,36 +83,5 @@ class CalibrationSetSource:
             }  # fmt: skip
         return {"source": str(self.store.root), "version": cal.version, "parts": parts}
 
-    async def calibrate(self) -> None:
-        """Calibrate and teach the missing or failed parts on the twin (the simulated cell only)."""
-        cfg = self.config
-        if cfg.mode != "sim" or not cfg.calibration.auto_calibrate_in_sim:
-            raise CalibrationRefused(
-                "set", "missing_input",
-                "run `cellctl calibrate camera|hand-eye|laser|nine-point` and `cellctl teach` at commissioning",
-            )  # fmt: skip
-        from cellctl.calibration.twin import TwinCell
-
-        twin = TwinCell(cfg)
-        try:
-            for part in ORDER:
-                cal = self._current()
-                if not self._needs(cal, part):
-                    continue
-                proc = PROCEDURES[part]
-                when = datetime.now(timezone.utc)
-                log.warning("simulated cell: calibrating %s (missing, failed or out of date)", part)
-                ds = await proc.collect(twin, cfg, cal, dataset_dir(self.store.root, proc.kind, when), progress=_log_progress)
-                record(self.store, proc.compute(ds, cal, cfg), ds, cfg, when, note=f"{part}: self-calibration of the simulated cell")
-        finally:
-            await twin.close()
-
-    def _needs(self, cal: CalibrationSet | None, part: str) -> bool:
-        if cal is None:
-            return True
-        return any(p.startswith(f"{part}:") for p in check_ready(cal, datetime.now(timezone.utc)))
-
-
-def _log_progress(done: int, total: int, message: str) -> None:
-    if done == total or done % 10 == 0:
-        log.info("calibration %d/%d: %s", done, total, message)
+    def history(self) -> list[dict[str, Any]]:
+        return self.store.history()

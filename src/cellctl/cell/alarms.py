@@ -118,6 +118,8 @@ class AlarmCode(enum.IntEnum):
     CORRECTION_LIMIT_EXCEEDED = 1304
     CALIBRATION_INVALID = 1305
     CYCLE_INTERRUPTED = 1306
+    CALIBRATION_DRIFT = 1307
+    CALIBRATION_CHECK_DUE = 1308
     ROBOT_FAULT = 1401
     TASK_FAILED = 1501
     DEVICE_SLOW = 1601
@@ -151,6 +153,12 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         ),
         AlarmCode.CYCLE_INTERRUPTED: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION, "A cycle was interrupted by a restart: inspect the part", False
+        ),
+        AlarmCode.CALIBRATION_DRIFT: AlarmSpec(
+            FaultClass.OPERATOR_INTERVENTION, "Calibration check: camera or laser moved beyond the limit, recalibrate", False
+        ),
+        AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(
+            FaultClass.WARNING, "Calibration check due: run `cellctl calibrate verify`", True
         ),
         AlarmCode.ROBOT_FAULT: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot refused or interrupted a motion", False),
         AlarmCode.TASK_FAILED: AlarmSpec(FaultClass.SOFTWARE_FAULT, "A cell task failed", False),

@@ -11,7 +11,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -79,8 +79,8 @@ class CalibrationSource(Protocol):
         """Versions, dates and quality figures for the records and the dashboard."""
         ...
 
-    async def calibrate(self) -> None:
-        """Run the missing calibrations and teaching (the simulated cell can); raise if it cannot."""
+    def history(self) -> list[dict[str, Any]]:
+        """Every version of the set, oldest first: number, time, note, each part's status."""
         ...
 
 
@@ -179,6 +179,11 @@ class CellOrchestrator:
         self._stop_reason: str | None = None
         self._finishing = False
         self._links: dict[str, dict[str, Any]] = {}
+        self._status_parts: dict[str, Callable[[], Any]] = {}
+
+    def add_status(self, name: str, part: Callable[[], Any]) -> None:
+        """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
+        self._status_parts[name] = part
 
     def note_link(self, name: str, state: str, **details: float) -> None:
         """A link outside the devices (the PLC) reports its state, for /status and the dashboard.
@@ -364,13 +369,7 @@ class CellOrchestrator:
         await rec.step_started(CycleStep.CALIBRATE)
         problems = self.calibration.problems()
         if problems:
-            try:
-                await self.calibration.calibrate()
-            except Exception as err:  # noqa: BLE001 - reported as the cycle's reason
-                raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, f"{'; '.join(problems)} ({err})") from err
-            problems = self.calibration.problems()
-            if problems:
-                raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
+            raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.summary()})
         if self.truth is not None:
             self.truth.new_car_body()
@@ -441,6 +440,7 @@ class CellOrchestrator:
             },
             "links": {name: dict(report) for name, report in self._links.items()},
             "calibration": {"problems": self.calibration.problems()},
+            **{name: part() for name, part in self._status_parts.items()},
         }
 
 

@@ -137,29 +137,57 @@ class TeachConfig(StrictModel):
     operator's random error shrinks as 1/sqrt(n), and the spread between the installs, reported
     with the result, shows how well they agreed. Installs further than ``max_install_spread_mm``
     / ``max_install_spread_deg`` from their mean are refused (guide again).
-
-    In the simulated cell each install is left as an operator would leave it: the exact install
-    plus a hand-guiding error, one sigma per axis (``hand_guiding_*``).
     """
 
     hand_guided_installs: int = Field(3, ge=1, le=20)
     max_install_spread_mm: Finite = Field(0.5, gt=0)
     max_install_spread_deg: Finite = Field(0.2, gt=0)
-    hand_guiding_position_mm: Finite = Field(0.05, ge=0, le=5)
-    hand_guiding_orientation_deg: Finite = Field(0.02, ge=0, le=2)
+
+
+class VerifyCalibrationConfig(StrictModel):
+    """``cellctl calibrate verify``: has the camera or the laser moved on the fixture since they were calibrated?
+
+    The check revisits a few of the very poses the stored hand-eye and laser calibrations were
+    collected at (``views`` board views spread over the hand-eye dataset's, and
+    ``laser_poses_per_stand`` poses at ``laser_stands`` arm stands of the laser dataset's), and
+    computes hand-eye and laser again from the new data and from the same subset of the stored
+    data: their difference is the drift, free of the robot's accuracy errors at those poses
+    (the same in both). A drift beyond the limits raises the drift alarm. ``every_cycles`` /
+    ``every_hours`` (0: never) raise a reminder alarm when a check is due.
+    """
+
+    views: int = Field(8, ge=4, le=100)
+    laser_stands: int = Field(4, ge=0, le=200)  # 0: check the hand-eye only
+    laser_poses_per_stand: int = Field(12, ge=3, le=100)
+    max_hand_eye_mm: Finite = Field(0.15, gt=0)
+    max_hand_eye_deg: Finite = Field(0.025, gt=0)
+    max_laser_r_mm: Finite = Field(0.5, gt=0)
+    max_laser_l_deg: Finite = Field(0.1, gt=0)
+    every_cycles: int = Field(0, ge=0)
+    every_hours: Finite = Field(0.0, ge=0)
+
+
+# ISO 10218-1 reduced speed: what a robot may do with people near it under supervision.
+REDUCED_SPEED_MM_S = 250.0
 
 
 class CalibrationProcedureConfig(StrictModel):
-    """Everything the calibration and teaching commands read (the store folder and the parts'
-    validity are the ``calibration`` section's ``directory`` and ``max_age_days``)."""
+    """Everything the calibration and teaching procedures read (the store folder and the parts'
+    validity are the ``calibration`` section's ``directory`` and ``max_age_days``).
+
+    Every move of a procedure runs at ``speed_mm_s`` / ``speed_deg_s`` at most; the TCP speed may
+    not exceed the reduced speed of ISO 10218-1 (250 mm/s), since the engineer works beside the
+    cell while the job runs.
+    """
 
     move_timeout_s: Finite = Field(60.0, gt=0)
     read_timeout_s: Finite = Field(5.0, gt=0)
     grab_timeout_s: Finite = Field(10.0, gt=0)
-    speed_mm_s: Finite = Field(250.0, gt=0, le=7000)
-    speed_deg_s: Finite = Field(30.0, gt=0, le=1000)
+    speed_mm_s: Finite = Field(250.0, gt=0, le=REDUCED_SPEED_MM_S)
+    speed_deg_s: Finite = Field(30.0, gt=0, le=90)
     camera: CameraCalibrationConfig = CameraCalibrationConfig()
     hand_eye: HandEyeCalibrationConfig = HandEyeCalibrationConfig()
     laser: LaserCalibrationConfig = LaserCalibrationConfig()
     nine_point: NinePointConfig = NinePointConfig()
     teach: TeachConfig = TeachConfig()
+    verify: VerifyCalibrationConfig = VerifyCalibrationConfig()

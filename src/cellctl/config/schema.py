@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import model_validator
+from pydantic import Field, model_validator
 
 from cellctl.config.api import ApiConfig
 from cellctl.config.calibration import CalibrationConfig
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
+from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig
 from cellctl.config.plc import PlcConfig
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
 from cellctl.config.vision import VisionConfig
@@ -21,9 +22,11 @@ MIN_STRAIGHT_EDGE_MM = 20.0
 
 
 class CellConfig(StrictModel):
-    """A whole cell: which devices, the process, and (for the simulated cell) the twin."""
+    """A whole cell: which devices, its nominal layout, the process, and (simulated) the twin."""
 
     mode: Literal["sim", "hardware"] = "sim"
+    cell_id: str = Field("cell-1", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")  # the cell's name on the line
+    layout: LayoutConfig = LayoutConfig()
     process: ProcessConfig = ProcessConfig()
     devices: DevicesConfig = DevicesConfig()
     plc: PlcConfig = PlcConfig()
@@ -34,6 +37,33 @@ class CellConfig(StrictModel):
     api: ApiConfig = ApiConfig()
     calibration: CalibrationConfig = CalibrationConfig()
     sim: SimConfig = SimConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _twin_stands_in_the_layout(cls, data: Any) -> Any:
+        """Fill the twin's opening and reach from ``[layout]``; refuse them where they used to be."""
+        if not isinstance(data, dict):
+            return data
+        sim = data.get("sim")
+        sim = dict(sim) if isinstance(sim, dict) else ({} if sim is None else sim)
+        if not isinstance(sim, dict):
+            return data
+        layout = data.get("layout") if isinstance(data.get("layout"), dict) else {}
+        for (section, field), (lsection, lfield) in TWIN_FIELDS_FROM_LAYOUT.items():
+            given = sim.get(section)
+            if isinstance(given, dict) and field in given:
+                raise ValueError(
+                    f"sim.{section}.{field} belongs to the cell's nominal layout: set layout.{lsection}.{lfield} "
+                    "instead (plans read it in both modes, and the twin stands there)"
+                )
+        for (section, field), (lsection, lfield) in TWIN_FIELDS_FROM_LAYOUT.items():
+            part = layout.get(lsection)
+            if isinstance(part, dict) and lfield in part:
+                sub = sim.get(section)
+                sub = dict(sub) if isinstance(sub, dict) else {}
+                sub[field] = part[lfield]
+                sim[section] = sub
+        return {**data, "sim": sim}
 
     @model_validator(mode="after")
     def _devices_fit_the_mode(self) -> "CellConfig":
@@ -50,20 +80,25 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="after")
     def _roi_in_the_image(self) -> "CellConfig":
+        cam = self.layout.camera
+        self.vision.roi.check_inside(cam.width_px, cam.height_px)
         if self.mode == "sim":
-            cam = self.sim.camera.intrinsics
-            self.vision.roi.check_inside(cam.width_px, cam.height_px)
+            real = self.sim.camera.intrinsics
+            if (real.width_px, real.height_px) != (cam.width_px, cam.height_px):
+                raise ValueError(
+                    f"sim.camera.intrinsics is {real.width_px} x {real.height_px} px but layout.camera says "
+                    f"{cam.width_px} x {cam.height_px} px: the twin's camera must have the size of the cell's camera"
+                )
         return self
 
     @model_validator(mode="after")
     def _corner_visible(self) -> "CellConfig":
-        if self.mode != "sim":
-            return self
-        fov_w, fov_h = self.sim.camera.intrinsics.field_of_view_mm(self.process.working_distance_mm)
-        straight = min(fov_w, fov_h) / 2.0 - self.sim.world.corner_radius_mm
+        opening = self.layout.opening
+        fov_w, fov_h = self.layout.camera.field_of_view_mm(self.process.working_distance_mm)
+        straight = min(fov_w, fov_h) / 2.0 - opening.corner_radius_mm
         if straight < MIN_STRAIGHT_EDGE_MM:
             raise ValueError(
-                f"sim.world.corner_radius_mm = {self.sim.world.corner_radius_mm:g} leaves {straight:.1f} mm "
+                f"layout.opening.corner_radius_mm = {opening.corner_radius_mm:g} leaves {straight:.1f} mm "
                 f"of straight edge beside the corner in the camera's {fov_w:.0f} x {fov_h:.0f} mm view at "
                 f"{self.process.working_distance_mm:g} mm; the corner method needs at least "
                 f"{MIN_STRAIGHT_EDGE_MM:g} mm: reduce corner_radius_mm to at most "

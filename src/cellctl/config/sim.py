@@ -15,13 +15,12 @@ from cellctl.geometry.rotation import xyz_fixed_to_matrix
 
 
 class WorldConfig(StrictModel):
-    """The car-body wall with its window opening, and how the car body's posture varies.
+    """The twin's car-body wall with its window opening, and how the car body's posture varies.
 
-    The workpiece frame T sits at the opening's upper-right corner as the camera sees it: the
-    point where the top and right straight edges would meet. Its z axis points into the wall
-    (``wall_normal``), its y axis points down along the wall (against ``up``), and x = y cross z
-    points right, so T's axes line up with the image's u, v and optical axis at the shooting pose.
-    The opening occupies x in [-width, 0], y in [0, height] of T, with rounded corners.
+    The car body stands at the cell's nominal opening (:class:`cellctl.config.layout.OpeningLayout`,
+    whose docstring defines the workpiece frame T): in a cell configuration the geometry fields
+    here are filled from ``[layout.opening]`` and only the posture is the twin's own. Each cycle
+    the car body is placed at a random posture about the nominal one.
     """
 
     corner_position_mm: Vec3 = (1700.0, -1000.0, 1800.0)
@@ -66,10 +65,8 @@ class RobotSimConfig(StrictModel):
     - repeatability: ISO 9283 pose repeatability RP (``repeatability_mm``, paper: 0.1 mm) and
       orientation repeatability (``repeatability_orientation_deg``, the ISO 9283 +-3 S per angle).
 
-    Reach: the wrist centre (the flange origin moved back ``wrist_to_flange_mm`` along the flange
-    z axis) must lie between ``min_reach_mm`` and ``reach_mm`` from ``reach_centre_mm``, by
-    default on the axis-1 centre line at the height of axis 2 (780 mm above the base plate), from
-    where ABB quotes the 3.1 m reach.
+    Reach and motion limits: the arm reaches and moves as the cell's ``[layout.robot]`` says (those
+    fields here are filled from it, see :class:`cellctl.config.layout.RobotEnvelope`).
     """
 
     reach_mm: Finite = Field(3100.0, gt=0)
@@ -155,6 +152,23 @@ class GlassConfig(StrictModel):
         return make_pose(xyz_fixed_to_matrix(rz, ry, rx), self.corner_in_flange_mm)
 
 
+class SimOperatorConfig(StrictModel):
+    """The engineer of the simulated cell, who answers commissioning prompts by acting on the twin.
+
+    ``answers``: "all" answers every prompt (the simulated cell commissions itself, and the CLI
+    shows the answers); "actions" does what needs hands in the cell (places the car body, sticks
+    the board on the wall, guides the glass) and leaves the confirmations that the first pose is
+    clear to a person at the CLI or the dashboard; "none" answers nothing. Each hand-guided
+    install is the exact install plus an error drawn per axis in the glass corner frame, one sigma
+    ``hand_guiding_position_mm`` / ``hand_guiding_orientation_deg``.
+    """
+
+    answers: Literal["all", "actions", "none"] = "all"
+    answer_delay_s: Finite = Field(0.0, ge=0, le=60)  # think time before each answer (dashboards see the prompt)
+    hand_guiding_position_mm: Finite = Field(0.05, ge=0, le=5)
+    hand_guiding_orientation_deg: Finite = Field(0.02, ge=0, le=2)
+
+
 class SimConfig(StrictModel):
     """Everything the twin needs; deterministic for a seed.
 
@@ -171,3 +185,4 @@ class SimConfig(StrictModel):
     laser: LaserSimConfig = LaserSimConfig()
     camera: CameraSimConfig = CameraSimConfig()
     glass: GlassConfig = GlassConfig()
+    operator: SimOperatorConfig = SimOperatorConfig()

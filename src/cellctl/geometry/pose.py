@@ -123,3 +123,17 @@ def mean_pose(poses: ArrayLike) -> Pose:
     if P.ndim != 3 or P.shape[1:] != (4, 4) or P.shape[0] == 0:
         raise ValueError(f"mean_pose needs (N, 4, 4) poses with N >= 1, got shape {P.shape}")
     return make_pose(nearest_rotation(P[:, :3, :3].sum(axis=0)), P[:, :3, 3].mean(axis=0))
+
+
+def pose_in_plane(T_B_F: ArrayLike, offset_xy_mm: ArrayLike, angle_rad: float = 0.0) -> Pose:
+    """A frame lying in the x-y plane of frame F, shifted by ``offset_xy_mm`` and turned by ``angle_rad`` about F's z.
+
+    E.g. a checkerboard stuck on the car-body wall: F is the workpiece frame T, the board's origin
+    (first inner corner) sits at ``offset_xy_mm`` in T.
+    """
+    T = check_pose(T_B_F, "T_B_F")
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    local = np.eye(4)
+    local[:2, :2] = [[c, -s], [s, c]]
+    local[:2, 3] = np.asarray(offset_xy_mm, dtype=float)[:2]
+    return T @ local

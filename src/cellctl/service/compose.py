@@ -1,7 +1,10 @@
-"""Build the whole cell from its configuration: the composition root (the only place drivers are imported).
+"""The cell assembled around its three devices: store, state machine, alarms, orchestrator, jobs.
 
-:func:`build_service` returns a :class:`Service` whose ``start`` recovers the store and starts the
-orchestrator, the device watchdog and the PLC server; ``serve`` runs the HTTP server beside them.
+The composition roots build the devices (:mod:`cellctl.service.hardware` from the real drivers,
+:mod:`cellctl.service.simulated` with the twin behind them) and hand them to
+:func:`assemble_service`; nothing here imports a driver or the twin. The returned
+:class:`Service`'s ``start`` recovers the store and starts the orchestrator, the device
+watchdog, the commissioning jobs and the PLC server; ``serve`` runs the HTTP server beside them.
 """
 
 from __future__ import annotations
@@ -14,13 +17,17 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cellctl.calibration.calibration_set import CalibrationStore, store_root
+from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, TrackedRobot
+from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, SimTruth, TrackedRobot
 from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.tags import PackMLState, UnitMode
 from cellctl.cell.watchdog import DeviceWatchdog, WatchdogSettings
+from cellctl.commissioning.context import Witness
+from cellctl.commissioning.jobs import JobManager
 from cellctl.config.schema import CellConfig
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
@@ -43,13 +50,18 @@ class Service:
     config: CellConfig
     store: AsyncCellStore
     orchestrator: CellOrchestrator
+    jobs: JobManager
     plc_link: PlcCellLink
     workdir: Path
     closers: list[Closer] = field(default_factory=list)
     plc_server: object | None = None
+    after_start: list[Callable[["Service"], Awaitable[None]]] = field(default_factory=list)
+    commissioning: asyncio.Task[None] | None = None
+    extras: dict[str, object] = field(default_factory=dict)  # what a root adds (the simulated cell: its twin and operator)
 
     async def start(self) -> None:
         await self.orchestrator.start()
+        await self.jobs.start()
         if self.config.plc.enabled:
             from cellctl.plc.server import PlcServer
 
@@ -65,10 +77,20 @@ class Service:
             self.plc_server = server
             self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
+        for hook in self.after_start:
+            await hook(self)
+
+    async def ready_for_production(self, timeout_s: float | None = None) -> None:
+        """Wait for a commissioning the root started on its own (the simulated cell's) to finish; raises its failure."""
+        if self.commissioning is not None:
+            await asyncio.wait_for(asyncio.shield(self.commissioning), timeout_s)
 
     async def stop(self) -> None:
         """Stop everything; each part gets ``STOP_STEP_TIMEOUT_S``, so a stuck one cannot hang the rest."""
         steps: list[tuple[str, Closer]] = []
+        if self.commissioning is not None and not self.commissioning.done():
+            self.commissioning.cancel()
+        steps.append(("commissioning jobs", self.jobs.stop))
         if self.plc_server is not None:
             steps.append(("PLC server", self.plc_server.stop))  # type: ignore[attr-defined]
         steps += [("PLC link", self.plc_link.close), ("orchestrator", self.orchestrator.stop)]
@@ -91,7 +113,7 @@ class Service:
 
         from cellctl.api.app import create_app
 
-        app = create_app(self.orchestrator, self.config.api)
+        app = create_app(self.orchestrator, self.config.api, self.jobs)
         server = uvicorn.Server(
             uvicorn.Config(app, host=self.config.api.host, port=self.config.api.port, log_level="warning", lifespan="off")
         )
@@ -119,82 +141,26 @@ class Service:
             await self.stop()
 
 
-def _sim_rig(config: CellConfig, holder: dict[str, object]) -> object:
-    if "rig" not in holder:
-        if config.mode != "sim":
-            raise ServiceError("a device of kind 'sim' needs mode = \"sim\" (the twin is only built in the simulated cell)")
-        from cellctl.sim.rig import SimRig
+async def assemble_service(
+    config: CellConfig,
+    *,
+    laser: DisplacementSensor,
+    camera: Camera,
+    robot: Robot,
+    workdir: Path | None = None,
+    calibration: CalibrationSource | None = None,
+    truth: SimTruth | None = None,
+    witness: Witness | None = None,
+) -> Service:
+    """Build (not start) the cell around its devices. Relative paths are taken from ``workdir``.
 
-        holder["rig"] = SimRig(config.sim)
-    return holder["rig"]
-
-
-def _build_devices(
-    config: CellConfig, holder: dict[str, object], closers: list[Closer]
-) -> tuple[DisplacementSensor, Camera, Robot]:
-    """The three devices per [devices]. Closers of drivers (and their fakes) go to ``closers``; the
-    twin's own devices are closed with the rig."""
-    dev = config.devices
-    laser: DisplacementSensor
-    camera: Camera
-    robot: Robot
-    if dev.laser.kind == "sim":
-        laser = _sim_rig(config, holder).laser  # type: ignore[attr-defined]
-    elif dev.laser.kind == "sim_keyence_lkg":
-        from cellctl.service.sim_fakes import lkg_on_fake
-
-        laser, close = lkg_on_fake(_sim_rig(config, holder).cell, dev.laser)  # type: ignore[attr-defined]
-        closers.append(close)
-    else:
-        from keyence_lkg import KeyenceLkgSensor
-
-        laser = KeyenceLkgSensor.from_config(dev.laser.model_dump())
-        closers.append(laser.close)
-    if dev.camera.kind == "sim":
-        camera = _sim_rig(config, holder).camera  # type: ignore[attr-defined]
-    else:
-        from genicam_camera import GenicamCamera
-
-        camera = GenicamCamera.from_config(dev.camera.model_dump())
-        closers.append(camera.close)
-    if dev.robot.kind == "sim":
-        robot = _sim_rig(config, holder).robot  # type: ignore[attr-defined]
-    elif dev.robot.kind == "sim_abb":
-        from cellctl.service.sim_fakes import abb_on_fake
-
-        robot, close = abb_on_fake(_sim_rig(config, holder).cell, dev.robot)  # type: ignore[attr-defined]
-        closers.append(close)
-    else:
-        from abb_robot import AbbRobot, AbbRobotSettings
-
-        robot = AbbRobot(AbbRobotSettings(**dev.robot.model_dump(exclude={"kind"})))
-        closers.append(robot.close)
-    return laser, camera, robot
-
-
-def _calibration_source(config: CellConfig, holder: dict[str, object], workdir: Path) -> CalibrationSource:
-    if config.calibration.source == "oracle":
-        if "rig" not in holder:
-            raise ServiceError(
-                "calibration.source = \"oracle\" needs the twin (mode = \"sim\" with at least one sim device); "
-                "use source = \"set\" with a calibrated cell"
-            )
-        from cellctl.sim.oracle import OracleCalibrationSource
-
-        return OracleCalibrationSource(holder["rig"], config)  # type: ignore[arg-type]
-    from cellctl.calibration.source import CalibrationSetSource
-
-    return CalibrationSetSource.from_config(config, workdir=workdir)
-
-
-async def build_service(config: CellConfig, *, workdir: Path | None = None) -> Service:
-    """Build (not start) the cell from ``config``. Relative paths are taken from ``workdir``."""
+    ``calibration`` defaults to the versioned calibration set of ``calibration.directory``;
+    ``truth`` and ``witness`` are the twin's (simulated cell only).
+    """
     root = (workdir or Path.cwd()).resolve()
-    holder: dict[str, object] = {}
-    closers: list[Closer] = []
-    laser, camera, robot_port = _build_devices(config, holder, closers)
-    robot = TrackedRobot(robot_port)
-    calibration = _calibration_source(config, holder, root)
+    robot = TrackedRobot(robot)
+    cal_store = CalibrationStore(store_root(config.calibration.directory, root))
+    source = calibration if calibration is not None else CalibrationSetSource(cal_store, config)
     db_path = Path(config.store.path)
     db_path = db_path if db_path.is_absolute() else root / db_path
     db_path.parent.mkdir(parents=True, exist_ok=True)
@@ -211,21 +177,24 @@ async def build_service(config: CellConfig, *, workdir: Path | None = None) -> S
     watchdog.add("laser", laser)
     watchdog.add("camera", camera)
     watchdog.add("robot", robot)
-    rig = holder.get("rig")
+    events = EventHub()
+    devices = CellDevices(laser, camera, robot)
     orch = CellOrchestrator(
         config=config,
-        devices=CellDevices(laser, camera, robot),
-        calibration=calibration,
+        devices=devices,
+        calibration=source,
         store=store,
         machine=machine,
         alarms=alarms,
         watchdog=watchdog,
-        events=EventHub(),
+        events=events,
         image_dir=db_path.parent / "images",
-        truth=rig,  # type: ignore[arg-type]
+        truth=truth,
     )
-    service = Service(config, store, orch, PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm), root)
-    service.closers.extend(closers)
-    if rig is not None:
-        service.closers.append(rig.close)  # type: ignore[attr-defined]
-    return service
+    jobs = JobManager(
+        config=config, devices=devices, calibration_store=cal_store, store=store, machine=machine, alarms=alarms,
+        events=events, witness=witness, call_timeout_s=config.devices.call_timeout_s,
+    )  # fmt: skip
+    orch.add_status("job", jobs.status)
+    link = PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm)
+    return Service(config, store, orch, jobs, link, root)

@@ -1,6 +1,6 @@
 """The simulated cell with real drivers: the LK-G and ABB protocol fakes, their physics from the twin.
 
-Part of the composition root (it imports drivers). The fakes keep their own wire format and time;
+Part of the simulated cell's composition root (it imports drivers and the twin). The fakes keep their own wire format and time;
 the twin (:class:`cellctl.sim.cell.SimCell`) supplies what a real sensor and arm would do:
 the laser's status and distance where the flange truly stands, and the true pose an arm reaches
 for a commanded (belief) target. The controller reports the belief back, as a real one does.
@@ -17,6 +17,7 @@ from keyence_lkg import KeyenceLkgSensor
 from keyence_lkg.fake import FakeLkgController
 
 from cellctl.config.devices import SimAbbDevice, SimKeyenceLkgDevice
+from cellctl.geometry.pose import Pose
 from cellctl.ports import CartesianPose, LaserStatus
 from cellctl.sim.cell import SimCell
 from cellctl.sim.robot import ReachError
@@ -85,8 +86,11 @@ def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSens
     return driver, close
 
 
-def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer]:
-    """The real ABB client talking to the fake controller (its own thread and loop) on loopback."""
+def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer, Callable[[Pose], None]]:
+    """The real ABB client talking to the fake controller (its own thread and loop) on loopback.
+
+    Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it).
+    """
     fake = FakeController(
         FakeControllerConfig(
             rapid_port=0,
@@ -112,4 +116,7 @@ def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer]:
         await driver.close()
         fake.stop_thread()
 
-    return driver, close
+    def jog(T_B_H: Pose) -> None:
+        fake.robot.jog(CartesianPose.from_matrix(T_B_H))
+
+    return driver, close, jog

@@ -117,5 +117,5 @@ class OracleCalibrationSource:
     def summary(self) -> dict[str, Any]:
         return {"source": "twin truth (oracle)", "template_px": None if self._cal is None else [self._cal.template.u_px, self._cal.template.v_px]}
 
-    async def calibrate(self) -> None:
-        self.cycle_calibration()
+    def history(self) -> list[dict[str, Any]]:
+        return []

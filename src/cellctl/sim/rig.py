@@ -15,6 +15,7 @@ from cellctl.sim.camera_device import SimCamera
 from cellctl.sim.cell import SimCell
 from cellctl.sim.devices import SimDisplacementSensor, SimRobot
 from cellctl.sim.streams import rng_stream
+from cellctl.sim.targets import PlacedTarget
 
 CAMERA_NOISE = "camera.noise"
 TEACH_CAMERA_NOISE = "camera.noise.teach"
@@ -26,16 +27,19 @@ class SimRig:
     Attributes:
         cell: the twin (truth, physics).
         renderer: the camera's image formation (its ray map is built once, here).
+        targets: the calibration targets stuck on the wall now (the camera renders them).
         laser, camera, robot: the devices, implementing the ports.
     """
 
     def __init__(self, config: SimConfig, *, seed: int | None = None) -> None:
         self.cell = SimCell(config, seed=seed)
         self.renderer = CameraRenderer(config.camera.intrinsics, config.camera.render)
+        self.targets: list[PlacedTarget] = []
         self.laser = SimDisplacementSensor(self.cell)
         self.robot = SimRobot(self.cell)
         self.camera = SimCamera(
-            self.renderer, self.cell.true_camera_pose, self.cell.world, rng_stream(self.cell.seed, CAMERA_NOISE)
+            self.renderer, self.cell.true_camera_pose, self.cell.world, rng_stream(self.cell.seed, CAMERA_NOISE),
+            targets=lambda: tuple(self.targets),
         )
         self.teach_rng = rng_stream(self.cell.seed, TEACH_CAMERA_NOISE)
 

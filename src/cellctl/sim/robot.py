@@ -34,11 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cellctl.config.layout import RobotEnvelope
 from cellctl.config.sim import RobotSimConfig
 from cellctl.geometry.pose import Pose, check_pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix
 from cellctl.sim.fields import SmoothRandomField
-from cellctl.sim.motion import PathTiming, interpolate_pose, path_timing
+from cellctl.geometry.motion import PathTiming, interpolate_pose, path_timing
 from cellctl.sim.streams import ROBOT_ACCURACY, ROBOT_REPEATABILITY, rng_stream
 
 # ISO 9283 RP = mean(l) + 3 S_l for a 3-D isotropic Gaussian, in units of the per-axis sigma.
@@ -79,6 +80,10 @@ class RobotModel:
 
     def __init__(self, config: RobotSimConfig, seed: int) -> None:
         self.config = config
+        self._envelope = RobotEnvelope(
+            reach_mm=config.reach_mm, min_reach_mm=config.min_reach_mm,
+            reach_centre_mm=config.reach_centre_mm, wrist_to_flange_mm=config.wrist_to_flange_mm,
+        )  # fmt: skip
         accuracy_rng = rng_stream(seed, ROBOT_ACCURACY)
         self._position_field = SmoothRandomField(
             accuracy_rng,
@@ -100,29 +105,17 @@ class RobotModel:
 
     def wrist_centre(self, X: ArrayLike) -> NDArray[np.float64]:
         """The wrist centre (axis 5) of flange pose X: the flange origin moved back along its z axis."""
-        M = np.asarray(X, dtype=float)
-        return M[:3, 3] - self.config.wrist_to_flange_mm * M[:3, 2]
+        return self._envelope.wrist_centre(X)
 
     def reach_distance(self, X: ArrayLike) -> float:
         """The wrist centre's distance (mm) from the reach centre."""
-        return float(np.linalg.norm(self.wrist_centre(X) - np.asarray(self.config.reach_centre_mm)))
+        return self._envelope.reach_distance(X)
 
     def check_reach(self, X: ArrayLike, what: str = "target") -> None:
         """Raise :class:`ReachError` if flange pose X is outside the working range."""
-        dist = self.reach_distance(X)
-        c = self.config
-        if dist > c.reach_mm:
-            raise ReachError(
-                f"{what} out of reach: its wrist centre is {dist:.0f} mm from the robot's reach centre, "
-                f"beyond the IRB 7600's {c.reach_mm:g} mm; bring the car body or the target closer",
-                dist,
-            )
-        if dist < c.min_reach_mm:
-            raise ReachError(
-                f"{what} too close to the robot: its wrist centre is {dist:.0f} mm from the reach centre, "
-                f"inside the {c.min_reach_mm:g} mm the arm cannot fold into",
-                dist,
-            )
+        problem = self._envelope.reach_problem(X, what)
+        if problem is not None:
+            raise ReachError(problem, self.reach_distance(X))
 
     def check_path(self, X_from: ArrayLike, X_to: ArrayLike) -> None:
         """Raise :class:`ReachError` if a linear move between the poses leaves the working range."""

@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cellctl.geometry.pose import apply_pose, check_pose
+from cellctl.geometry.pose import apply_pose, check_pose, pose_in_plane
 from cellctl.sim.edge_coverage import (
     circle_sdf,
     coverage_from_sdf,
@@ -272,14 +272,5 @@ class PlacedTarget:
 def place_on_world_plane(
     T_B_F: ArrayLike, offset_xy_mm: tuple[float, float], angle_rad: float = 0.0
 ) -> NDArray[np.float64]:
-    """A pose T_B_P lying in the x-y plane of frame F (e.g. the wall's T), shifted and turned in it.
-
-    Handy to stick a target on the car-body wall: P's origin at ``offset_xy_mm`` in F, P's axes
-    turned by ``angle_rad`` about F's z axis.
-    """
-    T = check_pose(T_B_F, "T_B_F")
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    local = np.eye(4)
-    local[:2, :2] = [[c, -s], [s, c]]
-    local[:2, 3] = offset_xy_mm
-    return T @ local
+    """A pose T_B_P lying in the x-y plane of frame F (e.g. the wall's T), shifted and turned in it."""
+    return pose_in_plane(T_B_F, offset_xy_mm, angle_rad)

@@ -2,6 +2,7 @@
 
 from cellctl.store.aio import AsyncCellStore
 from cellctl.store.db import CellStore, StoreInfo
+from cellctl.store.jobs import JobRecord, UnknownJob
 from cellctl.store.records import (
     AuditChainBroken,
     AuditEntry,
@@ -39,6 +40,7 @@ __all__ = [
     "ImageRef",
     "InstallAlreadyStarted",
     "InterruptedCycle",
+    "JobRecord",
     "RecoveryReport",
     "SchemaTooNew",
     "StepRecord",
@@ -47,4 +49,5 @@ __all__ = [
     "StoredResponse",
     "SubmitResult",
     "UnknownCycle",
+    "UnknownJob",
 ]

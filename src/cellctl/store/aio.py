@@ -24,6 +24,7 @@ from cellctl.cell.alarms import Alarm
 from cellctl.cell.packml import MachineEvent
 from cellctl.cell.tags import CycleStep
 from cellctl.store.db import CellStore, StoreInfo, Synchronous, _utcnow
+from cellctl.store.jobs import JobRecord
 from cellctl.store.records import (
     AuditEntry,
     CalibrationVersion,
@@ -200,3 +201,24 @@ class AsyncCellStore:
 
     async def calibration_kinds(self) -> list[str]:
         return await self._run(self._store.calibration_kinds)
+
+    # commissioning jobs
+    async def create_job(
+        self, procedure: str, *, actor: str, source: str, options: Mapping[str, Any], version_before: int | None
+    ) -> JobRecord:
+        return await self._run(
+            self._store.create_job, procedure, actor=actor, source=source, options=options, version_before=version_before
+        )
+
+    async def update_job(self, job_id: int, **fields: Any) -> JobRecord:
+        """See :meth:`cellctl.store.jobs.JobRows.update_job` for the fields."""
+        return await self._run(self._store.update_job, job_id, **fields)
+
+    async def job(self, job_id: int) -> JobRecord:
+        return await self._run(self._store.job, job_id)
+
+    async def jobs(self, *, limit: int = 50, procedure: str | None = None) -> list[JobRecord]:
+        return await self._run(self._store.jobs, limit=limit, procedure=procedure)
+
+    async def recover_jobs(self) -> list[int]:
+        return await self._run(self._store.recover_jobs)

@@ -48,6 +48,7 @@ from cellctl.store.records import (
     SubmitResult,
     UnknownCycle,
 )
+from cellctl.store.jobs import JobRows
 from cellctl.store.schema import migrate, schema_version
 
 GENESIS_HASH = "0" * 64
@@ -108,8 +109,10 @@ class StoreInfo:
     synchronous: str
 
 
-class CellStore:
+class CellStore(JobRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
+
+    _to_json = staticmethod(lambda what, obj: to_json(what, obj))
 
     def __init__(self, conn: sqlite3.Connection, path: Path, clock: Callable[[], datetime]) -> None:
         self._conn = conn

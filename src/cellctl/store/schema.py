@@ -10,6 +10,7 @@ from __future__ import annotations
 import sqlite3
 from collections.abc import Sequence
 
+from cellctl.store.jobs import V2_JOBS
 from cellctl.store.records import SchemaTooNew, StoreError
 
 _APPEND_ONLY = """
@@ -136,7 +137,7 @@ CREATE TABLE calibrations (
     + _APPEND_ONLY.format(table="calibrations")
 )
 
-MIGRATIONS: Sequence[str] = (V1,)
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 

@@ -1,6 +1,6 @@
 """How long a point-to-point move takes, and where the flange is along the way.
 
-The twin's controller moves the flange along a straight line while turning it about a fixed axis
+A robot controller moves the flange along a straight line while turning it about a fixed axis
 (MoveL), translation and rotation synchronised, each with a trapezoidal speed profile (accelerate,
 cruise, decelerate; a triangle if the move is too short to reach cruise speed). The slower of
 the two sets the duration; the other is stretched to it, so both finish together. A fine point

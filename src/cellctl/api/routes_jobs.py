@@ -1,0 +1,113 @@
+"""Commissioning routes: start, follow, answer and cancel calibration, teaching and verification jobs.
+
+``POST /jobs`` starts a job (``POST /jobs/plan`` only plans it); the job then shows its prompts,
+progress and live image on ``GET /jobs/{id}`` and on the event stream (``job``, ``job_image`` and
+``prompt`` events). ``cellctl calibrate ...`` and the dashboard's commissioning page use these.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import cv2
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+
+from cellctl.api.auth import Caller, TokenGuard
+from cellctl.api.schemas import JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptView
+from cellctl.calibration.calibration_set import COMMANDS
+from cellctl.commissioning.jobs import ALL_PROCEDURES, JobManager, JobRefused, job_view
+from cellctl.commissioning.prompts import Answer, PromptError, UnknownPrompt
+from cellctl.store import UnknownJob
+
+IMAGE_WIDTH_MAX = 2048
+
+
+def _png(image: np.ndarray, width: int) -> bytes:
+    h, w = image.shape[:2]
+    if width < w:
+        image = cv2.resize(image, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise RuntimeError("the frame could not be encoded as PNG")
+    return buf.tobytes()
+
+
+def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
+    router = APIRouter(tags=["commissioning"])
+
+    async def view(job_id: int) -> JobView:
+        try:
+            rec = await jobs.job(job_id)
+        except UnknownJob:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id}") from None
+        return JobView.model_validate(job_view(rec, jobs.live(job_id)))
+
+    def refused(err: JobRefused) -> HTTPException:
+        return HTTPException(status.HTTP_409_CONFLICT if err.conflict else status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err))
+
+    @router.get("/procedures", response_model=list[ProcedureView])
+    async def procedures(caller: Caller = Depends(guard.read)) -> list[ProcedureView]:
+        return [
+            ProcedureView(name=name, part=p.part, dataset_kind=p.kind, needs=list(p.needs), options=["store", *p.options],
+                          command=COMMANDS.get(name, "cellctl calibrate verify"))  # fmt: skip
+            for name, p in ALL_PROCEDURES.items()
+        ]
+
+    @router.get("/jobs", response_model=list[JobView])
+    async def list_jobs(caller: Caller = Depends(guard.read), limit: int = Query(20, ge=1, le=500)) -> list[JobView]:
+        return [JobView.model_validate(job_view(r, jobs.live(r.id))) for r in await jobs.store.jobs(limit=limit)]
+
+    @router.post("/jobs/plan", response_model=PlanView, responses={422: {"description": "no plan: the reason names the setting"}})
+    async def plan_job(body: JobRequestBody, caller: Caller = Depends(guard.read), poses: bool = Query(False, description="list every pose")) -> PlanView:
+        try:
+            plan = await jobs.plan(body.procedure, body.options.model_dump(exclude_none=True))
+        except JobRefused as err:
+            raise refused(err) from None
+        return PlanView.model_validate(plan.summary(with_poses=poses))
+
+    @router.post("/jobs", response_model=JobView, status_code=status.HTTP_201_CREATED,
+                 responses={409: {"description": "another job runs, or the cell is not in Stopped or Idle"}, 422: {"description": "bad options"}})  # fmt: skip
+    async def start_job(body: JobRequestBody, caller: Caller = Depends(guard.require)) -> JobView:
+        try:
+            rec = await jobs.submit(body.procedure, body.options.model_dump(exclude_none=True), actor=caller.actor, source=f"rest:{caller.source}")
+        except JobRefused as err:
+            raise refused(err) from None
+        return await view(rec.id)
+
+    @router.get("/jobs/{job_id}", response_model=JobView, responses={404: {"description": "no such job"}})
+    async def get_job(job_id: int, caller: Caller = Depends(guard.read)) -> JobView:
+        return await view(job_id)
+
+    @router.post("/jobs/{job_id}/cancel", response_model=JobView, responses={409: {"description": "the job is not running"}})
+    async def cancel_job(job_id: int, caller: Caller = Depends(guard.require)) -> JobView:
+        try:
+            await jobs.cancel(job_id, actor=caller.actor, source=f"rest:{caller.source}")
+        except JobRefused as err:
+            raise refused(err) from None
+        except UnknownJob:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id}") from None
+        return await view(job_id)
+
+    @router.post("/jobs/{job_id}/prompts/{prompt_id}", response_model=PromptView,
+                 responses={404: {"description": "no such open prompt"}, 422: {"description": "an answer the prompt cannot take"}})  # fmt: skip
+    async def answer_prompt(job_id: int, prompt_id: int, body: PromptAnswerBody, caller: Caller = Depends(guard.require)) -> PromptView:
+        if body.action not in ("confirm", "cancel", "value"):
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=f"action: 'confirm', 'cancel' or 'value', got '{body.action}'")
+        try:
+            prompt = await jobs.answer(job_id, prompt_id, Answer(body.action, body.value, caller.actor, f"rest:{caller.source}"))  # type: ignore[arg-type]
+        except UnknownPrompt as err:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=str(err)) from None
+        except PromptError as err:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err)) from None
+        return PromptView.model_validate(prompt.as_dict())
+
+    @router.get("/jobs/{job_id}/image", responses={200: {"content": {"image/png": {}}}, 404: {"description": "no frame yet"}})
+    async def job_image(job_id: int, request: Request, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
+        guard.read(request)
+        frame = jobs.latest_frame(job_id)
+        if frame is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"job {job_id} has no frame (yet)")
+        png = await asyncio.to_thread(_png, frame.image, width)
+        return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
+
+    return router

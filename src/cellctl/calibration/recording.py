@@ -1,0 +1,51 @@
+"""Recording a computed calibration as a new version of the calibration set."""
+
+from __future__ import annotations
+
+import platform
+from datetime import datetime
+
+import cv2
+import numpy as np
+import scipy
+
+import cellctl
+from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, make_part
+from cellctl.calibration.compute import Outcome
+from cellctl.calibration.dataset import Dataset
+from cellctl.config.schema import CellConfig
+
+
+def software() -> dict[str, str]:
+    """The versions a result was computed with."""
+    return {
+        "cellctl": getattr(cellctl, "__version__", "unknown"),
+        "opencv": cv2.__version__,
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def validity_days(config: CellConfig, part: str) -> float:
+    """How long a new part stays valid: the configuration's ``calibration.max_age_days``."""
+    if part not in PART_NAMES:
+        raise KeyError(f"unknown calibration part {part!r}")
+    return float(config.calibration.max_age_days)
+
+
+def record(store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config: CellConfig, when: datetime, note: str = "") -> CalibrationSet:
+    """Store a calibration that passed its gates as a new version of the set."""
+    part = make_part(
+        outcome.part,
+        values=outcome.values,
+        method=outcome.method,
+        when=when,
+        valid_days=validity_days(config, outcome.part),
+        quality=outcome.quality,
+        warnings=outcome.warnings,
+        inputs=outcome.inputs,
+        dataset=None if ds is None else ds.ref({"kind": ds.kind}),
+        software=software(),
+    )
+    return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when)

@@ -1,0 +1,199 @@
+"""``cellctl calibrate camera|hand-eye|laser|nine-point|verify|status`` and ``cellctl teach``.
+
+A procedure runs as a job of the running service (``cellctl serve``), on the cell's own devices:
+the command starts it over REST, follows it on the event stream with a progress bar, shows each
+prompt and sends the engineer's answer, and prints the result (the job stores a new version of
+the calibration set when the result passes its gates). ``--dry-run`` prints the plan and moves
+nothing; Ctrl-C cancels the job (the robot stops at once). ``--dataset DIR`` instead computes
+offline, in this process, from a saved dataset and records the result in the store folder.
+
+Exit status: 0 done, 1 refused, failed or cancelled (or a verification found drift), 2 usage or
+configuration problem, 130 cancelled with Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSetError, CalibrationStore, check_ready, store_root
+from cellctl.calibration.dataset import DatasetError, read_dataset
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.client import CellClient, service_url
+from cellctl.commissioning.jobs import ALL_PROCEDURES, HAND_EYE_METHODS
+from cellctl.config import load_config
+
+# CLI word -> procedure
+COMMAND_PROCEDURES = {"camera": "camera", "hand-eye": "hand_eye", "laser": "laser", "nine-point": "pixel_map", "verify": "verify"}
+
+
+def _client(args: argparse.Namespace) -> CellClient:
+    config = load_config(args.config)
+    return CellClient(service_url(args.url, config.api.host, config.api.port), args.token)
+
+
+def _options(args: argparse.Namespace, procedure: str) -> dict[str, Any]:
+    opts: dict[str, Any] = {}
+    if getattr(args, "views", None) is not None:
+        opts["views"] = args.views
+    if getattr(args, "poses", None) is not None:
+        opts["poses"] = args.poses
+    if getattr(args, "method_override", None) is not None:
+        opts["method"] = args.method_override
+    if getattr(args, "no_store", False):
+        opts["store"] = False
+    return opts
+
+
+def _store(args: argparse.Namespace) -> CalibrationStore:
+    config = load_config(args.config)
+    return CalibrationStore(Path(args.store) if args.store else store_root(config.calibration.directory, Path(args.workdir)))
+
+
+def _offline(args: argparse.Namespace, procedure: str) -> int:
+    """Compute from a saved dataset in this process; store the result unless --no-store."""
+    from cellctl.calibration.recording import record
+
+    config = load_config(args.config)
+    if args.method_override is not None:
+        proc_cfg = config.calibration.procedure
+        proc_cfg = proc_cfg.model_copy(update={"hand_eye": proc_cfg.hand_eye.model_copy(update={"method": args.method_override})})
+        config = config.model_copy(update={"calibration": config.calibration.model_copy(update={"procedure": proc_cfg})})
+    proc = ALL_PROCEDURES[procedure]
+    store = _store(args)
+    try:
+        current = store.current()
+        ds = read_dataset(args.dataset, proc.kind)
+    except (CalibrationSetError, DatasetError) as err:
+        print(f"{procedure}: {err}", file=sys.stderr)
+        return 2
+    print(f"{procedure}: computing offline from {ds.root}")
+    try:
+        outcome = proc.compute(ds, current, config)
+    except CalibrationRefused as err:
+        print(f"{procedure}: REFUSED ({err.reason}): {err.detail}")
+        print("nothing stored: the calibration set in use is unchanged")
+        return 1
+    except DatasetError as err:
+        print(f"{procedure}: {err}", file=sys.stderr)
+        return 2
+    print(f"{outcome.part} ({outcome.method}):")
+    for line in outcome.summary:
+        print(f"  {line}")
+    for w in outcome.warnings:
+        print(f"  warning: {w}")
+    print(f"  dataset: {ds.root}")
+    if procedure == "verify":
+        return 0 if outcome.quality.get("passed") else 1
+    if args.no_store:
+        print("not stored (--no-store)")
+        return 0
+    when = datetime.now(timezone.utc)
+    saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
+    print(f"stored as version {saved.version} in {store.root}")
+    problems = check_ready(saved, when)
+    print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
+    return 0
+
+
+def _job_command(procedure: str) -> Callable[[argparse.Namespace], int]:
+    def command(args: argparse.Namespace) -> int:
+        from cellctl.commissioning.terminal import follow, print_plan
+
+        if args.dataset:
+            return _offline(args, procedure)
+        client = _client(args)
+        options = _options(args, procedure)
+        if args.dry_run:
+            print_plan(client.plan_job(procedure, options, poses=args.list_poses), sys.stdout)
+            return 0
+        job = client.start_job(procedure, options)
+        return follow(client, job)
+
+    return command
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    store = _store(args)
+    try:
+        cal = store.current()
+        history = store.history()
+    except CalibrationSetError as err:
+        print(f"the calibration store is damaged:\n{err}", file=sys.stderr)
+        return 2
+    print(f"calibration store {store.root}: {len(history)} version(s), current {None if cal is None else cal.version}")
+    if cal is not None:
+        for name in PART_NAMES:
+            p = cal.part(name)
+            if p is None:
+                print(f"  {name:10s} missing")
+            else:
+                print(f"  {name:10s} {p.status:6s} {p.calibrated_utc:%Y-%m-%d %H:%M} UTC  {p.id}" + (f"  ({p.failure})" if p.failure else ""))
+    if args.history:
+        for row in history:
+            print(f"  v{row['version']:<4d} {row['created_utc']}  {row['note']}")
+    problems = check_ready(cal, datetime.now(timezone.utc))
+    print("ready for production" if not problems else "not ready:\n  - " + "\n  - ".join(problems))
+    return 0 if not problems else 1
+
+
+def _store_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--store", help="calibration store folder (default: calibration.directory of the configuration)")
+    p.add_argument(
+        "--workdir", default=".",
+        help="the folder a relative calibration.directory is taken from, as `cellctl serve --workdir` (default: .)",
+    )  # fmt: skip
+
+
+def _common(p: argparse.ArgumentParser, positive: Callable[[str], int]) -> None:
+    p.add_argument("--url", default=None, help="the running service (default: $CELLCTL_URL, else the configuration's [api])")
+    p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
+    p.add_argument("--dry-run", action="store_true", help="print the plan (poses, reach, rotation spread, robot time); move nothing")
+    p.add_argument("--list-poses", action="store_true", help="with --dry-run: list every planned pose")
+    p.add_argument("--no-store", action="store_true", help="compute and print only; the calibration set is not changed")
+    p.add_argument("--dataset", help="compute offline, in this process, from this saved dataset folder")
+    _store_options(p)
+    p.set_defaults(method_override=None, views=None, poses=None)
+
+
+def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], int]) -> None:  # type: ignore[type-arg]
+    """Add ``calibrate`` and ``teach`` to cellctl's parser; ``positive`` parses a whole number >= 1."""
+    cal = subparsers.add_parser("calibrate", help="calibrate the camera, hand-eye, laser or pixel map on the running cell")
+    sub = cal.add_subparsers(dest="part", required=True)
+
+    p = sub.add_parser("camera", help="camera intrinsics by Zhang's method from checkerboard views")
+    _common(p, positive)
+    p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
+    p.set_defaults(func=_job_command("camera"))
+
+    p = sub.add_parser("hand-eye", help="hand-eye T_H_C (Tsai; Park, Horaud, Andreff, Daniilidis compared)")
+    _common(p, positive)
+    p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
+    p.add_argument("--method", dest="method_override", choices=HAND_EYE_METHODS, default=None, help="the method whose result is stored")
+    p.set_defaults(func=_job_command("hand_eye"))
+
+    p = sub.add_parser("laser", help="laser origin r and direction l from a plane seen from many poses")
+    _common(p, positive)
+    p.add_argument("--poses", type=positive, default=None, help="number of poses (default: calibration.procedure.laser.n_poses)")
+    p.set_defaults(func=_job_command("laser"))
+
+    p = sub.add_parser("nine-point", help="pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
+    _common(p, positive)
+    p.set_defaults(func=_job_command("pixel_map"))
+
+    p = sub.add_parser("verify", help="a few minutes' check of how far hand-eye and laser have drifted since they were calibrated")
+    _common(p, positive)
+    p.set_defaults(func=_job_command("verify"))
+
+    p = sub.add_parser("status", help="the current calibration set, its history and whether production may start")
+    _store_options(p)
+    p.add_argument("--history", action="store_true", help="list every version")
+    p.set_defaults(func=_cmd_status)
+
+    t = subparsers.add_parser("teach", help="teach T0, C_Pos_0, the corner template and g_Pos_0 (paper 4.3 step 1) on the running cell")
+    _common(t, positive)
+    t.set_defaults(func=_job_command("teaching"))

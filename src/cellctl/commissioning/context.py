@@ -1,0 +1,175 @@
+"""What a commissioning procedure works with: the devices' ports, the engineer, and its dataset.
+
+A procedure only sees a :class:`JobContext`: the robot, laser and camera behind their ports (the
+robot wrapped so that no move exceeds the procedure's reduced speed), ``ask`` to pause for the
+engineer, ``progress`` to report, and a :class:`DatasetDraft` it fills as samples arrive. The job
+runner writes the draft as a complete dataset when the procedure finishes, or as a partial one
+(marked so) when it is cancelled or fails, so nothing collected is lost. The same code runs on
+hardware and in the simulated cell; there, a :class:`Witness` adds the twin's truth to the
+manifest for the report (it is never read by a computation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.collect import MotionSettings
+from cellctl.calibration.dataset import Dataset, write_dataset
+from cellctl.calibration.recording import software
+from cellctl.cell.cycle import CellDevices
+from cellctl.commissioning.plans import MotionPlan
+from cellctl.commissioning.prompts import Ask
+from cellctl.config.schema import CellConfig
+from cellctl.ports import CartesianPose, Frame, Identified, MotionRequest, Robot, RobotState
+
+Progress = Callable[[int, int, str], None]
+
+
+def _quiet(done: int, total: int, message: str) -> None:
+    return None
+
+
+def _no_frame(frame: Frame) -> None:
+    return None
+
+
+def _no_plan(plan: MotionPlan) -> None:
+    return None
+
+
+class Witness(Protocol):
+    """The simulated cell's truth about what a dataset measured (None on hardware)."""
+
+    def truth(self, kind: str, facts: dict[str, Any]) -> dict[str, Any] | None:
+        """The truth for a dataset of ``kind``; ``facts`` are the procedure's results it may need (e.g. g_Pos_0)."""
+        ...
+
+
+@dataclass
+class DatasetDraft:
+    """A dataset being collected: its kind, manifest fields and images so far."""
+
+    kind: str
+    manifest: dict[str, Any] = field(default_factory=dict)
+    images: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
+
+    def write(self, dest: Path, *, partial_reason: str | None = None) -> Dataset:
+        """Write it into ``dest``; a partial one says why it ended and cannot be computed from."""
+        manifest = dict(self.manifest)
+        if partial_reason is not None:
+            manifest["partial"] = True
+            manifest["ended"] = partial_reason
+        return write_dataset(dest, self.kind, manifest, self.images)
+
+
+class ReducedSpeedRobot:
+    """The Robot port for commissioning: every move capped at the procedure's reduced speed."""
+
+    def __init__(self, robot: Robot, max_mm_s: float, max_deg_s: float) -> None:
+        self._robot = robot
+        self.max_mm_s = float(max_mm_s)
+        self.max_deg_s = float(max_deg_s)
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        capped = MotionRequest(request.target, request.kind, min(request.speed_mm_s, self.max_mm_s), min(request.speed_deg_s, self.max_deg_s))
+        return await self._robot.move(capped, timeout_s=timeout_s)
+
+    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
+        return await self._robot.read_pose(timeout_s=timeout_s)
+
+    async def state(self, *, timeout_s: float) -> RobotState:
+        return await self._robot.state(timeout_s=timeout_s)
+
+    async def stop(self, *, timeout_s: float) -> None:
+        await self._robot.stop(timeout_s=timeout_s)
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self._robot.ping(timeout_s=timeout_s)
+
+    async def close(self) -> None:
+        return None  # the service owns the robot
+
+
+def device_identity(device: object) -> dict[str, str]:
+    """What a device says about itself (model, serial, address), or its kind when it says nothing."""
+    inner = getattr(device, "_robot", None)
+    while inner is not None and not isinstance(device, Identified):
+        device, inner = inner, getattr(inner, "_robot", None)
+    if isinstance(device, Identified):
+        return {k: str(v) for k, v in device.identity().items()}
+    return {"kind": type(device).__name__}
+
+
+def describe_source(config: CellConfig, devices: CellDevices) -> dict[str, Any]:
+    """Which cell and which devices a dataset came from, for its manifest."""
+    return {
+        "cell": config.cell_id,
+        "mode": config.mode,
+        "robot": device_identity(devices.robot),
+        "laser": device_identity(devices.laser),
+        "camera": device_identity(devices.camera),
+        "software": software(),
+    }
+
+
+@dataclass
+class JobContext:
+    """Everything a procedure may use.
+
+    Attributes:
+        job_id: the job's number (in prompts and the dataset manifest).
+        config: the cell configuration.
+        devices: the three ports; the robot is a :class:`ReducedSpeedRobot`.
+        calibration: the calibration set in use when the job started (None if there is none).
+        motion: speeds and timeouts of the procedure's moves and reads.
+        ask: pause for the engineer.
+        dest: the folder the dataset goes to.
+        plan: the plan shown before the first move.
+        witness: the twin's truth (simulated cell only).
+        progress: (done, total, message) as the procedure goes.
+        on_frame: every frame grabbed (the dashboard's live image).
+        on_plan: the plan, when the procedure shows it.
+    """
+
+    job_id: int
+    config: CellConfig
+    devices: CellDevices
+    calibration: CalibrationSet | None
+    motion: MotionSettings
+    ask: Ask
+    dest: Path
+    plan: MotionPlan | None = None
+    witness: Witness | None = None
+    progress: Progress = _quiet
+    on_frame: Callable[[Frame], None] = _no_frame
+    on_plan: Callable[[MotionPlan], None] = _no_plan
+    draft: DatasetDraft | None = None
+    source: dict[str, Any] = field(default_factory=dict)
+
+    def show_plan(self, plan: MotionPlan) -> None:
+        """The plan the robot is about to follow (shown before the first move)."""
+        self.plan = plan
+        self.on_plan(plan)
+
+    def begin(self, kind: str, **manifest: Any) -> DatasetDraft:
+        """Start the dataset this job collects (written partial if the job ends early)."""
+        self.draft = DatasetDraft(kind, {"source": self.source, "job_id": self.job_id, **manifest})
+        return self.draft
+
+    def finish(self, facts: dict[str, Any] | None = None) -> Dataset:
+        """Write the complete dataset (with the twin's truth, in the simulated cell)."""
+        assert self.draft is not None, "begin() the dataset first"
+        if self.witness is not None:
+            truth = self.witness.truth(self.draft.kind, facts or {})
+            if truth:
+                self.draft.manifest["twin_truth"] = truth
+        ds = self.draft.write(self.dest)
+        self.draft = None
+        return ds

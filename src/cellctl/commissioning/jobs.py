@@ -1,0 +1,512 @@
+"""Commissioning jobs: calibration, teaching and verification run by the service, one at a time.
+
+A job may start only while the cell stands in PackML **Stopped** or **Idle** (in any unit mode):
+no cycle can run then (cycles run only in Execute), and while the job runs Start is refused, so
+none can begin. Stop or Abort (from the dashboard, the PLC or an alarm's reaction) cancels the
+job, as the engineer's cancel does: the robot is told to stop at once, the job ends
+``cancelled`` with the samples it collected written as a partial dataset, and the calibration
+set in use stays as it was. Every move of a job runs at the procedure's reduced speed.
+
+A job that collected its dataset computes it off the event loop; a result that passes its gates
+becomes a new version of the calibration set, a refused one leaves the set unchanged and says
+why. Every start, answer and cancel is in the audit log with who did it and from where.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from typing import Any
+
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready
+from cellctl.calibration.collect import MotionSettings
+from cellctl.calibration.compute import Outcome
+from cellctl.calibration.dataset import Dataset, default_dataset_dir
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.recording import record
+from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.cycle import CellDevices
+from cellctl.cell.events import EventHub
+from cellctl.cell.packml import MachineEvent, PackMLMachine
+from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.commissioning.context import JobContext, ReducedSpeedRobot, Witness, describe_source
+from cellctl.commissioning.plans import MotionPlan, PlanError, plan_board, plan_laser, plan_nine_point, plan_teaching
+from cellctl.commissioning.procedures import PROCEDURES, Procedure
+from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
+from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import Pose
+from cellctl.ports import DeviceError, Frame
+from cellctl.store import AsyncCellStore, JobRecord
+
+log = logging.getLogger(__name__)
+
+JOB_STATES_ALLOWED = frozenset({PackMLState.STOPPED, PackMLState.IDLE})
+"""A job may start (and keeps running) only in these PackML states."""
+_CANCELLING_STATES = frozenset({PackMLState.STOPPING, PackMLState.ABORTING})
+PROGRESS_PERSIST_EVERY = 10
+LAST_FRAMES_KEPT = 4
+
+ALL_PROCEDURES: dict[str, Procedure] = {
+    **PROCEDURES,
+    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify),
+}
+PLANNERS: dict[str, Callable[[CellConfig, CalibrationSet | None, dict[str, Any], Pose | None], MotionPlan]] = {
+    "camera": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
+    "hand_eye": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
+    "laser": lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
+    "teaching": lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start),
+    "pixel_map": lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start),
+    "verify": lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
+}
+HAND_EYE_METHODS = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
+
+
+class JobRefused(Exception):
+    """A job that cannot start (or a request about one that cannot be served); the message says why."""
+
+    def __init__(self, message: str, *, conflict: bool = False) -> None:
+        super().__init__(message)
+        self.conflict = conflict  # True: the cell's state forbids it now (HTTP 409); False: a bad request (422)
+
+
+def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig) -> dict[str, Any]:
+    """The job's options, checked; a bad one is refused naming the field and what it takes."""
+    if procedure not in ALL_PROCEDURES:
+        raise JobRefused(f"procedure: unknown '{procedure}'; choose one of {', '.join(ALL_PROCEDURES)}")
+    allowed = {"store", *ALL_PROCEDURES[procedure].options} | ({"method"} if procedure == "hand_eye" else set())
+    out: dict[str, Any] = {}
+    for key, value in options.items():
+        if value is None:
+            continue
+        if key not in allowed:
+            raise JobRefused(f"options.{key}: not an option of {procedure}; it takes {', '.join(sorted(allowed))}")
+        if key == "views":
+            if not isinstance(value, int) or isinstance(value, bool) or not 3 <= value <= 200:
+                raise JobRefused(f"options.views: give a whole number of board views from 3 to 200, got {value!r}")
+        elif key == "poses":
+            lo = config.calibration.procedure.laser.min_poses
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= 5000:
+                raise JobRefused(f"options.poses: give a whole number of laser poses from {lo} to 5000, got {value!r}")
+        elif key == "store":
+            if not isinstance(value, bool):
+                raise JobRefused(f"options.store: true or false, got {value!r}")
+        elif key == "method" and value not in HAND_EYE_METHODS:
+            raise JobRefused(f"options.method: one of {', '.join(HAND_EYE_METHODS)}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def motion_settings(config: CellConfig) -> MotionSettings:
+    c = config.calibration.procedure
+    return MotionSettings(c.speed_mm_s, c.speed_deg_s, c.move_timeout_s, c.read_timeout_s, c.grab_timeout_s)
+
+
+@dataclass
+class _Running:
+    record: JobRecord
+    task: asyncio.Task[None] | None = None
+    ctx: JobContext | None = None
+    cancel_reason: str | None = None
+    frame: Frame | None = None
+    frames: int = 0
+    started: float = field(default_factory=time.monotonic)
+    progress: dict[str, Any] = field(default_factory=dict)
+    updates: int = 0
+
+
+class JobManager:
+    """Runs commissioning jobs on the service's devices.
+
+    Args:
+        config: the cell configuration.
+        devices: the service's three ports (the same objects cycles use).
+        calibration_store: the versioned calibration set's folder.
+        store: the cell's database (job rows and the audit log).
+        machine: the PackML state machine (Start is guarded while a job runs).
+        alarms: raises the drift alarm of a failed verification.
+        events: where job, progress and prompt events go.
+        witness: the twin's truth for dataset manifests (simulated cell only).
+        call_timeout_s: the timeout of the robot stop on cancel.
+    """
+
+    def __init__(
+        self,
+        *,
+        config: CellConfig,
+        devices: CellDevices,
+        calibration_store: CalibrationStore,
+        store: AsyncCellStore,
+        machine: PackMLMachine,
+        alarms: AlarmManager,
+        events: EventHub,
+        witness: Witness | None = None,
+        call_timeout_s: float = 5.0,
+    ) -> None:
+        self.config = config
+        self.devices = devices
+        self.calibration_store = calibration_store
+        self.store = store
+        self.machine = machine
+        self.alarms = alarms
+        self.events = events
+        self.witness = witness
+        self.call_timeout_s = call_timeout_s
+        self.desk = PromptDesk(events.publish)
+        self._running: _Running | None = None
+        self._finished: dict[int, asyncio.Event] = {}
+        self._pump: asyncio.Task[None] | None = None
+        self._lock = asyncio.Lock()
+        self._listeners: list[Callable[[JobRecord], Awaitable[None] | None]] = []
+        self._last_frames: dict[int, Frame] = {}
+        machine.add_guard(PackMLCommand.START, self._start_guard)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Mark jobs a dead process left running as interrupted; follow the state machine."""
+        for job_id in await self.store.recover_jobs():
+            log.warning("commissioning job %d was interrupted by a restart; its partial dataset may be incomplete", job_id)
+        queue = self.machine.subscribe_queue()
+        self._pump = asyncio.create_task(self._follow(queue))
+
+    async def stop(self) -> None:
+        """Cancel a running job (the service is stopping) and stop following the machine."""
+        if self._running is not None:
+            with contextlib.suppress(Exception):
+                await self.cancel(self._running.record.id, actor="system", source="service", reason="the service is stopping")
+        if self._pump is not None:
+            self._pump.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._pump
+            self._pump = None
+
+    def on_finish(self, callback: Callable[[JobRecord], Awaitable[None] | None]) -> None:
+        """Call ``callback`` with every job's final record."""
+        self._listeners.append(callback)
+
+    async def _follow(self, queue: asyncio.Queue[MachineEvent]) -> None:
+        while True:
+            ev = await queue.get()
+            run = self._running
+            if run is None or not ev.state_changed or ev.state_after not in _CANCELLING_STATES:
+                continue
+            cmd = ev.command.name.lower() if ev.command is not None else "a state change"
+            with contextlib.suppress(Exception):
+                await self.cancel(run.record.id, actor=ev.actor, source=ev.source,
+                                  reason=f"the cell went to {ev.state_after.name.lower()} ({cmd} by {ev.actor})")  # fmt: skip
+
+    def _start_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
+        run = self._running
+        if run is None:
+            return None
+        return f"commissioning job {run.record.id} ({run.record.procedure}) is running: wait for it or cancel it first"
+
+    # -- queries --------------------------------------------------------------------------------
+
+    def running(self) -> JobRecord | None:
+        return None if self._running is None else self._running.record
+
+    def status(self) -> dict[str, Any] | None:
+        """The running job for /status: id, procedure, state, progress, the open prompt's kind."""
+        run = self._running
+        if run is None:
+            return None
+        prompts = self.desk.open_prompts(run.record.id)
+        return {"id": run.record.id, "procedure": run.record.procedure, "state": run.record.state, "progress": run.progress,
+                "prompt": prompts[0].kind.value if prompts else None}  # fmt: skip
+
+    def latest_frame(self, job_id: int) -> Frame | None:
+        """The last frame a job grabbed (the running one's, or one of the last few jobs')."""
+        run = self._running
+        return run.frame if run is not None and run.record.id == job_id else self._last_frames.get(job_id)
+
+    async def job(self, job_id: int) -> JobRecord:
+        run = self._running
+        if run is not None and run.record.id == job_id:
+            return run.record
+        return await self.store.job(job_id)
+
+    def live(self, job_id: int) -> dict[str, Any]:
+        """What only the running job has: its open prompt, progress and the live image's sequence number."""
+        run = self._running
+        prompts = [p.as_dict() for p in self.desk.open_prompts(job_id)]
+        if run is None or run.record.id != job_id:
+            return {"running": False, "prompt": prompts[0] if prompts else None, "frames": 0}
+        return {"running": True, "prompt": prompts[0] if prompts else None, "progress": run.progress, "frames": run.frames}
+
+    async def wait(self, job_id: int, timeout_s: float) -> JobRecord:
+        ev = self._finished.get(job_id)
+        if ev is not None:
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(ev.wait(), timeout_s)
+        return await self.job(job_id)
+
+    def current_calibration(self) -> CalibrationSet | None:
+        return self.calibration_store.current()
+
+    # -- plans ----------------------------------------------------------------------------------
+
+    async def plan(self, procedure: str, options: Mapping[str, Any]) -> MotionPlan:
+        """The plan a job would follow now (nothing moves): poses, reach, rotation spread, robot time."""
+        opts = check_options(procedure, options, self.config)
+        start = await self._robot_pose()
+        cal = await asyncio.to_thread(self.current_calibration)
+        try:
+            return await asyncio.to_thread(PLANNERS[procedure], self.config, cal, opts, start)
+        except (PlanError, CalibrationRefused) as err:
+            raise JobRefused(str(err)) from None
+
+    async def _robot_pose(self) -> Pose | None:
+        try:
+            return (await self.devices.robot.read_pose(timeout_s=self.call_timeout_s)).to_matrix()
+        except DeviceError:
+            return None
+
+    # -- start, cancel, answer ------------------------------------------------------------------
+
+    async def submit(self, procedure: str, options: Mapping[str, Any], *, actor: str, source: str) -> JobRecord:
+        """Start a job now; refused when another job runs or the cell is not in Stopped or Idle."""
+        opts = check_options(procedure, options, self.config)
+        async with self._lock:
+            if self._running is not None:
+                r = self._running.record
+                raise JobRefused(f"job {r.id} ({r.procedure}) is running: one job at a time; cancel it or wait", conflict=True)
+            state = self.machine.state
+            if state not in JOB_STATES_ALLOWED:
+                raise JobRefused(
+                    f"the cell is {state.name}: commissioning jobs run in STOPPED or IDLE only (no cycle can run then); "
+                    + ("send Clear first" if state is PackMLState.ABORTED else "send Stop first"),
+                    conflict=True,
+                )
+            cal = await asyncio.to_thread(self.current_calibration)
+            missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or cal.part(n) is None or cal.part(n).status != "ok"]  # type: ignore[union-attr]
+            if missing:
+                raise JobRefused(f"{procedure} needs {', '.join(missing)} calibrated first", conflict=True)
+            rec = await self.store.create_job(
+                procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
+            )
+            run = _Running(rec)
+            self._running = run
+            self._finished[rec.id] = asyncio.Event()
+            await self.store.append_audit(actor=actor, source=source, action="job.start",
+                                          params={"job_id": rec.id, "procedure": procedure, "options": opts})  # fmt: skip
+            run.task = asyncio.create_task(self._run(run, cal, opts))
+        self._publish(run)
+        return rec
+
+    async def cancel(self, job_id: int, *, actor: str, source: str, reason: str | None = None) -> JobRecord:
+        """Stop the robot at once and end the job as cancelled (its partial dataset is kept)."""
+        run = self._running
+        if run is None or run.record.id != job_id:
+            rec = await self.store.job(job_id)
+            raise JobRefused(f"job {job_id} is not running (it is {rec.state}); nothing to cancel", conflict=True)
+        if run.cancel_reason is None:
+            run.cancel_reason = reason or f"cancelled by {actor}"
+            await self.store.append_audit(actor=actor, source=source, action="job.cancel", params={"job_id": job_id, "reason": run.cancel_reason})
+            try:
+                await self.devices.robot.stop(timeout_s=self.call_timeout_s)
+            except DeviceError as err:
+                log.error("job %d: the robot did not take the stop: %s", job_id, err)
+            if run.task is not None:
+                run.task.cancel()
+        if run.task is not None:
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.shield(run.task)
+        return await self.store.job(job_id)
+
+    async def answer(self, job_id: int, prompt_id: int, answer: Answer) -> Prompt:
+        """Answer the job's open prompt (audited with who answered)."""
+        prompt = self.desk.answer(prompt_id, answer, job_id=job_id)
+        await self.store.append_audit(
+            actor=answer.actor, source=answer.source, action="job.prompt",
+            params={"job_id": job_id, "prompt_id": prompt_id, "kind": prompt.kind.value, "action": answer.action, "value": answer.value},
+        )  # fmt: skip
+        return prompt
+
+    # -- the job itself -------------------------------------------------------------------------
+
+    def _publish(self, run: _Running) -> None:
+        r = run.record
+        self.events.publish(
+            "job",
+            {"job_id": r.id, "procedure": r.procedure, "state": r.state, "progress": run.progress, "frames": run.frames,
+             "error": r.error, "dataset": r.dataset, "version_after": r.version_after, "plan": r.plan},
+        )  # fmt: skip
+
+    def _progress(self, run: _Running) -> Callable[[int, int, str], None]:
+        def report(done: int, total: int, message: str) -> None:
+            elapsed = time.monotonic() - run.started
+            plan = run.ctx.plan if run.ctx is not None else None
+            left = None
+            if plan is not None and plan.moves_s and done > 0:
+                est_done = max(plan.estimated_s - plan.remaining_s(done), 1e-6)
+                left = plan.remaining_s(done) * max(elapsed / est_done, 0.0)
+            run.progress = {"done": done, "total": total, "message": message, "elapsed_s": elapsed, "time_left_s": left}
+            run.updates += 1
+            self._publish(run)
+            if run.updates % PROGRESS_PERSIST_EVERY == 0 or done == total:
+                asyncio.get_running_loop().create_task(self._persist_progress(run))
+
+        return report
+
+    async def _persist_progress(self, run: _Running) -> None:
+        with contextlib.suppress(Exception):
+            run.record = await self.store.update_job(run.record.id, progress=run.progress)
+
+    def _on_plan(self, run: _Running) -> Callable[[MotionPlan], None]:
+        def show(plan: MotionPlan) -> None:
+            summary = plan.summary()
+            run.record = replace(run.record, plan=summary)
+            asyncio.get_running_loop().create_task(self._persist_plan(run, summary))
+            self._publish(run)
+
+        return show
+
+    async def _persist_plan(self, run: _Running, summary: dict[str, Any]) -> None:
+        with contextlib.suppress(Exception):
+            await self.store.update_job(run.record.id, plan=summary)
+
+    def _on_frame(self, run: _Running) -> Callable[[Frame], None]:
+        def take(frame: Frame) -> None:
+            run.frame = frame
+            run.frames += 1
+            self.events.publish("job_image", {"job_id": run.record.id, "frames": run.frames})
+
+        return take
+
+    def _config_for(self, opts: Mapping[str, Any]) -> CellConfig:
+        method = opts.get("method")
+        if method is None:
+            return self.config
+        proc = self.config.calibration.procedure
+        proc = proc.model_copy(update={"hand_eye": proc.hand_eye.model_copy(update={"method": method})})
+        return self.config.model_copy(update={"calibration": self.config.calibration.model_copy(update={"procedure": proc})})
+
+    async def _run(self, run: _Running, cal: CalibrationSet | None, opts: dict[str, Any]) -> None:
+        rec = run.record
+        proc = ALL_PROCEDURES[rec.procedure]
+        config = self._config_for(opts)
+        when = datetime.now(timezone.utc)
+        dest = default_dataset_dir(self.calibration_store.root, proc.kind, when).with_name(
+            f"{proc.kind}-{when:%Y%m%dT%H%M%S}Z-job{rec.id}"
+        )
+        motion = motion_settings(config)
+        d = self.devices
+        ctx = JobContext(
+            job_id=rec.id, config=config,
+            devices=CellDevices(d.laser, d.camera, ReducedSpeedRobot(d.robot, motion.speed_mm_s, motion.speed_deg_s)),
+            calibration=cal, motion=motion, ask=self.desk.asker(rec.id), dest=dest, witness=self.witness,
+            source=describe_source(config, d),
+        )  # fmt: skip
+        ctx.progress = self._progress(run)
+        ctx.on_frame = self._on_frame(run)
+        ctx.on_plan = self._on_plan(run)
+        run.ctx = ctx
+        fields: dict[str, Any] = {}
+        outcome: Outcome | None = None
+        ds: Dataset | None = None
+        try:
+            ds = await proc.collect(ctx, **{k: v for k, v in opts.items() if k in proc.options})
+            fields["dataset"] = str(ds.root)
+            run.record = await self.store.update_job(rec.id, state="computing", dataset=str(ds.root),
+                                                     plan=None if ctx.plan is None else ctx.plan.summary())  # fmt: skip
+            self._publish(run)
+            outcome = await asyncio.to_thread(proc.compute, ds, cal, config)
+            fields.update(await self._conclude(rec, proc, outcome, ds, config, opts, when))
+        except asyncio.CancelledError:
+            fields.update(state="cancelled", error=run.cancel_reason or "cancelled: the service is stopping")
+        except PromptCancelled as err:
+            fields.update(state="cancelled", error=str(err))
+        except CalibrationRefused as err:
+            fields.update(state="refused", error=f"{err.reason}: {err.detail}")
+        except (DeviceError, PlanError) as err:
+            reason = run.cancel_reason
+            fields.update(state="cancelled" if reason else "failed", error=reason or f"{type(err).__name__}: {err}")
+        except Exception as err:  # noqa: BLE001 - any bug still ends the job with a record
+            log.exception("commissioning job %d failed", rec.id)
+            fields.update(state="failed", error=f"software fault: {type(err).__name__}: {err}")
+        await asyncio.shield(self._finish(run, ctx, fields))
+
+    async def _conclude(
+        self, rec: JobRecord, proc: Procedure, outcome: Outcome, ds: Dataset, config: CellConfig, opts: Mapping[str, Any], when: datetime
+    ) -> dict[str, Any]:
+        result: dict[str, Any] = {"part": outcome.part, "method": outcome.method, "summary": list(outcome.summary),
+                                  "warnings": list(outcome.warnings), "quality": outcome.quality}  # fmt: skip
+        fields: dict[str, Any] = {"state": "done", "result": result}
+        if rec.procedure == "verify":
+            if not outcome.quality.get("passed", False):
+                await self.alarms.raise_alarm(AlarmCode.CALIBRATION_DRIFT, source="verify", detail="; ".join(outcome.warnings))
+            else:
+                self.alarms.clear(AlarmCode.CALIBRATION_CHECK_DUE, source="verify")
+            return fields
+        if opts.get("store", True):
+            saved = await asyncio.to_thread(record, self.calibration_store, outcome, ds, config, when, f"{outcome.part}: job {rec.id}")
+            fields["version_after"] = saved.version
+            result["stored_version"] = saved.version
+            result["ready_problems"] = check_ready(saved, datetime.now(timezone.utc))
+        else:
+            result["stored_version"] = None
+        return fields
+
+    async def _finish(self, run: _Running, ctx: JobContext, fields: dict[str, Any]) -> None:
+        rec = run.record
+        try:
+            if ctx.draft is not None:  # ended before the dataset was complete: keep what was collected
+                reason = fields.get("error") or fields.get("state", "ended early")
+                try:
+                    ds = await asyncio.to_thread(ctx.draft.write, ctx.dest, partial_reason=str(reason))
+                    fields["dataset"] = str(ds.root)
+                except Exception:  # noqa: BLE001 - the record must still be written
+                    log.exception("job %d: writing the partial dataset failed", rec.id)
+            if ctx.plan is not None:
+                fields.setdefault("plan", ctx.plan.summary())
+            fields["progress"] = run.progress or {}
+            run.record = await self.store.update_job(rec.id, **fields)
+            if run.frame is not None:
+                self._last_frames[rec.id] = run.frame
+                while len(self._last_frames) > LAST_FRAMES_KEPT:
+                    self._last_frames.pop(next(iter(self._last_frames)))
+            self._publish(run)
+            log.info("commissioning job %d (%s) ended %s%s", rec.id, rec.procedure, run.record.state,
+                     f": {run.record.error}" if run.record.error else "")  # fmt: skip
+        finally:
+            self._running = None
+            ev = self._finished.pop(rec.id, None)
+            if ev is not None:
+                ev.set()
+        for callback in list(self._listeners):
+            with contextlib.suppress(Exception):
+                res = callback(run.record)
+                if asyncio.iscoroutine(res):
+                    await res
+
+
+def job_view(rec: JobRecord, live: Mapping[str, Any]) -> dict[str, Any]:
+    """A job as the API and the dashboard show it."""
+    return {
+        "id": rec.id,
+        "procedure": rec.procedure,
+        "state": rec.state,
+        "actor": rec.actor,
+        "source": rec.source,
+        "options": rec.options,
+        "created_utc": rec.created_at.isoformat(),
+        "finished_utc": None if rec.finished_at is None else rec.finished_at.isoformat(),
+        "plan": rec.plan,
+        "progress": live.get("progress") or rec.progress,
+        "dataset": rec.dataset,
+        "result": rec.result,
+        "error": rec.error,
+        "version_before": rec.version_before,
+        "version_after": rec.version_after,
+        "prompt": live.get("prompt"),
+        "frames": live.get("frames", 0),
+        "running": bool(live.get("running")),
+    }
+

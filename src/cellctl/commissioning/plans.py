@@ -1,0 +1,262 @@
+"""Where each commissioning procedure will move the robot, checked and costed before anything moves.
+
+A plan is a pure function of the cell's configuration (its nominal ``[layout]``: the opening, the
+drawn camera and laser mountings, the lens data sheet, the robot's working range) and, for the
+procedures that build on earlier ones, the calibration set. Every pose is checked against the
+robot's working range (poses outside it are dropped with the reason); the plan reports how many
+poses remain, how the rotations between them are spread (hand-eye needs rotation axes in several
+directions) and the robot time it will take at the procedure's reduced speed. ``cellctl
+calibrate ... --dry-run`` prints it; a job shows it before the first move.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cellctl.align import plan_spot_poses
+from cellctl.calibration.board import BoardSpec
+from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.hand_eye import motion_diversity
+from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
+from cellctl.calibration.poses import plan_board_views, plan_laser_poses
+from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.config.calibration_procedure import BoardConfig
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import Pose, pose_in_plane, pose_to_xyz_fixed
+
+PROCEDURE_NAMES = ("camera", "hand_eye", "laser", "teaching", "pixel_map", "verify")
+
+
+class PlanError(ValueError):
+    """No usable plan: the message says which setting or missing calibration stops it."""
+
+
+@dataclass(frozen=True)
+class MotionPlan:
+    """The robot's route for one procedure.
+
+    Attributes:
+        procedure: the procedure's name (:data:`PROCEDURE_NAMES`).
+        poses: flange targets T_B_H (mm) in the order they are visited.
+        labels: one short name per pose (e.g. "view_003", "stand 4 pose 12").
+        dropped: why planned candidates were left out (out of reach, target out of view).
+        speed_mm_s, speed_deg_s: the reduced speed every move of the procedure uses.
+        moves_s: the estimated robot time of each move, from the previous pose (the first from
+            the robot's current pose, when known).
+        details: figures particular to the procedure (tilt range, distances, groups).
+    """
+
+    procedure: str
+    poses: list[Pose]
+    labels: list[str]
+    dropped: list[str]
+    speed_mm_s: float
+    speed_deg_s: float
+    moves_s: list[float] = field(default_factory=list)
+    details: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def estimated_s(self) -> float:
+        """Estimated robot time of all moves (s), settling at each pose included."""
+        return float(sum(self.moves_s))
+
+    def remaining_s(self, done: int) -> float:
+        """Estimated robot time of the moves still to come after ``done`` poses."""
+        return float(sum(self.moves_s[done:]))
+
+    def rotation_spread(self) -> dict[str, float | int]:
+        """How the flange rotations between poses are spread (hand-eye needs several axes)."""
+        if len(self.poses) < 2:
+            return {"pairs": 0, "max_pair_angle_deg": 0.0, "median_pair_angle_deg": 0.0, "axis_spread": 0.0, "axis_spread_3d": 0.0}
+        d = motion_diversity(self.poses)
+        return {
+            "pairs": d.n_pairs,
+            "max_pair_angle_deg": d.max_pair_angle_deg,
+            "median_pair_angle_deg": d.median_pair_angle_deg,
+            "axis_spread": d.axis_spread,
+            "axis_spread_3d": d.axis_spread_3d,
+        }
+
+    def summary(self, *, with_poses: bool = False) -> dict[str, Any]:
+        """The plan as the API, the CLI and the job record show it (mm and degrees)."""
+        out: dict[str, Any] = {
+            "procedure": self.procedure,
+            "poses": len(self.poses),
+            "dropped": list(self.dropped),
+            "speed_mm_s": self.speed_mm_s,
+            "speed_deg_s": self.speed_deg_s,
+            "estimated_robot_time_s": self.estimated_s,
+            "rotation": self.rotation_spread(),
+            "details": self.details,
+        }
+        if self.poses:
+            out["first_pose"] = pose_row(self.poses[0], self.labels[0])
+        if with_poses:
+            out["pose_list"] = [pose_row(p, lab) for p, lab in zip(self.poses, self.labels)]
+        return out
+
+
+def pose_row(T: Pose, label: str) -> dict[str, Any]:
+    """A pose for people: position (mm) and XYZ fixed angles rx, ry, rz (deg, eq. 13)."""
+    t, (alpha, beta, gamma) = pose_to_xyz_fixed(T)
+    return {
+        "label": label,
+        "position_mm": [round(float(v), 3) for v in t],
+        "xyz_fixed_deg": [round(float(np.degrees(a)), 4) for a in (gamma, beta, alpha)],
+    }
+
+
+def _reach_check(config: CellConfig) -> Any:
+    envelope = config.layout.robot
+
+    def check(T_B_H: Pose) -> None:
+        problem = envelope.reach_problem(T_B_H)
+        if problem is not None:
+            raise ValueError(problem)
+
+    return check
+
+
+def _timed(config: CellConfig, poses: Sequence[Pose], start: Pose | None) -> list[float]:
+    c = config.calibration.procedure
+    envelope = config.layout.robot
+    out = []
+    previous = start
+    for T in poses:
+        out.append(0.0 if previous is None else envelope.move_time_s(previous, T, c.speed_mm_s, c.speed_deg_s))
+        previous = T
+    return out
+
+
+def make_plan(config: CellConfig, procedure: str, poses: Sequence[Pose], labels: Sequence[str], dropped: Sequence[str],
+          start: Pose | None, details: dict[str, Any]) -> MotionPlan:  # fmt: skip
+    c = config.calibration.procedure
+    return MotionPlan(
+        procedure, [np.asarray(p, dtype=float) for p in poses], list(labels), list(dropped),
+        c.speed_mm_s, c.speed_deg_s, _timed(config, poses, start), details,
+    )  # fmt: skip
+
+
+def nominal_T0(config: CellConfig) -> Pose:
+    """The workpiece frame where the layout puts the opening's corner."""
+    return config.layout.opening.T_B_T_nominal()
+
+
+def board_spec(board: BoardConfig) -> BoardSpec:
+    return BoardSpec(tuple(board.inner_corners), float(board.square_mm))  # type: ignore[arg-type]
+
+
+def board_place(config: CellConfig, board: BoardConfig, at_mm: Sequence[float]) -> dict[str, Any]:
+    """Where a board goes, for the prompt: its first inner corner in T0 and in the base frame."""
+    T_B_P = pose_in_plane(nominal_T0(config), at_mm)
+    return {
+        "board": {**board_spec(board).as_dict(), "border_mm": board.border_mm},
+        "at_mm": [float(v) for v in at_mm],
+        "frame": "T0 (x right, y down from the opening's upper-right corner, on the wall)",
+        "first_corner_base_mm": [round(float(v), 1) for v in T_B_P[:3, 3]],
+    }
+
+
+def plan_board(config: CellConfig, *, views: int | None = None, start: Pose | None = None, procedure: str = "camera") -> MotionPlan:
+    """Views of the checkerboard stuck on the wall (camera intrinsics and hand-eye)."""
+    cc = config.calibration.procedure.camera
+    lay = config.layout
+    K_nom, D_nom = lay.camera.camera_matrix(), lay.camera.dist_coeffs()
+    size = (lay.camera.width_px, lay.camera.height_px)
+    outline = board_spec(cc.board).outline(cc.board.border_mm)
+    T_B_P = pose_in_plane(nominal_T0(config), cc.board_on_wall_mm)
+    n = views if views is not None else cc.n_views
+    if n < 3:
+        raise PlanError(f"views: at least 3 board views are needed, got {n}")
+    plan = plan_board_views(
+        T_B_P, outline, lay.camera_mount.T_H_C(), K_nom, D_nom, size, n, _reach_check(config),
+        distance_mm=cc.distance_mm, tilt_deg=cc.tilt_deg, spin_deg=cc.spin_deg, margin_px=cc.margin_px, seed=0,
+    )  # fmt: skip
+    labels = [f"view_{k:03d}" for k in range(len(plan.flange_poses))]
+    details = {"tilt_deg": [min(plan.tilt_deg, default=0.0), max(plan.tilt_deg, default=0.0)],
+               "distance_mm": [min(plan.distance_mm, default=0.0), max(plan.distance_mm, default=0.0)],
+               "board": board_place(config, cc.board, cc.board_on_wall_mm)}  # fmt: skip
+    return make_plan(config, procedure, plan.flange_poses, labels, plan.dropped, start, details)
+
+
+def plan_laser(config: CellConfig, *, poses: int | None = None, start: Pose | None = None) -> MotionPlan:
+    """The wall shown to the laser from many wrist orientations at several arm stands (laser r, l)."""
+    lc = config.calibration.procedure.laser
+    lay = config.layout
+    r_nom, l_nom = lay.laser_mount.r, lay.laser_mount.l
+    T0 = nominal_T0(config)
+    R_nom = T0[:3, :3] @ lay.camera_mount.T_H_C()[:3, :3].T
+    lo, hi = lay.laser_mount.range_min_mm + lc.range_margin_mm, lay.laser_mount.range_max_mm - lc.range_margin_mm
+    n = poses if poses is not None else lc.n_poses
+    if n < lc.min_poses:
+        raise PlanError(f"poses: the laser calibration needs at least {lc.min_poses} poses (calibration.procedure.laser.min_poses), got {n}")
+    plan = plan_laser_poses(
+        T0, lc.aim_mm, R_nom, r_nom, l_nom, n, _reach_check(config),
+        pivot_H_mm=lc.wrist_in_flange_mm, standoff_mm=lc.standoff_mm, wrist_depths_mm=lc.wrist_depths_mm(),
+        tilt_deg=lc.tilt_deg, spin_deg=lc.spin_deg, range_mm=(lo, hi),
+        on_wall=lambda xy: lay.opening.on_wall(xy, lc.keep_off_opening_mm),
+    )  # fmt: skip
+    labels = [f"stand {g} pose {k}" for k, g in enumerate(plan.group)]
+    details = {"groups": list(plan.group), "stands": len(set(plan.group)), "aim_mm": list(lc.aim_mm),
+               "tilt_deg": list(lc.tilt_deg), "distance_mm": [min(plan.distance_mm, default=0.0), max(plan.distance_mm, default=0.0)],
+               "r_nominal": r_nom.tolist(), "l_nominal": l_nom.tolist()}  # fmt: skip
+    return make_plan(config, "laser", plan.flange_poses, labels, plan.dropped, start, details)
+
+
+def _need(cal: CalibrationSet | None, procedure: str, *parts: str) -> CalibrationSet:
+    for name in parts:
+        p = None if cal is None else cal.part(name)
+        if p is None or p.status != "ok":
+            raise PlanError(f"{procedure}: {name} must be calibrated first")
+    assert cal is not None
+    return cal
+
+
+def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
+    """Laser spots around the opening from the nominal shooting pose (teaching's alignment)."""
+    cal = _need(cal, "teaching", "camera", "hand_eye", "laser")
+    T_H_C = cal.T_H_C()
+    r, l = cal.laser_ray()  # noqa: E741
+    ac = config.process.align
+    T0 = nominal_T0(config)
+    shoot = nominal_shooting_pose(T0, T_H_C, config.process.working_distance_mm)
+    spots = plan_spot_poses(T0, ac.spots_mm, shoot[:3, :3], r, l, ac.laser_standoff_mm)
+    poses, labels, dropped = [], [], []
+    check = _reach_check(config)
+    for k, X in enumerate(spots):
+        try:
+            check(X)
+        except ValueError as err:
+            dropped.append(f"spot {k}: {err}")
+            continue
+        poses.append(X)
+        labels.append(f"spot {k}")
+    if dropped:
+        raise PlanError("teaching: " + "; ".join(dropped) + "; move process.align.spots_mm or the layout's opening")
+    details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.spots_mm],
+               "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
+    return make_plan(config, "teaching", poses, labels, dropped, start, details)
+
+
+def plan_nine_point(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
+    """A 3 x 3 grid of camera shifts in the wall plane about the taught shooting pose."""
+    cal = _need(cal, "pixel_map", "camera", "teaching")
+    taught = cal.taught()
+    npc = config.calibration.procedure.nine_point
+    offsets = nine_point_offsets(npc.step_mm)
+    targets = nine_point_targets(taught.C_Pos_0, taught.T0, offsets)
+    labels = [f"offset ({o[0]:+.0f}, {o[1]:+.0f}) mm" for o in offsets]
+    details = {"step_mm": npc.step_mm, "offsets_mm": offsets.tolist(),
+               "scale_board": board_place(config, npc.scale_board, npc.scale_board_on_wall_mm)}  # fmt: skip
+    return make_plan(config, "pixel_map", targets, labels, [], start, details)
+
+
+def spread_subset(count: int, take: int) -> list[int]:
+    """``take`` indices spread evenly over ``range(count)`` (all of them if there are fewer)."""
+    if take >= count:
+        return list(range(count))
+    return sorted({int(round(k * (count - 1) / max(take - 1, 1))) for k in range(take)})

@@ -1,0 +1,388 @@
+"""The commissioning procedures: collect a calibration dataset on the cell, through the ports only.
+
+Each procedure plans from the cell's nominal layout (and the calibration set where it builds on
+it), asks the engineer for what a robot cannot do (the car body in place, the board on the wall,
+the glass guided into the opening), shows its plan and waits for the engineer to confirm that
+the first pose is clear, then moves at the reduced speed and records every sample with the pose
+the controller reports after the move. The dataset is then computed exactly as a saved one is
+(:mod:`cellctl.calibration.compute`). The same code runs on a real cell and in the simulated one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cellctl.align import AlignmentError, compute_alignment
+from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.collect import move_and_report
+from cellctl.calibration.compute import (
+    Outcome,
+    compute_camera,
+    compute_hand_eye,
+    compute_laser,
+    compute_nine_point,
+    compute_teaching,
+    detect_views,
+)
+from cellctl.calibration.dataset import Dataset, pose_list
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.commissioning.context import JobContext
+from cellctl.commissioning.plans import (
+    MotionPlan,
+    board_place,
+    nominal_T0,
+    plan_board,
+    plan_laser,
+    plan_nine_point,
+    plan_teaching,
+    pose_row,
+)
+from cellctl.commissioning.prompts import PromptKind
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import Pose, mean_pose
+from cellctl.ports import DeviceRejected, Frame, LaserStatus
+
+
+class PoseRefused(Exception):
+    """The robot refused one planned pose; the procedure drops it with the reason and goes on."""
+
+
+async def move_to(ctx: JobContext, target: Pose) -> Pose:
+    """Move at the procedure's speed and return the flange pose the controller reports there."""
+    try:
+        return await move_and_report(ctx.devices.robot, target, ctx.motion)
+    except DeviceRejected as err:
+        raise PoseRefused(str(err)) from None
+
+
+async def grab(ctx: JobContext) -> Frame:
+    frame = await ctx.devices.camera.grab(timeout_s=ctx.motion.grab_timeout_s)
+    ctx.on_frame(frame)
+    return frame
+
+
+async def current_pose(ctx: JobContext) -> Pose | None:
+    """Where the robot stands (for the first move's time), or None if it does not answer."""
+    try:
+        return (await ctx.devices.robot.read_pose(timeout_s=ctx.motion.read_timeout_s)).to_matrix()
+    except Exception:  # noqa: BLE001 - only the time estimate of the first move needs it
+        return None
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
+
+
+async def confirm_start(ctx: JobContext, plan: MotionPlan, what: str) -> None:
+    """Show the plan and wait until the engineer confirms the way to the first pose is clear."""
+    ctx.show_plan(plan)
+    if not plan.poses:
+        raise CalibrationRefused(plan.procedure, "unreachable", "no planned pose is reachable: " + "; ".join(plan.dropped[:5]))
+    first = pose_row(plan.poses[0], plan.labels[0])
+    x, y, z = first["position_mm"]
+    await ctx.ask(
+        PromptKind.CONFIRM_START,
+        f"The robot will now visit {len(plan.poses)} poses for {what} at up to {plan.speed_mm_s:g} mm/s "
+        f"(about {_minutes(plan.estimated_s)} of robot time), first to ({x:.0f}, {y:.0f}, {z:.0f}) mm. "
+        "Check that the path from where it stands to there is clear, then confirm.",
+        details={"first_pose": first, "poses": len(plan.poses), "estimated_robot_time_s": plan.estimated_s,
+                 "dropped": len(plan.dropped), "speed_mm_s": plan.speed_mm_s},
+    )  # fmt: skip
+
+
+async def car_body_in_place(ctx: JobContext, text: str) -> None:
+    corner = ctx.config.layout.opening.corner_position_mm
+    await ctx.ask(PromptKind.CAR_BODY, text, details={"nominal_corner_base_mm": list(corner), "nominal": True})
+
+
+async def place_board(ctx: JobContext, place: dict[str, Any], name: str) -> float:
+    """Ask for the board on the wall; returns the square size the engineer measured (mm)."""
+    b = place["board"]
+    x, y = place["at_mm"]
+    cols, rows = b["inner_corners"]
+    answer = await ctx.ask(
+        PromptKind.PLACE_BOARD,
+        f"Fix the {name} ({cols} x {rows} inner corners, {b['square_mm']:g} mm squares) flat on the car-body wall with "
+        f"its first inner corner {x:g} mm right and {y:g} mm down of the opening's upper-right corner, rows along the "
+        "top edge. Measure the square size across the whole board and give it in mm (confirm keeps the nominal size).",
+        details=place,
+        value_label="measured square size (mm)",
+        default=float(b["square_mm"]),
+    )
+    return float(answer.value if answer.value is not None else b["square_mm"])
+
+
+async def remove_board(ctx: JobContext, name: str) -> None:
+    await ctx.ask(PromptKind.REMOVE_BOARD, f"Take the {name} off the wall, then confirm.")
+
+
+# -- camera intrinsics and hand-eye: views of the board ------------------------------------------
+
+
+async def collect_board_views(ctx: JobContext, *, views: int | None = None, procedure: str = "camera") -> Dataset:
+    """Stick the board on the wall, view it from the planned poses, take it off again."""
+    plan = plan_board(ctx.config, views=views, start=await current_pose(ctx), procedure=procedure)
+    cc = ctx.config.calibration.procedure.camera
+    lens = ctx.config.layout.camera
+    await car_body_in_place(ctx, "A car body stands clamped in the cell, its opening near the nominal place; confirm.")
+    square = await place_board(ctx, plan.details["board"], "checkerboard")
+    draft = ctx.begin(
+        "board_views",
+        board={"inner_corners": list(cc.board.inner_corners), "square_mm": square, "border_mm": cc.board.border_mm,
+               "on_wall_mm": list(cc.board_on_wall_mm)},
+        image_size=[lens.width_px, lens.height_px],
+        plan=plan.summary(),
+        views=[],
+        skipped=[],
+    )  # fmt: skip
+    await confirm_start(ctx, plan, "the board views")
+    n = len(plan.poses)
+    for k, (X, name) in enumerate(zip(plan.poses, plan.labels)):
+        try:
+            reported = await move_to(ctx, X)
+        except PoseRefused as err:
+            draft.manifest["skipped"].append(f"{name}: the robot refused the pose ({err})")
+            ctx.progress(k + 1, n, f"{name}: refused by the robot")
+            continue
+        frame = await grab(ctx)
+        draft.images[f"{name}.png"] = frame.image
+        draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
+        ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
+    await remove_board(ctx, "checkerboard")
+    return ctx.finish()
+
+
+# -- laser ---------------------------------------------------------------------------------------
+
+
+async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> Dataset:
+    """Show a plain patch of the wall to the laser from many wrist orientations at several arm stands."""
+    plan = plan_laser(ctx.config, poses=poses, start=await current_pose(ctx))
+    head = ctx.config.layout.laser_mount
+    aim = ctx.config.calibration.procedure.laser.aim_mm
+    await car_body_in_place(
+        ctx,
+        f"A car body stands clamped in the cell; the laser reads its plain wall around ({aim[0]:g}, {aim[1]:g}) mm from the "
+        "opening's upper-right corner (no seal, label or edge within 300 mm of it). Confirm.",
+    )
+    draft = ctx.begin(
+        "laser_plane",
+        readings=[],
+        sensor_range_mm=[head.range_min_mm, head.range_max_mm],
+        r_nominal=plan.details["r_nominal"],
+        l_nominal=plan.details["l_nominal"],
+        plan=plan.summary(),
+        skipped=[],
+    )
+    await confirm_start(ctx, plan, "the laser calibration")
+    groups = plan.details["groups"]
+    n = len(plan.poses)
+    for k, (X, g) in enumerate(zip(plan.poses, groups)):
+        try:
+            reported = await move_to(ctx, X)
+        except PoseRefused as err:
+            draft.manifest["skipped"].append(f"pose {k}: the robot refused it ({err})")
+            ctx.progress(k + 1, n, f"pose {k}: refused by the robot")
+            continue
+        reading = await ctx.devices.laser.read(timeout_s=ctx.motion.read_timeout_s)
+        draft.manifest["readings"].append({
+            "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X), "group": int(g), "status": reading.status.value,
+            "distance_mm": reading.distance_mm if reading.status is LaserStatus.OK else None,
+        })  # fmt: skip
+        ctx.progress(k + 1, n, f"pose {k}: {reading.status.value}")
+    return ctx.finish()
+
+
+# -- teaching ------------------------------------------------------------------------------------
+
+
+def _need(cal: CalibrationSet | None, part: str, *names: str) -> CalibrationSet:
+    for name in names:
+        p = None if cal is None else cal.part(name)
+        if p is None or p.status != "ok":
+            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first")
+    assert cal is not None
+    return cal
+
+
+async def collect_teaching(ctx: JobContext) -> Dataset:
+    """Align at the reference car body, take the template image, record the hand-guided installs."""
+    cal = _need(ctx.calibration, "teaching", "camera", "hand_eye", "laser")
+    config = ctx.config
+    plan = plan_teaching(config, cal, start=await current_pose(ctx))
+    T_H_C = cal.T_H_C()
+    r, l = cal.laser_ray()  # noqa: E741
+    head = config.layout.laser_mount
+    tc = config.calibration.procedure.teach
+    ac = config.process.align
+    shoot = plan.details["shooting_start"]
+    await car_body_in_place(
+        ctx,
+        "Bring the reference car body into the cell and clamp it at its nominal place: its opening defines the "
+        "workpiece frame T0 every cycle is corrected to. Confirm when it stands still.",
+    )
+    draft = ctx.begin(
+        "teaching",
+        spots=[],
+        T0_nominal=pose_list(nominal_T0(config)),
+        sensor_range_mm=[head.range_min_mm, head.range_max_mm],
+        operator={"kind": "hand guiding", "installs": tc.hand_guided_installs},
+        g_Pos_0_installs=[],
+        plan=plan.summary(),
+    )
+    await confirm_start(ctx, plan, "the teaching alignment")
+    spots_H, spots_d = [], []
+    n_steps = len(plan.poses) + 1 + tc.hand_guided_installs
+    for k, X in enumerate(plan.poses):
+        try:
+            reported = await move_to(ctx, X)
+        except PoseRefused as err:
+            raise CalibrationRefused("teaching", "unreachable", f"laser spot {k}: {err}") from None
+        reading = await ctx.devices.laser.read(timeout_s=ctx.motion.read_timeout_s)
+        if reading.status is not LaserStatus.OK or reading.distance_mm is None:
+            raise CalibrationRefused(
+                "teaching", "alignment",
+                f"laser spot {k} gave no distance ({reading.status.value}); move process.align.spots_mm onto the wall "
+                "and within the sensor's range",
+            )  # fmt: skip
+        spots_H.append(reported)
+        spots_d.append(float(reading.distance_mm))
+        draft.manifest["spots"].append({"T_B_H": pose_list(reported), "distance_mm": float(reading.distance_mm)})
+        ctx.progress(k + 1, n_steps, f"laser spot {k}: {reading.distance_mm:.3f} mm")
+    start = np.asarray(shoot, dtype=float)
+    draft.manifest["shooting_start"] = pose_list(start)
+    try:
+        align = compute_alignment(
+            np.array(spots_H), np.array(spots_d), r, l, T_H_C, config.process.working_distance_mm, T_B_H_current=start,
+            range_mm=(head.range_min_mm, head.range_max_mm), inlier_threshold_mm=ac.inlier_threshold_mm,
+            max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
+        )  # fmt: skip
+    except AlignmentError as err:
+        raise CalibrationRefused("teaching", "alignment", str(err)) from None
+    C_Pos_0 = await move_to(ctx, align.T_B_H_aligned)
+    frame = await grab(ctx)
+    draft.manifest["C_Pos_0"] = pose_list(C_Pos_0)
+    draft.manifest["shooting_image"] = "template.png"
+    draft.images["template.png"] = frame.image
+    ctx.progress(len(plan.poses) + 1, n_steps, "template image taken at the aligned shooting pose C_Pos_0")
+    installs = []
+    for k in range(tc.hand_guided_installs):
+        again = " Take the glass out of the opening and guide it in again from outside." if k else ""
+        await ctx.ask(
+            PromptKind.GUIDE_INSTALL,
+            f"Install {k + 1} of {tc.hand_guided_installs}: jog or lead the robot until the glass sits in the opening as "
+            f"it must be installed, then confirm; the robot's pose is read then.{again}",
+            details={"index": k + 1, "count": tc.hand_guided_installs, "shooting_pose": pose_row(C_Pos_0, "C_Pos_0")},
+        )
+        pose = (await ctx.devices.robot.read_pose(timeout_s=ctx.motion.read_timeout_s)).to_matrix()
+        installs.append(pose)
+        draft.manifest["g_Pos_0_installs"].append(pose_list(pose))
+        ctx.progress(len(plan.poses) + 2 + k, n_steps, f"hand-guided install {k + 1} of {tc.hand_guided_installs} recorded")
+    g_Pos_0 = mean_pose(np.array(installs))
+    draft.manifest["g_Pos_0"] = pose_list(g_Pos_0)
+    await ctx.ask(
+        PromptKind.RETREAT,
+        "Jog the robot with the glass back out of the opening to a clear pose (e.g. the shooting pose), then confirm.",
+        details={"clear_pose": pose_row(C_Pos_0, "C_Pos_0")},
+    )
+    return ctx.finish({"g_Pos_0": g_Pos_0})
+
+
+# -- nine-point map and pixel scale ----------------------------------------------------------------
+
+
+async def collect_nine_point(ctx: JobContext) -> Dataset:
+    """Nine images of the window corner from the taught pose shifted in the wall plane, then the scale board."""
+    cal = _need(ctx.calibration, "pixel_map", "camera", "teaching")
+    plan = plan_nine_point(ctx.config, cal, start=await current_pose(ctx))
+    taught = cal.taught()
+    npc = ctx.config.calibration.procedure.nine_point
+    await car_body_in_place(
+        ctx, "The car body taught with (or one clamped at the same place) stands in the cell; its window corner must be "
+        "in view from the taught shooting pose. Confirm.",
+    )  # fmt: skip
+    draft = ctx.begin(
+        "nine_point",
+        views=[],
+        C_Pos_0=pose_list(taught.C_Pos_0),
+        T0=pose_list(taught.T0),
+        scale_image="scale.png",
+        scale_board={"inner_corners": list(npc.scale_board.inner_corners), "square_mm": npc.scale_board.square_mm,
+                     "on_wall_mm": list(npc.scale_board_on_wall_mm)},
+        plan=plan.summary(),
+    )  # fmt: skip
+    await confirm_start(ctx, plan, "the nine-point map")
+    offsets = plan.details["offsets_mm"]
+    n = len(plan.poses) + 1
+    for k, (X, o) in enumerate(zip(plan.poses, offsets)):
+        name = f"offset_{k:03d}"
+        try:
+            reported = await move_to(ctx, X)
+        except PoseRefused as err:
+            raise CalibrationRefused("pixel_map", "unreachable", f"{name}: {err}") from None
+        frame = await grab(ctx)
+        draft.images[f"{name}.png"] = frame.image
+        draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "offset_target_mm": list(o)})
+        ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
+    await move_to(ctx, taught.C_Pos_0)
+    place = board_place(ctx.config, npc.scale_board, npc.scale_board_on_wall_mm)
+    draft.manifest["scale_board"]["square_mm"] = await place_board(ctx, place, "scale checkerboard")
+    frame = await grab(ctx)
+    draft.images["scale.png"] = frame.image
+    ctx.progress(n, n, "scale board image taken")
+    await remove_board(ctx, "scale checkerboard")
+    return ctx.finish()
+
+
+# -- the table ------------------------------------------------------------------------------------
+
+Collect = Callable[..., Awaitable[Dataset]]
+Compute = Callable[[Dataset, "CalibrationSet | None", CellConfig], Outcome]
+
+
+@dataclass(frozen=True)
+class Procedure:
+    """One part's calibration: the dataset kind it collects, how, and how it is computed.
+
+    ``options`` names the collection's options (e.g. ``views``) that the CLI and REST may set.
+    """
+
+    part: str
+    kind: str
+    method: str
+    needs: tuple[str, ...]
+    collect: Collect
+    compute: Compute
+    options: tuple[str, ...] = ()
+
+
+async def _board_camera(ctx: JobContext, *, views: int | None = None) -> Dataset:
+    return await collect_board_views(ctx, views=views, procedure="camera")
+
+
+async def _board_hand_eye(ctx: JobContext, *, views: int | None = None) -> Dataset:
+    return await collect_board_views(ctx, views=views, procedure="hand_eye")
+
+
+def _hand_eye(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
+    return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
+
+
+PROCEDURES: dict[str, Procedure] = {
+    "camera": Procedure("camera", "board_views", "zhang", (), _board_camera, lambda ds, cal, cfg: compute_camera(ds, cfg), ("views",)),
+    "hand_eye": Procedure("hand_eye", "board_views", "tsai", ("camera",), _board_hand_eye, _hand_eye, ("views",)),
+    "laser": Procedure("laser", "laser_plane", "plane constraint", (), collect_laser_plane, lambda ds, cal, cfg: compute_laser(ds, cfg), ("poses",)),
+    "teaching": Procedure("teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"), collect_teaching, compute_teaching),
+    "pixel_map": Procedure("pixel_map", "nine_point", "nine-point", ("camera", "teaching"), collect_nine_point, compute_nine_point),
+}
+# The order a cell is commissioned in: each part only needs parts before it.
+ORDER = ("camera", "hand_eye", "laser", "teaching", "pixel_map")
+
+
+def check_inputs(cal: CalibrationSet | None, part: str, names: tuple[str, ...]) -> None:
+    """Refuse ``part`` naming the first of ``names`` that is missing or failed in the set."""
+    _need(cal, part, *names)

@@ -1,0 +1,258 @@
+"""Following a commissioning job in a terminal: progress bar, prompts answered at the keyboard, Ctrl-C cancels.
+
+The job runs in the service; this side only watches the event stream (``job`` and ``prompt``
+events), shows the open prompt and sends what the engineer types: Enter confirms (with the
+default value, if the prompt asks for one), a number answers with that value, ``c`` cancels. A
+prompt answered elsewhere (the dashboard, the simulated operator) is shown with who answered it.
+Ctrl-C cancels the job: the service stops the robot at once and keeps the partial dataset.
+"""
+
+from __future__ import annotations
+
+import queue
+import sys
+import threading
+import time
+from typing import Any, TextIO
+
+from cellctl.client import CellClient, ServiceError
+
+FINISHED = frozenset({"done", "refused", "failed", "cancelled", "interrupted"})
+BAR_WIDTH = 24
+
+
+def _clock(seconds: float | None) -> str:
+    if seconds is None:
+        return "?"
+    s = int(round(max(seconds, 0.0)))
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
+
+
+class ProgressLine:
+    """One progress line: redrawn in place on a terminal, printed every tenth of the way elsewhere."""
+
+    def __init__(self, out: TextIO, what: str) -> None:
+        self.out = out
+        self.what = what
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self._shown = False
+        self._last_tenth = -1
+        self._last: tuple[Any, ...] | None = None
+
+    def update(self, p: dict[str, Any]) -> None:
+        key = (p.get("done"), p.get("total"), p.get("message"))
+        if key == self._last:
+            return
+        self._last = key
+        done, total = int(p.get("done", 0)), max(int(p.get("total", 0)), 1)
+        frac = min(done / total, 1.0)
+        bar = "#" * round(frac * BAR_WIDTH) + "." * (BAR_WIDTH - round(frac * BAR_WIDTH))
+        left = p.get("time_left_s")
+        text = (f"  {self.what} [{bar}] {done}/{total}  {p.get('message', '')}  "
+                f"{_clock(p.get('elapsed_s'))} elapsed" + (f", ~{_clock(left)} left" if left is not None else ""))  # fmt: skip
+        if self.tty:
+            self.out.write("\r" + text[:160].ljust(160))
+            self._shown = True
+        else:
+            tenth = int(frac * 10)
+            if tenth != self._last_tenth or total <= 20:
+                self._last_tenth = tenth
+                self.out.write(text + "\n")
+        self.out.flush()
+
+    def clear(self) -> None:
+        if self.tty and self._shown:
+            self.out.write("\r" + " " * 160 + "\r")
+            self.out.flush()
+            self._shown = False
+
+
+def _read_lines(stream: TextIO, lines: "queue.Queue[str | None]") -> None:
+    for line in stream:
+        lines.put(line.rstrip("\n"))
+    lines.put(None)
+
+
+def _show_prompt(out: TextIO, prompt: dict[str, Any]) -> None:
+    out.write(f"\n  ? [{prompt['kind']}] {prompt['text']}\n")
+    if prompt.get("value_label"):
+        out.write(f"    {prompt['value_label']} [{prompt.get('default')}]  (Enter keeps it, a number answers, c cancels): ")
+    else:
+        out.write("    [Enter] confirm, c cancel: ")
+    out.flush()
+
+
+def _parse(line: str, prompt: dict[str, Any]) -> tuple[str, float | None] | str:
+    text = line.strip().lower()
+    if text in ("c", "cancel", "n", "no"):
+        return ("cancel", None)
+    if text in ("", "y", "yes", "ok", "confirm"):
+        return ("confirm", None)
+    if prompt.get("value_label"):
+        try:
+            return ("value", float(text))
+        except ValueError:
+            pass
+    return f"'{line.strip()}' is not an answer: press Enter to confirm" + (", type a number" if prompt.get("value_label") else "") + " or c to cancel"
+
+
+def print_result(job: dict[str, Any], out: TextIO) -> None:
+    """The job's outcome as the engineer reads it."""
+    res = job.get("result") or {}
+    state = job["state"]
+    if res.get("summary"):
+        out.write(f"{res.get('part', job['procedure'])} ({res.get('method', '')}):\n")
+        for line in res["summary"]:
+            out.write(f"  {line}\n")
+        for w in res.get("warnings", []):
+            if not (job["procedure"] == "verify" and w in res.get("quality", {}).get("beyond_limits", [])):
+                out.write(f"  warning: {w}\n")
+    if job.get("dataset"):
+        out.write(f"  dataset: {job['dataset']}\n")
+    if state == "done":
+        version = res.get("stored_version")
+        if job["procedure"] == "verify":
+            pass
+        elif version is not None:
+            out.write(f"stored as version {version} of the calibration set\n")
+            problems = res.get("ready_problems") or []
+            out.write("ready for production\n" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems) + "\n")
+        else:
+            out.write("not stored (--no-store)\n")
+    else:
+        label = {"refused": "REFUSED", "failed": "FAILED", "cancelled": "CANCELLED", "interrupted": "INTERRUPTED"}.get(state, state)
+        out.write(f"{job['procedure']}: {label}: {job.get('error')}\n")
+        if state != "refused" or job.get("dataset"):
+            out.write("the calibration set in use is unchanged\n")
+    out.flush()
+
+
+def exit_status(job: dict[str, Any]) -> int:
+    if job["state"] != "done":
+        return 1
+    if job["procedure"] == "verify" and not (job.get("result") or {}).get("quality", {}).get("passed", False):
+        return 1
+    return 0
+
+
+def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout, stdin: TextIO | None = sys.stdin,
+           events_client: CellClient | None = None, what: str | None = None) -> int:  # fmt: skip
+    """Follow ``job`` to its end on the event stream, answering prompts from ``stdin``; returns the exit status."""
+    job_id = int(job["id"])
+    inbox: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue()
+    stop = threading.Event()
+    watcher = events_client or CellClient(client.url, client._token)
+
+    def listen() -> None:
+        try:
+            for kind, data in watcher.events():
+                if stop.is_set():
+                    return
+                if kind in ("job", "prompt") and data.get("job_id") == job_id:
+                    inbox.put((kind, data))
+                elif kind == "status":
+                    inbox.put(("tick", data))
+        except ServiceError as err:
+            inbox.put(("lost", {"error": str(err)}))
+
+    threading.Thread(target=listen, name="cellctl-events", daemon=True).start()
+    lines: queue.Queue[str | None] = queue.Queue()
+    if stdin is not None:
+        threading.Thread(target=_read_lines, args=(stdin, lines), name="cellctl-stdin", daemon=True).start()
+    bar = ProgressLine(out, what or job["procedure"].replace("_", " "))
+    out.write(f"job {job_id} ({job['procedure']}) started on the cell; Ctrl-C cancels it (the robot stops at once)\n")
+    out.flush()
+    prompt: dict[str, Any] | None = None
+    synced = False
+    try:
+        while True:
+            try:
+                kind, data = inbox.get(timeout=0.2)
+            except queue.Empty:
+                kind, data = "", {}
+            if kind == "tick" and not synced:
+                synced = True
+                job = client.job(job_id)  # what happened before the stream was up
+                if job["state"] in FINISHED:
+                    break
+                if job.get("prompt") and (prompt is None or prompt["id"] != job["prompt"]["id"]):
+                    prompt = job["prompt"]
+                    bar.clear()
+                    _show_prompt(out, prompt)
+            elif kind == "lost":
+                job = client.job(job_id)
+                if job["state"] in FINISHED:
+                    break
+                raise ServiceError(data["error"])
+            elif kind == "job":
+                if data.get("progress"):
+                    if prompt is None:
+                        bar.update(data["progress"])
+                if data["state"] in FINISHED:
+                    break
+            elif kind == "prompt":
+                p = data["prompt"]
+                if data["open"]:
+                    prompt = p
+                    bar.clear()
+                    _show_prompt(out, p)
+                else:
+                    if prompt is not None and prompt["id"] == p["id"]:
+                        prompt = None
+                    a = data.get("answer") or {}
+                    value = f", {a['value']:g}" if a.get("value") is not None else ""
+                    out.write(f"\n    answered by {a.get('actor', '?')}: {a.get('action', '?')}{value}\n")
+                    out.flush()
+            if prompt is not None:
+                try:
+                    line = lines.get_nowait()
+                except queue.Empty:
+                    continue
+                if line is None:  # no more input: others must answer
+                    stdin = None
+                    continue
+                parsed = _parse(line, prompt)
+                if isinstance(parsed, str):
+                    out.write(f"    {parsed}\n")
+                    _show_prompt(out, prompt)
+                    continue
+                try:
+                    client.answer_prompt(job_id, int(prompt["id"]), parsed[0], parsed[1])
+                except ServiceError as err:
+                    out.write(f"    not taken: {err}\n")
+    except KeyboardInterrupt:
+        bar.clear()
+        out.write(f"\ncancelling job {job_id}: the robot is told to stop ...\n")
+        out.flush()
+        t0 = time.monotonic()
+        job = client.cancel_job(job_id)
+        out.write(f"job {job_id} {job['state']} after {time.monotonic() - t0:.1f} s\n")
+        print_result(job, out)
+        return 130
+    finally:
+        stop.set()
+    bar.clear()
+    out.write("\n")
+    job = client.job(job_id)
+    print_result(job, out)
+    return exit_status(job)
+
+
+def print_plan(plan: dict[str, Any], out: TextIO) -> None:
+    """A dry run's plan: how many poses, how long, how the rotations spread, what was dropped."""
+    rot = plan["rotation"]
+    out.write(f"plan for {plan['procedure']}: {plan['poses']} poses at up to {plan['speed_mm_s']:g} mm/s, "
+              f"{plan['speed_deg_s']:g} deg/s; estimated robot time {_clock(plan['estimated_robot_time_s'])}\n")  # fmt: skip
+    out.write(f"  rotations between poses: up to {rot['max_pair_angle_deg']:.1f} deg (median {rot['median_pair_angle_deg']:.1f}), "
+              f"axis spread {rot['axis_spread']:.2f} (3-D {rot['axis_spread_3d']:.2f}) over {int(rot['pairs'])} pairs\n")  # fmt: skip
+    first = plan.get("first_pose")
+    if first:
+        out.write(f"  first pose: {first['label']} at {first['position_mm']} mm, rx ry rz {first['xyz_fixed_deg']} deg\n")
+    if plan["dropped"]:
+        out.write(f"  {len(plan['dropped'])} candidate(s) dropped:\n")
+        for d in plan["dropped"][:10]:
+            out.write(f"    - {d}\n")
+    for row in plan.get("pose_list", []):
+        out.write(f"  {row['label']:28s} {row['position_mm']} mm  {row['xyz_fixed_deg']} deg\n")
+    out.write("nothing moved (dry run)\n")
+    out.flush()

@@ -1,0 +1,104 @@
+"""The simulated cell's composition root: the twin behind the ports, and its commissioning engineer.
+
+The devices of ``[devices]`` are the twin's own (``kind = "sim"``), or the real LK-G and ABB
+drivers talking to their protocol fakes whose physics is the twin (``sim_keyence_lkg``,
+``sim_abb``); the rest of the cell is assembled exactly as on hardware. Only here (and in the
+benchmarks) is :mod:`cellctl.sim` imported. The twin also brings what a real cell has in its
+people: the simulated operator answers commissioning prompts by acting on the twin, and with
+``calibration.auto_calibrate_in_sim`` the cell commissions itself at start, through the same
+jobs an engineer would run.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+from cellctl.commissioning.auto import commission_missing, parts_needed
+from cellctl.config.devices import GenicamCameraDevice, KeyenceLkgDevice, SimAbbDevice, SimKeyenceLkgDevice, AbbRobotDevice
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import Pose
+from cellctl.ports import Camera, DisplacementSensor, Robot
+from cellctl.service.compose import Closer, Service, ServiceError, assemble_service
+from cellctl.sim.operator import ACTOR, SimulatedOperator, TwinWitness
+from cellctl.sim.rig import SimRig
+
+log = logging.getLogger(__name__)
+
+
+def _devices(config: CellConfig, rig: SimRig, closers: list[Closer]) -> tuple[DisplacementSensor, Camera, Robot, Callable[[Pose], None]]:
+    from cellctl.service import hardware
+
+    dev = config.devices
+    laser: DisplacementSensor
+    camera: Camera
+    robot: Robot
+    if isinstance(dev.laser, SimKeyenceLkgDevice):
+        from cellctl.service.sim_fakes import lkg_on_fake
+
+        laser, close = lkg_on_fake(rig.cell, dev.laser)
+        closers.append(close)
+    elif isinstance(dev.laser, KeyenceLkgDevice):
+        laser, close = hardware.keyence_laser(dev.laser)
+        closers.append(close)
+    else:
+        laser = rig.laser
+    if isinstance(dev.camera, GenicamCameraDevice):
+        camera, close = hardware.genicam_camera(dev.camera)
+        closers.append(close)
+    else:
+        camera = rig.camera
+    jog: Callable[[Pose], None] = rig.cell.execute
+    if isinstance(dev.robot, SimAbbDevice):
+        from cellctl.service.sim_fakes import abb_on_fake
+
+        robot, close, jog = abb_on_fake(rig.cell, dev.robot)
+        closers.append(close)
+    elif isinstance(dev.robot, AbbRobotDevice):
+        robot, close = hardware.abb_robot(dev.robot)
+        closers.append(close)
+    else:
+        robot = rig.robot
+    return laser, camera, robot, jog
+
+
+async def _auto_commission(service: Service) -> None:
+    needed = parts_needed(service.jobs)
+    if not needed:
+        return
+    log.warning("simulated cell: commissioning %s through the service's jobs (the simulated operator answers)", ", ".join(needed))
+    await commission_missing(service.jobs, service.orchestrator.machine, actor=ACTOR, source="sim")
+
+
+async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, seed: int | None = None) -> Service:
+    """The simulated cell (``mode = "sim"``): the twin, its devices, its operator; ``seed`` overrides ``sim.seed``."""
+    if config.mode != "sim":
+        raise ServiceError('the simulated cell root builds mode = "sim" only; a real cell uses the hardware root')
+    import asyncio
+
+    rig = SimRig(config.sim, seed=seed)
+    closers: list[Closer] = []
+    laser, camera, robot, jog = _devices(config, rig, closers)
+    calibration = None
+    if config.calibration.source == "oracle":
+        from cellctl.sim.oracle import OracleCalibrationSource
+
+        calibration = OracleCalibrationSource(rig, config)
+    operator = SimulatedOperator(rig.cell, config.sim, rig.targets, jog)
+    service = await assemble_service(
+        config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
+        witness=TwinWitness(rig.cell, config.sim, operator),
+    )  # fmt: skip
+    operator.attach(service.jobs.desk.watch, service.jobs.answer)
+    service.closers.extend(closers)
+    service.closers.append(operator.close)
+    service.closers.append(rig.close)
+    service.extras.update(twin=rig, operator=operator)
+    if config.calibration.source == "set" and config.calibration.auto_calibrate_in_sim:
+
+        async def start_commissioning(svc: Service) -> None:
+            svc.commissioning = asyncio.create_task(_auto_commission(svc))
+
+        service.after_start.append(start_commissioning)
+    return service
