@@ -1,5 +1,6 @@
 """The asyncio client of the RAPID server module: :class:`AbbRobot` implements
-:class:`cellctl.ports.Robot` and, through EGM, :class:`cellctl.ports.FineCorrection`.
+:class:`cellctl.ports.Robot`, :class:`cellctl.ports.Identified` and, through EGM,
+:class:`cellctl.ports.FineCorrection`.
 
 Every call has a deadline (its ``timeout_s``) that covers everything it does, reconnecting
 included; nothing waits without one. One reader task routes reply lines to their requests by
@@ -219,6 +220,17 @@ class AbbRobot:
     def egm(self) -> EgmPeer | None:
         """The EGM peer (None when EGM is not configured)."""
         return self._peer
+
+    def identity(self) -> dict[str, str]:
+        """What this robot is (:class:`cellctl.ports.Identified`): the controller's address, and its
+        robot type and RobotWare version from the last HELLO answer ("" before the first connection)."""
+        info = self.info
+        return {
+            "host": self.settings.host,
+            "rapid_port": str(self.settings.rapid_port),
+            "robot_type": "" if info is None else info.robot_type,
+            "rw_version": "" if info is None else info.rw_version,
+        }
 
     async def connect(self, *, timeout_s: float | None = None) -> None:
         """Connect, shake hands, send the settings, start the heartbeat, and bind EGM.

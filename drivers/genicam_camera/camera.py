@@ -117,6 +117,19 @@ class GenicamCamera:
         cfg.pop("kind", None)
         return cls(**cfg, name=name)
 
+    def identity(self) -> dict[str, str]:
+        """What this camera is (:class:`cellctl.ports.Identified`): vendor, model, serial number and
+        user id as the transport layer reported them when the camera was opened ("" before), and
+        the GenTL producer it was opened through."""
+        info = self.info
+        return {
+            "vendor": "" if info is None else info.vendor,
+            "model": "" if info is None else info.model,
+            "serial_number": "" if info is None else info.serial_number,
+            "user_id": "" if info is None else info.user_id,
+            "cti_path": self.cti_path,
+        }
+
     # ------------------------------------------------------------------------------------------
     # Camera
 

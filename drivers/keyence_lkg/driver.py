@@ -212,6 +212,17 @@ class KeyenceLkgSensor:
         """The serial device path."""
         return self._line.port
 
+    def identity(self) -> dict[str, str]:
+        """What this sensor is (:class:`cellctl.ports.Identified`): the controller model it speaks
+        to, the serial port, the OUT read and the display unit (from the configuration: the LK-G
+        does not report them)."""
+        return {
+            "dialect": self._dialect.name,
+            "port": self._line.port,
+            "output": str(self.output),
+            "display_unit": self._unit.name,
+        }
+
     @property
     def bytes_on_wire(self) -> tuple[int, int]:
         """Bytes written and read since the driver was made (for the benchmark)."""

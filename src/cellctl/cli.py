@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import json
 import logging
+import signal
 import sys
 import time
 from pathlib import Path
@@ -31,13 +32,14 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = load_config(args.config)
 
-    async def run() -> None:
+    async def run() -> int | None:
         service = await build_service(config, workdir=Path(args.workdir))
         print(f"cellctl serving on http://{config.api.host}:{config.api.port}/ (mode {config.mode}); Ctrl-C stops", flush=True)
-        await service.serve(demo_cycles=args.demo_cycles)
+        return await service.serve(demo_cycles=args.demo_cycles)
 
-    asyncio.run(run())
-    return 0
+    received = asyncio.run(run())
+    # Stopped cleanly either way: 0 for SIGTERM (systemd's stop), 130 for Ctrl-C as shells expect.
+    return 130 if received == signal.SIGINT else 0
 
 
 def _client(args: argparse.Namespace) -> CellClient:
@@ -58,6 +60,11 @@ def _cmd_status(args: argparse.Namespace) -> int:
         print(f"  {name:7s} {d['link']:9s} heartbeat age {'-' if age is None else f'{age:.1f} s'}")
     if st["calibration"]["problems"]:
         print("calibration: " + "; ".join(st["calibration"]["problems"]))
+    job = st.get("job")
+    if job:
+        p = job.get("progress") or {}
+        print(f"commissioning job {job['id']} ({job['procedure']}) {job['state']}: {p.get('done', 0)}/{p.get('total', '?')}"
+              + (f", waiting for the engineer ({job['prompt']})" if job.get("prompt") else ""))  # fmt: skip
     print("allowed commands: " + ", ".join(st["allowed_commands"]))
     return 0
 

@@ -16,11 +16,11 @@ from cellctl.calibration.board import BoardDetection
 from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.compute import Outcome, compute_camera, detect_views
 from cellctl.calibration.dataset import Dataset
-from cellctl.calibration.runs import collect_board_views, record
-from cellctl.calibration.twin import TwinCell
+from cellctl.calibration.recording import record
 from cellctl.cli import DEFAULT_CONFIG
 from cellctl.config import load_config
 from cellctl.config.schema import CellConfig
+from cellctl.sim.commissioning import TwinCommissioning
 
 SEED = 11
 N_VIEWS = 10
@@ -46,9 +46,9 @@ def board_views() -> tuple[Dataset, list[tuple[str, BoardDetection]]]:
     """Ten views of the board on the wall of the seeded twin, and the board found in each."""
 
     async def go() -> Dataset:
-        twin = TwinCell(config(), seed=SEED)
+        twin = TwinCommissioning(config(), seed=SEED)
         try:
-            return await collect_board_views(twin, config(), scratch("views") / "ds", n_views=N_VIEWS, seed=SEED)
+            return await twin.collect("camera", None, scratch("views") / "ds", views=N_VIEWS)
         finally:
             await twin.close()
 

@@ -13,8 +13,7 @@ from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.laser import LaserLimits, calibrate_laser
 from cellctl.calibration.poses import plan_laser_poses
-from cellctl.calibration.runs import cad_laser, collect_laser_plane
-from cellctl.calibration.twin import TwinCell
+from cellctl.sim.commissioning import TwinCommissioning
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.rotation import angle_between_vectors, axis_angle_to_matrix
 from cellctl.ports import LaserStatus
@@ -26,9 +25,9 @@ EXACT_ROBOT = {"absolute_accuracy_mm": 0.0, "absolute_accuracy_deg": 0.0, "repea
 
 def _collect(cfg: CellConfig, seed: int) -> Dataset:
     async def go() -> Dataset:
-        twin = TwinCell(cfg, seed=seed)
+        twin = TwinCommissioning(cfg, seed=seed)
         try:
-            return await collect_laser_plane(twin, cfg, scratch("laser") / "ds")
+            return await twin.collect("laser", None, scratch("laser") / "ds")
         finally:
             await twin.close()
 
@@ -78,7 +77,7 @@ def test_the_laser_plan_reads_every_direction_near_and_far_one_arm_stand_at_a_ti
     W = nominal_world(cfg.sim.world)
     cell.place_car_body(W)
     lc = cfg.calibration.procedure.laser
-    r_nom, l_nom = cad_laser(cfg)
+    r_nom, l_nom = cfg.layout.laser_mount.r, cfg.layout.laser_mount.l
     R0 = W.T_B_T[:3, :3] @ cfg.sim.camera.hand_eye.T_H_C()[:3, :3].T
     plan = plan_laser_poses(
         W.T_B_T, lc.aim_mm, R0, r_nom, l_nom, 240, cell.robot_model.check_reach, pivot_H_mm=lc.wrist_in_flange_mm,
@@ -136,7 +135,7 @@ def test_a_plane_seen_from_too_few_directions_is_refused() -> None:
     cell = SimCell(cfg.sim, seed=2)
     W = nominal_world(cfg.sim.world)
     cell.place_car_body(W)
-    r_nom, l_nom = cad_laser(cfg)
+    r_nom, l_nom = cfg.layout.laser_mount.r, cfg.layout.laser_mount.l
     R0 = W.T_B_T[:3, :3] @ cfg.sim.camera.hand_eye.T_H_C()[:3, :3].T
     # Only spins about the beam and depth steps: the wall is always seen square-on.
     plan = plan_laser_poses(W.T_B_T, (900.0, 750.0), R0, r_nom, l_nom, 60, cell.robot_model.check_reach, tilt_deg=(0.0, 0.0))

@@ -12,11 +12,11 @@ from calib_test_support import NOW, SEED, board_views, config, scratch, store_wi
 
 from cellctl.calibration.calibration_set import CalibrationStore, check_ready
 from cellctl.calibration.compute import Outcome, compute_hand_eye, compute_laser, compute_nine_point, compute_teaching
-from cellctl.calibration.runs import collect_laser_plane, collect_nine_point, collect_teaching, record
+from cellctl.calibration.recording import record
 from cellctl.calibration.compute import _taught_install
 from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.twin import TwinCell
+from cellctl.sim.commissioning import TwinCommissioning
 from cellctl.geometry.pose import make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix
 from cellctl.compensate import deviation_in_frame
@@ -35,14 +35,14 @@ def _taught() -> tuple[CalibrationStore, Outcome, Outcome, dict]:  # type: ignor
     record(store, compute_hand_eye(ds_views, store.current(), cfg, dets), ds_views, cfg, NOW)
 
     async def go() -> tuple:  # type: ignore[type-arg]
-        twin = TwinCell(cfg, seed=SEED)
+        twin = TwinCommissioning(cfg, seed=SEED)
         try:
-            ds_laser = await collect_laser_plane(twin, cfg, scratch("laser") / "ds")
+            ds_laser = await twin.collect("laser", None, scratch("laser") / "ds")
             record(store, compute_laser(ds_laser, cfg), ds_laser, cfg, NOW)
-            ds_teach = await collect_teaching(twin, cfg, store.current(), scratch("teach") / "ds")
+            ds_teach = await twin.collect("teaching", store.current(), scratch("teach") / "ds")
             teach = compute_teaching(ds_teach, store.current(), cfg)
             record(store, teach, ds_teach, cfg, NOW)
-            ds_nine = await collect_nine_point(twin, cfg, store.current(), scratch("nine") / "ds")
+            ds_nine = await twin.collect("pixel_map", store.current(), scratch("nine") / "ds")
             nine = compute_nine_point(ds_nine, store.current(), cfg)
             record(store, nine, ds_nine, cfg, NOW)
             return teach, nine, ds_teach.manifest["twin_truth"]

@@ -124,7 +124,12 @@ _SET_CALIBRATION = {
         },
     },
     "problems": ["hand_eye: failed (rotation spread 3 deg is below 30 deg): run `cellctl calibrate hand-eye`"],
-    "history": {},
+    "versions": [  # oldest first, as GET /calibration lists them
+        {"version": 3, "created_utc": "2026-01-05T08:00:00+00:00", "note": "camera: job 1",
+         "parts": {"camera": "ok", "hand_eye": None, "teaching": None}},
+        {"version": 4, "created_utc": "2026-01-05T09:00:00+00:00", "note": "hand_eye: job 2",
+         "parts": {"camera": "ok", "hand_eye": "failed", "teaching": None}},
+    ],
 }  # fmt: skip
 
 
@@ -179,6 +184,13 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("#cal-parts [data-part=camera]")).to_contain_text("rms_px")
     expect(pg.locator("#cal-parts [data-part=hand_eye] td").first).to_have_class("is-alarm")
     expect(pg.locator("#cal-parts [data-part=teaching] td").first).to_have_class("is-warn")
+    # The set's versions, newest first; the one in use is marked, its failed part in alarm colour.
+    versions = pg.locator("#cal-history tbody tr")
+    expect(versions).to_have_count(2)
+    expect(versions.first).to_have_attribute("data-version", "4")
+    expect(versions.first).to_contain_text("(in use)")
+    expect(versions.first.locator("td[data-part=hand_eye]")).to_have_class("is-alarm")
+    expect(versions.nth(1)).to_contain_text("camera: job 1")
     pg.unroute("**/calibration")
     assert any(u.endswith("/ui/app.js") for u in log.requests)
     assert any(u.endswith("/ui/style.css") for u in log.requests)
@@ -342,7 +354,7 @@ def test_a_page_opened_after_the_plc_came_up_shows_its_link(tmp_path_factory: py
     from pymodbus.client import AsyncModbusTcpClient
 
     pg, log = page
-    config = sim_config(plc={"enabled": True, "port": 0, "scan_period_s": 0.01, "heartbeat_alarm": False, "heartbeat_timeout_s": 0.5})
+    config = sim_config(plc={"enabled": True, "port": 0, "scan_period_s": 0.01, "heartbeat_alarm": False, "heartbeat_timeout_s": 30.0})
     with LiveCell(tmp_path_factory.mktemp("dashboard-plc"), config) as live:
         assert live.orch.status()["links"]["plc"]["link"] == "waiting"
         port = live.service.plc_server.port  # type: ignore[union-attr]

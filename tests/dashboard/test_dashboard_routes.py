@@ -64,8 +64,9 @@ def test_the_page_and_its_files_come_from_the_package(client: httpx.Client) -> N
     html = r.text
     local = re.findall(r'(?:src|href)="([^"]+)"', html)
     assert "/ui/app.js" in local and "/ui/style.css" in local and "/ui/favicon.svg" in local
+    assert "/ui/commissioning.js" in local
     # Every referenced file is served from the package with its media type.
-    kinds = {"app.js": "javascript", "style.css": "text/css", "favicon.svg": "image/svg+xml"}
+    kinds = {"app.js": "javascript", "commissioning.js": "javascript", "style.css": "text/css", "favicon.svg": "image/svg+xml"}
     for name, kind in kinds.items():
         f = client.get(f"/ui/{name}")
         assert f.status_code == 200, name

@@ -124,7 +124,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             try:
                 yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
                 last_status = time.monotonic()
-                while not await request.is_disconnected():
+                while not orch.events.closing and not await request.is_disconnected():
                     wait_s = last_status + SSE_STATUS_PERIOD_S - time.monotonic()
                     if wait_s <= 0:
                         yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
@@ -135,6 +135,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
                     except asyncio.TimeoutError:
                         continue
                     yield f"id: {ev.seq}\nevent: {ev.kind}\ndata: {json.dumps(ev.data)}\n\n"
+                    if ev.kind == "shutdown":  # the service is stopping: end the stream so shutdown need not wait for it
+                        return
             finally:
                 orch.events.unsubscribe(queue)
 

@@ -15,7 +15,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response,
 from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.schemas import JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptView
 from cellctl.calibration.calibration_set import COMMANDS
-from cellctl.commissioning.jobs import ALL_PROCEDURES, JobManager, JobRefused, job_view
+from cellctl.commissioning.jobs import ALL_PROCEDURES, HAND_EYE_METHODS, JobManager, JobRefused, job_view
 from cellctl.commissioning.prompts import Answer, PromptError, UnknownPrompt
 from cellctl.store import UnknownJob
 
@@ -43,15 +43,23 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
         return JobView.model_validate(job_view(rec, jobs.live(job_id)))
 
     def refused(err: JobRefused) -> HTTPException:
-        return HTTPException(status.HTTP_409_CONFLICT if err.conflict else status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err))
+        return HTTPException(status.HTTP_409_CONFLICT if err.conflict else 422, detail=str(err))
 
     @router.get("/procedures", response_model=list[ProcedureView])
     async def procedures(caller: Caller = Depends(guard.read)) -> list[ProcedureView]:
-        return [
-            ProcedureView(name=name, part=p.part, dataset_kind=p.kind, needs=list(p.needs), options=["store", *p.options],
-                          command=COMMANDS.get(name, "cellctl calibrate verify"))  # fmt: skip
-            for name, p in ALL_PROCEDURES.items()
-        ]
+        c = jobs.config.calibration.procedure
+        defaults = {"views": c.camera.n_views, "poses": c.laser.n_poses, "store": True, "method": c.hand_eye.method}
+        limits = {"views": [3.0, 200.0], "poses": [float(c.laser.min_poses), 5000.0]}
+        out = []
+        for name, p in ALL_PROCEDURES.items():
+            options = p.option_names()
+            out.append(ProcedureView(
+                name=name, part=p.part, dataset_kind=p.kind, needs=list(p.needs), options=options,
+                command=COMMANDS.get(name, "cellctl calibrate verify"),
+                defaults={k: defaults[k] for k in options}, limits={k: limits[k] for k in options if k in limits},
+                choices={"method": list(HAND_EYE_METHODS)} if name == "hand_eye" else {},
+            ))  # fmt: skip
+        return out
 
     @router.get("/jobs", response_model=list[JobView])
     async def list_jobs(caller: Caller = Depends(guard.read), limit: int = Query(20, ge=1, le=500)) -> list[JobView]:
@@ -92,13 +100,13 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
                  responses={404: {"description": "no such open prompt"}, 422: {"description": "an answer the prompt cannot take"}})  # fmt: skip
     async def answer_prompt(job_id: int, prompt_id: int, body: PromptAnswerBody, caller: Caller = Depends(guard.require)) -> PromptView:
         if body.action not in ("confirm", "cancel", "value"):
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=f"action: 'confirm', 'cancel' or 'value', got '{body.action}'")
+            raise HTTPException(422, detail=f"action: 'confirm', 'cancel' or 'value', got '{body.action}'")
         try:
             prompt = await jobs.answer(job_id, prompt_id, Answer(body.action, body.value, caller.actor, f"rest:{caller.source}"))  # type: ignore[arg-type]
         except UnknownPrompt as err:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=str(err)) from None
         except PromptError as err:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY, detail=str(err)) from None
+            raise HTTPException(422, detail=str(err)) from None
         return PromptView.model_validate(prompt.as_dict())
 
     @router.get("/jobs/{job_id}/image", responses={200: {"content": {"image/png": {}}}, 404: {"description": "no frame yet"}})

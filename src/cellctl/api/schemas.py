@@ -97,7 +97,7 @@ class JobView(BaseModel):
     version_before: int | None
     version_after: int | None = Field(description="the calibration-set version the job stored, if any")
     prompt: PromptView | None = Field(description="the open prompt, while the job waits for the engineer")
-    frames: int = Field(description="frames grabbed so far (GET /jobs/{id}/image shows the latest)")
+    frames: int = Field(description="frames grabbed so far; after the job, 1 while its last frame is kept (GET /jobs/{id}/image)")
     running: bool
 
 
@@ -123,3 +123,6 @@ class ProcedureView(BaseModel):
     needs: list[str]
     options: list[str]
     command: str
+    defaults: dict[str, Any] = Field(description="what an option left out means (e.g. views 12, poses 480)")
+    limits: dict[str, list[float]] = Field(description="the range each number option takes")
+    choices: dict[str, list[str]] = Field(description="the values a choice option takes (hand_eye's method)")

@@ -47,6 +47,7 @@ from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.cell.tags import PackMLCommand, PackMLState
 from cellctl.config import CellConfig
 from cellctl.store import CycleRecord, CycleRequest, CycleState
+from cellctl.service.compose import Service
 
 log = logging.getLogger(__name__)
 
@@ -228,28 +229,25 @@ async def bring_to_execute(orch: CellOrchestrator) -> int:
     raise BenchRunError(f"the cell did not reach EXECUTE (it is {orch.machine.state.name})")
 
 
-async def prepare_calibration(orch: CellOrchestrator, config: CellConfig, timeout_s: float) -> float:
+async def prepare_calibration(service: Service, timeout_s: float) -> float:
     """Make the calibration source ready before the first trial; returns the seconds it took.
 
-    From data: runs the calibrations and teaching on the simulated cell (the source's
-    ``calibrate``). From the oracle: teaches in the twin. Either way, the first trial's cycle
+    From data: the simulated cell's service commissions itself at start (camera, hand-eye,
+    laser, teaching, nine-point as jobs on its own devices, the simulated operator answering);
+    this waits for it. From the oracle: teaches in the twin. Either way, the first trial's cycle
     time is then a production cycle's.
     """
     t0 = time.monotonic()
-    source = orch.calibration
+    source = service.orchestrator.calibration
+    try:
+        await service.ready_for_production(timeout_s)
+    except TimeoutError:
+        raise BenchRunError(f"the commissioning from simulated data did not finish within {timeout_s:g} s") from None
+    except Exception as err:  # noqa: BLE001 - reported with the job's reason
+        raise BenchRunError(f"commissioning from simulated data failed: {type(err).__name__}: {err}") from err
     problems = source.problems()
     if problems:
-        if not config.calibration.auto_calibrate_in_sim:
-            raise BenchRunError("calibration not ready: " + "; ".join(problems))
-        try:
-            await asyncio.wait_for(source.calibrate(), timeout_s)
-        except TimeoutError:
-            raise BenchRunError(f"the calibration from simulated data did not finish within {timeout_s:g} s") from None
-        except Exception as err:  # noqa: BLE001 - reported with the source's reason
-            raise BenchRunError(f"calibration from simulated data failed: {type(err).__name__}: {err}") from err
-        problems = source.problems()
-        if problems:
-            raise BenchRunError("calibration still not ready after calibrating: " + "; ".join(problems))
+        raise BenchRunError("calibration not ready: " + "; ".join(problems))
     await asyncio.to_thread(source.cycle_calibration)
     return time.monotonic() - t0
 
@@ -274,7 +272,7 @@ async def _run_async(
         orch = service.orchestrator
         what = "from simulated data" if settings.calibration == "data" else "from the twin's truth (oracle)"
         progress.message(f"{settings.label or 'run'}: preparing the calibration {what} ...")
-        cal_s = await prepare_calibration(orch, config, calibrate_timeout_s)
+        cal_s = await prepare_calibration(service, calibrate_timeout_s)
         summary = dict(orch.calibration.summary())
         await bring_to_execute(orch)
         recipe = next(iter(config.process.recipe_names().values()))

@@ -2,8 +2,9 @@
 
 Each seed is a different simulated cell (its own robot accuracy field and repeatability draws,
 sensor linearity curve, image noise). For each, the commissioning procedures of the chosen parts
-run through the ports exactly as ``cellctl calibrate`` runs them (collect a dataset, compute from
-it), and the result is compared with the twin's truth, which the computation never sees. The
+run through the ports exactly as a ``cellctl calibrate`` job runs them (the same procedure
+coroutines, the simulated operator answering their prompts; collect a dataset, compute from it),
+and the result is compared with the twin's truth, which the computation never sees. The
 report gives each figure per seed, then its median and worst beside the bar it must meet.
 
 The laser part also reports what its plan costs on a real robot: the sum of the twin's motion
@@ -35,14 +36,10 @@ from cellctl.calibration.compute import (
 )
 from cellctl.calibration.dataset import pose_array
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.runs import (
-    collect_board_views,
-    collect_laser_plane,
-    motion_settings,
-    record,
-)
-from cellctl.calibration.twin import TwinCell
+from cellctl.calibration.recording import record
+from cellctl.commissioning.jobs import motion_settings
 from cellctl.config.schema import CellConfig
+from cellctl.sim.commissioning import TwinCommissioning
 
 PARTS = ("laser", "camera", "hand_eye")
 
@@ -117,7 +114,7 @@ class CalibrationBench:
         }
 
 
-def _plan_robot_minutes(twin: TwinCell, poses: Sequence[np.ndarray], config: CellConfig) -> float:
+def _plan_robot_minutes(twin: TwinCommissioning, poses: Sequence[np.ndarray], config: CellConfig) -> float:
     motion = motion_settings(config)
     model = twin.cell.robot_model
     total = sum(
@@ -129,11 +126,11 @@ def _plan_robot_minutes(twin: TwinCell, poses: Sequence[np.ndarray], config: Cel
 async def _one_seed(config: CellConfig, seed: int, parts: tuple[str, ...], scratch: Path) -> SeedResult:
     out = SeedResult(seed)
     t0 = time.perf_counter()
-    twin = TwinCell(config, seed=seed)
+    twin = TwinCommissioning(config, seed=seed)
     try:
         if "laser" in parts:
             try:
-                ds = await collect_laser_plane(twin, config, scratch / f"laser-{seed}")
+                ds = await twin.collect("laser", None, scratch / f"laser-{seed}")
                 o = compute_laser(ds, config)
                 truth = o.quality["twin_truth"]
                 out.figures["laser_r_mm"] = truth["r_error_mm"]
@@ -151,8 +148,8 @@ async def _one_seed(config: CellConfig, seed: int, parts: tuple[str, ...], scrat
     return out
 
 
-async def _board_parts(twin: TwinCell, config: CellConfig, seed: int, parts: tuple[str, ...], scratch: Path, out: SeedResult) -> None:
-    ds = await collect_board_views(twin, config, scratch / f"board-{seed}", seed=seed)
+async def _board_parts(twin: TwinCommissioning, config: CellConfig, seed: int, parts: tuple[str, ...], scratch: Path, out: SeedResult) -> None:
+    ds = await twin.collect("camera", None, scratch / f"board-{seed}")
     dets = detect_views(ds, config.calibration.procedure.camera.refine)
     try:
         cam = compute_camera(ds, config, dets)

@@ -108,6 +108,16 @@ def _cmd_calibration(args: argparse.Namespace) -> int:
     return 0 if bench.bars_met() else 1
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from cellctl.bench.verify import format_verify_bench, run_verify_bench
+
+    config = load_config(args.config)
+    bench = run_verify_bench(config, range(args.seed, args.seed + args.seeds), progress=not args.quiet)
+    print(format_verify_bench(bench, config))
+    _write_json(args.json, bench.as_dict())
+    return 0 if bench.passed() else 1
+
+
 _positive_int = positive_int
 _seed = non_negative_int
 
@@ -118,7 +128,7 @@ def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figu
 
 
 def register(subparsers: Any) -> None:
-    """Add ``bench accuracy``, ``bench speed`` and ``bench calibration`` to ``cellctl``'s sub-commands."""
+    """Add ``bench accuracy``, ``speed``, ``calibration`` and ``verify`` to ``cellctl``'s sub-commands."""
     bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment), speed, calibration")
     sub = bench.add_subparsers(dest="bench_command", required=True)
 
@@ -187,3 +197,14 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     _report_options(p)
     p.set_defaults(func=_cmd_calibration)
+
+    p = sub.add_parser(
+        "verify",
+        help="calibrate verify on one twin per seed: quiet when nothing moved, an alarm when the camera moved",
+        description="Calibrates camera, hand-eye and laser on --seeds simulated cells, then runs `cellctl calibrate verify` "
+        "unchanged and with the twin's camera moved on the flange (0.3 mm + 0.05 deg, 0.3 mm, 0.05 deg).",
+    )
+    p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
+    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+    _report_options(p)
+    p.set_defaults(func=_cmd_verify)

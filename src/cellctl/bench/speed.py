@@ -266,7 +266,7 @@ async def _overhead_async(config: CellConfig, cycles: int, workdir: Path, progre
     frames_per_cycle: list[list[np.ndarray]] = []
     try:
         orch = service.orchestrator
-        await prepare_calibration(orch, config, 3600.0)
+        await prepare_calibration(service, 3600.0)
         await bring_to_execute(orch)
         original = orch.devices
         recipe = next(iter(config.process.recipe_names().values()))

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose
-from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between
+from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
 
 F64 = NDArray[np.float64]
 
@@ -54,10 +54,6 @@ _OPENCV_METHOD = {
 }
 
 
-def _skew(v: F64) -> F64:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def _modified_rodrigues(R: F64) -> F64:
     """P = 2 sin(theta/2) * axis of rotation R."""
     rv = matrix_to_axis_angle(R)
@@ -69,7 +65,7 @@ def _modified_rodrigues(R: F64) -> F64:
 
 def _rotation_from_modified_rodrigues(P: F64) -> F64:
     n2 = float(P @ P)
-    R = (1.0 - n2 / 2.0) * np.eye(3) + 0.5 * (np.outer(P, P) + np.sqrt(max(4.0 - n2, 0.0)) * _skew(P))
+    R = (1.0 - n2 / 2.0) * np.eye(3) + 0.5 * (np.outer(P, P) + np.sqrt(max(4.0 - n2, 0.0)) * skew(P))
     return nearest_rotation(R)
 
 
@@ -79,7 +75,7 @@ def _tsai_rotation(A: Sequence[F64], B: Sequence[F64]) -> F64:
     for Ai, Bi in zip(A, B):
         pa = _modified_rodrigues(Ai[:3, :3])
         pb = _modified_rodrigues(Bi[:3, :3])
-        rows.append(_skew(pa + pb))
+        rows.append(skew(pa + pb))
         rhs.append(pb - pa)
     M = np.vstack(rows)
     y = np.concatenate(rhs)

@@ -26,6 +26,13 @@ class EventHub:
         self._queues: set[asyncio.Queue[CellEvent]] = set()
         self._size = queue_size
         self._seq = itertools.count(1)
+        self.closing = False
+
+    def close(self) -> None:
+        """The service is stopping: every subscriber gets a last ``shutdown`` event and its stream ends."""
+        if not self.closing:
+            self.publish("shutdown", {})
+            self.closing = True
 
     def publish(self, kind: str, data: dict[str, Any]) -> CellEvent:
         event = CellEvent(next(self._seq), kind, data)

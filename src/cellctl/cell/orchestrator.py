@@ -347,7 +347,11 @@ class CellOrchestrator:
         try:
             result = await self._cycle(rec)
         except CycleFailed as f:
-            failure = (str(f), int(f.code), f.code)
+            if self._stop_reason is not None:  # the move was stopped because the cell left Execute: not a fault
+                stop = self.alarms.stop_reason
+                failure = (f"stopped: {self._stop_reason}", int(stop.code) if stop else int(AlarmCode.TASK_FAILED), None)
+            else:
+                failure = (str(f), int(f.code), f.code)
         except CycleStepNotAllowed:
             # A Hold, Suspend, Stop or Abort landed between two steps; what caused it is recorded.
             stop = self.alarms.stop_reason
@@ -420,6 +424,8 @@ class CellOrchestrator:
         st = self.machine.status()
         stop = self.alarms.stop_reason
         return {
+            "cell_id": self.config.cell_id,
+            "service_mode": self.config.mode,
             "state": st.state.name,
             "state_id": int(st.state),
             "mode": st.mode.name,

@@ -26,7 +26,10 @@ class CommissioningFailed(RuntimeError):
 
 def parts_needed(jobs: JobManager) -> list[str]:
     """The parts (in commissioning order) whose calibration is missing, failed, stale or expired."""
-    problems = check_ready(jobs.current_calibration(), datetime.now(timezone.utc))
+    cal = jobs.current_calibration()
+    if cal is None:
+        return list(ORDER)
+    problems = check_ready(cal, datetime.now(timezone.utc))
     return [part for part in ORDER if any(p.startswith(f"{part}:") for p in problems)]
 
 

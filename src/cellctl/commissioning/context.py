@@ -11,6 +11,7 @@ manifest for the report (it is never read by a computation).
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,13 +164,13 @@ class JobContext:
         self.draft = DatasetDraft(kind, {"source": self.source, "job_id": self.job_id, **manifest})
         return self.draft
 
-    def finish(self, facts: dict[str, Any] | None = None) -> Dataset:
-        """Write the complete dataset (with the twin's truth, in the simulated cell)."""
+    async def finish(self, facts: dict[str, Any] | None = None) -> Dataset:
+        """Write the complete dataset (with the twin's truth, in the simulated cell), off the event loop."""
         assert self.draft is not None, "begin() the dataset first"
         if self.witness is not None:
             truth = self.witness.truth(self.draft.kind, facts or {})
             if truth:
                 self.draft.manifest["twin_truth"] = truth
-        ds = self.draft.write(self.dest)
+        ds = await asyncio.to_thread(self.draft.write, self.dest)
         self.draft = None
         return ds

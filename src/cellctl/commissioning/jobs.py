@@ -38,6 +38,7 @@ from cellctl.commissioning.context import JobContext, ReducedSpeedRobot, Witness
 from cellctl.commissioning.plans import MotionPlan, PlanError, plan_board, plan_laser, plan_nine_point, plan_teaching
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
+from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose
@@ -54,7 +55,7 @@ LAST_FRAMES_KEPT = 4
 
 ALL_PROCEDURES: dict[str, Procedure] = {
     **PROCEDURES,
-    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify),
+    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify, records_part=False),
 }
 PLANNERS: dict[str, Callable[[CellConfig, CalibrationSet | None, dict[str, Any], Pose | None], MotionPlan]] = {
     "camera": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
@@ -79,7 +80,7 @@ def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig
     """The job's options, checked; a bad one is refused naming the field and what it takes."""
     if procedure not in ALL_PROCEDURES:
         raise JobRefused(f"procedure: unknown '{procedure}'; choose one of {', '.join(ALL_PROCEDURES)}")
-    allowed = {"store", *ALL_PROCEDURES[procedure].options} | ({"method"} if procedure == "hand_eye" else set())
+    allowed = set(ALL_PROCEDURES[procedure].option_names())
     out: dict[str, Any] = {}
     for key, value in options.items():
         if value is None:
@@ -164,19 +165,34 @@ class JobManager:
         self._lock = asyncio.Lock()
         self._listeners: list[Callable[[JobRecord], Awaitable[None] | None]] = []
         self._last_frames: dict[int, Frame] = {}
+        self.schedule: VerifySchedule | None = None
         machine.add_guard(PackMLCommand.START, self._start_guard)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Mark jobs a dead process left running as interrupted; follow the state machine."""
+        """Mark jobs a dead process left running as interrupted; follow the state machine; keep the check schedule."""
         for job_id in await self.store.recover_jobs():
             log.warning("commissioning job %d was interrupted by a restart; its partial dataset may be incomplete", job_id)
         queue = self.machine.subscribe_queue()
         self._pump = asyncio.create_task(self._follow(queue))
+        self.schedule = VerifySchedule(self.config.calibration.procedure.verify, self.store, self.alarms, self.events,
+                                       await self._last_check())  # fmt: skip
+        await self.schedule.start()
+
+    async def _last_check(self) -> datetime | None:
+        """When the hand-eye was last checked and found in place (a passed verify), or calibrated."""
+        for rec in await self.store.jobs(limit=500, procedure="verify"):
+            if rec.state == "done" and (rec.result or {}).get("quality", {}).get("passed") and rec.finished_at is not None:
+                return rec.finished_at
+        cal = await asyncio.to_thread(self.current_calibration)
+        part = None if cal is None else cal.part("hand_eye")
+        return None if part is None else part.calibrated_utc
 
     async def stop(self) -> None:
         """Cancel a running job (the service is stopping) and stop following the machine."""
+        if self.schedule is not None:
+            await self.schedule.stop()
         if self._running is not None:
             with contextlib.suppress(Exception):
                 await self.cancel(self._running.record.id, actor="system", source="service", reason="the service is stopping")
@@ -237,7 +253,7 @@ class JobManager:
         run = self._running
         prompts = [p.as_dict() for p in self.desk.open_prompts(job_id)]
         if run is None or run.record.id != job_id:
-            return {"running": False, "prompt": prompts[0] if prompts else None, "frames": 0}
+            return {"running": False, "prompt": prompts[0] if prompts else None, "frames": int(job_id in self._last_frames)}
         return {"running": True, "prompt": prompts[0] if prompts else None, "progress": run.progress, "frames": run.frames}
 
     async def wait(self, job_id: int, timeout_s: float) -> JobRecord:
@@ -333,10 +349,14 @@ class JobManager:
 
     def _publish(self, run: _Running) -> None:
         r = run.record
+        prompts = self.desk.open_prompts(r.id)
+        run.updates += 1
         self.events.publish(
             "job",
             {"job_id": r.id, "procedure": r.procedure, "state": r.state, "progress": run.progress, "frames": run.frames,
-             "error": r.error, "dataset": r.dataset, "version_after": r.version_after, "plan": r.plan},
+             "error": r.error, "dataset": r.dataset, "version_after": r.version_after, "plan": r.plan, "result": r.result,
+             "finished_utc": None if r.finished_at is None else r.finished_at.isoformat(),
+             "prompt": prompts[0].as_dict() if prompts else None, "update": run.updates},
         )  # fmt: skip
 
     def _progress(self, run: _Running) -> Callable[[int, int, str], None]:
@@ -348,7 +368,6 @@ class JobManager:
                 est_done = max(plan.estimated_s - plan.remaining_s(done), 1e-6)
                 left = plan.remaining_s(done) * max(elapsed / est_done, 0.0)
             run.progress = {"done": done, "total": total, "message": message, "elapsed_s": elapsed, "time_left_s": left}
-            run.updates += 1
             self._publish(run)
             if run.updates % PROGRESS_PERSIST_EVERY == 0 or done == total:
                 asyncio.get_running_loop().create_task(self._persist_progress(run))
@@ -439,11 +458,11 @@ class JobManager:
         result: dict[str, Any] = {"part": outcome.part, "method": outcome.method, "summary": list(outcome.summary),
                                   "warnings": list(outcome.warnings), "quality": outcome.quality}  # fmt: skip
         fields: dict[str, Any] = {"state": "done", "result": result}
-        if rec.procedure == "verify":
+        if not proc.records_part:
             if not outcome.quality.get("passed", False):
                 await self.alarms.raise_alarm(AlarmCode.CALIBRATION_DRIFT, source="verify", detail="; ".join(outcome.warnings))
-            else:
-                self.alarms.clear(AlarmCode.CALIBRATION_CHECK_DUE, source="verify")
+            elif self.schedule is not None:
+                self.schedule.checked()
             return fields
         if opts.get("store", True):
             saved = await asyncio.to_thread(record, self.calibration_store, outcome, ds, config, when, f"{outcome.part}: job {rec.id}")

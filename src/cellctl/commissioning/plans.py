@@ -29,13 +29,14 @@ from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, pose_in_plane, pose_to_xyz_fixed
 
 PROCEDURE_NAMES = ("camera", "hand_eye", "laser", "teaching", "pixel_map", "verify")
+SPREAD_POSES = 60
 
 
 class PlanError(ValueError):
     """No usable plan: the message says which setting or missing calibration stops it."""
 
 
-@dataclass(frozen=True)
+@dataclass
 class MotionPlan:
     """The robot's route for one procedure.
 
@@ -58,6 +59,7 @@ class MotionPlan:
     speed_deg_s: float
     moves_s: list[float] = field(default_factory=list)
     details: dict[str, Any] = field(default_factory=dict)
+    _spread: dict[str, float | int] | None = field(default=None, repr=False, compare=False)
 
     @property
     def estimated_s(self) -> float:
@@ -69,17 +71,24 @@ class MotionPlan:
         return float(sum(self.moves_s[done:]))
 
     def rotation_spread(self) -> dict[str, float | int]:
-        """How the flange rotations between poses are spread (hand-eye needs several axes)."""
+        """How the flange rotations between poses are spread (hand-eye needs several axes).
+
+        Over all pairs of up to :data:`SPREAD_POSES` poses taken evenly along the plan (the pairs
+        grow with the square of the poses; a laser plan has hundreds).
+        """
         if len(self.poses) < 2:
             return {"pairs": 0, "max_pair_angle_deg": 0.0, "median_pair_angle_deg": 0.0, "axis_spread": 0.0, "axis_spread_3d": 0.0}
-        d = motion_diversity(self.poses)
-        return {
+        if self._spread is not None:
+            return self._spread
+        d = motion_diversity([self.poses[i] for i in spread_subset(len(self.poses), SPREAD_POSES)])
+        self._spread = {
             "pairs": d.n_pairs,
             "max_pair_angle_deg": d.max_pair_angle_deg,
             "median_pair_angle_deg": d.median_pair_angle_deg,
             "axis_spread": d.axis_spread,
             "axis_spread_3d": d.axis_spread_3d,
         }
+        return self._spread
 
     def summary(self, *, with_poses: bool = False) -> dict[str, Any]:
         """The plan as the API, the CLI and the job record show it (mm and degrees)."""

@@ -10,6 +10,7 @@ the controller reports after the move. The dataset is then computed exactly as a
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
@@ -79,6 +80,7 @@ def _minutes(seconds: float) -> str:
 
 async def confirm_start(ctx: JobContext, plan: MotionPlan, what: str) -> None:
     """Show the plan and wait until the engineer confirms the way to the first pose is clear."""
+    await asyncio.to_thread(plan.rotation_spread)  # the one costly figure of the summary, off the event loop
     ctx.show_plan(plan)
     if not plan.poses:
         raise CalibrationRefused(plan.procedure, "unreachable", "no planned pose is reachable: " + "; ".join(plan.dropped[:5]))
@@ -125,7 +127,7 @@ async def remove_board(ctx: JobContext, name: str) -> None:
 
 async def collect_board_views(ctx: JobContext, *, views: int | None = None, procedure: str = "camera") -> Dataset:
     """Stick the board on the wall, view it from the planned poses, take it off again."""
-    plan = plan_board(ctx.config, views=views, start=await current_pose(ctx), procedure=procedure)
+    plan = await asyncio.to_thread(plan_board, ctx.config, views=views, start=await current_pose(ctx), procedure=procedure)
     cc = ctx.config.calibration.procedure.camera
     lens = ctx.config.layout.camera
     await car_body_in_place(ctx, "A car body stands clamped in the cell, its opening near the nominal place; confirm.")
@@ -153,7 +155,7 @@ async def collect_board_views(ctx: JobContext, *, views: int | None = None, proc
         draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
         ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
     await remove_board(ctx, "checkerboard")
-    return ctx.finish()
+    return await ctx.finish()
 
 
 # -- laser ---------------------------------------------------------------------------------------
@@ -161,7 +163,7 @@ async def collect_board_views(ctx: JobContext, *, views: int | None = None, proc
 
 async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> Dataset:
     """Show a plain patch of the wall to the laser from many wrist orientations at several arm stands."""
-    plan = plan_laser(ctx.config, poses=poses, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_laser, ctx.config, poses=poses, start=await current_pose(ctx))
     head = ctx.config.layout.laser_mount
     aim = ctx.config.calibration.procedure.laser.aim_mm
     await car_body_in_place(
@@ -194,7 +196,7 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
             "distance_mm": reading.distance_mm if reading.status is LaserStatus.OK else None,
         })  # fmt: skip
         ctx.progress(k + 1, n, f"pose {k}: {reading.status.value}")
-    return ctx.finish()
+    return await ctx.finish()
 
 
 # -- teaching ------------------------------------------------------------------------------------
@@ -213,7 +215,7 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
     """Align at the reference car body, take the template image, record the hand-guided installs."""
     cal = _need(ctx.calibration, "teaching", "camera", "hand_eye", "laser")
     config = ctx.config
-    plan = plan_teaching(config, cal, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_teaching, config, cal, start=await current_pose(ctx))
     T_H_C = cal.T_H_C()
     r, l = cal.laser_ray()  # noqa: E741
     head = config.layout.laser_mount
@@ -289,7 +291,7 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
         "Jog the robot with the glass back out of the opening to a clear pose (e.g. the shooting pose), then confirm.",
         details={"clear_pose": pose_row(C_Pos_0, "C_Pos_0")},
     )
-    return ctx.finish({"g_Pos_0": g_Pos_0})
+    return await ctx.finish({"g_Pos_0": g_Pos_0})
 
 
 # -- nine-point map and pixel scale ----------------------------------------------------------------
@@ -298,7 +300,7 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
 async def collect_nine_point(ctx: JobContext) -> Dataset:
     """Nine images of the window corner from the taught pose shifted in the wall plane, then the scale board."""
     cal = _need(ctx.calibration, "pixel_map", "camera", "teaching")
-    plan = plan_nine_point(ctx.config, cal, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_nine_point, ctx.config, cal, start=await current_pose(ctx))
     taught = cal.taught()
     npc = ctx.config.calibration.procedure.nine_point
     await car_body_in_place(
@@ -335,7 +337,7 @@ async def collect_nine_point(ctx: JobContext) -> Dataset:
     draft.images["scale.png"] = frame.image
     ctx.progress(n, n, "scale board image taken")
     await remove_board(ctx, "scale checkerboard")
-    return ctx.finish()
+    return await ctx.finish()
 
 
 # -- the table ------------------------------------------------------------------------------------
@@ -348,7 +350,8 @@ Compute = Callable[[Dataset, "CalibrationSet | None", CellConfig], Outcome]
 class Procedure:
     """One part's calibration: the dataset kind it collects, how, and how it is computed.
 
-    ``options`` names the collection's options (e.g. ``views``) that the CLI and REST may set.
+    ``options`` names the collection's options (e.g. ``views``) that the CLI and REST may set;
+    :meth:`option_names` adds ``store`` and hand-eye's ``method``.
     """
 
     part: str
@@ -358,6 +361,11 @@ class Procedure:
     collect: Collect
     compute: Compute
     options: tuple[str, ...] = ()
+    records_part: bool = True  # False: a check that never changes the calibration set (verify)
+
+    def option_names(self) -> list[str]:
+        """Every option a job of this procedure takes."""
+        return (["store"] if self.records_part else []) + list(self.options) + (["method"] if self.part == "hand_eye" else [])
 
 
 async def _board_camera(ctx: JobContext, *, views: int | None = None) -> Dataset:

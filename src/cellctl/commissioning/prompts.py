@@ -29,6 +29,16 @@ class PromptKind(str, enum.Enum):
     RETREAT = "retreat"  # jog the robot back out of the opening to a clear pose
 
 
+# What each prompt asks of the engineer, and what answers it takes (the docs table is made from this).
+PROMPT_MEANINGS: dict[PromptKind, tuple[str, str]] = {
+    PromptKind.CAR_BODY: ("a car body stands clamped in the cell (for teaching: the reference car body at its nominal place)", "confirm or cancel"),
+    PromptKind.PLACE_BOARD: ("stick the checkerboard flat on the wall at the given place; measure its square size", "the measured square size in mm (confirm keeps the nominal), or cancel"),
+    PromptKind.REMOVE_BOARD: ("take the board off the wall", "confirm or cancel"),
+    PromptKind.CONFIRM_START: ("the plan is shown (poses, robot time, the first pose): check that the way to the first pose is clear", "confirm or cancel"),
+    PromptKind.GUIDE_INSTALL: ("jog or lead the robot until the glass sits in the opening as it must be installed; the pose is read from the robot", "confirm or cancel"),
+    PromptKind.RETREAT: ("jog the robot with the glass back out of the opening to a clear pose", "confirm or cancel"),
+}
+
 AnswerAction = Literal["confirm", "cancel", "value"]
 
 
@@ -172,7 +182,7 @@ class PromptDesk:
         self._publish(
             "prompt",
             {"job_id": job_id, "open": False, "prompt": prompt.as_dict(),
-             "answer": {"action": answer.action, "value": answer.value, "actor": answer.actor}},
+             "answer": {"action": answer.action, "value": answer.value, "actor": answer.actor, "source": answer.source}},
         )  # fmt: skip
         if answer.action == "cancel":
             raise PromptCancelled(prompt, answer.actor)

@@ -13,6 +13,7 @@ limits they are held to, ``calibration.procedure.verify``).
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import numpy as np
@@ -22,19 +23,19 @@ from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, DatasetError, pose_array, pose_list, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.hand_eye import HandEyeLimits, board_pose, solve_hand_eye
-from cellctl.calibration.laser import LaserLimits, calibrate_laser
+from cellctl.calibration.hand_eye import board_pose
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
 from cellctl.commissioning.procedures import confirm_start, current_pose, grab, move_to, PoseRefused, place_board, remove_board
 from cellctl.commissioning.procedures import car_body_in_place
 from cellctl.config.schema import CellConfig
-from cellctl.geometry.pose import Pose
-from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
+from cellctl.geometry.pose import Pose, invert_pose, make_pose
+from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, skew
 from cellctl.ports import LaserStatus
 
 # A subset solve needs at least this many views (the full calibration's gate is higher).
 MIN_VERIFY_VIEWS = 4
+GAUSS_NEWTON_STEPS = 3
 
 
 def _reference(cal: CalibrationSet, part: str, kind: str) -> Dataset:
@@ -102,7 +103,7 @@ def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose |
 
 async def collect_verify(ctx: JobContext) -> Dataset:
     """Revisit the planned subset with the board on the wall, then the laser poses; save the dataset."""
-    plan = plan_verify(ctx.config, ctx.calibration, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_verify, ctx.config, ctx.calibration, start=await current_pose(ctx))
     n_views = plan.details["views"]
     await car_body_in_place(ctx, "A car body stands clamped in the cell at its nominal place (as when the cell was calibrated); confirm.")
     square = await place_board(ctx, plan.details["board"], "checkerboard")
@@ -141,10 +142,11 @@ async def collect_verify(ctx: JobContext) -> Dataset:
         ctx.progress(k + 1, n, label)
     if n <= n_views:
         await remove_board(ctx, "checkerboard")
-    return ctx.finish()
+    return await ctx.finish()
 
 
-def _views_hand_eye(ds: Dataset, names: list[str], spec: BoardSpec, K: np.ndarray, D: np.ndarray, refine: str) -> dict[str, tuple[Pose, Pose]]:
+def _board_poses(ds: Dataset, names: list[str], spec: BoardSpec, K: np.ndarray, D: np.ndarray, refine: str) -> dict[str, tuple[Pose, Pose]]:
+    """Per view name: (reported flange pose T_B_H, board pose T_C_P by PnP), for the views where the board was found."""
     by_name = {v["name"]: v for v in ds.manifest["views"]}
     out = {}
     for name in names:
@@ -159,15 +161,60 @@ def _views_hand_eye(ds: Dataset, names: list[str], spec: BoardSpec, K: np.ndarra
     return out
 
 
+def _twist(T: np.ndarray) -> np.ndarray:
+    """A small rigid motion as (translation mm, rotation vector rad)."""
+    return np.concatenate([T[:3, 3], matrix_to_axis_angle(T[:3, :3])])
+
+
+def _adjoint_inv(C: np.ndarray) -> np.ndarray:
+    """The 6x6 map of a twist (v, w) given in the base frame to C^-1 [twist] C (v, w in C's frame)."""
+    R, t = C[:3, :3], C[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R.T
+    A[:3, 3:] = -R.T @ skew(t)
+    A[3:, 3:] = R.T
+    return A
+
+
+def camera_drift(then: list[Pose], now: list[Pose], cameras_B: list[Pose], *, lever_mm: float = 400.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """The camera's move on the flange, from board poses seen at the same flange poses before and now.
+
+    At view i the camera sees the board at ``then[i]`` before and ``now[i]`` now (T_C_P). If the
+    camera moved on the flange by Delta (X_now = X_then @ Delta) and the board on the wall by M
+    (in the base frame), then ``now[i] @ inv(then[i]) = inv(Delta) @ inv(C_i) @ M @ C_i`` with C_i
+    the camera pose in the base frame; to first order the twist of the left side is
+    ``-delta + Ad(inv(C_i)) m``. Delta and M are found together by least squares over the views
+    (rotations are weighted by ``lever_mm``). Returns Delta as a 4x4, the twist's 6x6 covariance
+    (mm, rad) from the residuals, and the residual RMS (mm).
+    """
+    if not (len(then) == len(now) == len(cameras_B)) or len(then) < MIN_VERIFY_VIEWS:
+        raise ValueError(f"need at least {MIN_VERIFY_VIEWS} views with the board seen before and now")
+    W = np.diag([1.0, 1.0, 1.0, lever_mm, lever_mm, lever_mm])
+    J = np.vstack([W @ np.hstack([-np.eye(6), _adjoint_inv(C)]) for C in cameras_B])
+    delta, M = np.eye(4), np.eye(4)
+    for _ in range(GAUSS_NEWTON_STEPS):  # relinearised about the estimate: a board re-stuck mm and tenths of a degree off
+        y = np.concatenate([W @ _twist(delta @ A @ invert_pose(B) @ invert_pose(invert_pose(C) @ M @ C))
+                            for A, B, C in zip(now, then, cameras_B)])  # fmt: skip
+        x, *_ = np.linalg.lstsq(J, y, rcond=None)
+        delta = delta @ make_pose(axis_angle_to_matrix(x[3:6]), x[:3])
+        M = make_pose(axis_angle_to_matrix(x[9:12]), x[6:9]) @ M
+    r = y - J @ x
+    dof = max(len(y) - 12, 1)
+    sigma2 = float(r @ r) / dof
+    cov = sigma2 * np.linalg.pinv(J.T @ J)[:6, :6]
+    return delta, cov, float(np.sqrt(sigma2))
+
+
 def hand_eye_drift(new: Dataset, reference: Dataset, cal: CalibrationSet, refine: str) -> dict[str, Any]:
-    """Hand-eye from the new views and from the same views of the reference dataset, and their difference."""
+    """How far the camera moved on the flange, from the new views and the same views of the reference dataset."""
     K, D = cal.camera_matrix(), cal.dist_coeffs()
+    X = cal.T_H_C()
     b_new, b_ref = new.manifest["board"], reference.manifest["board"]
     spec_new = BoardSpec(tuple(b_new["inner_corners"]), float(b_new["square_mm"]))  # type: ignore[arg-type]
     spec_ref = BoardSpec(tuple(b_ref["inner_corners"]), float(b_ref["square_mm"]))  # type: ignore[arg-type]
     names = [v["name"] for v in new.manifest["views"]]
-    got_new = _views_hand_eye(new, names, spec_new, K, D, refine)
-    got_ref = _views_hand_eye(reference, names, spec_ref, K, D, refine)
+    got_new = _board_poses(new, names, spec_new, K, D, refine)
+    got_ref = _board_poses(reference, names, spec_ref, K, D, refine)
     common = [n for n in names if n in got_new and n in got_ref]
     if len(common) < MIN_VERIFY_VIEWS:
         raise CalibrationRefused(
@@ -175,52 +222,99 @@ def hand_eye_drift(new: Dataset, reference: Dataset, cal: CalibrationSet, refine
             f"the board was found in only {len(common)} of the {len(names)} views in both the new and the stored data; "
             f"at least {MIN_VERIFY_VIEWS} are needed: check the board's place and the lighting",
         )  # fmt: skip
-    limits = HandEyeLimits(min_views=MIN_VERIFY_VIEWS, recommended_views=MIN_VERIFY_VIEWS)
-    X_new = solve_hand_eye([got_new[n][0] for n in common], [got_new[n][1] for n in common], methods=("tsai",), limits=limits).T_H_C
-    X_ref = solve_hand_eye([got_ref[n][0] for n in common], [got_ref[n][1] for n in common], methods=("tsai",), limits=limits).T_H_C
-    dt = X_new[:3, 3] - X_ref[:3, 3]
+    delta, cov, rms = camera_drift(
+        [got_ref[n][1] for n in common], [got_new[n][1] for n in common], [got_ref[n][0] @ X for n in common]
+    )
+    dt = X[:3, :3] @ delta[:3, 3]  # in the flange frame
     return {
         "views": len(common),
         "translation_mm": float(np.linalg.norm(dt)),
         "translation_components_mm": dt.tolist(),
-        "rotation_deg": float(np.degrees(rotation_angle_between(X_new[:3, :3], X_ref[:3, :3]))),
-        "T_H_C_now": X_new.tolist(),
-        "T_H_C_then": X_ref.tolist(),
+        "rotation_deg": float(np.degrees(np.linalg.norm(matrix_to_axis_angle(delta[:3, :3])))),
+        "translation_sigma_mm": float(np.sqrt(np.trace(cov[:3, :3]))),
+        "rotation_sigma_deg": float(np.degrees(np.sqrt(np.trace(cov[3:, 3:])))),
+        "residual_rms_mm": rms,
+        "T_H_C_now": (X @ delta).tolist(),
     }
 
 
-def _laser_fit(rows: list[dict[str, Any]], ds_ref: Dataset, config: CellConfig) -> Any:
-    lc = config.calibration.procedure.laser
-    ok = [r for r in rows if r["status"] == "ok" and r["distance_mm"] is not None]
-    H = np.array([pose_array(r["T_B_H"], "reading.T_B_H") for r in ok]).reshape(-1, 4, 4)
-    d = np.array([float(r["distance_mm"]) for r in ok])
-    g = np.array([int(r.get("group", 0)) for r in ok], dtype=int)
-    lo, hi = ds_ref.manifest["sensor_range_mm"]
-    limits = LaserLimits(min_poses=12, min_direction_spread_deg=lc.min_direction_spread_deg, max_rms_mm=lc.max_rms_mm,
-                         max_r_sigma_mm=10.0, max_l_sigma_deg=5.0)  # fmt: skip
-    return calibrate_laser(
-        H, d, ds_ref.manifest["r_nominal"], ds_ref.manifest["l_nominal"], groups=g,
-        linearity_terms=lc.linearity_terms, distance_range_mm=(float(lo), float(hi)), limits=limits,
-    )  # fmt: skip
+def _predicted(H: np.ndarray, r: np.ndarray, l: np.ndarray, n: np.ndarray, D: float) -> np.ndarray:  # noqa: E741
+    """The distances the laser reads at flange poses H off the wall n . p = D (eq. 1 solved for d)."""
+    o = np.einsum("nij,j->ni", H[:, :3, :3], r) + H[:, :3, 3]
+    u = np.einsum("nij,j->ni", H[:, :3, :3], l)
+    return (D - o @ n) / (u @ n)
 
 
-def laser_drift(new: Dataset, reference: Dataset, config: CellConfig) -> dict[str, Any]:
-    """r and l from the new readings and from the same readings of the reference dataset, and their difference."""
+def _normal_basis(v: np.ndarray) -> np.ndarray:
+    """Two unit vectors (3, 2) normal to v."""
+    return np.linalg.svd(np.eye(3) - np.outer(v, v))[0][:, :2]
+
+
+def laser_ray_drift(
+    T_B_H: np.ndarray, d_then: np.ndarray, d_now: np.ndarray, r: np.ndarray, l: np.ndarray  # noqa: E741
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """How far the laser's r and l moved, from distances read at the same flange poses before and now.
+
+    Each reading's point p = H (r + d l) lies on the wall n . p = D (eq. 1). A move of the head
+    (dr, dl) and of the wall (dn, dD) changes each reading; the arm's position error at a pose is
+    the same before and now, so only the *change* of the readings is fitted: by Gauss-Newton, the
+    change the model predicts between the stored ray and the moved one (with the wall moved too)
+    against ``d_now - d_then``. Returns dr (mm), dl (the change of the unit vector l), their 6x6
+    covariance, and the residual RMS (mm).
+    """
+    H = np.asarray(T_B_H, dtype=float)
+    d0, d1 = np.asarray(d_then, dtype=float), np.asarray(d_now, dtype=float)
+    P = np.einsum("nij,nj->ni", H[:, :3, :3], r[None, :] + d0[:, None] * l[None, :]) + H[:, :3, 3]
+    c = P.mean(axis=0)
+    n = np.linalg.svd(P - c)[2][2]
+    if float(np.mean(np.einsum("nij,j->ni", H[:, :3, :3], l) @ n)) < 0:
+        n = -n
+    D = float(n @ c)
+    base = _predicted(H, r, l, n, D)
+    rk, lk, nk, Dk = r.copy(), l.copy(), n.copy(), D
+    for _ in range(GAUSS_NEWTON_STEPS + 1):
+        pred = _predicted(H, rk, lk, nk, Dk)
+        y = (d1 - d0) - (pred - base)
+        bl, bn = _normal_basis(lk), _normal_basis(nk)
+        Pk = np.einsum("nij,nj->ni", H[:, :3, :3], rk[None, :] + pred[:, None] * lk[None, :]) + H[:, :3, 3]
+        nR = np.einsum("j,nji->ni", nk, H[:, :3, :3])  # n . R_i as a row per reading
+        inc = nR @ lk
+        J = np.hstack([nR, (pred[:, None] * nR) @ bl, Pk @ bn, -np.ones((len(d0), 1))]) / -inc[:, None]
+        x, *_ = np.linalg.lstsq(J, y, rcond=None)
+        rk = rk + x[:3]
+        lk = lk + bl @ x[3:5]
+        lk = lk / np.linalg.norm(lk)
+        nk = nk + bn @ x[5:7]
+        nk = nk / np.linalg.norm(nk)
+        Dk = Dk + float(x[7])
+    res = (d1 - d0) - (_predicted(H, rk, lk, nk, Dk) - base)
+    dof = max(len(y) - J.shape[1], 1)
+    sigma2 = float(res @ res) / dof
+    cov = sigma2 * np.linalg.pinv(J.T @ J)
+    C = np.zeros((6, 6))
+    C[:3, :3] = cov[:3, :3]
+    C[3:, 3:] = bl @ cov[3:5, 3:5] @ bl.T
+    return rk - r, lk - l, C, float(np.sqrt(sigma2))
+
+
+def laser_drift(new: Dataset, reference: Dataset, cal: CalibrationSet) -> dict[str, Any]:
+    """How far the laser moved, from the new readings and the same readings of the reference dataset."""
     ref_rows = reference.manifest["readings"]
-    pairs = [(r, ref_rows[int(r["reference_index"])]) for r in new.manifest["readings"]]
-    pairs = [(a, b) for a, b in pairs if a["status"] == "ok" and b["status"] == "ok"]
+    pairs = [(a, ref_rows[int(a["reference_index"])]) for a in new.manifest["readings"]]
+    pairs = [(a, b) for a, b in pairs if a["status"] == "ok" and b["status"] == "ok" and a["distance_mm"] is not None and b["distance_mm"] is not None]
     if len(pairs) < 12:
         raise CalibrationRefused("verify", "laser", f"only {len(pairs)} laser readings with a value in both the new and the stored data; at least 12 are needed")
-    new_rows = [{**a, "group": int(b.get("group", 0))} for a, b in pairs]
-    now = _laser_fit(new_rows, reference, config)
-    then = _laser_fit([b for _, b in pairs], reference, config)
+    r, l = cal.laser_ray()  # noqa: E741
+    H = np.array([pose_array(b["T_B_H"], "reading.T_B_H") for _, b in pairs])
+    dr, dl, cov, rms = laser_ray_drift(H, np.array([b["distance_mm"] for _, b in pairs]), np.array([a["distance_mm"] for a, _ in pairs]), r, l)
     return {
         "readings": len(pairs),
-        "r_mm": float(np.linalg.norm(now.r - then.r)),
-        "r_components_mm": (now.r - then.r).tolist(),
-        "l_deg": float(np.degrees(angle_between_vectors(now.l, then.l))),
-        "r_sigma_mm": float(np.hypot(np.linalg.norm(now.r_sigma_mm), np.linalg.norm(then.r_sigma_mm))),
-        "l_sigma_deg": float(np.hypot(np.linalg.norm(now.l_sigma_deg), np.linalg.norm(then.l_sigma_deg))),
+        "r_mm": float(np.linalg.norm(dr)),
+        "r_components_mm": dr.tolist(),
+        "l_deg": float(np.degrees(np.linalg.norm(dl))),
+        "r_sigma_mm": float(np.sqrt(np.trace(cov[:3, :3]))),
+        "l_sigma_deg": float(np.degrees(np.sqrt(np.trace(cov[3:, 3:])))),
+        "residual_rms_mm": rms,
     }
 
 
@@ -240,7 +334,7 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
     summary = [f"hand-eye: {he['translation_mm']:.3f} mm, {he['rotation_deg']:.4f} deg from the stored calibration's data "
                f"({he['views']} views; limits {vc.max_hand_eye_mm:g} mm, {vc.max_hand_eye_deg:g} deg)"]  # fmt: skip
     if ref.get("laser_dataset") and ds.manifest["readings"]:
-        la = laser_drift(ds, read_dataset(ref["laser_dataset"], "laser_plane"), config)
+        la = laser_drift(ds, read_dataset(ref["laser_dataset"], "laser_plane"), cal)
         quality["laser"] = la
         summary.append(f"laser: r {la['r_mm']:.3f} mm, l {la['l_deg']:.4f} deg ({la['readings']} readings; limits "
                        f"{vc.max_laser_r_mm:g} mm, {vc.max_laser_l_deg:g} deg)")  # fmt: skip

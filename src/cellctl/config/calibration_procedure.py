@@ -88,7 +88,7 @@ class LaserCalibrationConfig(StrictModel):
     range_margin_mm: Finite = Field(6.0, ge=0)  # keep nominal distances this far inside the sensor's range
     wrist_in_flange_mm: Vec3 = (0.0, 0.0, -250.0)  # the wrist centre (axis 5) in the flange frame
     linearity_terms: int = Field(5, ge=0, le=8)  # Legendre terms 2.. of the sensor's linearity curve
-    min_poses: int = Field(30, ge=12)
+    min_poses: int = Field(100, ge=12)  # fewer rarely pin r and l within max_r_sigma_mm / max_l_sigma_deg
     min_direction_spread_deg: Finite = Field(4.0, ge=0)
     max_rms_mm: Finite = Field(0.1, gt=0)
     max_r_sigma_mm: Finite = Field(0.3, gt=0)
@@ -156,13 +156,13 @@ class VerifyCalibrationConfig(StrictModel):
     ``every_hours`` (0: never) raise a reminder alarm when a check is due.
     """
 
-    views: int = Field(8, ge=4, le=100)
-    laser_stands: int = Field(4, ge=0, le=200)  # 0: check the hand-eye only
+    views: int = Field(12, ge=4, le=100)
+    laser_stands: int = Field(6, ge=0, le=200)  # 0: check the hand-eye only
     laser_poses_per_stand: int = Field(12, ge=3, le=100)
-    max_hand_eye_mm: Finite = Field(0.15, gt=0)
+    max_hand_eye_mm: Finite = Field(0.25, gt=0)
     max_hand_eye_deg: Finite = Field(0.025, gt=0)
-    max_laser_r_mm: Finite = Field(0.5, gt=0)
-    max_laser_l_deg: Finite = Field(0.1, gt=0)
+    max_laser_r_mm: Finite = Field(1.0, gt=0)
+    max_laser_l_deg: Finite = Field(0.15, gt=0)
     every_cycles: int = Field(0, ge=0)
     every_hours: Finite = Field(0.0, ge=0)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Union
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from cellctl.config.types import Finite, StrictModel
 
@@ -98,7 +98,7 @@ class AbbRobotDevice(StrictModel):
     kind: Literal["abb"]
     host: str = Field(min_length=1)  # the controller's LAN/WAN address (not the service port)
     rapid_port: int = Field(30100, ge=1, le=65535)  # CELLCTL_PORT in CellctlServer.mod
-    egm_port: int | None = Field(6511, ge=1, le=65535)  # UDP port the PC binds (UDPUC remote port); None: no EGM
+    egm_port: int | None = Field(6511, ge=0, le=65535)  # UDP port the PC binds (UDPUC remote port); 0: no EGM
     egm_bind_host: str = Field("0.0.0.0", min_length=1)
     connect_timeout_s: Finite = Field(3.0, gt=0, le=60)
     request_timeout_s: Finite = Field(2.0, gt=0, le=60)  # handshake and settings after each connection
@@ -122,6 +122,11 @@ class AbbRobotDevice(StrictModel):
     egm_settle_cycles: int = Field(5, ge=1, le=1000)
     egm_rt_priority: int | None = Field(None, ge=1, le=99)  # SCHED_FIFO for the EGM loop (needs CAP_SYS_NICE)
     egm_isolation: Literal["process", "thread"] = "process"  # process: the EGM loop shares no GIL with the cell
+
+    @field_validator("egm_port")
+    @classmethod
+    def _zero_is_off(cls, v: int | None) -> int | None:
+        return None if v == 0 else v  # TOML has no null: egm_port = 0 switches EGM off
 
     @model_validator(mode="after")
     def _heartbeat_fits(self) -> "AbbRobotDevice":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from cellctl.config.api import ApiConfig
@@ -49,20 +50,20 @@ class CellConfig(StrictModel):
         if not isinstance(sim, dict):
             return data
         layout = data.get("layout") if isinstance(data.get("layout"), dict) else {}
+        defaults = LayoutConfig()
         for (section, field), (lsection, lfield) in TWIN_FIELDS_FROM_LAYOUT.items():
+            part = layout.get(lsection)
+            value = part[lfield] if isinstance(part, dict) and lfield in part else getattr(getattr(defaults, lsection), lfield)
             given = sim.get(section)
-            if isinstance(given, dict) and field in given:
+            if isinstance(given, dict) and field in given and not _same(given[field], value):
                 raise ValueError(
                     f"sim.{section}.{field} belongs to the cell's nominal layout: set layout.{lsection}.{lfield} "
                     "instead (plans read it in both modes, and the twin stands there)"
                 )
-        for (section, field), (lsection, lfield) in TWIN_FIELDS_FROM_LAYOUT.items():
-            part = layout.get(lsection)
-            if isinstance(part, dict) and lfield in part:
-                sub = sim.get(section)
-                sub = dict(sub) if isinstance(sub, dict) else {}
-                sub[field] = part[lfield]
-                sim[section] = sub
+            sub = sim.get(section)
+            sub = dict(sub) if isinstance(sub, dict) else {}
+            sub[field] = value
+            sim[section] = sub
         return {**data, "sim": sim}
 
     @model_validator(mode="after")
@@ -105,3 +106,11 @@ class CellConfig(StrictModel):
                 f"{min(fov_w, fov_h) / 2.0 - MIN_STRAIGHT_EDGE_MM:.0f} mm or raise the working distance"
             )
         return self
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal numbers or vectors (a configuration dumped and read back repeats the layout's values)."""
+    try:
+        return bool(np.allclose(np.asarray(a, dtype=float), np.asarray(b, dtype=float), rtol=0.0, atol=1e-9))
+    except (TypeError, ValueError):
+        return a == b

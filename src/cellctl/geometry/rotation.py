@@ -37,6 +37,12 @@ def rot_z(angle: float) -> Matrix3:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+def skew(v: ArrayLike) -> Matrix3:
+    """The cross-product matrix [v]x of a 3-vector: ``skew(v) @ u == cross(v, u)``."""
+    x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 def is_rotation(R: ArrayLike, tol: float = 1e-9) -> bool:
     """True if ``R`` is a finite 3x3 orthonormal matrix with determinant +1 within ``tol``."""
     M = np.asarray(R, dtype=float)

@@ -104,20 +104,20 @@ class Service:
             except Exception:  # a failing part must not keep the others running; logged with its trace
                 log.exception("stopping %s failed", name)
 
-    async def serve(self, *, ready: asyncio.Event | None = None, demo_cycles: int = 0) -> None:
-        """Run the REST API and dashboard until the process is told to stop (SIGINT/SIGTERM).
+    async def serve(self, *, ready: asyncio.Event | None = None, demo_cycles: int = 0) -> int | None:
+        """Run the REST API and dashboard until the process is told to stop (SIGINT or SIGTERM, alike).
 
         ``demo_cycles`` > 0 first brings the cell to Execute and installs that many windows.
+        Returns the signal that ended it (None if the server ended otherwise); the service is
+        stopped either way (devices, a running job cancelled, the store closed).
         """
-        import uvicorn
-
         from cellctl.api.app import create_app
+        from cellctl.service.http import make_server
 
         app = create_app(self.orchestrator, self.config.api, self.jobs)
-        server = uvicorn.Server(
-            uvicorn.Config(app, host=self.config.api.host, port=self.config.api.port, log_level="warning", lifespan="off")
-        )
+        server = make_server(app, self.config.api.host, self.config.api.port, self.orchestrator.events.close)
         await self.start()
+        demo: asyncio.Task[None] | None = None
         try:
             task = asyncio.create_task(server.serve())
             while not server.started and not task.done():
@@ -132,13 +132,21 @@ class Service:
             if ready is not None:
                 ready.set()
             if demo_cycles and not task.done():
-                from cellctl.service.demo import run_demo
-
-                await run_demo(self, demo_cycles, sys.stdout)
-                print(f"serving on http://{self.config.api.host}:{self.config.api.port}/ ; Ctrl-C stops", flush=True)
+                demo = asyncio.create_task(self._demo(demo_cycles))
             await task
+            return server.signal_received
         finally:
+            if demo is not None and not demo.done():
+                demo.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await demo
             await self.stop()
+
+    async def _demo(self, cycles: int) -> None:
+        from cellctl.service.demo import run_demo
+
+        await run_demo(self, cycles, sys.stdout)
+        print(f"serving on http://{self.config.api.host}:{self.config.api.port}/ ; Ctrl-C stops", flush=True)
 
 
 async def assemble_service(

@@ -7,6 +7,7 @@ from typing import TextIO
 
 from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.cell.orchestrator import CycleRefused
 from cellctl.service.compose import Service
 from cellctl.store import CycleRequest
 
@@ -32,6 +33,13 @@ async def _to_execute(machine: PackMLMachine) -> None:
 async def run_demo(service: Service, cycles: int, out: TextIO) -> int:
     """Install ``cycles`` windows on the running service; returns how many failed."""
     orch = service.orchestrator
+    if service.commissioning is not None:
+        print("demo: the simulated cell commissions itself first (camera, hand-eye, laser, teaching, nine-point; "
+              "the simulated operator answers the prompts; about a minute) ...", file=out, flush=True)  # fmt: skip
+        await service.ready_for_production()
+        for rec in reversed(await service.store.jobs(limit=10)):
+            if rec.result and rec.state == "done":
+                print(f"  job {rec.id} {rec.procedure}: {(rec.result.get('summary') or [''])[-1]}", file=out)
     await _to_execute(orch.machine)
     recipe = service.config.process.recipes[0].name
     tol = service.config.process.tolerance
@@ -39,9 +47,13 @@ async def run_demo(service: Service, cycles: int, out: TextIO) -> int:
     print(f"{'cycle':>5} {'state':8} {'time s':>6}  {'true install error: dX dY dZ mm':33}  dRx dRy dRz deg", file=out)
     failed = 0
     for k in range(cycles):
-        sub = await orch.submit_cycle(
-            CycleRequest(recipe, f"demo-{k + 1}", None, source="demo"), scope="demo", key=uuid.uuid4().hex, actor="demo"
-        )
+        try:
+            sub = await orch.submit_cycle(
+                CycleRequest(recipe, f"demo-{k + 1}", None, source="demo"), scope="demo", key=uuid.uuid4().hex, actor="demo"
+            )
+        except CycleRefused as err:
+            print(f"demo: stopped before cycle {k + 1}: {err.reason}", file=out)
+            return cycles - k + failed
         rec = await orch.wait_cycle(sub.cycle.id, 600.0)
         res = rec.result or {}
         e = rec.true_error or {}

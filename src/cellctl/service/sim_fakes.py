@@ -9,6 +9,7 @@ for a commanded (belief) target. The controller reports the belief back, as a re
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
+from typing import Literal
 
 from abb_robot import AbbRobot, AbbRobotSettings
 from abb_robot.fake.controller import FakeController, FakeControllerConfig
@@ -52,29 +53,44 @@ class TwinArmModel:
         return self._joints.joints(pose)
 
 
-def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSensor, Closer]:
-    """The real LK-G driver on a pseudo-terminal served by the fake controller."""
+LKG_DISPLACEMENT_POSITIVE: Literal["away_from_head"] = "away_from_head"
+"""Which way the fake's (and so the driver's) positive displacement points."""
+
+
+def lkg_reference_mm(cell: SimCell) -> float:
+    """The distance along the laser at which the fake's OUT reads 0: the middle of the twin's range."""
     laser = cell.config.laser
-    reference = 0.5 * (laser.range_min_mm + laser.range_max_mm)
+    return 0.5 * (laser.range_min_mm + laser.range_max_mm)
+
+
+def lkg_fake(cell: SimCell, dialect: str, display_unit: str) -> FakeLkgController:
+    """The LK-G protocol fake on a new pseudo-terminal (started), reading the twin's laser where the flange truly is."""
+    laser = cell.config.laser
 
     def distance() -> float | LaserStatus:
         status, d = cell.laser_reading()
         return d if status is LaserStatus.OK and d is not None else status
 
-    fake = FakeLkgController(
-        dev.dialect,
+    return FakeLkgController(
+        dialect,
         distance,
-        display_unit=dev.display_unit,
-        reference_distance_mm=reference,
+        display_unit=display_unit,
+        reference_distance_mm=lkg_reference_mm(cell),
         measuring_range_mm=0.5 * laser.full_scale_mm,
+        displacement_positive=LKG_DISPLACEMENT_POSITIVE,
     ).start()
+
+
+def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSensor, Closer]:
+    """The real LK-G driver on a pseudo-terminal served by the fake controller."""
+    fake = lkg_fake(cell, dev.dialect, dev.display_unit)
     driver = KeyenceLkgSensor.from_config(
         {
             "port": fake.path,
             "dialect": dev.dialect,
             "display_unit": dev.display_unit,
-            "reference_distance_mm": reference,
-            "displacement_positive": "away_from_head",
+            "reference_distance_mm": lkg_reference_mm(cell),
+            "displacement_positive": LKG_DISPLACEMENT_POSITIVE,
             "exchange_timeout_s": dev.exchange_timeout_s,
         }
     )
@@ -86,21 +102,31 @@ def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSens
     return driver, close
 
 
-def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer, Callable[[Pose], None]]:
-    """The real ABB client talking to the fake controller (its own thread and loop) on loopback.
+def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeController:
+    """The ABB fake controller (RAPID line server on a free loopback port, no EGM) moving the twin's arm.
 
-    Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it).
+    Not started: :meth:`FakeController.start` (in a loop) or :meth:`FakeController.start_in_thread`.
+    ``time_scale`` overrides the twin's (real seconds per simulated second).
     """
-    fake = FakeController(
+    scale = cell.time_scale if time_scale is None else time_scale
+    return FakeController(
         FakeControllerConfig(
             rapid_port=0,
             egm_sensor_port=None,
-            time_scale=max(cell.time_scale, 1e-6),
+            time_scale=max(scale, 1e-6),
             home=CartesianPose.from_matrix(cell.belief_flange_pose()),
             seed=cell.seed,
         ),
         TwinArmModel(cell),
     )
+
+
+def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer, Callable[[Pose], None]]:
+    """The real ABB client talking to the fake controller (its own thread and loop) on loopback.
+
+    Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it).
+    """
+    fake = abb_fake(cell)
     port = fake.start_in_thread()
     driver = AbbRobot(
         AbbRobotSettings(

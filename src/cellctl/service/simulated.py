@@ -88,7 +88,7 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     operator = SimulatedOperator(rig.cell, config.sim, rig.targets, jog)
     service = await assemble_service(
         config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
-        witness=TwinWitness(rig.cell, config.sim, operator),
+        witness=TwinWitness(rig.cell, config.sim, operator, camera if camera is rig.camera else None),
     )  # fmt: skip
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
     service.closers.extend(closers)

@@ -73,6 +73,11 @@ class SimCamera:
         self.last_applied: AppliedDisturbances | None = None
         self.last_pose: Pose | None = None
 
+    def identity(self) -> dict[str, str]:
+        """The twin's camera (Identified port)."""
+        i = self._renderer.intrinsics
+        return {"kind": "twin camera", "size_px": f"{i.width_px}x{i.height_px}"}
+
     def _check_open(self) -> None:
         if self._closed:
             raise DeviceDisconnected(self.name, "the camera is closed; create a new device to reconnect")

@@ -35,7 +35,7 @@ class TwinCommissioning:
         sim = config.sim.model_copy(update={"operator": config.sim.operator.model_copy(update={"answers": "all", "answer_delay_s": 0.0})})
         self.rig = SimRig(config.sim, seed=seed)
         self.operator = SimulatedOperator(self.rig.cell, sim, self.rig.targets, self.rig.cell.execute)
-        self.witness = TwinWitness(self.rig.cell, config.sim, self.operator)
+        self.witness = TwinWitness(self.rig.cell, config.sim, self.operator, self.rig.camera)
         self.desk = PromptDesk(lambda kind, data: None)
         self.operator.attach(self.desk.watch, self._answer)
         self.prompts: list[str] = []

@@ -102,6 +102,10 @@ class SimRobot:
         if not outcome.done():
             outcome.set_result("reached")
 
+    def identity(self) -> dict[str, str]:
+        """The twin's robot (Identified port): which simulated cell it belongs to."""
+        return {"kind": "twin robot", "seed": str(self._cell.seed)}
+
     async def read_pose(self, *, timeout_s: float) -> CartesianPose:
         """The flange pose the controller believes it has (interpolated while moving)."""
         timeout_s = _check_timeout(self.name, timeout_s)
@@ -176,6 +180,10 @@ class SimDisplacementSensor:
             await asyncio.sleep(timeout_s)
             raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
         await asyncio.sleep(self._latency_s)
+
+    def identity(self) -> dict[str, str]:
+        """The twin's laser (Identified port): which simulated cell it belongs to."""
+        return {"kind": "twin laser", "seed": str(self._cell.seed), "head": str(self.head)}
 
     def reset(self) -> None:
         """Reset the measured value, as the controller's reset does: the next reading has no value yet."""

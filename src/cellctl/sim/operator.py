@@ -26,6 +26,7 @@ from cellctl.commissioning.prompts import Answer, Prompt, PromptKind
 from cellctl.config.sim import SimConfig
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix
+from cellctl.sim.camera_device import SimCamera
 from cellctl.sim.cell import SimCell
 from cellctl.sim.streams import rng_stream
 from cellctl.sim.targets import Checkerboard, PlacedTarget, place_on_world_plane
@@ -142,10 +143,11 @@ class SimulatedOperator:
 class TwinWitness:
     """The twin's truth about what a calibration dataset measured (written beside the data, never computed from)."""
 
-    def __init__(self, cell: SimCell, config: SimConfig, operator: SimulatedOperator) -> None:
+    def __init__(self, cell: SimCell, config: SimConfig, operator: SimulatedOperator, camera: SimCamera | None = None) -> None:
         self.cell = cell
         self.config = config
         self.operator = operator
+        self.camera = camera  # the twin's camera, which keeps the true pose of its last frame
 
     def truth(self, kind: str, facts: dict[str, Any]) -> dict[str, Any] | None:
         cell = self.cell
@@ -162,6 +164,8 @@ class TwinWitness:
             return {"r": cell.laser_model.r.tolist(), "l": cell.laser_model.l.tolist()}
         if kind == "teaching":
             out = {"T_B_T": cell.world().T_B_T.tolist()}
+            if self.camera is not None and self.camera.last_pose is not None:  # the template is the job's last frame
+                out["C_Pos_0_true"] = (self.camera.last_pose @ np.linalg.inv(cell.T_H_C)).tolist()
             if "g_Pos_0" in facts:
                 true_flange = cell.robot_model.deform(np.asarray(facts["g_Pos_0"], dtype=float))
                 out["g_Pos_0_install_error"] = cell.truth().score(true_flange).as_dict()

@@ -5,8 +5,8 @@
 
 (() => {
   const TOKEN_KEY = "cellctl.operatorToken";
-  const PAGES = ["overview", "cycles", "alarms", "calibration"];
-  const EVENT_KINDS = ["status", "state", "step", "cycle", "alarm", "image", "plc"];
+  const PAGES = ["overview", "cycles", "alarms", "calibration", "commissioning"];
+  const EVENT_KINDS = ["status", "state", "step", "cycle", "alarm", "image", "plc", "job", "job_image", "prompt"];
   const AXES = [
     { key: "dx_mm", label: "dX", unit: "mm", kind: "position" },
     { key: "dy_mm", label: "dY", unit: "mm", kind: "position" },
@@ -179,16 +179,24 @@
     return sessionStorage.getItem(TOKEN_KEY) || "";
   }
 
-  async function post(url, what) {
+  // POST with the operator token; `body` (optional) goes as JSON. `open`: a read that is a POST
+  // (e.g. a dry-run plan), sent with the token if there is one.
+  async function post(url, what, body, { open = false } = {}) {
     const t = token();
-    if (!t) {
+    if (!t && !open) {
       showMessage(`${what}: enter the operator token first (field "Operator token", then "Use token").`, true);
       $("token").focus();
       return null;
     }
+    const init = { method: "POST", headers: { Accept: "application/json" } };
+    if (t) init.headers.Authorization = `Bearer ${t}`;
+    if (body !== undefined) {
+      init.headers["Content-Type"] = "application/json";
+      init.body = JSON.stringify(body);
+    }
     let r;
     try {
-      r = await fetch(url, { method: "POST", headers: { Authorization: `Bearer ${t}`, Accept: "application/json" } });
+      r = await fetch(url, init);
     } catch (err) {
       showMessage(`${what}: the cell controller did not answer (${err.message}).`, true);
       return null;
@@ -280,6 +288,7 @@
     model.calibration = await getJSON("/calibration");
     renderCalibration();
     if (model.status) renderCalibrationTile();
+    emit("calibration", model.calibration);
   }
 
   async function refreshDetail() {
@@ -297,6 +306,7 @@
     const jobs = [refreshStatus(), refreshAlarms(), refreshDigest(), refreshCalibration()];
     const page = currentPage();
     if (page.page === "cycles") jobs.push(refreshCycleTable(), refreshDetail());
+    jobs.push(...emit("refresh", page));
     const results = await Promise.allSettled(jobs);
     for (const r of results) if (r.status === "rejected") console.warn("refresh failed:", r.reason);
   }
@@ -867,31 +877,37 @@
         : el("p", { class: "panel", text: "Ready for production: the set is complete, valid and in date." }),
     );
     $("cal-current").replaceChildren(calibrationCurrent(cal.current));
-    const kinds = Object.keys(cal.history || {});
-    if (!kinds.length) {
-      $("cal-history").replaceChildren(el("p", { class: "muted", text: "No calibration versions recorded in the store." }));
-      return;
-    }
-    const blocks = kinds.map((k) =>
-      el(
-        "section",
-        { class: "panel" },
-        el("h3", { text: k }),
-        el(
-          "table",
-          { class: "data" },
-          el("thead", {}, el("tr", {}, ["Version", "Created", "By", "Quality and metadata"].map((h) => el("th", { scope: "col", text: h })))),
-          el(
-            "tbody",
-            {},
-            cal.history[k].map((v) =>
-              el("tr", {}, el("td", { text: String(v.version) }), el("td", { text: dateTime(v.created_at) }), el("td", { text: v.created_by }), el("td", {}, kvList(v.metadata || {}))),
-            ),
-          ),
-        ),
-      ),
+    $("cal-history").replaceChildren(versionsTable(cal.versions || [], cal.current ? cal.current.version : null));
+  }
+
+  // The calibration set's versions, newest first: each part's status in that version.
+  function versionsTable(versions, currentVersion) {
+    if (!versions.length) return el("p", { class: "muted", text: "No calibration-set version stored yet." });
+    const names = [...new Set(versions.flatMap((v) => Object.keys(v.parts || {})))];
+    const rows = versions.slice().reverse().map((v) => {
+      const isCurrent = v.version === currentVersion;
+      const cells = names.map((n) => {
+        const st = (v.parts || {})[n];
+        const td = el("td", { text: st || "-", "data-part": n });
+        setClass(td, "is-alarm", isCurrent && st === "failed"); // colour only what is in use now
+        return td;
+      });
+      return el(
+        "tr",
+        { "data-version": v.version, class: isCurrent ? "is-current" : null },
+        el("th", { scope: "row" }, `v${v.version}`, isCurrent ? el("strong", { text: " (in use)" }) : null),
+        el("td", { text: dateTime(v.created_utc) }),
+        el("td", { text: v.note || "-" }),
+        cells,
+      );
+    });
+    return el(
+      "table",
+      { class: "data versions" },
+      el("caption", { class: "visually-hidden", text: "Calibration-set versions, newest first" }),
+      el("thead", {}, el("tr", {}, ["Version", "Created", "Note", ...names].map((h) => el("th", { scope: "col", text: h })))),
+      el("tbody", {}, rows),
     );
-    $("cal-history").replaceChildren(...blocks);
   }
 
   // -- pages -----------------------------------------------------------------------------------
@@ -917,6 +933,7 @@
     }
     if (page === "alarms") schedule("alarm-history", refreshAlarmHistory, 0);
     if (page === "calibration") schedule("calibration", refreshCalibration, 0);
+    emit("route", page, id);
   }
 
   // -- live updates ----------------------------------------------------------------------------
@@ -974,6 +991,7 @@
       default:
         break;
     }
+    emit("event", kind, data);
   }
 
   function connect() {
@@ -998,6 +1016,7 @@
 
   function renderTokenState() {
     $("token-state").textContent = token() ? "Token set for this browser tab." : "No token: commands and acknowledge need one.";
+    emit("token", Boolean(token()));
   }
 
   function bind() {
@@ -1066,6 +1085,26 @@
     document.body.dataset.ready = "1";
   }
 
+  // -- the namespace other page scripts (commissioning.js) use ---------------------------------
+
+  const hooks = { event: [], route: [], token: [], calibration: [], refresh: [] };
+  function emit(name, ...args) {
+    const out = [];
+    for (const fn of hooks[name]) {
+      try {
+        out.push(fn(...args));
+      } catch (err) {
+        console.error(`${name} hook failed:`, err);
+      }
+    }
+    return out.filter((r) => r instanceof Promise);
+  }
+
   window.cellctlDashboard = { model, loadedAt: Date.now() };
+  window.cellctl = {
+    model, $, el, kvList, isNum, num, figure, clock, dateTime, setClass, getJSON, post, token, showMessage, schedule,
+    refreshCalibration, versionsTable, currentPage,
+    on: (name, fn) => hooks[name].push(fn),
+  };
   document.addEventListener("DOMContentLoaded", init);
 })();

@@ -1,0 +1,118 @@
+"""From an empty calibration store, the simulated cell is commissioned through the running service with the CLI alone.
+
+`cellctl serve` runs the simulated cell (the LK-G and ABB drivers over their protocol fakes, the
+twin behind them) with self-commissioning off; `cellctl calibrate camera|hand-eye|laser`,
+`cellctl teach` and `cellctl calibrate nine-point` then run as jobs of that service, the
+simulated operator answering their prompts. The calibration set they store is scored against
+the twin's truth, and the cell then installs windows with it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import httpx
+import pytest
+from service_test_support import ROOT, TOKEN
+
+from cellctl.calibration.calibration_set import CalibrationStore, check_ready
+
+STEPS = (("calibrate", "camera"), ("calibrate", "hand-eye"), ("calibrate", "laser"), ("teach",), ("calibrate", "nine-point"))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture()
+def served_cell(tmp_path: Path):  # type: ignore[no-untyped-def]
+    port = _free_port()
+    text = (ROOT / "config" / "sim.toml").read_text()
+    text = re.sub(r"(?m)^auto_calibrate_in_sim = true$", "auto_calibrate_in_sim = false", text)
+    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text)
+    text = text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(text)
+    log = open(tmp_path / "service.log", "ab")  # noqa: SIM115
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cellctl.cli", "--config", str(cfg), "serve", "--workdir", str(tmp_path)],
+        stdout=log, stderr=log,
+    )  # fmt: skip
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(f"{url}/status", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "service.log").read_text()
+            time.sleep(0.2)
+        yield cfg, url, tmp_path
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        log.close()
+
+
+def _cli(cfg: Path, *args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "CELLCTL_TOKEN": TOKEN}
+    return subprocess.run(
+        [sys.executable, "-m", "cellctl.cli", "--config", str(cfg), *args],
+        stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout_s, env=env,
+    )  # fmt: skip
+
+
+def test_an_empty_cell_commissioned_with_the_cli_alone_meets_the_bars_and_installs(served_cell) -> None:  # type: ignore[no-untyped-def]
+    cfg, url, workdir = served_cell
+    run = _cli(cfg, "calibrate", "laser")
+    assert run.returncode == 1 and "ABORTED" in run.stderr and "Clear" in run.stderr  # jobs need Stopped or Idle
+    assert _cli(cfg, "command", "clear").returncode == 0
+    for step in STEPS:
+        run = _cli(cfg, *step)
+        assert run.returncode == 0, f"{step}: {run.stdout}\n{run.stderr}"
+        assert "stored as version" in run.stdout and "started on the cell" in run.stdout
+        assert "answered by simulated operator" in run.stdout or "confirm" in run.stdout
+    assert "ready for production" in run.stdout
+    store = CalibrationStore(workdir / "var" / "calibration")
+    cal = store.current()
+    assert cal is not None and cal.version == len(STEPS)
+    assert check_ready(cal, datetime.now(timezone.utc)) == []
+    # The bars of `cellctl bench calibration`, against the twin's truth written beside each dataset.
+    cam = cal.part("camera").quality["twin_truth"]
+    assert abs(cam["fx_error_pct"]) < 0.2 and abs(cam["fy_error_pct"]) < 0.2
+    assert abs(cam["cx_error_px"]) < 2.0 and abs(cam["cy_error_px"]) < 2.0
+    he = cal.part("hand_eye").quality
+    he_truth = he["twin_truth"][he["chosen"]]
+    assert he_truth["translation_error_mm"] < 0.5 and he_truth["rotation_error_deg"] < 0.05
+    laser = cal.part("laser").quality["twin_truth"]
+    assert laser["r_error_mm"] < 0.3 and laser["l_error_deg"] < 0.02
+    # Every part names the dataset it came from, and which cell and devices recorded it.
+    for name in ("camera", "hand_eye", "laser", "teaching", "pixel_map"):
+        ref = cal.part(name).dataset
+        assert ref is not None and Path(ref.path).is_dir()
+    # The jobs are on record, each started by the token's actor.
+    jobs = httpx.get(f"{url}/jobs").json()
+    assert [j["state"] for j in jobs] == ["done"] * len(STEPS) and {j["actor"] for j in jobs} == {"operator"}
+    # Production with the commissioned set: each glass within a fraction of the tolerance.
+    run = _cli(cfg, "cycle", "--start", "--count", "4")
+    assert run.returncode == 0, run.stdout + run.stderr
+    errors = re.findall(r"true install error: dx=(\S+) dy=(\S+) dz=(\S+) drx=(\S+) dry=(\S+) drz=(\S+)", run.stdout)
+    assert len(errors) == 4
+    for dx, dy, dz, rx, ry, rz in errors:
+        assert max(abs(float(v)) for v in (dx, dy, dz)) < 0.35
+        assert max(abs(float(v)) for v in (rx, ry, rz)) < 0.1
