@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Coroutine
 from pathlib import Path
+from urllib.parse import urlsplit
 from typing import Any, TypeVar
 
 import httpx
@@ -195,3 +196,23 @@ def wait_cycle(client: httpx.Client, cycle_id: int, deadline_s: float = 30.0) ->
             return dict(rec)
         time.sleep(0.05)
     raise AssertionError(f"cycle {cycle_id} did not finish within {deadline_s} s")
+
+
+class PageLog:
+    """Every request the page made, what the browser console reported as an error, and full page loads."""
+
+    def __init__(self) -> None:
+        self.requests: list[str] = []
+        self.errors: list[str] = []
+        self.loads = 0  # full document loads (hash changes do not count)
+
+    def foreign(self) -> list[str]:
+        return [u for u in self.requests if urlsplit(u).scheme not in ("data", "blob") and urlsplit(u).hostname not in LOOPBACK_HOSTS]
+
+
+def shot(pg: Any, name: str) -> Path:
+    """A full-page screenshot into test-artifacts/dashboard/."""
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    path = ARTIFACTS / name
+    pg.screenshot(path=str(path), full_page=True)
+    return path

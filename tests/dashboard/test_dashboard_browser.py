@@ -7,23 +7,20 @@ from __future__ import annotations
 import asyncio
 import itertools
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
 import pytest
 from dashboard_test_support import (
-    ARTIFACTS,
     AUTH,
-    CHROMIUM,
-    CHROMIUM_ARGS,
-    LOOPBACK_HOSTS,
     TOKEN,
     LiveCell,
+    PageLog,
     chromium_missing_reason,
     sim_config,
     settle,
+    shot,
     to_aborted,
     to_execute,
     wait_cycle,
@@ -35,7 +32,7 @@ pytestmark = [
     pytest.mark.timeout(120),
 ]
 if _missing is None:
-    from playwright.sync_api import Browser, Page, expect, sync_playwright
+    from playwright.sync_api import Page, expect
 
 _keys = itertools.count(1)
 
@@ -46,60 +43,9 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
         yield live
 
 
-@pytest.fixture(scope="module")
-def client(cell: LiveCell) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=cell.url, timeout=15.0) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, timeout=30_000)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
-class PageLog:
-    """Every request the page made, and what the browser console reported."""
-
-    def __init__(self) -> None:
-        self.requests: list[str] = []
-        self.errors: list[str] = []
-        self.loads = 0  # full document loads (hash changes do not count)
-
-    def foreign(self) -> list[str]:
-        return [u for u in self.requests if urlsplit(u).scheme not in ("data", "blob") and urlsplit(u).hostname not in LOOPBACK_HOSTS]
-
-
-@pytest.fixture()
-def page(browser: Browser) -> Iterator[tuple[Page, PageLog]]:
-    context = browser.new_context(viewport={"width": 1920, "height": 1080})
-    pg = context.new_page()
-    log = PageLog()
-    pg.on("request", lambda r: log.requests.append(r.url))
-    pg.on("console", lambda m: log.errors.append(m.text) if m.type == "error" else None)
-    pg.on("pageerror", lambda e: log.errors.append(str(e)))
-    pg.on("load", lambda _: setattr(log, "loads", log.loads + 1))
-    pg.set_default_timeout(15_000)
-    try:
-        yield pg, log
-    finally:
-        context.close()
-
-
 def _open(pg: Page, cell: LiveCell, path: str = "/") -> None:
     pg.goto(cell.url + path)
     expect(pg.locator("body")).to_have_attribute("data-ready", "1")
-
-
-def _shot(pg: Page, name: str) -> Path:
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    path = ARTIFACTS / name
-    pg.screenshot(path=str(path), full_page=True)
-    return path
 
 
 def _submit(client: httpx.Client, part_id: str, car_id: str | None = None) -> int:
@@ -159,7 +105,7 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("#live")).to_have_text("live")
     # The style sheet came from the package: the calm grey background is applied.
     assert pg.evaluate("getComputedStyle(document.body).backgroundColor") == "rgb(212, 212, 212)"
-    _shot(pg, "01-aborted-offline.png")
+    shot(pg, "01-aborted-offline.png")
     # The unit mode changes from the page (with the operator token) and back.
     pg.fill("#token", TOKEN)
     pg.click("#token-save")
@@ -174,7 +120,7 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("#page-calibration")).to_be_visible()
     expect(pg.locator("#cal-problems")).to_contain_text("Ready for production")
     expect(pg.locator("#cal-current")).to_contain_text("source")
-    _shot(pg, "07-calibration.png")
+    shot(pg, "07-calibration.png")
     # A versioned calibration set (as calibration.source = "set" reports it) shows one row per part,
     # a failed part in alarm colour and a missing one in warning colour.
     pg.route("**/calibration", lambda route: route.fulfill(json=_SET_CALIBRATION))
@@ -223,7 +169,7 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
         assert pg.locator(f"#trend-charts [data-axis={axis}]").get_attribute("data-outside") == "0"
     assert pg.evaluate("window.cellctlDashboard.loadedAt") == loaded_at
     assert log.loads == 1
-    _shot(pg, "02-cycle-live.png")
+    shot(pg, "02-cycle-live.png")
     # The filmstrip opens the cycle's detail: its steps, figures and images.
     pg.click(f"#filmstrip [data-cycle='{cid}']")
     detail = pg.locator("#cycle-detail")
@@ -245,7 +191,7 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     expect(pg.locator(f"#cycle-table tbody tr[data-cycle='{cid}']")).to_have_count(0)
     pg.select_option("#filter-state", "done")
     expect(pg.locator(f"#cycle-table tbody tr[data-cycle='{cid}']")).to_have_count(1)
-    _shot(pg, "03-cycle-detail.png")
+    shot(pg, "03-cycle-detail.png")
     assert log.loads == 1
     assert log.foreign() == [], log.foreign()
     assert log.errors == [], log.errors
@@ -296,7 +242,7 @@ def test_dashboard_acknowledges_an_alarm_and_gates_unhold(
     # The refused cycle is pinned at the front of the filmstrip.
     pinned = pg.locator("#filmstrip .film.is-pinned").first
     expect(pinned).to_have_attribute("data-cycle", str(cid))
-    _shot(pg, "04-alarm-held.png")
+    shot(pg, "04-alarm-held.png")
     # Without a token the page asks for one and nothing is acknowledged.
     ack = pg.locator(f"#alarms-now [data-alarm='{uid}'] [data-ack]")
     ack.click()
@@ -314,14 +260,14 @@ def test_dashboard_acknowledges_an_alarm_and_gates_unhold(
     alarms = client.get("/alarms", params={"history": "true"}).json()
     acked = next(a for a in alarms["history"] if a["uid"] == uid)
     assert acked["acknowledged"] and acked["ack_by"] == "operator"
-    _shot(pg, "05-alarm-acknowledged.png")
+    shot(pg, "05-alarm-acknowledged.png")
     pg.click("nav a[data-page=alarms]")
     expect(pg.locator(f"#alarms-history [data-alarm='{uid}']")).to_contain_text("ack by operator")
     pg.fill("#alarm-filter", "no such alarm text")
     expect(pg.locator(f"#alarms-history [data-alarm='{uid}']")).to_have_count(0)
     pg.fill("#alarm-filter", "1304")
     expect(pg.locator(f"#alarms-history [data-alarm='{uid}']")).to_have_count(1)
-    _shot(pg, "08-alarm-history.png")
+    shot(pg, "08-alarm-history.png")
     pg.click("nav a[data-page=overview]")
     # The page's own command button brings the cell back to production.
     unhold.click()
@@ -340,7 +286,7 @@ def test_dashboard_marks_stale_data_and_recovers(cell: LiveCell, page: tuple[Pag
         expect(pg.locator("#live")).to_contain_text("STALE", timeout=12_000)
         expect(pg.locator("#tile-live")).to_have_class("tile tile-live is-warn")
         assert pg.evaluate("document.body.classList.contains('stale')")
-        _shot(pg, "06-stale.png")
+        shot(pg, "06-stale.png")
     finally:
         cell.start_http()
     # The browser reconnects by itself and the mark goes away.

@@ -15,20 +15,17 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import httpx
 import pytest
 from dashboard_test_support import (
-    ARTIFACTS,
     AUTH,
-    CHROMIUM,
-    CHROMIUM_ARGS,
-    LOOPBACK_HOSTS,
     TOKEN,
     LiveCell,
+    PageLog,
     chromium_missing_reason,
     settle,
+    shot,
     sim_config,
 )
 
@@ -38,7 +35,7 @@ pytestmark = [
     pytest.mark.timeout(120),
 ]
 if _missing is None:
-    from playwright.sync_api import Browser, Page, expect, sync_playwright
+    from playwright.sync_api import Page, expect
 
 LASER_POSES = 100
 """Enough for the laser result to pass its gates on the simulated cell (40 poses plan and run, but
@@ -52,55 +49,6 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
     config = sim_config(calibration={"source": "set", "auto_calibrate_in_sim": False}, **{"sim.operator": {"answers": "actions"}})
     with LiveCell(tmp_path_factory.mktemp("dashboard-commissioning"), config) as live:
         yield live
-
-
-@pytest.fixture(scope="module")
-def client(cell: LiveCell) -> Iterator[httpx.Client]:
-    with httpx.Client(base_url=cell.url, timeout=15.0) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS, timeout=30_000)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
-class PageLog:
-    """Every request the page made, and what the browser console reported as an error."""
-
-    def __init__(self) -> None:
-        self.requests: list[str] = []
-        self.errors: list[str] = []
-
-    def foreign(self) -> list[str]:
-        return [u for u in self.requests if urlsplit(u).scheme not in ("data", "blob") and urlsplit(u).hostname not in LOOPBACK_HOSTS]
-
-
-@pytest.fixture()
-def page(browser: Browser) -> Iterator[tuple[Page, PageLog]]:
-    context = browser.new_context(viewport={"width": 1920, "height": 1080})
-    pg = context.new_page()
-    log = PageLog()
-    pg.on("request", lambda r: log.requests.append(r.url))
-    pg.on("console", lambda m: log.errors.append(m.text) if m.type == "error" else None)
-    pg.on("pageerror", lambda e: log.errors.append(str(e)))
-    pg.set_default_timeout(15_000)
-    try:
-        yield pg, log
-    finally:
-        context.close()
-
-
-def _shot(pg: Page, name: str) -> Path:
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    path = ARTIFACTS / name
-    pg.screenshot(path=str(path), full_page=True)
-    return path
 
 
 def _to_stopped(client: httpx.Client) -> None:
@@ -194,10 +142,10 @@ def test_commissioning_page_walks_a_laser_job_through_its_prompt(
     teach = pg.locator("#comm-proc-table [data-start=teaching]")
     expect(teach).to_be_disabled()
     assert "needs camera, hand_eye, laser" in (teach.get_attribute("title") or "")
-    _shot(pg, "10-commissioning-ready.png")
+    shot(pg, "10-commissioning-ready.png")
 
     job_id = _start_laser_from_page(pg, client)
-    _shot(pg, "11-commissioning-prompt.png")
+    shot(pg, "11-commissioning-prompt.png")
     pg.click("#comm-prompt-confirm")
     # The prompt goes away and the page says who answered it.
     expect(pg.locator("#comm-prompt")).to_be_hidden()
@@ -232,7 +180,7 @@ def test_commissioning_page_walks_a_laser_job_through_its_prompt(
     expect(newest).to_contain_text("in use")
     expect(newest.locator("td[data-part=laser]")).to_have_text("ok")
     expect(pg.locator("#cal")).to_contain_text("NOT READY")  # camera, hand-eye, ... are still to do
-    _shot(pg, "12-commissioning-done.png")
+    shot(pg, "12-commissioning-done.png")
     # The calibration page lists the same versions, newest first.
     pg.click("nav a[data-page=calibration]")
     expect(pg.locator("#cal-history tbody tr").first).to_have_attribute("data-version", str(stored))
@@ -267,7 +215,7 @@ def test_commissioning_page_cancels_a_job_waiting_at_its_prompt(
     expect(pg.locator(f"#comm-jobs tr[data-job='{job_id}']")).to_contain_text("cancelled")
     expect(pg.locator("#comm-proc-table [data-start=laser]")).to_be_enabled()
     assert settle(client) == "STOPPED"
-    _shot(pg, "13-commissioning-cancelled.png")
+    shot(pg, "13-commissioning-cancelled.png")
     assert log.foreign() == [], log.foreign()
     assert log.errors == [], log.errors
 
@@ -302,7 +250,7 @@ def test_commissioning_page_shows_the_live_frame_and_cancels_a_moving_job(
     assert int(image.get_attribute("data-frames") or "0") >= 1
     assert client.get(f"/jobs/{job_id}").json()["state"] == "running"
     expect(pg.locator("#comm-image-caption")).to_contain_text(f"of job {job_id} (live)")
-    _shot(pg, "14-commissioning-live-frame.png")
+    shot(pg, "14-commissioning-live-frame.png")
     pg.click("#comm-cancel")
     job = _wait_job(client, job_id)
     assert job["state"] == "cancelled" and "cancelled by operator" in (job["error"] or ""), job

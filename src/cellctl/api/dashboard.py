@@ -95,11 +95,8 @@ def deviation_digest(record: CycleRecord) -> dict[str, Any]:
     }
 
 
-def scale_png(png: bytes, width: int) -> bytes:
-    """The PNG scaled to ``width`` pixels wide (aspect kept; never enlarged)."""
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError("not a readable PNG image")
+def scaled_png(img: np.ndarray, width: int) -> bytes:
+    """An image as PNG, scaled to ``width`` pixels wide (aspect kept; never enlarged)."""
     h, w = img.shape[:2]
     if w > width:
         img = cv2.resize(img, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
@@ -107,6 +104,14 @@ def scale_png(png: bytes, width: int) -> bytes:
     if not ok:
         raise ValueError("PNG encoding failed")
     return out.tobytes()
+
+
+def scale_png(png: bytes, width: int) -> bytes:
+    """The PNG scaled to ``width`` pixels wide (aspect kept; never enlarged)."""
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError("not a readable PNG image")
+    return scaled_png(img, width)
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:

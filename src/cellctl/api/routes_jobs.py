@@ -8,28 +8,18 @@ progress and live image on ``GET /jobs/{id}`` and on the event stream (``job``, 
 from __future__ import annotations
 
 import asyncio
-import cv2
-import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
 
 from cellctl.api.auth import Caller, TokenGuard
+from cellctl.api.dashboard import scaled_png
 from cellctl.api.schemas import JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptView
 from cellctl.calibration.calibration_set import COMMANDS
-from cellctl.commissioning.jobs import ALL_PROCEDURES, HAND_EYE_METHODS, JobManager, JobRefused, job_view
+from cellctl.commissioning.jobs import JobManager
+from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS, JobRefused, job_view
 from cellctl.commissioning.prompts import Answer, PromptError, UnknownPrompt
 from cellctl.store import UnknownJob
 
 IMAGE_WIDTH_MAX = 2048
-
-
-def _png(image: np.ndarray, width: int) -> bytes:
-    h, w = image.shape[:2]
-    if width < w:
-        image = cv2.resize(image, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
-    ok, buf = cv2.imencode(".png", image)
-    if not ok:
-        raise RuntimeError("the frame could not be encoded as PNG")
-    return buf.tobytes()
 
 
 def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
@@ -115,7 +105,7 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
         frame = jobs.latest_frame(job_id)
         if frame is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"job {job_id} has no frame (yet)")
-        png = await asyncio.to_thread(_png, frame.image, width)
+        png = await asyncio.to_thread(scaled_png, frame.image, width)
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
 
     return router

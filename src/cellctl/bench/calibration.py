@@ -37,7 +37,7 @@ from cellctl.calibration.compute import (
 from cellctl.calibration.dataset import pose_array
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.recording import record
-from cellctl.commissioning.jobs import motion_settings
+from cellctl.commissioning.registry import motion_settings
 from cellctl.config.schema import CellConfig
 from cellctl.sim.commissioning import TwinCommissioning
 

@@ -25,7 +25,7 @@ import numpy as np
 from cellctl.bench.progress import Progress
 from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.recording import record
-from cellctl.commissioning.jobs import ALL_PROCEDURES
+from cellctl.commissioning.registry import ALL_PROCEDURES
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix

@@ -24,15 +24,12 @@ from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleFailed, Cycle
 from cellctl.cell.events import EventHub
 from cellctl.cell.packml import CycleStepNotAllowed, MachineEvent, PackMLMachine
 from cellctl.cell.recorder import StoreRecorder
+from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.schema import CellConfig
 from cellctl.ports import (
-    CartesianPose,
     DeviceError,
-    MotionRequest,
-    Robot,
-    RobotState,
 )
 from cellctl.store import AsyncCellStore, CycleRecord, CycleRequest, CycleState, SubmitResult
 
@@ -94,40 +91,6 @@ class SimTruth(Protocol):
     def install_error(self) -> Mapping[str, float]:
         """The true install error of the glass where it stands now (the paper's six figures)."""
         ...
-
-
-class TrackedRobot:
-    """A Robot port that knows whether a motion is under way (for alarm reactions)."""
-
-    def __init__(self, robot: Robot) -> None:
-        self._robot = robot
-        self._moves = 0
-
-    @property
-    def moving(self) -> bool:
-        return self._moves > 0
-
-    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
-        self._moves += 1
-        try:
-            return await self._robot.move(request, timeout_s=timeout_s)
-        finally:
-            self._moves -= 1
-
-    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
-        return await self._robot.read_pose(timeout_s=timeout_s)
-
-    async def state(self, *, timeout_s: float) -> RobotState:
-        return await self._robot.state(timeout_s=timeout_s)
-
-    async def stop(self, *, timeout_s: float) -> None:
-        await self._robot.stop(timeout_s=timeout_s)
-
-    async def ping(self, *, timeout_s: float) -> float:
-        return await self._robot.ping(timeout_s=timeout_s)
-
-    async def close(self) -> None:
-        await self._robot.close()
 
 
 @dataclass(frozen=True)

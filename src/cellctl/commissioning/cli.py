@@ -24,7 +24,7 @@ from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSetError,
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.client import CellClient, service_url
-from cellctl.commissioning.jobs import ALL_PROCEDURES, HAND_EYE_METHODS
+from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS
 from cellctl.config import load_config
 
 # CLI word -> procedure

@@ -28,7 +28,7 @@ from cellctl.cell.cycle import CellDevices
 from cellctl.commissioning.plans import MotionPlan
 from cellctl.commissioning.prompts import Ask
 from cellctl.config.schema import CellConfig
-from cellctl.ports import CartesianPose, Frame, Identified, MotionRequest, Robot, RobotState
+from cellctl.ports import Frame, Identified
 
 Progress = Callable[[int, int, str], None]
 
@@ -70,34 +70,6 @@ class DatasetDraft:
         return write_dataset(dest, self.kind, manifest, self.images)
 
 
-class ReducedSpeedRobot:
-    """The Robot port for commissioning: every move capped at the procedure's reduced speed."""
-
-    def __init__(self, robot: Robot, max_mm_s: float, max_deg_s: float) -> None:
-        self._robot = robot
-        self.max_mm_s = float(max_mm_s)
-        self.max_deg_s = float(max_deg_s)
-
-    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
-        capped = MotionRequest(request.target, request.kind, min(request.speed_mm_s, self.max_mm_s), min(request.speed_deg_s, self.max_deg_s))
-        return await self._robot.move(capped, timeout_s=timeout_s)
-
-    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
-        return await self._robot.read_pose(timeout_s=timeout_s)
-
-    async def state(self, *, timeout_s: float) -> RobotState:
-        return await self._robot.state(timeout_s=timeout_s)
-
-    async def stop(self, *, timeout_s: float) -> None:
-        await self._robot.stop(timeout_s=timeout_s)
-
-    async def ping(self, *, timeout_s: float) -> float:
-        return await self._robot.ping(timeout_s=timeout_s)
-
-    async def close(self) -> None:
-        return None  # the service owns the robot
-
-
 def device_identity(device: object) -> dict[str, str]:
     """What a device says about itself (model, serial, address), or its kind when it says nothing."""
     inner = getattr(device, "_robot", None)
@@ -127,7 +99,7 @@ class JobContext:
     Attributes:
         job_id: the job's number (in prompts and the dataset manifest).
         config: the cell configuration.
-        devices: the three ports; the robot is a :class:`ReducedSpeedRobot`.
+        devices: the three ports; the robot is a :class:`cellctl.cell.robots.ReducedSpeedRobot`.
         calibration: the calibration set in use when the job started (None if there is none).
         motion: speeds and timeouts of the procedure's moves and reads.
         ask: pause for the engineer.

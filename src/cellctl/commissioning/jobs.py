@@ -18,13 +18,12 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any
 
 from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready
-from cellctl.calibration.collect import MotionSettings
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
@@ -34,12 +33,13 @@ from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
 from cellctl.cell.packml import MachineEvent, PackMLMachine
 from cellctl.cell.tags import PackMLCommand, PackMLState
-from cellctl.commissioning.context import JobContext, ReducedSpeedRobot, Witness, describe_source
-from cellctl.commissioning.plans import MotionPlan, PlanError, plan_board, plan_laser, plan_nine_point, plan_teaching
-from cellctl.commissioning.procedures import PROCEDURES, Procedure
+from cellctl.cell.robots import ReducedSpeedRobot
+from cellctl.commissioning.context import JobContext, Witness, describe_source
+from cellctl.commissioning.plans import MotionPlan, PlanError
+from cellctl.commissioning.procedures import Procedure
+from cellctl.commissioning.registry import ALL_PROCEDURES, PLANNERS, JobRefused, check_options, motion_settings
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
 from cellctl.commissioning.schedule import VerifySchedule
-from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import DeviceError, Frame
@@ -52,61 +52,6 @@ JOB_STATES_ALLOWED = frozenset({PackMLState.STOPPED, PackMLState.IDLE})
 _CANCELLING_STATES = frozenset({PackMLState.STOPPING, PackMLState.ABORTING})
 PROGRESS_PERSIST_EVERY = 10
 LAST_FRAMES_KEPT = 4
-
-ALL_PROCEDURES: dict[str, Procedure] = {
-    **PROCEDURES,
-    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify, records_part=False),
-}
-PLANNERS: dict[str, Callable[[CellConfig, CalibrationSet | None, dict[str, Any], Pose | None], MotionPlan]] = {
-    "camera": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
-    "hand_eye": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
-    "laser": lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
-    "teaching": lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start),
-    "pixel_map": lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start),
-    "verify": lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
-}
-HAND_EYE_METHODS = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
-
-
-class JobRefused(Exception):
-    """A job that cannot start (or a request about one that cannot be served); the message says why."""
-
-    def __init__(self, message: str, *, conflict: bool = False) -> None:
-        super().__init__(message)
-        self.conflict = conflict  # True: the cell's state forbids it now (HTTP 409); False: a bad request (422)
-
-
-def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig) -> dict[str, Any]:
-    """The job's options, checked; a bad one is refused naming the field and what it takes."""
-    if procedure not in ALL_PROCEDURES:
-        raise JobRefused(f"procedure: unknown '{procedure}'; choose one of {', '.join(ALL_PROCEDURES)}")
-    allowed = set(ALL_PROCEDURES[procedure].option_names())
-    out: dict[str, Any] = {}
-    for key, value in options.items():
-        if value is None:
-            continue
-        if key not in allowed:
-            raise JobRefused(f"options.{key}: not an option of {procedure}; it takes {', '.join(sorted(allowed))}")
-        if key == "views":
-            if not isinstance(value, int) or isinstance(value, bool) or not 3 <= value <= 200:
-                raise JobRefused(f"options.views: give a whole number of board views from 3 to 200, got {value!r}")
-        elif key == "poses":
-            lo = config.calibration.procedure.laser.min_poses
-            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= 5000:
-                raise JobRefused(f"options.poses: give a whole number of laser poses from {lo} to 5000, got {value!r}")
-        elif key == "store":
-            if not isinstance(value, bool):
-                raise JobRefused(f"options.store: true or false, got {value!r}")
-        elif key == "method" and value not in HAND_EYE_METHODS:
-            raise JobRefused(f"options.method: one of {', '.join(HAND_EYE_METHODS)}, got {value!r}")
-        out[key] = value
-    return out
-
-
-def motion_settings(config: CellConfig) -> MotionSettings:
-    c = config.calibration.procedure
-    return MotionSettings(c.speed_mm_s, c.speed_deg_s, c.move_timeout_s, c.read_timeout_s, c.grab_timeout_s)
-
 
 @dataclass
 class _Running:
@@ -163,7 +108,6 @@ class JobManager:
         self._finished: dict[int, asyncio.Event] = {}
         self._pump: asyncio.Task[None] | None = None
         self._lock = asyncio.Lock()
-        self._listeners: list[Callable[[JobRecord], Awaitable[None] | None]] = []
         self._last_frames: dict[int, Frame] = {}
         self.schedule: VerifySchedule | None = None
         machine.add_guard(PackMLCommand.START, self._start_guard)
@@ -201,10 +145,6 @@ class JobManager:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._pump
             self._pump = None
-
-    def on_finish(self, callback: Callable[[JobRecord], Awaitable[None] | None]) -> None:
-        """Call ``callback`` with every job's final record."""
-        self._listeners.append(callback)
 
     async def _follow(self, queue: asyncio.Queue[MachineEvent]) -> None:
         while True:
@@ -499,33 +439,3 @@ class JobManager:
             ev = self._finished.pop(rec.id, None)
             if ev is not None:
                 ev.set()
-        for callback in list(self._listeners):
-            with contextlib.suppress(Exception):
-                res = callback(run.record)
-                if asyncio.iscoroutine(res):
-                    await res
-
-
-def job_view(rec: JobRecord, live: Mapping[str, Any]) -> dict[str, Any]:
-    """A job as the API and the dashboard show it."""
-    return {
-        "id": rec.id,
-        "procedure": rec.procedure,
-        "state": rec.state,
-        "actor": rec.actor,
-        "source": rec.source,
-        "options": rec.options,
-        "created_utc": rec.created_at.isoformat(),
-        "finished_utc": None if rec.finished_at is None else rec.finished_at.isoformat(),
-        "plan": rec.plan,
-        "progress": live.get("progress") or rec.progress,
-        "dataset": rec.dataset,
-        "result": rec.result,
-        "error": rec.error,
-        "version_before": rec.version_before,
-        "version_after": rec.version_after,
-        "prompt": live.get("prompt"),
-        "frames": live.get("frames", 0),
-        "running": bool(live.get("running")),
-    }
-

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import enum
+import functools
 import itertools
 import math
 from collections.abc import Callable
@@ -141,19 +142,8 @@ class PromptDesk:
         return [p for p, _ in self._open.values() if job_id is None or p.job_id == job_id]
 
     def asker(self, job_id: int) -> Ask:
-        """The ``ask`` a job's procedures use."""
-
-        async def ask(
-            kind: PromptKind,
-            text: str,
-            *,
-            details: dict[str, Any] | None = None,
-            value_label: str | None = None,
-            default: float | None = None,
-        ) -> Answer:
-            return await self.ask(job_id, kind, text, details=details, value_label=value_label, default=default)
-
-        return ask
+        """The ``ask`` a job's procedures use: :meth:`ask` bound to the job."""
+        return functools.partial(self.ask, job_id)
 
     async def ask(
         self,
@@ -177,6 +167,9 @@ class PromptDesk:
             watcher(prompt)
         try:
             answer = await future
+        except asyncio.CancelledError:  # the job ended while it waited: the prompt closes unanswered
+            self._publish("prompt", {"job_id": job_id, "open": False, "prompt": prompt.as_dict(), "answer": None})
+            raise
         finally:
             self._open.pop(prompt.id, None)
         self._publish(

@@ -8,7 +8,8 @@ from __future__ import annotations
 import sys
 
 from cellctl.calibration.calibration_set import COMMANDS
-from cellctl.commissioning.jobs import ALL_PROCEDURES, JOB_STATES_ALLOWED
+from cellctl.commissioning.jobs import JOB_STATES_ALLOWED
+from cellctl.commissioning.registry import ALL_PROCEDURES
 from cellctl.commissioning.prompts import PROMPT_MEANINGS
 from cellctl.config.calibration_procedure import REDUCED_SPEED_MM_S
 from cellctl.markdown_doc import markdown_doc_main

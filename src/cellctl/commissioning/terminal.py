@@ -199,9 +199,12 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 else:
                     if prompt is not None and prompt["id"] == p["id"]:
                         prompt = None
-                    a = data.get("answer") or {}
-                    value = f", {a['value']:g}" if a.get("value") is not None else ""
-                    out.write(f"\n    answered by {a.get('actor', '?')}: {a.get('action', '?')}{value}\n")
+                    a = data.get("answer")
+                    if a is None:
+                        out.write("\n    the prompt closed unanswered (the job ended)\n")
+                    else:
+                        value = f", {a['value']:g}" if a.get("value") is not None else ""
+                        out.write(f"\n    answered by {a.get('actor', '?')}: {a.get('action', '?')}{value}\n")
                     out.flush()
             if prompt is not None:
                 try:

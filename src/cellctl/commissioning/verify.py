@@ -68,16 +68,33 @@ def _laser_subset(rows: list[dict[str, Any]], stands: int, per_stand: int) -> li
     return out
 
 
+# The stored board datasets a check goes back to: the hand-eye's views, and the camera's (the
+# same camera on the same flange, a few minutes earlier), each with the board where it was then.
+BOARD_REFERENCES = ("hand_eye", "camera")
+
+
 def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
-    """Board views, then laser poses, each a subset of the poses of the stored calibration's dataset."""
+    """Board views, then laser poses, each a subset of the poses of the stored calibrations' datasets."""
     if cal is None:
         raise CalibrationRefused("verify", "missing_input", "there is no calibration set to verify; commission the cell first")
     vc = config.calibration.procedure.verify
-    board_ds = _reference(cal, "hand_eye", "board_views")
-    views = board_ds.manifest["views"]
-    view_idx = spread_subset(len(views), vc.views)
-    poses = [pose_array(views[i].get("T_B_H_target", views[i]["T_B_H"]), f"{views[i]['name']}.T_B_H_target") for i in view_idx]
-    labels = [f"view {views[i]['name']}" for i in view_idx]
+    poses: list[Pose] = []
+    labels: list[str] = []
+    views: list[dict[str, str]] = []
+    references: dict[str, str] = {}
+    board: dict[str, Any] | None = None
+    for part in BOARD_REFERENCES:
+        p = cal.part(part)
+        if part != "hand_eye" and (p is None or p.dataset is None or p.dataset.path in references.values()):
+            continue  # the hand-eye's views are needed; the camera's add precision when they are there
+        ds = _reference(cal, part, "board_views")
+        references[part] = str(ds.root)
+        board = board or ds.manifest["board"]
+        rows = ds.manifest["views"]
+        for i in spread_subset(len(rows), vc.views):
+            poses.append(pose_array(rows[i].get("T_B_H_target", rows[i]["T_B_H"]), f"{rows[i]['name']}.T_B_H_target"))
+            labels.append(f"{part} view {rows[i]['name']}")
+            views.append({"name": f"{part}-{rows[i]['name']}", "reference": part, "reference_name": rows[i]["name"]})
     laser_idx: list[int] = []
     laser_ref: str | None = None
     if vc.laser_stands:
@@ -87,16 +104,15 @@ def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose |
         poses += [pose_array(rows[i].get("T_B_H_target", rows[i]["T_B_H"]), f"reading {i}") for i in laser_idx]
         labels += [f"laser reading {i} (stand {rows[i].get('group', 0)})" for i in laser_idx]
         laser_ref = str(laser_ds.root)
-    board = board_ds.manifest["board"]
-    spec = BoardSpec(tuple(board["inner_corners"]), float(board["square_mm"]))  # type: ignore[arg-type]
+    assert board is not None
     board_cfg = config.calibration.procedure.camera.board
     details = {
-        "hand_eye_dataset": str(board_ds.root),
-        "view_names": [views[i]["name"] for i in view_idx],
+        "board_datasets": references,
+        "views_planned": views,
         "laser_dataset": laser_ref,
         "laser_readings": laser_idx,
-        "board": board_place(config, board_cfg.model_copy(update={"square_mm": spec.square_mm}), board.get("on_wall_mm", [0.0, 0.0])),
-        "views": len(view_idx),
+        "board": board_place(config, board_cfg.model_copy(update={"square_mm": float(board["square_mm"])}), board.get("on_wall_mm", [0.0, 0.0])),
+        "views": len(views),
     }
     return make_plan(config, "verify", poses, labels, [], start, details)
 
@@ -111,7 +127,7 @@ async def collect_verify(ctx: JobContext) -> Dataset:
     draft = ctx.begin(
         "verify",
         board={"inner_corners": b["inner_corners"], "square_mm": square, "border_mm": b["border_mm"]},
-        reference={"hand_eye_dataset": plan.details["hand_eye_dataset"], "laser_dataset": plan.details["laser_dataset"]},
+        reference={"board_datasets": plan.details["board_datasets"], "laser_dataset": plan.details["laser_dataset"]},
         views=[],
         readings=[],
         skipped=[],
@@ -128,10 +144,10 @@ async def collect_verify(ctx: JobContext) -> Dataset:
             draft.manifest["skipped"].append(f"{label}: the robot refused it ({err})")
             continue
         if k < n_views:
-            name = plan.details["view_names"][k]
+            view = plan.details["views_planned"][k]
             frame = await grab(ctx)
-            draft.images[f"{name}.png"] = frame.image
-            draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
+            draft.images[f"{view['name']}.png"] = frame.image
+            draft.manifest["views"].append({**view, "image": f"{view['name']}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
         else:
             reading = await ctx.devices.laser.read(timeout_s=ctx.motion.read_timeout_s)
             ref_index = plan.details["laser_readings"][k - n_views]
@@ -176,58 +192,82 @@ def _adjoint_inv(C: np.ndarray) -> np.ndarray:
     return A
 
 
-def camera_drift(then: list[Pose], now: list[Pose], cameras_B: list[Pose], *, lever_mm: float = 400.0) -> tuple[np.ndarray, np.ndarray, float]:
+def camera_drift(
+    then: list[Pose], now: list[Pose], cameras_B: list[Pose], groups: list[int] | None = None, *, lever_mm: float = 400.0
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The camera's move on the flange, from board poses seen at the same flange poses before and now.
 
     At view i the camera sees the board at ``then[i]`` before and ``now[i]`` now (T_C_P). If the
     camera moved on the flange by Delta (X_now = X_then @ Delta) and the board on the wall by M
     (in the base frame), then ``now[i] @ inv(then[i]) = inv(Delta) @ inv(C_i) @ M @ C_i`` with C_i
     the camera pose in the base frame; to first order the twist of the left side is
-    ``-delta + Ad(inv(C_i)) m``. Delta and M are found together by least squares over the views
-    (rotations are weighted by ``lever_mm``). Returns Delta as a 4x4, the twist's 6x6 covariance
+    ``-delta + Ad(inv(C_i)) m``. Delta and one M per group (views whose "before" had the board
+    in one place: one per stored dataset) are found together by Gauss-Newton over the views
+    (rotations weighted by ``lever_mm``). Returns Delta as a 4x4, its twist's 6x6 covariance
     (mm, rad) from the residuals, and the residual RMS (mm).
     """
-    if not (len(then) == len(now) == len(cameras_B)) or len(then) < MIN_VERIFY_VIEWS:
+    g = [0] * len(then) if groups is None else list(groups)
+    if not (len(then) == len(now) == len(cameras_B) == len(g)) or len(then) < MIN_VERIFY_VIEWS:
         raise ValueError(f"need at least {MIN_VERIFY_VIEWS} views with the board seen before and now")
+    labels = sorted(set(g))
+    col = {label: k for k, label in enumerate(labels)}
     W = np.diag([1.0, 1.0, 1.0, lever_mm, lever_mm, lever_mm])
-    J = np.vstack([W @ np.hstack([-np.eye(6), _adjoint_inv(C)]) for C in cameras_B])
-    delta, M = np.eye(4), np.eye(4)
+    rows = []
+    for C, label in zip(cameras_B, g):
+        block = np.zeros((6, 6 + 6 * len(labels)))
+        block[:, :6] = -np.eye(6)
+        block[:, 6 + 6 * col[label]: 12 + 6 * col[label]] = _adjoint_inv(C)
+        rows.append(W @ block)
+    J = np.vstack(rows)
+    delta = np.eye(4)
+    moves = [np.eye(4) for _ in labels]
     for _ in range(GAUSS_NEWTON_STEPS):  # relinearised about the estimate: a board re-stuck mm and tenths of a degree off
-        y = np.concatenate([W @ _twist(delta @ A @ invert_pose(B) @ invert_pose(invert_pose(C) @ M @ C))
-                            for A, B, C in zip(now, then, cameras_B)])  # fmt: skip
+        y = np.concatenate([W @ _twist(delta @ A @ invert_pose(B) @ invert_pose(invert_pose(C) @ moves[col[label]] @ C))
+                            for A, B, C, label in zip(now, then, cameras_B, g)])  # fmt: skip
         x, *_ = np.linalg.lstsq(J, y, rcond=None)
         delta = delta @ make_pose(axis_angle_to_matrix(x[3:6]), x[:3])
-        M = make_pose(axis_angle_to_matrix(x[9:12]), x[6:9]) @ M
+        for k in range(len(labels)):
+            m = x[6 + 6 * k: 12 + 6 * k]
+            moves[k] = make_pose(axis_angle_to_matrix(m[3:6]), m[:3]) @ moves[k]
     r = y - J @ x
-    dof = max(len(y) - 12, 1)
+    dof = max(len(y) - J.shape[1], 1)
     sigma2 = float(r @ r) / dof
     cov = sigma2 * np.linalg.pinv(J.T @ J)[:6, :6]
     return delta, cov, float(np.sqrt(sigma2))
 
 
-def hand_eye_drift(new: Dataset, reference: Dataset, cal: CalibrationSet, refine: str) -> dict[str, Any]:
-    """How far the camera moved on the flange, from the new views and the same views of the reference dataset."""
+def hand_eye_drift(new: Dataset, cal: CalibrationSet, refine: str) -> dict[str, Any]:
+    """How far the camera moved on the flange, from the new views and the same views of the stored datasets."""
     K, D = cal.camera_matrix(), cal.dist_coeffs()
     X = cal.T_H_C()
-    b_new, b_ref = new.manifest["board"], reference.manifest["board"]
+    b_new = new.manifest["board"]
     spec_new = BoardSpec(tuple(b_new["inner_corners"]), float(b_new["square_mm"]))  # type: ignore[arg-type]
-    spec_ref = BoardSpec(tuple(b_ref["inner_corners"]), float(b_ref["square_mm"]))  # type: ignore[arg-type]
-    names = [v["name"] for v in new.manifest["views"]]
-    got_new = _board_poses(new, names, spec_new, K, D, refine)
-    got_ref = _board_poses(reference, names, spec_ref, K, D, refine)
-    common = [n for n in names if n in got_new and n in got_ref]
-    if len(common) < MIN_VERIFY_VIEWS:
+    views = new.manifest["views"]
+    got_new = _board_poses(new, [v["name"] for v in views], spec_new, K, D, refine)
+    then, now, cameras, groups = [], [], [], []
+    for k, (part, path) in enumerate(new.manifest["reference"]["board_datasets"].items()):
+        ref = read_dataset(path, "board_views")
+        b_ref = ref.manifest["board"]
+        spec_ref = BoardSpec(tuple(b_ref["inner_corners"]), float(b_ref["square_mm"]))  # type: ignore[arg-type]
+        mine = [v for v in views if v["reference"] == part]
+        got_ref = _board_poses(ref, [v["reference_name"] for v in mine], spec_ref, K, D, refine)
+        for v in mine:
+            if v["name"] in got_new and v["reference_name"] in got_ref:
+                H_ref, C_ref = got_ref[v["reference_name"]]
+                then.append(C_ref)
+                now.append(got_new[v["name"]][1])
+                cameras.append(H_ref @ X)
+                groups.append(k)
+    if len(then) < MIN_VERIFY_VIEWS:
         raise CalibrationRefused(
             "verify", "board_not_found",
-            f"the board was found in only {len(common)} of the {len(names)} views in both the new and the stored data; "
+            f"the board was found in only {len(then)} of the {len(views)} views in both the new and the stored data; "
             f"at least {MIN_VERIFY_VIEWS} are needed: check the board's place and the lighting",
         )  # fmt: skip
-    delta, cov, rms = camera_drift(
-        [got_ref[n][1] for n in common], [got_new[n][1] for n in common], [got_ref[n][0] @ X for n in common]
-    )
+    delta, cov, rms = camera_drift(then, now, cameras, groups)
     dt = X[:3, :3] @ delta[:3, 3]  # in the flange frame
     return {
-        "views": len(common),
+        "views": len(then),
         "translation_mm": float(np.linalg.norm(dt)),
         "translation_components_mm": dt.tolist(),
         "rotation_deg": float(np.degrees(np.linalg.norm(matrix_to_axis_angle(delta[:3, :3])))),
@@ -324,8 +364,7 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
         raise CalibrationRefused("verify", "missing_input", "there is no calibration set to verify")
     vc = config.calibration.procedure.verify
     ref = ds.manifest["reference"]
-    hand_eye_ref = read_dataset(ref["hand_eye_dataset"], "board_views")
-    he = hand_eye_drift(ds, hand_eye_ref, cal, config.calibration.procedure.camera.refine)
+    he = hand_eye_drift(ds, cal, config.calibration.procedure.camera.refine)
     beyond = []
     if he["translation_mm"] > vc.max_hand_eye_mm or he["rotation_deg"] > vc.max_hand_eye_deg:
         beyond.append(f"hand-eye moved {he['translation_mm']:.3f} mm / {he['rotation_deg']:.4f} deg "

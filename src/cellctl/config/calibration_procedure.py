@@ -147,12 +147,11 @@ class TeachConfig(StrictModel):
 class VerifyCalibrationConfig(StrictModel):
     """``cellctl calibrate verify``: has the camera or the laser moved on the fixture since they were calibrated?
 
-    The check revisits a few of the very poses the stored hand-eye and laser calibrations were
-    collected at (``views`` board views spread over the hand-eye dataset's, and
-    ``laser_poses_per_stand`` poses at ``laser_stands`` arm stands of the laser dataset's), and
-    computes hand-eye and laser again from the new data and from the same subset of the stored
-    data: their difference is the drift, free of the robot's accuracy errors at those poses
-    (the same in both). A drift beyond the limits raises the drift alarm. ``every_cycles`` /
+    The check revisits some of the very poses the stored calibrations were collected at
+    (``views`` board views spread over each of the camera's and the hand-eye's datasets, and
+    ``laser_poses_per_stand`` poses at ``laser_stands`` arm stands of the laser dataset's) and
+    estimates how far camera and laser moved from the change between the stored and the new
+    data at the same poses, free of the robot's accuracy errors there (the same in both). A drift beyond the limits raises the drift alarm. ``every_cycles`` /
     ``every_hours`` (0: never) raise a reminder alarm when a check is due.
     """
 

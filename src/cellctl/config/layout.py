@@ -20,6 +20,23 @@ from cellctl.geometry.motion import path_timing
 from cellctl.geometry.pose import Pose, make_pose
 
 
+def opening_problem(wall_normal: tuple[float, float, float], up: tuple[float, float, float], width_mm: float,
+                    height_mm: float, corner_radius_mm: float) -> str | None:  # fmt: skip
+    """Why an opening's geometry cannot be (up not in the wall, radius too large), or None."""
+    if abs(float(np.dot(wall_normal, up))) > 1e-6:
+        return "up must lie in the wall: it has to be perpendicular to wall_normal"
+    if 2 * corner_radius_mm > min(width_mm, height_mm):
+        return "corner_radius_mm is larger than half the opening's smaller side"
+    return None
+
+
+def workpiece_frame(corner_position_mm: ArrayLike, wall_normal: ArrayLike, up: ArrayLike) -> Pose:
+    """T at the opening's upper-right corner: z into the wall, y down along it (against ``up``), x = y cross z."""
+    z = np.asarray(wall_normal, dtype=float)
+    y = -np.asarray(up, dtype=float)
+    return make_pose(np.column_stack([np.cross(y, z), y, z]), corner_position_mm)
+
+
 class OpeningLayout(StrictModel):
     """The window opening in the car-body wall where the car body nominally stands.
 
@@ -39,18 +56,14 @@ class OpeningLayout(StrictModel):
 
     @model_validator(mode="after")
     def _geometry(self) -> "OpeningLayout":
-        if abs(float(np.dot(self.wall_normal, self.up))) > 1e-6:
-            raise ValueError("up must lie in the wall: it has to be perpendicular to wall_normal")
-        if 2 * self.corner_radius_mm > min(self.width_mm, self.height_mm):
-            raise ValueError("corner_radius_mm is larger than half the opening's smaller side")
+        problem = opening_problem(self.wall_normal, self.up, self.width_mm, self.height_mm, self.corner_radius_mm)
+        if problem is not None:
+            raise ValueError(problem)
         return self
 
     def T_B_T_nominal(self) -> Pose:
         """The nominal workpiece frame at the upper-right corner, in the robot base frame."""
-        z = as_array(self.wall_normal)
-        y = -as_array(self.up)
-        x = np.cross(y, z)
-        return make_pose(np.column_stack([x, y, z]), self.corner_position_mm)
+        return workpiece_frame(self.corner_position_mm, self.wall_normal, self.up)
 
     def on_wall(self, xy_mm: ArrayLike, margin_mm: float) -> bool:
         """True if the point (x, y in T, mm) lies on the wall at least ``margin_mm`` off the opening."""

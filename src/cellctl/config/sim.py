@@ -7,6 +7,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from cellctl.config.layout import opening_problem, workpiece_frame
 from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
 from cellctl.config.render import RenderConfig
 from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
@@ -38,20 +39,16 @@ class WorldConfig(StrictModel):
 
     @model_validator(mode="after")
     def _geometry(self) -> "WorldConfig":
-        if abs(float(np.dot(self.wall_normal, self.up))) > 1e-6:
-            raise ValueError("up must lie in the wall: it has to be perpendicular to wall_normal")
-        if 2 * self.corner_radius_mm > min(self.opening_width_mm, self.opening_height_mm):
-            raise ValueError("corner_radius_mm is larger than half the opening's smaller side")
+        problem = opening_problem(self.wall_normal, self.up, self.opening_width_mm, self.opening_height_mm, self.corner_radius_mm)
+        if problem is not None:
+            raise ValueError(problem)
         if any(v < 0 for v in (*self.posture_translation_mm, *self.posture_rotation_deg)):
             raise ValueError("posture ranges are half-widths and must not be negative")
         return self
 
     def T_B_T_nominal(self) -> Pose:
         """The nominal workpiece frame at the upper-right corner, in the robot base frame."""
-        z = as_array(self.wall_normal)
-        y = -as_array(self.up)
-        x = np.cross(y, z)
-        return make_pose(np.column_stack([x, y, z]), self.corner_position_mm)
+        return workpiece_frame(self.corner_position_mm, self.wall_normal, self.up)
 
 
 class RobotSimConfig(StrictModel):

@@ -22,7 +22,8 @@ from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, SimTruth, TrackedRobot
+from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, SimTruth
+from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.tags import PackMLState, UnitMode
 from cellctl.cell.watchdog import DeviceWatchdog, WatchdogSettings

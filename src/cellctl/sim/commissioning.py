@@ -14,8 +14,9 @@ from typing import Any
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.dataset import Dataset
 from cellctl.cell.cycle import CellDevices
-from cellctl.commissioning.context import JobContext, ReducedSpeedRobot, describe_source
-from cellctl.commissioning.jobs import ALL_PROCEDURES, motion_settings
+from cellctl.cell.robots import ReducedSpeedRobot
+from cellctl.commissioning.context import JobContext, describe_source
+from cellctl.commissioning.registry import ALL_PROCEDURES, motion_settings
 from cellctl.commissioning.prompts import Answer, PromptDesk
 from cellctl.config.schema import CellConfig
 from cellctl.sim.operator import SimulatedOperator, TwinWitness

@@ -593,8 +593,10 @@
     if (data.open) {
       noteLive(id, { prompt: data.prompt });
     } else {
-      const a = data.answer || {};
-      page.answered = { job_id: id, kind: data.prompt.kind, action: a.action, value: a.value, actor: a.actor || "unknown", at: new Date().toISOString() };
+      const a = data.answer; // null: the prompt closed unanswered because its job ended
+      page.answered = a
+        ? { job_id: id, kind: data.prompt.kind, action: a.action, value: a.value, actor: a.actor || "unknown", at: new Date().toISOString() }
+        : { job_id: id, kind: data.prompt.kind, action: "closed unanswered (the job ended)", value: null, actor: "nobody", at: new Date().toISOString() };
       const known = l && "prompt" in l ? l.prompt : data.prompt;
       noteLive(id, known && known.id !== data.prompt.id ? {} : { prompt: null });
     }

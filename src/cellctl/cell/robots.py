@@ -1,0 +1,65 @@
+"""Robot ports that wrap the cell's robot: one that knows when it moves, one that keeps to a speed limit."""
+
+from __future__ import annotations
+
+from cellctl.ports import CartesianPose, MotionRequest, Robot, RobotState
+
+
+class RobotProxy:
+    """A Robot port passing every call to ``robot``; subclasses change what they need."""
+
+    def __init__(self, robot: Robot) -> None:
+        self._robot = robot
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        return await self._robot.move(request, timeout_s=timeout_s)
+
+    async def read_pose(self, *, timeout_s: float) -> CartesianPose:
+        return await self._robot.read_pose(timeout_s=timeout_s)
+
+    async def state(self, *, timeout_s: float) -> RobotState:
+        return await self._robot.state(timeout_s=timeout_s)
+
+    async def stop(self, *, timeout_s: float) -> None:
+        await self._robot.stop(timeout_s=timeout_s)
+
+    async def ping(self, *, timeout_s: float) -> float:
+        return await self._robot.ping(timeout_s=timeout_s)
+
+    async def close(self) -> None:
+        await self._robot.close()
+
+
+class TrackedRobot(RobotProxy):
+    """A Robot port that knows whether a motion is under way (for alarm reactions)."""
+
+    def __init__(self, robot: Robot) -> None:
+        super().__init__(robot)
+        self._moves = 0
+
+    @property
+    def moving(self) -> bool:
+        return self._moves > 0
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        self._moves += 1
+        try:
+            return await self._robot.move(request, timeout_s=timeout_s)
+        finally:
+            self._moves -= 1
+
+
+class ReducedSpeedRobot(RobotProxy):
+    """The Robot port of a commissioning job: every move capped at the procedure's reduced speed."""
+
+    def __init__(self, robot: Robot, max_mm_s: float, max_deg_s: float) -> None:
+        super().__init__(robot)
+        self.max_mm_s = float(max_mm_s)
+        self.max_deg_s = float(max_deg_s)
+
+    async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        capped = MotionRequest(request.target, request.kind, min(request.speed_mm_s, self.max_mm_s), min(request.speed_deg_s, self.max_deg_s))
+        return await self._robot.move(capped, timeout_s=timeout_s)
+
+    async def close(self) -> None:
+        return None  # the service owns the robot

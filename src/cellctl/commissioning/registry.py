@@ -1,0 +1,94 @@
+"""What a commissioning job may be: the procedures, their planners and options, and a job as the API shows it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.collect import MotionSettings
+from cellctl.commissioning.plans import MotionPlan, plan_board, plan_laser, plan_nine_point, plan_teaching
+from cellctl.commissioning.procedures import PROCEDURES, Procedure
+from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
+from cellctl.config.schema import CellConfig
+from cellctl.geometry.pose import Pose
+from cellctl.store import JobRecord
+
+ALL_PROCEDURES: dict[str, Procedure] = {
+    **PROCEDURES,
+    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify, records_part=False),
+}
+PLANNERS: dict[str, Callable[[CellConfig, CalibrationSet | None, dict[str, Any], Pose | None], MotionPlan]] = {
+    "camera": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
+    "hand_eye": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
+    "laser": lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
+    "teaching": lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start),
+    "pixel_map": lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start),
+    "verify": lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
+}
+HAND_EYE_METHODS = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
+
+
+class JobRefused(Exception):
+    """A job that cannot start (or a request about one that cannot be served); the message says why."""
+
+    def __init__(self, message: str, *, conflict: bool = False) -> None:
+        super().__init__(message)
+        self.conflict = conflict  # True: the cell's state forbids it now (HTTP 409); False: a bad request (422)
+
+
+def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig) -> dict[str, Any]:
+    """The job's options, checked; a bad one is refused naming the field and what it takes."""
+    if procedure not in ALL_PROCEDURES:
+        raise JobRefused(f"procedure: unknown '{procedure}'; choose one of {', '.join(ALL_PROCEDURES)}")
+    allowed = set(ALL_PROCEDURES[procedure].option_names())
+    out: dict[str, Any] = {}
+    for key, value in options.items():
+        if value is None:
+            continue
+        if key not in allowed:
+            raise JobRefused(f"options.{key}: not an option of {procedure}; it takes {', '.join(sorted(allowed))}")
+        if key == "views":
+            if not isinstance(value, int) or isinstance(value, bool) or not 3 <= value <= 200:
+                raise JobRefused(f"options.views: give a whole number of board views from 3 to 200, got {value!r}")
+        elif key == "poses":
+            lo = config.calibration.procedure.laser.min_poses
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= 5000:
+                raise JobRefused(f"options.poses: give a whole number of laser poses from {lo} to 5000, got {value!r}")
+        elif key == "store":
+            if not isinstance(value, bool):
+                raise JobRefused(f"options.store: true or false, got {value!r}")
+        elif key == "method" and value not in HAND_EYE_METHODS:
+            raise JobRefused(f"options.method: one of {', '.join(HAND_EYE_METHODS)}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def motion_settings(config: CellConfig) -> MotionSettings:
+    c = config.calibration.procedure
+    return MotionSettings(c.speed_mm_s, c.speed_deg_s, c.move_timeout_s, c.read_timeout_s, c.grab_timeout_s)
+
+
+def job_view(rec: JobRecord, live: Mapping[str, Any]) -> dict[str, Any]:
+    """A job as the API and the dashboard show it."""
+    return {
+        "id": rec.id,
+        "procedure": rec.procedure,
+        "state": rec.state,
+        "actor": rec.actor,
+        "source": rec.source,
+        "options": rec.options,
+        "created_utc": rec.created_at.isoformat(),
+        "finished_utc": None if rec.finished_at is None else rec.finished_at.isoformat(),
+        "plan": rec.plan,
+        "progress": live.get("progress") or rec.progress,
+        "dataset": rec.dataset,
+        "result": rec.result,
+        "error": rec.error,
+        "version_before": rec.version_before,
+        "version_after": rec.version_after,
+        "prompt": live.get("prompt"),
+        "frames": live.get("frames", 0),
+        "running": bool(live.get("running")),
+    }
+
