@@ -21,6 +21,7 @@ import numpy as np
 from cellctl.cli_args import positive_int
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
+from cellctl.config.api import TokenUnavailable
 from cellctl.service.compose import ServiceError as BuildError
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
@@ -30,12 +31,11 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     from cellctl.service import build_service  # the composition root: imports the drivers
 
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    config = load_config(args.config)
+    config = load_config(args.config, read_tokens=True)  # a token it cannot read refuses the start, before anything runs
 
     async def run() -> int | None:
         service = await build_service(config, workdir=Path(args.workdir))
-        print(f"cellctl serving on http://{config.api.host}:{config.api.port}/ (mode {config.mode}); Ctrl-C stops", flush=True)
-        return await service.serve(demo_cycles=args.demo_cycles)
+        return await service.serve(demo_cycles=args.demo_cycles)  # prints where it serves once it does
 
     received = asyncio.run(run())
     # Stopped cleanly either way: 0 for SIGTERM (systemd's stop), 130 for Ctrl-C as shells expect.
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except ConfigError as err:
+    except (ConfigError, TokenUnavailable) as err:
         print(f"configuration refused:\n{err}", file=sys.stderr)
         return 2
     except (ServiceError, BuildError) as err:

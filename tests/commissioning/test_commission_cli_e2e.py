@@ -115,3 +115,8 @@ def test_an_empty_cell_commissioned_with_the_cli_alone_meets_the_bars_and_instal
     for dx, dy, dz, rx, ry, rz in errors:
         assert max(abs(float(v)) for v in (dx, dy, dz)) < 0.35
         assert max(abs(float(v)) for v in (rx, ry, rz)) < 0.1
+    # Each cycle records which calibration it used by reference (the set's version, the parts' ids), not a copy.
+    record = httpx.get(f"{url}/cycles/1").json()
+    used = next(step["figures"]["calibration"] for step in record["steps"] if step["step"] == "calibrate")
+    assert used["version"] == cal.version and used["parts"]["laser"] == cal.part("laser").id
+    assert "quality" not in str(used)

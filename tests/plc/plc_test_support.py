@@ -19,16 +19,20 @@ from pymodbus.client import AsyncModbusTcpClient
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
 from cellctl.config.plc import PlcConfig
 from cellctl.plc import PlcServer
-from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome
+from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
 from cellctl.plc.register_map import CELL_BLOCK, PLC_BLOCK, RegType, register
 
-ERR_NOT_READY = 501
-ERR_UNKNOWN_RECIPE = 502
-ERR_INSTALL_FAILED = 503
+ERR_NOT_READY = int(PlcErrorCode.NOT_READY)
+ERR_UNKNOWN_RECIPE = int(PlcErrorCode.UNKNOWN_RECIPE)
+ERR_INSTALL_FAILED = 1301  # a cell alarm id (alignment failed)
 
 
 class MemoryCell:
-    """A CellFacade over a tiny PackML subset; cycles run in their own task with seeded results."""
+    """A CellFacade over a tiny PackML subset; cycles run in their own task with seeded results.
+
+    Refusals are stored as their id's outcome, as the facade's contract asks (``store_refusals``
+    False plays a facade that does not, to show the interface's own memory of them).
+    """
 
     TRANSITIONS = {
         (PackMLState.IDLE, PackMLCommand.STOP): PackMLState.STOPPED,
@@ -40,7 +44,7 @@ class MemoryCell:
 
     def __init__(self, *, seed: int = 20261122, cycle_s: float = 0.02,
                  recipes: frozenset[int] = frozenset({1, 2, 3}), failing_ids: frozenset[int] = frozenset(),
-                 gate: asyncio.Event | None = None) -> None:
+                 gate: asyncio.Event | None = None, store_refusals: bool = True) -> None:
         self.state = PackMLState.IDLE
         self.mode = UnitMode.PRODUCTION
         self.step = CycleStep.NONE
@@ -50,6 +54,8 @@ class MemoryCell:
         self.recipes = recipes
         self.failing_ids = failing_ids
         self.gate = gate
+        self.store_refusals = store_refusals
+        self.refused: list[int] = []
         self.started: list[int] = []
         self.outcomes: dict[int, CycleOutcome] = {}
         self.running: dict[int, asyncio.Task[None]] = {}
@@ -66,14 +72,22 @@ class MemoryCell:
     async def start_cycle(self, req_id: int, recipe_id: int, part_id: int) -> CycleAcceptance:
         if req_id in self.outcomes or req_id in self.running:
             return CycleAcceptance(True)  # idempotent per id
-        if self.state is not PackMLState.IDLE or self.running:
-            return CycleAcceptance(False, ERR_NOT_READY, f"state {self.state.name}")
         if recipe_id not in self.recipes:
-            return CycleAcceptance(False, ERR_UNKNOWN_RECIPE, f"unknown recipe {recipe_id}")
+            return self._refuse(req_id, recipe_id, part_id, ERR_UNKNOWN_RECIPE, f"unknown recipe {recipe_id}")
+        if self.state is not PackMLState.IDLE or self.running:
+            return self._refuse(req_id, recipe_id, part_id, ERR_NOT_READY, f"state {self.state.name}")
         self.started.append(req_id)
         self.state = PackMLState.EXECUTE
         self.running[req_id] = asyncio.create_task(self._run(req_id, recipe_id, part_id))
         return CycleAcceptance(True)
+
+    def _refuse(self, req_id: int, recipe_id: int, part_id: int, code: int, reason: str) -> CycleAcceptance:
+        self.refused.append(req_id)
+        if self.store_refusals:
+            self.outcomes[req_id] = CycleOutcome(
+                req_id=req_id, recipe_id=recipe_id, part_id=part_id, ok=False, error_code=code,
+                dx_mm=0.0, dy_mm=0.0, dz_mm=0.0, drx_rad=0.0, dry_rad=0.0, drz_rad=0.0, cycle_time_s=0.0)
+        return CycleAcceptance(False, code, reason)
 
     async def _run(self, req_id: int, recipe_id: int, part_id: int) -> None:
         loop = asyncio.get_running_loop()
@@ -196,14 +210,25 @@ class PlcClient:
                 raise AssertionError(f"timed out waiting for {what}; cell block: {cell}")
             await asyncio.sleep(0.003)
 
-    async def run_cycle(self, req_id: int, recipe_id: int, part_id: int) -> dict[str, Any]:
+    async def run_cycle(self, req_id: int, recipe_id: int, part_id: int, *, timeout_s: float = 5.0) -> dict[str, Any]:
         """The PLC's side of the four-way handshake; returns the cell block as read at done."""
         await self.write(recipe_id=recipe_id, part_id=part_id, cycle_req_id=req_id, cycle_request=1)
         done = await self.wait_cell(lambda c: c["done"] and c["cycle_ack_id"] == req_id,
-                                    f"done for cycle {req_id}")
+                                    f"done for cycle {req_id}", timeout_s)
         await self.write(cycle_request=0)
         await self.wait_cell(lambda c: not c["done"] and not c["busy"], f"done cleared after {req_id}")
         return done
+
+    async def command(self, cmd: int, *, settle_timeout_s: float = 10.0) -> dict[str, Any]:
+        """The PLC's side of the command handshake; returns the acked cell block once the acting state
+        the command started (if any) has passed."""
+        await self.write(cntrl_cmd=int(cmd), cmd_change_request=1)
+        ack = await self.wait_cell(lambda c: c["cmd_ack"] == 1 and c["cmd_ack_cmd"] == int(cmd), f"ack of command {cmd}")
+        await self.write(cntrl_cmd=0, cmd_change_request=0)
+        await self.wait_cell(lambda c: c["cmd_ack"] == 0, f"ack of command {cmd} cleared")
+        acting = {s for s in PackMLState if s.name.endswith("ING")}
+        await self.wait_cell(lambda c: PackMLState(c["state_current"]) not in acting, "a settled state", settle_timeout_s)
+        return ack
 
     async def _beat(self, period_s: float) -> None:
         while True:

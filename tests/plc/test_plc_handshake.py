@@ -105,17 +105,59 @@ async def test_repeated_id_after_a_server_restart_is_not_run_again() -> None:
     assert cell.started == [77]
 
 
-async def test_refused_requests_say_why() -> None:
+async def test_refused_requests_say_why_and_a_repeated_refused_id_replays_the_refusal() -> None:
     cell = MemoryCell()
     async with running_cell(cell) as (_server, plc):
         zero = await plc.run_cycle(0, 1, 5)
-        assert zero["nok"] and zero["error_code"] == PlcErrorCode.CYCLE_REQ_ID_ZERO
+        assert zero["nok"] and zero["error_code"] == PlcErrorCode.CYCLE_REQ_ID_ZERO and not zero["replayed"]
+        zero = await plc.run_cycle(0, 1, 5)  # 0 is not an id: nothing is stored under it
+        assert zero["error_code"] == PlcErrorCode.CYCLE_REQ_ID_ZERO and not zero["replayed"]
+
         bad_recipe = await plc.run_cycle(12, 9, 5)
-        assert bad_recipe["nok"] and bad_recipe["error_code"] == ERR_UNKNOWN_RECIPE
-        assert bad_recipe["cycle_ack_id"] == 12 and not bad_recipe["replayed"]
-        assert cell.started == []
-        ok = await plc.run_cycle(12, 1, 5)  # a refused id never ran, so it may be asked again
-        assert ok["ok"] and cell.started == [12]
+        assert bad_recipe["nok"] and bad_recipe["error_code"] == ERR_UNKNOWN_RECIPE == PlcErrorCode.UNKNOWN_RECIPE
+        assert bad_recipe["cycle_ack_id"] == bad_recipe["result_req_id"] == 12 and not bad_recipe["replayed"]
+        assert (bad_recipe["result_recipe_id"], bad_recipe["result_part_id"]) == (9, 5)
+        # The refusal is the id's result: repeating the id republishes it, even with a valid recipe now.
+        again = await plc.run_cycle(12, 9, 5)
+        assert again["nok"] and again["error_code"] == ERR_UNKNOWN_RECIPE and again["replayed"]
+        assert not again["request_mismatch"]
+        other = await plc.run_cycle(12, 1, 5)
+        assert other["replayed"] and other["request_mismatch"] and other["error_code"] == ERR_UNKNOWN_RECIPE
+        assert (other["result_recipe_id"], other["result_part_id"]) == (9, 5)  # the stored refusal stands
+        assert cell.started == [] and cell.refused == [12]  # asked the cell once
+        ok = await plc.run_cycle(13, 1, 5)  # a new id runs
+        assert ok["ok"] and cell.started == [13]
+
+        # Not ready (the cell stopped): refused with its own code, stored the same way.
+        cell.state = PackMLState.STOPPED
+        await plc.wait_cell(lambda c: c["state_current"] == PackMLState.STOPPED and not c["ready"], "Stopped")
+        stopped = await plc.run_cycle(14, 1, 6)
+        assert stopped["nok"] and stopped["error_code"] == PlcErrorCode.NOT_READY and not stopped["replayed"]
+        cell.state = PackMLState.IDLE
+        await plc.wait_cell(lambda c: c["ready"], "ready again")
+        again = await plc.run_cycle(14, 1, 6)
+        assert again["replayed"] and again["error_code"] == PlcErrorCode.NOT_READY
+        assert cell.started == [13]
+
+
+async def test_refusals_are_replayed_by_the_interface_even_when_the_cell_does_not_store_them() -> None:
+    cell = MemoryCell(store_refusals=False)
+    async with running_cell(cell) as (_server, plc):
+        first = await plc.run_cycle(21, 7, 3)
+        assert first["error_code"] == ERR_UNKNOWN_RECIPE and not first["replayed"]
+        again = await plc.run_cycle(21, 1, 3)
+        assert again["replayed"] and again["request_mismatch"] and again["error_code"] == ERR_UNKNOWN_RECIPE
+        assert cell.refused == [21] and cell.started == []
+
+
+async def test_a_refusal_stored_by_the_cell_is_replayed_after_a_server_restart() -> None:
+    cell = MemoryCell()
+    async with running_cell(cell) as (_server, plc):
+        assert (await plc.run_cycle(31, 8, 3))["error_code"] == ERR_UNKNOWN_RECIPE
+    async with running_cell(cell) as (_server, plc):  # a new server, the same cell (its store)
+        again = await plc.run_cycle(31, 8, 3)
+        assert again["replayed"] and again["nok"] and again["error_code"] == ERR_UNKNOWN_RECIPE
+    assert cell.refused == [31] and cell.started == []
 
 
 class _SilentCell(MemoryCell):
@@ -129,6 +171,9 @@ async def test_a_cell_that_does_not_answer_gives_nok_not_a_hang() -> None:
     async with running_cell(cell, facade_timeout_s=0.2, cycle_result_timeout_s=1.0) as (_server, plc):
         done = await plc.run_cycle(3, 1, 5)
         assert done["nok"] and done["error_code"] == PlcErrorCode.CELL_NO_ANSWER
+        # not a result: repeating the id asks the cell again (and is not marked replayed)
+        again = await plc.run_cycle(3, 1, 5)
+        assert again["error_code"] == PlcErrorCode.CELL_NO_ANSWER and not again["replayed"]
 
 
 class _NeverFinishingCell(MemoryCell):

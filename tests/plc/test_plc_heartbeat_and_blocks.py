@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import asyncio
+import errno
+import logging
+import socket
+import time
 
 import pytest
 from plc_test_support import MemoryCell, plc_config, running_cell
 from pymodbus.client import AsyncModbusTcpClient
 
+from cellctl.cell.tags import PackMLState, UnitMode
 from cellctl.plc import PlcServer
 from cellctl.plc.heartbeat import HeartbeatWatch, LinkEvent
 from cellctl.plc.process_image import CellImage
@@ -130,6 +135,72 @@ async def test_plc_writes_into_the_cell_block_are_refused_and_change_nothing() -
         assert (await plc.read_plc_block())[10] == 0  # cycle_request as the PLC left it
         await plc.write(recipe_id=3)
         assert (await plc.read_plc_block())[5] == 3
+
+
+async def test_another_unit_id_gets_exception_11_without_a_traceback_and_changes_nothing(
+        caplog: pytest.LogCaptureFixture) -> None:
+    cell = MemoryCell()
+    caplog.set_level(logging.DEBUG)
+    async with running_cell(cell) as (server, plc):  # unit id 1
+        client = plc.client
+        before = await plc.read_plc_block()
+        for device_id in (0, 2, 7, 247):
+            replies = [
+                await client.read_holding_registers(CELL_BLOCK.start, count=2, device_id=device_id),  # FC3
+                await client.write_registers(PLC_BLOCK.start, [5, 6], device_id=device_id),  # FC16
+                await client.write_register(5, 9, device_id=device_id),  # FC6
+            ]
+            for rr in replies:
+                assert rr.isError() and rr.exception_code == 11, (device_id, rr)
+        assert await plc.read_plc_block() == before  # nothing was written
+        assert server.other_unit_requests == {0: 3, 2: 3, 7: 3, 247: 3}
+        rr = await client.read_holding_registers(CELL_BLOCK.start, count=2, device_id=1)
+        assert not rr.isError() and rr.registers == list(MAP_VERSION)  # its own unit id still answers
+    errors = [r for r in caplog.records if r.levelno >= logging.ERROR or r.exc_info or "Traceback" in r.getMessage()]
+    assert errors == [], [r.getMessage() for r in errors]
+    warned = [r.getMessage() for r in caplog.records if r.name == "cellctl.plc.server" and r.levelno == logging.WARNING]
+    assert len(warned) == 4 and "unit id 7" in " ".join(warned) and "[plc] unit_id" in warned[0]
+
+
+@pytest.mark.parametrize("occupant", ["listening", "bound", "listening with SO_REUSEADDR"])
+async def test_a_taken_port_fails_the_start_promptly_and_names_the_setting(occupant: str) -> None:
+    with socket.socket() as other:  # another program has the port
+        if "REUSEADDR" in occupant:
+            other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        other.bind(("127.0.0.1", 0))
+        if occupant.startswith("listening"):
+            other.listen()
+        port = other.getsockname()[1]
+        server = PlcServer(plc_config(port=port), MemoryCell())
+        t0 = time.monotonic()
+        with pytest.raises(OSError, match=r"\[plc\] port") as raised:
+            await asyncio.wait_for(server.start(), 10.0)
+        assert time.monotonic() - t0 < 2.0
+        assert raised.value.errno == errno.EADDRINUSE and f"127.0.0.1:{port}" in str(raised.value)
+        assert not server.running
+    # the port free again: the same server object starts on it
+    await server.start()
+    try:
+        assert server.port == port
+    finally:
+        await server.stop()
+
+
+async def test_a_host_that_is_not_this_machine_fails_the_start_naming_the_setting() -> None:
+    server = PlcServer(plc_config(host="192.0.2.1"), MemoryCell())  # TEST-NET-1: never a local address
+    with pytest.raises(OSError, match=r"\[plc\] host"):
+        await asyncio.wait_for(server.start(), 10.0)
+    assert not server.running
+
+
+async def test_the_first_read_after_a_start_already_shows_the_cells_state() -> None:
+    cell = MemoryCell()
+    cell.state = PackMLState.ABORTED  # as the cell starts
+    # A slow scan: the scan loop's first round comes 1 s after the start; the image must not wait for it.
+    async with running_cell(cell, scan_period_s=1.0, heartbeat_timeout_s=3.0, cell_heartbeat_period_s=1.0) as (_s, plc):
+        first = await plc.read_cell()
+        assert first["state_current"] == PackMLState.ABORTED and first["unit_mode_current"] == UnitMode.PRODUCTION
+        assert (first["map_version_major"], first["map_version_minor"]) == MAP_VERSION and not first["ready"]
 
 
 async def test_unit_id_zero_answers_every_unit_id() -> None:

@@ -11,14 +11,23 @@ import pytest
 from pydantic import ValidationError
 from pymodbus.client import ModbusTcpClient
 
+from cellctl.cell.packml import DEFAULT_MODE_CHANGE_STATES
+from cellctl.cell.tags import PackMLState
+from cellctl.config.cell import ProcessConfig
 from cellctl.config.plc import PlcConfig
+from cellctl.config.store import PackMLConfig
 from cellctl.plc.codec import decode_block, decode_value, encode_block, encode_value
 from cellctl.plc.register_map import (
     BLOCKS,
     CELL_BLOCK,
     PLC_BLOCK,
+    PLC_ERROR_CODE_RANGE,
+    PLC_ERROR_TEXT,
+    STORED_REFUSALS,
+    UNIT_ID_EXCEPTION,
     Access,
     Block,
+    PlcErrorCode,
     Register,
     RegType,
     check_map,
@@ -157,3 +166,36 @@ def test_plc_config_refuses_periods_that_cannot_work() -> None:
         PlcConfig(cycle_result_timeout_s=1.0, facade_timeout_s=5.0)
     with pytest.raises(ValidationError, match="float_word_order"):
         PlcConfig(float_word_order="cdab")
+
+
+def test_the_docs_list_every_error_code_and_say_which_are_stored() -> None:
+    text = render_markdown()
+    for code in PlcErrorCode:
+        stored = "yes" if code in STORED_REFUSALS else "no"
+        assert f"| {code.value} | `{code.name.lower()}` | {stored} | {PLC_ERROR_TEXT[code]} |" in text
+    assert all(c in PLC_ERROR_CODE_RANGE for c in PlcErrorCode)
+    # the refusals a PLC can get for a request that never runs are 9xx codes of their own
+    assert PlcErrorCode.UNKNOWN_RECIPE in STORED_REFUSALS and PlcErrorCode.NOT_READY in STORED_REFUSALS
+    assert not {PlcErrorCode.CYCLE_REQ_ID_ZERO, PlcErrorCode.CELL_NO_ANSWER, PlcErrorCode.RESULT_TIMEOUT} & STORED_REFUSALS
+    assert "repeating the id republishes the refusal" in text
+
+
+def test_the_docs_list_the_recipe_numbers_and_where_they_are_defined() -> None:
+    text = render_markdown()
+    assert "[[process.recipes]]" in text
+    for recipe in ProcessConfig().recipes:  # what a config without [[process.recipes]] has
+        assert f"| {recipe.id} | `{recipe.name}` |" in text
+    assert f"refused with `error_code` {int(PlcErrorCode.UNKNOWN_RECIPE)}" in text
+
+
+def test_the_docs_say_how_the_cell_starts_when_ready_is_set_and_where_modes_change() -> None:
+    text = " ".join(render_markdown().split())
+    initial = PackMLState[PackMLConfig().initial_state.upper()]
+    assert initial is PackMLState.ABORTED
+    assert f"the cell is in **Aborted** (`state_current` = {int(PackMLState.ABORTED)};" in text
+    assert "`ready` is 1 only in Execute (`state_current` = 6)" in text
+    states = ", ".join(f"{s.title()} ({int(PackMLState[s.upper()])})"
+                       for s in sorted(PackMLConfig().mode_change_states, key=lambda s: PackMLState[s.upper()]))
+    assert f"`[packml] mode_change_states`, by default {states};" in text
+    assert set(PackMLConfig().mode_change_states) == {s.name.lower() for s in DEFAULT_MODE_CHANGE_STATES}
+    assert f"exception code {UNIT_ID_EXCEPTION} (gateway target device failed to respond)" in text

@@ -120,3 +120,150 @@ def test_laser_arm_stands_span_the_configured_range() -> None:
     stands = lc.wrist_depths_mm()
     assert stands[0] == lc.wrist_depth_range_mm[0] and stands[-1] == lc.wrist_depth_range_mm[1]
     assert len(stands) == 24 and all(abs(b - a - lc.wrist_depth_step_mm) < 1e-9 for a, b in itertools.pairwise(stands))
+
+
+# -- issue 15: where a cell's tokens come from, and files that are no configuration ---------------
+
+STRONG = "Vq3-xK9_pL2mZ8rT5wY1nB7cD4fG6hJ0"
+
+
+def hardware_text() -> str:
+    """config/hardware.example.toml with every address on loopback (it is loaded here, never served)."""
+    text = (ROOT / "config" / "hardware.example.toml").read_text()
+    return text.replace('"192.168.125.1"', '"127.0.0.1"').replace('"0.0.0.0"', '"127.0.0.1"')
+
+
+def hardware_data() -> dict:
+    return tomllib.loads(hardware_text())
+
+
+@pytest.mark.parametrize(
+    ("value", "why"),
+    [
+        ("sim-operator-token-change-me", "default or a placeholder"),
+        ("replace-with-a-long-random-operator-token", "default or a placeholder"),
+        ("our-line-token-CHANGEME-2024", "default or a placeholder"),
+        ("an-example-token-for-cell-1", "default or a placeholder"),
+        ("short-token", "fewer than 16"),
+        ("aaaaaaaaaaaaaaaaaaaaaaaa", "different characters"),
+        ("abcdefgh ijklmnopqrst", "whitespace"),
+    ],
+)
+def test_a_weak_token_is_refused_by_the_one_rule(value: str, why: str) -> None:
+    from cellctl.config.api import token_weakness
+
+    assert why in (token_weakness(value) or "")
+    assert token_weakness(STRONG) is None
+
+
+def test_hardware_mode_refuses_a_config_that_names_no_token() -> None:
+    data = hardware_data()
+    del data["api"]["tokens"]
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "cell.toml")
+    assert "api.tokens: no token is configured" in str(info.value) and "token_env" in str(info.value)
+    data.pop("api")
+    with pytest.raises(ConfigError, match="api.tokens: no token is configured"):
+        parse_config(data, "cell.toml")
+
+
+def test_hardware_mode_refuses_a_token_written_in_the_config() -> None:
+    data = hardware_data()
+    data["api"]["tokens"][1] = {"name": "line-integrator", "token": STRONG}
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "cell.toml")
+    text = str(info.value)
+    assert "api.tokens.1.token" in text and "token_env" in text and "token_file" in text
+    data["api"]["tokens"][1] = {"name": "line-integrator", "token_file": "tokens/integrator"}
+    with pytest.raises(ConfigError, match=r"api.tokens.1.token_file: give an absolute path"):
+        parse_config(data, "cell.toml")
+    # The simulated cell keeps its token in the file (the default token is the sim's).
+    assert parse_config(sim_data()).api.tokens[0].token == "sim-operator-token-change-me"
+
+
+def test_serving_reads_every_token_first_and_names_what_is_missing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_text(hardware_text())
+    monkeypatch.delenv("CELLCTL_TOKEN", raising=False)
+    monkeypatch.setenv("CELLCTL_TOKEN_INTEGRATOR", "replace-with-a-long-random-integrator-token")
+    assert load_config(path).mode == "hardware"  # commands that only talk to the service need no tokens
+    with pytest.raises(ConfigError) as info:
+        load_config(path, read_tokens=True)
+    text = str(info.value)
+    assert "environment variable CELLCTL_TOKEN is not set" in text and "deploy/cellctl.env.example" in text
+    assert "CELLCTL_TOKEN_INTEGRATOR is refused: it is a shipped default or a placeholder" in text
+    monkeypatch.setenv("CELLCTL_TOKEN", STRONG)
+    monkeypatch.setenv("CELLCTL_TOKEN_INTEGRATOR", STRONG[::-1])
+    cfg = load_config(path, read_tokens=True)
+    assert cfg.api.secrets() == (("operator", STRONG), ("line-integrator", STRONG[::-1]))
+
+
+def test_a_token_file_must_exist_hold_a_token_and_be_private(tmp_path: Path) -> None:
+    from cellctl.config.api import ApiToken, TokenUnavailable
+
+    f = tmp_path / "operator.token"
+    token = ApiToken(name="operator", token_file=f)
+    for prepare, why in [
+        (lambda: None, "does not exist"),
+        (lambda: (f.write_text("\n"), f.chmod(0o600)), "is empty"),
+        (lambda: f.write_text("sim-operator-token-change-me\n"), "default or a placeholder"),
+        (lambda: (f.write_text(STRONG), f.chmod(0o644)), "chmod 600"),
+        (lambda: (f.unlink(), f.mkdir()), "not a regular file"),
+    ]:
+        prepare()
+        with pytest.raises(TokenUnavailable, match=why) as info:
+            token.secret()
+        assert "api.tokens 'operator': token_file" in str(info.value)
+    f.rmdir()
+    f.write_text(STRONG + "\n")
+    f.chmod(0o600)
+    assert token.secret() == STRONG
+
+
+def test_a_token_names_exactly_one_source() -> None:
+    data = sim_data()
+    data["api"]["tokens"] = [{"name": "operator", "token_env": "CELLCTL_TOKEN", "token_file": "/etc/cellctl/operator.token"}]
+    with pytest.raises(ConfigError, match="give exactly one of token_env, token_file or token"):
+        parse_config(data, "x.toml")
+
+
+def test_a_directory_or_a_file_that_is_not_utf8_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="is a directory"):
+        load_config(tmp_path)
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes('cell_id = "cell-1"\n# Zelle für Seitenfenster\n'.encode("latin-1"))
+    with pytest.raises(ConfigError, match=r"not UTF-8 text \(byte 0xfc on line 2\)"):
+        load_config(latin1)
+    with pytest.raises(ConfigError, match="not a regular file"):
+        load_config("/dev/null")
+
+
+@pytest.mark.parametrize("command", [["status"], ["serve"], ["calibrate", "status"]])
+def test_the_cli_refuses_such_a_config_with_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: list[str]
+) -> None:
+    from cellctl.cli import main
+
+    binary = tmp_path / "cell.toml"
+    binary.write_bytes(b"\xff\xfe\x00m\x00o\x00d\x00e")
+    for bad, why in ((tmp_path, "is a directory"), (binary, "not UTF-8")):
+        assert main(["--config", str(bad), *command]) == 2
+        err = capsys.readouterr().err
+        assert "configuration refused" in err and why in err and "Traceback" not in err
+
+
+def test_serve_refuses_an_unset_token_env_before_it_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cellctl.cli import main
+
+    text = SIM_TOML.read_text()
+    old = 'token = "sim-operator-token-change-me"'
+    assert text.count(old) == 1
+    path = tmp_path / "cell.toml"  # config/sim.toml (loopback only) with its token from an unset variable
+    path.write_text(text.replace(old, 'token_env = "CELLCTL_TEST_TOKEN_NEVER_SET"'))
+    monkeypatch.delenv("CELLCTL_TEST_TOKEN_NEVER_SET", raising=False)
+    assert main(["--config", str(path), "serve", "--workdir", str(tmp_path)]) == 2
+    out, err = capsys.readouterr()
+    assert "serving on" not in out and "CELLCTL_TEST_TOKEN_NEVER_SET is not set" in err
+    assert not (tmp_path / "var").exists()  # nothing was built: no database, no images

@@ -138,7 +138,8 @@ class FakeController:
         return self.rapid_port
 
     def stop_thread(self, timeout_s: float = 5.0) -> None:
-        if self._loop is not None and self._stopped is not None and self._thread is not None:
+        """Stop the controller's thread (a second call, or one after the thread ended, does nothing)."""
+        if self._loop is not None and self._stopped is not None and self._thread is not None and not self._loop.is_closed():
             self._loop.call_soon_threadsafe(self._stopped.set)
             self._thread.join(timeout_s)
 

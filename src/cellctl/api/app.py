@@ -4,19 +4,32 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import APIRouter, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from swagger_ui_bundle import swagger_ui_path
 
 import cellctl
 from cellctl.api import dashboard, routes_cell, routes_cycles, routes_jobs
-from cellctl.api.auth import TokenGuard
+from cellctl.api.auth import TokenBeforeBody, TokenGuard
+from cellctl.api.limits import BodySizeLimit
+from cellctl.api.schemas import ErrorBody
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.commissioning.jobs import JobManager
 from cellctl.config.api import ApiConfig
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorBody, "description": "the request body cannot be read as JSON text (e.g. it is not UTF-8)"},
+    401: {"model": ErrorBody, "description": "no or wrong bearer token (mutating routes; every route with open_reads = false)"},
+    413: {"model": ErrorBody, "description": "the request body is larger than [api] max_body_bytes"},
+    422: {"model": ErrorBody, "description": "a bad request: `detail` names each bad field, `errors` lists them"},
+}
+"""The errors any route may answer, all in the app's one error body (it replaces FastAPI's default 422 schema)."""
+
+ERROR_BODY_REF = {"$ref": "#/components/schemas/ErrorBody"}
 
 
 def _field_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
@@ -29,6 +42,23 @@ def _field_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
     return out
 
 
+def document_error_bodies(schema: dict[str, Any]) -> dict[str, Any]:
+    """Every error answer in the OpenAPI document as it is sent: an ``ErrorBody``.
+
+    A route that names an error with a description alone (``409: {"description": ...}``) gets the
+    body added; a route with path parameters may answer 404 (what the path names does not exist).
+    """
+    for ops in schema.get("paths", {}).values():
+        for op in ops.values():
+            responses = op.get("responses", {})
+            if any(p.get("in") == "path" for p in op.get("parameters", [])):
+                responses.setdefault("404", {"description": "nothing of that name or id"})
+            for code, response in responses.items():
+                if code.startswith("4") and not response.get("content"):
+                    response["content"] = {"application/json": {"schema": ERROR_BODY_REF}}
+    return schema
+
+
 def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | None = None) -> FastAPI:
     """The cell's HTTP face. The orchestrator (and the job manager) must be started by whoever runs the app."""
     app = FastAPI(
@@ -37,6 +67,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
         description="Cell controller for robotic installation of large planar workpieces.",
         docs_url=None,
         redoc_url=None,
+        responses=ERROR_RESPONSES,
     )
     guard = TokenGuard(config)
     app.state.orchestrator = orch
@@ -47,11 +78,20 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
         summary = "; ".join(f"{e['in']} field '{e['field']}': {e['message']}" for e in errors)
         return JSONResponse(status_code=422, content={"detail": summary, "errors": errors})
 
-    app.include_router(routes_cycles.build_router(orch, guard, config.cycle_wait_max_s))
-    app.include_router(routes_cell.build_router(orch, guard))
+    routers: list[APIRouter] = [
+        routes_cycles.build_router(orch, guard, config.cycle_wait_max_s),
+        routes_cell.build_router(orch, guard),
+    ]
     if jobs is not None:
-        app.include_router(routes_jobs.build_router(jobs, guard))
+        routers.append(routes_jobs.build_router(jobs, guard))
+    for router in routers:
+        app.include_router(router)
     dashboard.install(app, orch, guard)
+
+    # Outermost first: the body limit, then the token; both act before the application reads the body.
+    api_routes = [r for router in routers for r in router.routes if isinstance(r, APIRoute)]
+    app.add_middleware(TokenBeforeBody, guard=guard, routes=api_routes)
+    app.add_middleware(BodySizeLimit, max_bytes=config.max_body_bytes)
 
     app.mount("/static/swagger-ui", StaticFiles(directory=str(swagger_ui_path)), name="swagger-ui")
 
@@ -65,4 +105,12 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
             swagger_favicon_url="/static/swagger-ui/favicon-32x32.png",
         )
 
+    generate_openapi = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = document_error_bodies(generate_openapi())
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
     return app

@@ -29,6 +29,7 @@ from fastapi.staticfiles import StaticFiles
 from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
 from cellctl.api.routes_cycles import image_file
+from cellctl.api.schemas import CycleId
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.tags import CycleStep
 from cellctl.store import CycleRecord, UnknownCycle
@@ -154,7 +155,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         return out
 
     @router.get("/dashboard/thumbs/{cycle_id}/{name}", response_class=Response)
-    async def thumb(cycle_id: int, name: str, request: Request, width: int = Query(256, ge=32, le=1024)) -> Response:
+    async def thumb(cycle_id: CycleId, name: str, request: Request, width: int = Query(256, ge=32, le=1024)) -> Response:
         guard.read(request)
         key = (cycle_id, name, width)
         png = thumbs.get(key)

@@ -9,12 +9,12 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
-from fastapi import APIRouter, Depends, HTTPException, Request, status
+from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.responses import PlainTextResponse, StreamingResponse
 
 from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.metrics import metric
-from cellctl.api.schemas import CommandResult
+from cellctl.api.schemas import CommandResult, HealthView, StoreHealth
 from cellctl.cell.alarms import Alarm, UnknownAlarm
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
@@ -115,7 +115,10 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         versions = await asyncio.to_thread(orch.calibration.history)
         return {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
 
-    @router.get("/events")
+    @router.get(
+        "/events", response_class=StreamingResponse,
+        responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: state, alarm, cycle, job, prompt, ..."}},
+    )  # fmt: skip
     async def events(request: Request) -> StreamingResponse:
         guard.read(request)
         queue = orch.events.subscribe()
@@ -142,15 +145,28 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
 
-    @router.get("/health")
-    async def health() -> dict[str, Any]:
+    @router.get("/health", response_model=HealthView, response_model_exclude_none=True)
+    async def health(request: Request) -> HealthView:
+        """``ok``: every device answers (HTTP 200 either way: the service itself answers).
+
+        With ``[api] open_reads = false`` an anonymous caller (a plant's up/down monitor) gets ``ok``
+        alone; the details need the token. The database's path is never shown.
+        """
         devices = orch.status()["devices"]
         lost = [n for n, d in devices.items() if d["link"] == "lost"]
+        if not guard.may_read_details(request):
+            return HealthView(ok=not lost)
         info = await orch.store.info()
-        return {"ok": not lost, "devices_lost": lost, "store": {"path": str(info.path), "journal_mode": info.journal_mode}}
+        return HealthView(ok=not lost, devices_lost=lost, store=StoreHealth(journal_mode=info.journal_mode))
 
-    @router.get("/metrics", response_class=PlainTextResponse)
-    async def metrics() -> str:
+    @router.get(
+        "/metrics",
+        response_class=Response,  # errors stay JSON (ErrorBody); the metrics are text
+        responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "the cell's figures"}},
+    )
+    async def metrics(request: Request) -> PlainTextResponse:
+        """Prometheus text format. With ``[api] open_reads = false`` the scraper sends the token (its ``authorization``)."""
+        guard.read(request)
         st = orch.status()
         counts = await orch.store.cycle_counts()
         parts = [
@@ -171,6 +187,6 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             ),  # fmt: skip
             metric("cellctl_scrape_timestamp_seconds", "gauge", "Wall time of this scrape", [({}, time.time())]),
         ]
-        return "".join(parts)
+        return PlainTextResponse("".join(parts))
 
     return router

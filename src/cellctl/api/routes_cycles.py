@@ -18,7 +18,13 @@ from fastapi import (
 from fastapi.responses import FileResponse
 
 from cellctl.api.auth import Caller, TokenGuard
-from cellctl.api.schemas import CycleAccepted, CycleRequestBody
+from cellctl.api.schemas import (
+    BeforeId,
+    CycleAccepted,
+    CycleId,
+    CycleRequestBody,
+    ErrorBody,
+)
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.store import (
     CycleRecord,
@@ -65,9 +71,10 @@ def cycle_json(record: CycleRecord, *, full: bool = True) -> dict[str, Any]:
             for s in record.steps
         ]
         out["images"] = [
-            {"name": i.name, "step": i.step.name.lower(), "url": f"/cycles/{record.id}/images/{i.name}"}
+            {"name": i.name, "step": i.step.name.lower(), "url": f"/cycles/{record.id}/images/{i.name}",
+             "pruned_at": i.pruned_at.isoformat() if i.pruned_at else None, "pruned_reason": i.pruned_reason}
             for i in record.images
-        ]
+        ]  # fmt: skip
     return out
 
 
@@ -80,6 +87,9 @@ async def image_file(orch: CellOrchestrator, cycle_id: int, name: str) -> Path:
     ref = next((i for i in record.images if i.name == name), None)
     if ref is None or len(name) > MAX_TEXT_LEN:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"cycle {cycle_id} has no image '{name}'")
+    if ref.pruned:
+        when = ref.pruned_at.isoformat() if ref.pruned_at else "earlier"
+        raise HTTPException(status.HTTP_410_GONE, detail=f"image {name} of cycle {cycle_id} was pruned {when}: {ref.pruned_reason}")
     path = orch.image_dir / ref.uri
     if not path.is_file():
         raise HTTPException(status.HTTP_410_GONE, detail=f"image file {ref.uri} is no longer on disk")
@@ -96,9 +106,9 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
         responses={
             200: {"description": "with ?wait=true: the finished cycle"},
             202: {"model": CycleAccepted, "description": "queued (or already known under this key)"},
-            401: {"description": "no or wrong bearer token"},
-            409: {"description": "the cell is not in a state to take a cycle"},
-            422: {"description": "bad body or header, or the key was used for a different request"},
+            401: {"model": ErrorBody, "description": "no or wrong bearer token"},
+            409: {"model": ErrorBody, "description": "the cell is not in a state to take a cycle"},
+            422: {"model": ErrorBody, "description": "bad body or header, or the key was used for a different request"},
         },
     )
     async def post_cycle(
@@ -145,23 +155,31 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
     async def list_cycles(
         request: Request,
         limit: int = Query(50, ge=1, le=1000),
-        before_id: int | None = Query(None, ge=1),
+        before_id: BeforeId = None,
         state: CycleState | None = None,
     ) -> list[dict[str, Any]]:
         guard.read(request)
         records = await orch.store.cycles(limit=limit, before_id=before_id, state=state)
         return [cycle_json(r, full=False) for r in records]
 
-    @router.get("/cycles/{cycle_id}")
-    async def get_cycle(cycle_id: int, request: Request) -> dict[str, Any]:
+    @router.get("/cycles/{cycle_id}", responses={404: {"model": ErrorBody, "description": "no such cycle"}})
+    async def get_cycle(cycle_id: CycleId, request: Request) -> dict[str, Any]:
         guard.read(request)
         try:
             return cycle_json(await orch.store.cycle(cycle_id))
         except UnknownCycle:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
 
-    @router.get("/cycles/{cycle_id}/images/{name}", response_class=FileResponse)
-    async def get_image(cycle_id: int, name: str, request: Request) -> FileResponse:
+    @router.get(
+        "/cycles/{cycle_id}/images/{name}",
+        response_class=FileResponse,
+        responses={
+            200: {"content": {"image/png": {}}, "description": "the PNG image"},
+            404: {"model": ErrorBody, "description": "no such cycle, or no image of that name"},
+            410: {"model": ErrorBody, "description": "the image file is no longer on disk"},
+        },
+    )
+    async def get_image(cycle_id: CycleId, name: str, request: Request) -> FileResponse:
         guard.read(request)
         return FileResponse(await image_file(orch, cycle_id, name), media_type="image/png")
 

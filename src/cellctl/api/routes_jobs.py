@@ -12,7 +12,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response,
 
 from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.dashboard import scaled_png
-from cellctl.api.schemas import JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptView
+from cellctl.api.schemas import JobId, JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptId, PromptView
 from cellctl.calibration.calibration_set import COMMANDS
 from cellctl.commissioning.jobs import JobManager
 from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS, JobRefused, job_view
@@ -73,11 +73,11 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
         return await view(rec.id)
 
     @router.get("/jobs/{job_id}", response_model=JobView, responses={404: {"description": "no such job"}})
-    async def get_job(job_id: int, caller: Caller = Depends(guard.read)) -> JobView:
+    async def get_job(job_id: JobId, caller: Caller = Depends(guard.read)) -> JobView:
         return await view(job_id)
 
     @router.post("/jobs/{job_id}/cancel", response_model=JobView, responses={409: {"description": "the job is not running"}})
-    async def cancel_job(job_id: int, caller: Caller = Depends(guard.require)) -> JobView:
+    async def cancel_job(job_id: JobId, caller: Caller = Depends(guard.require)) -> JobView:
         try:
             await jobs.cancel(job_id, actor=caller.actor, source=f"rest:{caller.source}")
         except JobRefused as err:
@@ -88,7 +88,9 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
 
     @router.post("/jobs/{job_id}/prompts/{prompt_id}", response_model=PromptView,
                  responses={404: {"description": "no such open prompt"}, 422: {"description": "an answer the prompt cannot take"}})  # fmt: skip
-    async def answer_prompt(job_id: int, prompt_id: int, body: PromptAnswerBody, caller: Caller = Depends(guard.require)) -> PromptView:
+    async def answer_prompt(
+        job_id: JobId, prompt_id: PromptId, body: PromptAnswerBody, caller: Caller = Depends(guard.require)
+    ) -> PromptView:
         if body.action not in ("confirm", "cancel", "value"):
             raise HTTPException(422, detail=f"action: 'confirm', 'cancel' or 'value', got '{body.action}'")
         try:
@@ -100,7 +102,7 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
         return PromptView.model_validate(prompt.as_dict())
 
     @router.get("/jobs/{job_id}/image", responses={200: {"content": {"image/png": {}}}, 404: {"description": "no frame yet"}})
-    async def job_image(job_id: int, request: Request, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
+    async def job_image(job_id: JobId, request: Request, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
         guard.read(request)
         frame = jobs.latest_frame(job_id)
         if frame is None:

@@ -44,7 +44,7 @@ from cellctl.bench.stats import (
     within_tolerance_all_axes,
 )
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
-from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.cell.tags import TO_EXECUTE, PackMLState
 from cellctl.config import CellConfig
 from cellctl.store import CycleRecord, CycleRequest, CycleState
 from cellctl.service.compose import Service
@@ -56,14 +56,7 @@ BudgetMode = Literal["alone-on", "alone-off"]
 
 ACTOR = "bench"
 # How an operator brings the cell back to Execute from each resting state.
-RECOVERY: dict[PackMLState, tuple[PackMLCommand, ...]] = {
-    PackMLState.ABORTED: (PackMLCommand.CLEAR, PackMLCommand.RESET, PackMLCommand.START),
-    PackMLState.STOPPED: (PackMLCommand.RESET, PackMLCommand.START),
-    PackMLState.COMPLETE: (PackMLCommand.RESET, PackMLCommand.START),
-    PackMLState.IDLE: (PackMLCommand.START,),
-    PackMLState.HELD: (PackMLCommand.UNHOLD,),
-    PackMLState.SUSPENDED: (PackMLCommand.UNSUSPEND,),
-}
+RECOVERY = TO_EXECUTE
 SETTLE_TIMEOUT_S = 30.0
 
 

@@ -108,6 +108,38 @@ def _cmd_calibration(args: argparse.Namespace) -> int:
     return 0 if bench.bars_met() else 1
 
 
+def _cmd_responsiveness(args: argparse.Namespace) -> int:
+    from cellctl.bench.responsiveness import format_responsiveness, run_responsiveness
+
+    figures = run_responsiveness(load_config(args.config), cycles=args.cycles, period_s=args.period)
+    print(format_responsiveness(figures))
+    _write_json(args.json, figures)
+    return 0
+
+
+def _cmd_soak(args: argparse.Namespace) -> int:
+    from cellctl.bench.accuracy import BenchRunError
+    from cellctl.bench.sources import BenchSettingsError
+    from cellctl.bench.soak import SoakSettings, format_soak, run_soak
+
+    try:
+        config = load_config(args.config)
+        settings = SoakSettings(
+            cycles=args.cycles, seed=args.seed, calibration=args.calibration, image_bound_mb=args.image_bound_mb,
+            status_requests=args.status_requests, time_scale=args.time_scale,
+        )  # fmt: skip
+        report = run_soak(config, settings, progress=not args.quiet, workdir=args.workdir)
+    except BenchSettingsError as err:
+        print(f"bench soak: {err}", file=sys.stderr)
+        return 2
+    except BenchRunError as err:
+        print(f"bench soak could not finish: {err}", file=sys.stderr)
+        return 3
+    print(format_soak(report))
+    _write_json(args.json, report.as_dict())
+    return 0 if report.disk_held else 1
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from cellctl.bench.verify import format_verify_bench, run_verify_bench
 
@@ -208,3 +240,32 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
     _report_options(p)
     p.set_defaults(func=_cmd_verify)
+
+    p = sub.add_parser(
+        "soak",
+        help="N cycles of the simulated cell service: RSS, disk per cycle, GET /status latency, retention held",
+        description="Runs N install cycles through the simulated cell service's orchestrator with a small image "
+        "bound, and prints RSS, disk use per cycle (images, database) and GET /status latency at start and end, "
+        "and whether the images stayed under the bound (exit 1 if not).",
+    )
+    p.add_argument("--cycles", type=_positive_int, default=1000, help="install cycles (default 1000)")
+    p.add_argument("--seed", type=_seed, default=1, help="the twin's seed (default 1)")
+    p.add_argument(
+        "--calibration", choices=["data", "oracle"], default="data",
+        help="data: the calibration set the cell computes from simulated data at start (default); oracle: the twin's truth",
+    )  # fmt: skip
+    p.add_argument("--image-bound-mb", type=float, default=50.0, help="the retention's image bound for the run (default 50 MB)")
+    p.add_argument("--status-requests", type=_positive_int, default=300, help="GET /status requests at start and end (default 300)")
+    p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
+    p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
+    _report_options(p)
+    p.set_defaults(func=_cmd_soak)
+
+    p = sub.add_parser(
+        "responsiveness",
+        help="PLC and REST response times while the simulated cell commissions itself and installs windows",
+    )
+    p.add_argument("--cycles", type=_positive_int, default=20, help="windows installed after commissioning (default 20)")
+    p.add_argument("--period", type=float, default=0.05, help="seconds between two requests of each client (default 0.05)")
+    _report_options(p)
+    p.set_defaults(func=_cmd_responsiveness)

@@ -1,16 +1,31 @@
 """The cycle's calibration from the versioned calibration set (the cell's CalibrationSource).
 
-The set is read from its folder before every cycle (a new version is picked up at once), checked
-for completeness, validity and age (:func:`check_ready`), and turned into what a cycle needs.
-The set changes only through commissioning jobs (:mod:`cellctl.commissioning`) or
+The set is read from its folder when it changes: every call looks at the ``current`` pointer's
+and the set file's identity (inode, size, modification and change times; two ``stat`` calls) and
+reads and validates the file only when one of them differs from the last read, so a new version
+is picked up at the next call and /status, which asks four times a second, costs no parsing.
+The set is checked for completeness, validity and age (:func:`check_ready`) and turned into what
+a cycle needs. The set changes only through commissioning jobs (:mod:`cellctl.commissioning`) or
 ``cellctl calibrate ... --dataset``.
+
+A damaged file (not JSON, a bad field, a pointer naming nothing) is refused once per change of
+the file: one warning in the log naming the file and the field, one alarm
+(:attr:`AlarmCode.CALIBRATION_INVALID`, source ``calibration``, when :meth:`attach_alarms` was
+called), and from then on :meth:`problems` names the damage (so a cycle fails with that alarm's
+code, 1305), :meth:`cycle_calibration` raises :class:`CalibrationRefused`, and the status,
+summary and history keep answering.
 """
 
 from __future__ import annotations
 
+import asyncio
+import logging
+import os
+import threading
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +34,13 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
 from cellctl.vision import AffineMap, CornerFeatures, Lens
+
+if TYPE_CHECKING:
+    from cellctl.cell.alarms import AlarmManager
+
+log = logging.getLogger(__name__)
+
+FileSig = tuple[int, int, int, int] | None  # (inode, size, mtime_ns, ctime_ns); None: no such file
 
 def cycle_calibration_from_set(cal: CalibrationSet, laser_range_mm: tuple[float, float]) -> CycleCalibration:
     """The parts a cycle needs, from a set that :func:`check_ready` accepts."""
@@ -44,34 +66,156 @@ def cycle_calibration_from_set(cal: CalibrationSet, laser_range_mm: tuple[float,
     )
 
 
+def _sig(path: Path) -> FileSig:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """The set as last read: which files (by identity), the set or why it was refused."""
+
+    pointer: FileSig
+    path: Path | None  # the set file the pointer named (None: no pointer, or it named nothing)
+    file: FileSig
+    version: int | None
+    cal: CalibrationSet | None
+    damage: str | None  # one line naming the file and the field; None when the set was usable
+
+
 class CalibrationSetSource:
-    """A CalibrationSource over a calibration store folder."""
+    """A CalibrationSource over a calibration store folder, read when it changes (see the module docstring)."""
 
     def __init__(self, store: CalibrationStore, config: CellConfig) -> None:
         self.store = store
         self.config = config
-        self._cached: tuple[int, CycleCalibration] | None = None
+        self._snap: _Snapshot | None = None
+        self._cached: tuple[_Snapshot, CycleCalibration] | None = None
+        self._history: dict[Path, tuple[FileSig, dict[str, Any]]] = {}
+        self._lock = threading.Lock()
+        self._history_lock = threading.Lock()
+        self._alarms: AlarmManager | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tasks: set[asyncio.Future[Any]] = set()
+        self.reads = 0  # how many times a set file was read and validated (tests, diagnostics)
 
     @classmethod
     def from_config(cls, config: CellConfig, *, workdir: Path) -> "CalibrationSetSource":
         return cls(CalibrationStore(store_root(config.calibration.directory, workdir)), config)
 
+    def attach_alarms(self, alarms: AlarmManager) -> None:
+        """Raise :attr:`AlarmCode.CALIBRATION_INVALID` (source ``calibration``) once for each damaged file seen.
+
+        Call it from the event loop the alarms run on; a damage found on another thread is
+        raised on that loop.
+        """
+        self._alarms = alarms
+        self._loop = asyncio.get_running_loop()
+
+    # -- reading on change --------------------------------------------------------------------
+
+    def _snapshot(self) -> _Snapshot:
+        pointer = _sig(self.store.root / self.store.POINTER)
+        snap = self._snap
+        if snap is not None and snap.pointer == pointer and (snap.path is None or _sig(snap.path) == snap.file):
+            return snap
+        with self._lock:
+            snap = self._snap
+            if snap is not None and snap.pointer == pointer and (snap.path is None or _sig(snap.path) == snap.file):
+                return snap
+            new = self._read(pointer)
+            self._snap = new
+        if new.damage is not None and (snap is None or snap.damage != new.damage or snap.file != new.file):
+            self._refused(new)
+        elif new.damage is None and snap is not None and snap.damage is not None:
+            log.warning("calibration set: version %s is usable again (%s)", new.version, new.path)
+        return new
+
+    def _read(self, pointer: FileSig) -> _Snapshot:
+        path: Path | None = None
+        file: FileSig = None
+        version: int | None = None
+        try:
+            version = self.store.current_version()
+            if version is None:
+                return _Snapshot(pointer, None, None, None, None, None)
+            path = self.store._path(version)  # noqa: SLF001 - the store's own naming of a version's file
+            file = _sig(path)  # before reading: a change during the read is seen at the next call
+            self.reads += 1
+            cal = self.store.load(version)
+        except (ValueError, OSError) as err:  # CalibrationSetError is a ValueError; so is a bad encoding
+            return _Snapshot(pointer, path, file, version, None, self._damage_text(err, version))
+        return _Snapshot(pointer, path, file, version, cal, None)
+
+    def _damage_text(self, err: Exception, version: int | None) -> str:
+        text = "; ".join(line.strip().lstrip("- ") for line in str(err).splitlines() if line.strip())
+        if isinstance(err, OSError) and not isinstance(err, FileNotFoundError):
+            text = f"{getattr(err, 'filename', None) or self.store.root}: cannot be read ({err.strerror or err})"
+        older = [v for v in self.store.versions() if version is None or v < version]
+        fix = "restore the file from a backup"
+        if older:
+            fix += f", or point {self.store.root / self.store.POINTER} at an earlier version (e.g. set-{older[-1]:06d}.json)"
+        fix += "; a new calibration builds on the set in use, so it cannot start from a damaged one"
+        return f"the calibration set in use is damaged: {text}; {fix}"
+
+    def _refused(self, snap: _Snapshot) -> None:
+        assert snap.damage is not None
+        log.warning("calibration set refused: %s", snap.damage)
+        alarms, loop = self._alarms, self._loop
+        if alarms is None or loop is None or loop.is_closed():
+            return
+        from cellctl.cell.alarms import AlarmCode
+
+        def _raise() -> None:
+            task = loop.create_task(alarms.raise_alarm(AlarmCode.CALIBRATION_INVALID, source="calibration", detail=snap.damage or ""))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            _raise()
+        else:
+            loop.call_soon_threadsafe(_raise)
+
     def _current(self) -> CalibrationSet | None:
-        return self.store.current()
+        """The set in use (None before the first); raises CalibrationRefused when it is damaged."""
+        snap = self._snapshot()
+        if snap.damage is not None:
+            raise CalibrationRefused("set", "damaged", snap.damage)
+        return snap.cal
+
+    # -- the CalibrationSource ----------------------------------------------------------------
 
     def problems(self) -> list[str]:
-        return check_ready(self._current(), datetime.now(timezone.utc))
+        snap = self._snapshot()
+        if snap.damage is not None:
+            return [snap.damage]
+        return check_ready(snap.cal, datetime.now(timezone.utc))
 
     def cycle_calibration(self) -> CycleCalibration:
-        cal = self._current()
+        snap = self._snapshot()
+        if snap.damage is not None:
+            raise CalibrationRefused("set", "damaged", snap.damage)
+        cal = snap.cal
         if cal is None:
             raise CalibrationRefused("set", "missing_input", "there is no calibration set; calibrate the cell first")
-        if self._cached is None or self._cached[0] != cal.version:
-            self._cached = (cal.version, cycle_calibration_from_set(cal, self.config.process.align.laser_range_mm))
-        return self._cached[1]
+        cached = self._cached
+        if cached is None or cached[0] is not snap:
+            cached = (snap, cycle_calibration_from_set(cal, self.config.process.align.laser_range_mm))
+            self._cached = cached
+        return cached[1]
 
     def summary(self) -> dict[str, Any]:
-        cal = self._current()
+        snap = self._snapshot()
+        cal = snap.cal
+        if snap.damage is not None:
+            return {"source": str(self.store.root), "version": snap.version, "parts": {}, "damaged": snap.damage}
         if cal is None:
             return {"source": str(self.store.root), "version": None, "parts": {}}
         parts = {}
@@ -84,4 +228,43 @@ class CalibrationSetSource:
         return {"source": str(self.store.root), "version": cal.version, "parts": parts}
 
     def history(self) -> list[dict[str, Any]]:
-        return self.store.history()
+        """Every version, oldest first; each file read once per change, a damaged one listed as such."""
+        with self._history_lock:  # /calibration calls it on worker threads
+            return self._history_rows()
+
+    def _history_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        seen: set[Path] = set()
+        for v in self.store.versions():
+            path = self.store._path(v)  # noqa: SLF001
+            seen.add(path)
+            sig = _sig(path)
+            hit = self._history.get(path)
+            if hit is not None and hit[0] == sig:
+                rows.append(hit[1])
+                continue
+            try:
+                cal = self.store.load(v)
+                row: dict[str, Any] = {
+                    "version": v,
+                    "created_utc": cal.created_utc.isoformat(),
+                    "note": cal.note,
+                    "parts": {n: (None if cal.part(n) is None else cal.part(n).status) for n in PART_NAMES},  # type: ignore[union-attr]
+                }
+            except (ValueError, OSError) as err:
+                row = {"version": v, "created_utc": None, "note": "", "parts": {}, "damaged": " ".join(str(err).split())}
+            self._history[path] = (sig, row)
+            rows.append(row)
+        for gone in set(self._history) - seen:
+            del self._history[gone]
+        return rows
+
+    def reference(self) -> dict[str, Any]:
+        snap = self._snapshot()
+        cal = snap.cal
+        if snap.damage is not None:
+            return {"source": str(self.store.root), "version": snap.version, "damaged": True}
+        if cal is None:
+            return {"source": str(self.store.root), "version": None}
+        parts = {name: (None if cal.part(name) is None else cal.part(name).id) for name in PART_NAMES}  # type: ignore[union-attr]
+        return {"source": str(self.store.root), "version": cal.version, "parts": parts}

@@ -109,6 +109,8 @@ class AlarmCode(enum.IntEnum):
     LASER_LOST = 1101
     CAMERA_LOST = 1102
     ROBOT_LOST = 1103
+    LASER_READ_FAILED = 1104
+    CAMERA_GRAB_FAILED = 1105
     PLC_HEARTBEAT_LOST = 1201
     PLC_NOT_READY = 1202
     NO_CAR_IN_POSITION = 1203
@@ -120,9 +122,13 @@ class AlarmCode(enum.IntEnum):
     CYCLE_INTERRUPTED = 1306
     CALIBRATION_DRIFT = 1307
     CALIBRATION_CHECK_DUE = 1308
+    CYCLE_STOPPED = 1309
+    NOT_IN_EXECUTE = 1310
     ROBOT_FAULT = 1401
     TASK_FAILED = 1501
     DEVICE_SLOW = 1601
+    DISK_SPACE_LOW = 1701
+    DISK_SPACE_CRITICAL = 1702
 
 
 @dataclass(frozen=True)
@@ -137,6 +143,9 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         AlarmCode.LASER_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Laser sensor link lost", True),
         AlarmCode.CAMERA_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Camera link lost", True),
         AlarmCode.ROBOT_LOST: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot controller link lost", True),
+        # What a cycle saw fail (an event: acknowledge it); the link itself is the watchdog's 1101/1102.
+        AlarmCode.LASER_READ_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A laser reading failed during the cycle", False),
+        AlarmCode.CAMERA_GRAB_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A camera grab failed during the cycle", False),
         AlarmCode.PLC_HEARTBEAT_LOST: AlarmSpec(FaultClass.PLC_HEARTBEAT_LOST, "Line PLC heartbeat lost", True),
         AlarmCode.PLC_NOT_READY: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "Line PLC not ready", True),
         AlarmCode.NO_CAR_IN_POSITION: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "No car body in position", True),
@@ -157,12 +166,28 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         AlarmCode.CALIBRATION_DRIFT: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION, "Calibration check: camera or laser moved beyond the limit, recalibrate", False
         ),
+        AlarmCode.CYCLE_STOPPED: AlarmSpec(
+            FaultClass.WARNING, "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised)", False
+        ),
+        AlarmCode.NOT_IN_EXECUTE: AlarmSpec(
+            FaultClass.WARNING, "Cycle refused: the cell is not in Execute (the code of that refusal; never raised)", False
+        ),
         AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(
             FaultClass.WARNING, "Calibration check due: run `cellctl calibrate verify`", True
         ),
         AlarmCode.ROBOT_FAULT: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot refused or interrupted a motion", False),
         AlarmCode.TASK_FAILED: AlarmSpec(FaultClass.SOFTWARE_FAULT, "A cell task failed", False),
         AlarmCode.DEVICE_SLOW: AlarmSpec(FaultClass.WARNING, "Device missed a watchdog ping", True),
+        # The store's disk ([store.retention] disk_warn_free_gb / disk_stop_free_gb): a warning first, then
+        # a Hold so production stops while records and images can still be written; cleared when space is back.
+        AlarmCode.DISK_SPACE_LOW: AlarmSpec(
+            FaultClass.WARNING, "Disk space low for the store and images: free space or lower the retention", True
+        ),
+        AlarmCode.DISK_SPACE_CRITICAL: AlarmSpec(
+            FaultClass.OPERATOR_INTERVENTION,
+            "Disk almost full: production held before the store's writes fail; free space, then Unhold",
+            True,
+        ),
     }
 )
 

@@ -196,7 +196,7 @@ class _CycleRun:
             try:
                 reading = await self.dev.laser.read(timeout_s=self.motion.read_timeout_s)
             except DeviceError as err:
-                raise CycleFailed(step, AlarmCode.LASER_LOST, f"laser reading at spot {i} failed: {err}") from err
+                raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"laser reading at spot {i} failed: {err}") from err
             spots.append({"index": i, "status": reading.status.value, "distance_mm": reading.distance_mm})
             if reading.status is LaserStatus.OK and reading.distance_mm is not None:
                 poses.append(reached)
@@ -302,7 +302,7 @@ class _CycleRun:
         try:
             frame = await self.dev.camera.grab(timeout_s=self.motion.grab_timeout_s)
         except DeviceError as err:
-            raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_LOST, f"no image: {err}") from err
+            raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_GRAB_FAILED, f"no image: {err}") from err
         await self.rec.step_started(CycleStep.COMPENSATE)
         vision = self.vision
         if first:  # the first shot aims the verification shots; they carry the precision

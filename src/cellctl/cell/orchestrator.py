@@ -19,15 +19,17 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmCode, AlarmManager
 from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleFailed, CycleResult, run_cycle
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import CycleStepNotAllowed, MachineEvent, PackMLMachine
+from cellctl.cell.packml import CycleStepNotAllowed, EventKind, MachineEvent, PackMLMachine
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.robots import TrackedRobot
-from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState
+from cellctl.cell.tags import TO_EXECUTE, CycleStep, PackMLCommand, PackMLState
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.schema import CellConfig
+from cellctl.memory import release_free_memory
 from cellctl.ports import (
     DeviceError,
 )
@@ -78,6 +80,10 @@ class CalibrationSource(Protocol):
 
     def history(self) -> list[dict[str, Any]]:
         """Every version of the set, oldest first: number, time, note, each part's status."""
+        ...
+
+    def reference(self) -> dict[str, Any]:
+        """Which calibration a cycle uses, in a few fields: the set's version and each part's id."""
         ...
 
 
@@ -200,7 +206,8 @@ class CellOrchestrator:
     # -- PackML state actions ----------------------------------------------------------------
 
     async def _on_machine_event(self, ev: MachineEvent) -> None:
-        await self.store.append_machine_event(ev, cycle_id=self._current)
+        if ev.kind is not EventKind.CYCLE_STEP:  # the steps are in the cycle's record; the audit log keeps what people and faults did
+            await self.store.append_machine_event(ev, cycle_id=self._current)
         self.events.publish(
             "state",
             {
@@ -215,7 +222,8 @@ class CellOrchestrator:
             return
         state = ev.state_after
         if state in _STOP_CYCLE:
-            await self._stop_running_cycle(state)
+            why = f"{ev.command.name.lower()} by {ev.actor}" if ev.command is not None else f"{ev.actor}"
+            await self._stop_running_cycle(f"the cell went to {state.name.lower()} ({why})")
         if state is PackMLState.RESETTING:
             self.alarms.reset_stop_reason()
         if state in _ACTING:
@@ -232,7 +240,8 @@ class CellOrchestrator:
             {"uid": a.uid, "code": int(a.code), "message": a.message, "active": a.active, "acknowledged": a.acknowledged},
         )
 
-    async def _stop_running_cycle(self, state: PackMLState) -> None:
+    async def _stop_running_cycle(self, reason: str) -> None:
+        """Leave Execute: end the running cycle as stopped (first the reason, then the robot's stop, then the task)."""
         task = self._cycle_task
         if task is None or task.done():
             return
@@ -240,7 +249,7 @@ class CellOrchestrator:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
             return
-        self._stop_reason = f"the cell went to {state.name.lower()}"
+        self._stop_reason = reason
         with contextlib.suppress(DeviceError):
             await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
         task.cancel()
@@ -260,11 +269,10 @@ class CellOrchestrator:
         """
         existing = await self.store.cycle_for_key(scope, key)
         if existing is None and not self.ready_for_cycle():
-            state = self.machine.state.name
-            raise CycleRefused(
-                AlarmCode.TASK_FAILED,
-                f"the cell is {state}, not EXECUTE: send Reset and Start (POST /commands/reset, /commands/start)",
-            )
+            state = self.machine.state
+            steps = TO_EXECUTE.get(state)
+            how = (" then ".join(c.name.lower() for c in steps) + " (POST /commands/<name>)") if steps else "wait until it settles"
+            raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, f"the cell is {state.name}, not EXECUTE: {how}")
         result = await self.store.submit_cycle(request, scope=scope, key=key, actor=actor)
         if result.created:
             self._finished[result.cycle.id] = asyncio.Event()
@@ -293,9 +301,14 @@ class CellOrchestrator:
             while pending and self.ready_for_cycle():
                 nxt = pending.pop(0)
                 self._cycle_task = asyncio.create_task(self._run(nxt))
-                with contextlib.suppress(asyncio.CancelledError):
+                try:
                     await self._cycle_task
-                self._cycle_task = None
+                except asyncio.CancelledError:
+                    task = asyncio.current_task()
+                    if task is not None and task.cancelling():  # the worker itself is being stopped
+                        raise
+                finally:
+                    self._cycle_task = None
 
     async def _run(self, cycle_id: int) -> None:
         self._current = cycle_id
@@ -310,20 +323,16 @@ class CellOrchestrator:
         try:
             result = await self._cycle(rec)
         except CycleFailed as f:
-            if self._stop_reason is not None:  # the move was stopped because the cell left Execute: not a fault
-                stop = self.alarms.stop_reason
-                failure = (f"stopped: {self._stop_reason}", int(stop.code) if stop else int(AlarmCode.TASK_FAILED), None)
-            else:
-                failure = (str(f), int(f.code), f.code)
+            # A move the stop interrupted is the stop's doing, not a robot fault of its own.
+            failure = self._stopped() if self._stop_reason is not None else (str(f), int(f.code), f.code)
         except CycleStepNotAllowed:
             # A Hold, Suspend, Stop or Abort landed between two steps; what caused it is recorded.
-            stop = self.alarms.stop_reason
-            failure = (f"stopped: the cell left Execute ({self.machine.state.name.lower()})",
-                       int(stop.code) if stop else int(AlarmCode.TASK_FAILED), None)  # fmt: skip
+            self._stop_reason = self._stop_reason or f"the cell left Execute ({self.machine.state.name.lower()})"
+            failure = self._stopped()
         except asyncio.CancelledError:
             if self._stop_reason is None:
                 raise  # shutdown: leave it running; the next start marks it interrupted
-            failure = (f"stopped: {self._stop_reason}", int(AlarmCode.TASK_FAILED), None)
+            failure = self._stopped()
         except Exception as err:  # noqa: BLE001 - any bug still ends the cycle with a record and an alarm
             log.exception("cycle %d failed", cycle_id)
             failure = (f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), AlarmCode.TASK_FAILED)
@@ -332,15 +341,26 @@ class CellOrchestrator:
         # Recording the outcome must not be cut short by a stop arriving now.
         await asyncio.shield(self._record(rec, cycle_id, started, result, failure))
 
+    def _stopped(self) -> tuple[str, int, AlarmCode | None]:
+        """A cycle the cell stopped: its reason, and as its code the first-out alarm if one caused the stop
+        (the PLC and the record then name the cause, e.g. 1201), else that a command stopped it. No new alarm."""
+        stop = self.alarms.stop_reason
+        code = int(stop.code) if stop is not None else int(AlarmCode.CYCLE_STOPPED)
+        return (f"stopped: {self._stop_reason}", code, None)
+
     async def _cycle(self, rec: StoreRecorder) -> CycleResult:
         await rec.step_started(CycleStep.CALIBRATE)
         problems = self.calibration.problems()
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
-        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.summary()})
+        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.reference()})
         if self.truth is not None:
             self.truth.new_car_body()
-        return await run_cycle(self.devices, self.calibration.cycle_calibration(), self.config.process, self.config.vision, rec)
+        try:
+            cal = await asyncio.to_thread(self.calibration.cycle_calibration)  # file reads (and the oracle's teaching) off the loop
+        except CalibrationRefused as err:  # the set changed (or was damaged) since problems() was asked
+            raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, str(err)) from err
+        return await run_cycle(self.devices, cal, self.config.process, self.config.vision, rec)
 
     async def _record(
         self,
@@ -358,13 +378,17 @@ class CellOrchestrator:
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done"})
             elif failure is not None:
                 reason, code, alarm = failure
+                if alarm is not None:
+                    # Raised before the record is written, so the record (and the PLC) carry the first-out
+                    # cause: this alarm, or one that stopped the cell first (e.g. the watchdog's link lost).
+                    await self.alarms.raise_alarm(alarm, source="cycle", detail=reason, cycle_id=cycle_id)
+                    stop = self.alarms.stop_reason
+                    code = int(stop.code) if stop is not None else code
                 await rec.close_step(ok=False, error=reason)
                 await self.store.fail_cycle(
                     cycle_id, error=reason, result={"error_code": code, "cycle_time_s": elapsed}, true_error=self._true_error()
                 )
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
-                if alarm is not None:
-                    await self.alarms.raise_alarm(alarm, source="cycle", detail=reason, cycle_id=cycle_id)
         finally:
             self._current = None
             with contextlib.suppress(Exception):
@@ -372,6 +396,8 @@ class CellOrchestrator:
             ev = self._finished.pop(cycle_id, None)
             if ev is not None:
                 ev.set()
+            with contextlib.suppress(Exception):
+                await asyncio.to_thread(release_free_memory)  # what the cycle's worker threads freed
 
     def _true_error(self) -> dict[str, float] | None:
         return None if self.truth is None else dict(self.truth.install_error())

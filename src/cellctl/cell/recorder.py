@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+
 from pathlib import Path
 from typing import Any
 
@@ -48,9 +50,8 @@ class StoreRecorder:
         self._figures.update(figures)
 
     async def image(self, name: str, png: bytes) -> None:
-        self._image_dir.mkdir(parents=True, exist_ok=True)
         path = self._image_dir / f"cycle-{self.cycle_id}-{name}.png"
-        path.write_bytes(png)
+        await asyncio.to_thread(_write, path, png)  # a megabyte to disk: not on the event loop
         step = self._open if self._open is not None else CycleStep.NONE
         await self._store.add_image(self.cycle_id, step, name=name, uri=path.name)
         self._events.publish("image", {"cycle_id": self.cycle_id, "name": name})
@@ -69,3 +70,8 @@ class StoreRecorder:
         step, figures = self._open, self._figures
         self._open, self._figures = None, {}
         await self._store.finish_step(self.cycle_id, step, ok=ok, figures=figures, error=error)
+
+
+def _write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)

@@ -66,3 +66,15 @@ class CycleStep(enum.IntEnum):
     SHOOT = 3
     COMPENSATE = 4
     INSTALL = 5
+
+
+C = PackMLCommand
+TO_EXECUTE: dict[PackMLState, tuple[PackMLCommand, ...]] = {
+    PackMLState.ABORTED: (C.CLEAR, C.RESET, C.START),
+    PackMLState.STOPPED: (C.RESET, C.START),
+    PackMLState.COMPLETE: (C.RESET, C.START),
+    PackMLState.IDLE: (C.START,),
+    PackMLState.HELD: (C.UNHOLD,),
+    PackMLState.SUSPENDED: (C.UNSUSPEND,),
+}
+"""The commands that lead from each resting state back to Execute (once its alarms are acknowledged)."""

@@ -49,7 +49,7 @@ async def commission_missing(
         await machine.wait_for_state(*JOB_STATES_ALLOWED, timeout_s=30.0)
     while needed := parts_needed(jobs):
         part = needed[0]
-        log.warning("commissioning %s (%s)", part, "missing, failed or out of date")
+        log.info("commissioning %s (missing, failed or out of date)", part)
         rec = await jobs.submit(part, {}, actor=actor, source=source)
         rec = await jobs.wait(rec.id, job_timeout_s)
         done.append(rec)

@@ -41,6 +41,7 @@ from cellctl.commissioning.registry import ALL_PROCEDURES, PLANNERS, JobRefused,
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
+from cellctl.memory import release_free_memory
 from cellctl.geometry.pose import Pose
 from cellctl.ports import DeviceError, Frame
 from cellctl.store import AsyncCellStore, JobRecord
@@ -427,6 +428,8 @@ class JobManager:
                 fields.setdefault("plan", ctx.plan.summary())
             fields["progress"] = run.progress or {}
             run.record = await self.store.update_job(rec.id, **fields)
+            run.ctx = None  # the dataset's frames go with it
+            await asyncio.to_thread(release_free_memory)
             if run.frame is not None:
                 self._last_frames[rec.id] = run.frame
                 while len(self._last_frames) > LAST_FRAMES_KEPT:

@@ -1,56 +1,154 @@
-"""The REST API and dashboard server."""
+"""The REST API and dashboard server: where it listens, its bearer tokens, its request limits."""
 
 from __future__ import annotations
 
 import os
+import stat
+from pathlib import Path
 
 from pydantic import Field, model_validator
 
 from cellctl.config.types import StrictModel
 
 MIN_TOKEN_LENGTH = 16
+SIM_DEFAULT_TOKEN = "sim-operator-token-change-me"
+"""The simulated cell's operator token (config/sim.toml and the code default): never valid on a real cell."""
+KNOWN_DEFAULT_TOKENS = frozenset({
+    SIM_DEFAULT_TOKEN,
+    "replace-with-a-long-random-operator-token",  # deploy/cellctl.env.example
+    "replace-with-a-long-random-integrator-token",
+})  # fmt: skip
+PLACEHOLDER_MARKS = ("change-me", "changeme", "change_me", "replace-with", "replace_me", "placeholder", "example")
+MIN_DISTINCT_CHARACTERS = 8
+TOKEN_FILE_MAX_BYTES = 4096
+MAKE_A_TOKEN = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
+DEFAULT_MAX_BODY_BYTES = 64 * 1024
+"""The largest request body (bytes): the API's bodies (a cycle request, a job request, a prompt answer) are
+below 1 kB each; 64 kB leaves room for long ids and options without letting a client fill the memory."""
+
+
+class TokenUnavailable(ValueError):
+    """A token named in the configuration cannot be read, or what was read is unfit. The message says which and the fix."""
+
+
+def token_weakness(value: str) -> str | None:
+    """Why ``value`` is unfit as a bearer token of a real cell (None: fit).
+
+    The one rule for every token a cell reads from its environment or a file: at least
+    ``MIN_TOKEN_LENGTH`` characters, no whitespace or control characters (it travels in a header),
+    not a shipped default or a placeholder ("change-me", "replace-with..."), and at least
+    ``MIN_DISTINCT_CHARACTERS`` different characters (not "aaaa...").
+    """
+    if len(value) < MIN_TOKEN_LENGTH:
+        return f"it has {len(value)} characters, fewer than {MIN_TOKEN_LENGTH}"
+    if any(c.isspace() or not c.isprintable() for c in value):
+        return "it contains whitespace or control characters (it must travel in an HTTP header)"
+    low = value.lower()
+    if value in KNOWN_DEFAULT_TOKENS or any(mark in low for mark in PLACEHOLDER_MARKS):
+        return "it is a shipped default or a placeholder, known to anyone who has read the examples"
+    if len(set(value)) < MIN_DISTINCT_CHARACTERS:
+        return f"it has fewer than {MIN_DISTINCT_CHARACTERS} different characters"
+    return None
 
 
 class ApiToken(StrictModel):
-    """A bearer token for mutating routes. ``name`` is the actor recorded in the audit log.
+    """A bearer token. ``name`` is the actor recorded in the audit log.
 
-    Give the token itself (``token``) only in a file readable by the service; on a real cell name
-    an environment variable instead (``token_env``), e.g. set from deploy/cellctl.env.
+    Exactly one source: ``token_env`` (an environment variable, e.g. set from /etc/cellctl/cellctl.env),
+    ``token_file`` (a file whose content is the token; not readable by every user), or ``token``
+    (the value itself, in the configuration file: the simulated cell only; a hardware cell refuses it).
+    A token from the environment or a file must pass :func:`token_weakness`.
     """
 
     name: str = Field(min_length=1, max_length=64)
     token: str | None = None
-    token_env: str | None = None
+    token_env: str | None = Field(None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=128)
+    token_file: Path | None = None
 
     @model_validator(mode="after")
     def _one_source(self) -> "ApiToken":
-        if (self.token is None) == (self.token_env is None):
-            raise ValueError(f"token '{self.name}': give exactly one of token or token_env")
+        given = [k for k in ("token", "token_env", "token_file") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                f"token '{self.name}': give exactly one of token_env, token_file or token (got {given or 'none'})"
+            )
         if self.token is not None and len(self.token) < MIN_TOKEN_LENGTH:
             raise ValueError(f"token '{self.name}': must be at least {MIN_TOKEN_LENGTH} characters")
         return self
 
+    @property
+    def source(self) -> str:
+        """Where the value comes from, as the configuration names it."""
+        if self.token_env is not None:
+            return f"environment variable {self.token_env}"
+        if self.token_file is not None:
+            return f"file {self.token_file}"
+        return "the configuration file (token)"
+
     def secret(self) -> str:
-        """The token's value (read from the environment for token_env)."""
+        """The token's value, read now (environment or file). Raises :class:`TokenUnavailable` naming the source and the fix."""
         if self.token is not None:
             return self.token
-        value = os.environ.get(self.token_env or "", "")
-        if len(value) < MIN_TOKEN_LENGTH:
-            raise ValueError(
-                f"api token '{self.name}': environment variable {self.token_env} is unset or shorter than "
-                f"{MIN_TOKEN_LENGTH} characters; set it (see deploy/cellctl.env.example)"
+        where = f"api.tokens '{self.name}'"
+        if self.token_env is not None:
+            value = os.environ.get(self.token_env, "").strip()
+            if not value:
+                raise TokenUnavailable(
+                    f"{where}: token_env: environment variable {self.token_env} is not set or empty; set it in the "
+                    "service's environment (/etc/cellctl/cellctl.env, see deploy/cellctl.env.example)"
+                )
+            field = "token_env"
+        else:
+            value = _read_token_file(where, Path(self.token_file))  # type: ignore[arg-type]
+            field = "token_file"
+        weak = token_weakness(value)
+        if weak is not None:
+            raise TokenUnavailable(
+                f"{where}: {field}: the token in {self.source} is refused: {weak}; make a new one with {MAKE_A_TOKEN}"
             )
         return value
 
 
+def _read_token_file(where: str, path: Path) -> str:
+    """The token in ``path`` (surrounding whitespace, e.g. a final newline, removed)."""
+    fix = f"write the token into it (one line, chmod 600, owned by the service's user; make one with {MAKE_A_TOKEN})"
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise TokenUnavailable(f"{where}: token_file: {path} does not exist; {fix}") from None
+    except OSError as err:
+        raise TokenUnavailable(f"{where}: token_file: {path} cannot be read ({err.strerror}); {fix}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise TokenUnavailable(f"{where}: token_file: {path} is not a regular file; {fix}")
+    if st.st_mode & (stat.S_IROTH | stat.S_IWOTH):
+        raise TokenUnavailable(
+            f"{where}: token_file: {path} can be read or written by every user (mode {stat.S_IMODE(st.st_mode):04o}); "
+            f"chmod 600 {path} (or 640 with the service's group)"
+        )
+    if st.st_size > TOKEN_FILE_MAX_BYTES:
+        raise TokenUnavailable(f"{where}: token_file: {path} has {st.st_size} bytes; a token file holds one token")
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise TokenUnavailable(f"{where}: token_file: {path} cannot be read ({err.strerror}); {fix}") from None
+    try:
+        value = raw.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise TokenUnavailable(f"{where}: token_file: {path} is not UTF-8 text; {fix}") from None
+    if not value:
+        raise TokenUnavailable(f"{where}: token_file: {path} is empty; {fix}")
+    return value
+
+
 class ApiConfig(StrictModel):
-    """Where the service listens, who may change things, and whether reads need a token."""
+    """Where the service listens, who may change things, whether reads need a token, how large a request may be."""
 
     host: str = "127.0.0.1"
     port: int = Field(8080, ge=0, le=65535)
-    tokens: tuple[ApiToken, ...] = (ApiToken(name="operator", token="sim-operator-token-change-me"),)
-    open_reads: bool = True  # GET routes without a token, for a trusted cell network
+    tokens: tuple[ApiToken, ...] = (ApiToken(name="operator", token=SIM_DEFAULT_TOKEN),)
+    open_reads: bool = True  # GET routes, /health details and /metrics without a token, for a trusted cell network
     cycle_wait_max_s: float = Field(600.0, gt=0)
+    max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, ge=1024, le=16 * 1024 * 1024)
 
     @model_validator(mode="after")
     def _tokens(self) -> "ApiConfig":
@@ -60,3 +158,35 @@ class ApiConfig(StrictModel):
         if len(set(names)) != len(names):
             raise ValueError(f"tokens: names must be unique, got {names}")
         return self
+
+    def hardware_problems(self) -> list[str]:
+        """What a hardware cell refuses in this section: tokens not from the environment or a file (field: message)."""
+        if "tokens" not in self.model_fields_set:
+            return [(
+                "api.tokens: no token is configured, so the simulated cell's default token would open the cell; add "
+                '[[api.tokens]] entries with token_env (e.g. token_env = "CELLCTL_TOKEN") or token_file '
+                "(see config/hardware.example.toml)"
+            )]
+        problems = []
+        for i, t in enumerate(self.tokens):
+            if t.token is not None:
+                problems.append(
+                    f"api.tokens.{i}.token: token '{t.name}' is written in the configuration file; a hardware cell reads "
+                    "its tokens from the environment (token_env) or a file (token_file): move it there and name the "
+                    "variable or the file"
+                )
+            elif t.token_file is not None and not t.token_file.is_absolute():
+                problems.append(f"api.tokens.{i}.token_file: give an absolute path (got '{t.token_file}')")
+        return problems
+
+    def secrets(self) -> tuple[tuple[str, str], ...]:
+        """Every token as (name, value), read now. Raises :class:`TokenUnavailable` naming every token that cannot be used."""
+        out, problems = [], []
+        for t in self.tokens:
+            try:
+                out.append((t.name, t.secret()))
+            except TokenUnavailable as err:
+                problems.append(str(err))
+        if problems:
+            raise TokenUnavailable("\n".join(problems))
+        return tuple(out)

@@ -77,6 +77,9 @@ class CellConfig(StrictModel):
                 )
             if self.calibration.source == "oracle":
                 raise ValueError('calibration.source = "oracle" exists only in the simulated cell; use "set"')
+            problems = self.api.hardware_problems()
+            if problems:
+                raise ValueError('mode = "hardware": ' + "; ".join(problems))
         return self
 
     @model_validator(mode="after")

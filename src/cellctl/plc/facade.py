@@ -118,11 +118,15 @@ class CellFacade(Protocol):
     - ``start_cycle`` returns promptly (within the configured facade_timeout_s) once the cycle is
       accepted or refused; the cycle itself runs in the cell's own task, never in the caller's.
       It is idempotent per ``req_id``: for an id that is running or finished it starts nothing and
-      answers accepted.
+      answers accepted. A refusal carries a nonzero code: ``PlcErrorCode`` 905-907 (unknown recipe,
+      not ready, id in use) or one of the cell's alarm ids; never a code that claims a fault the
+      cell does not have.
     - ``result_of`` returns the stored outcome of ``req_id`` once that cycle has finished (also
       across restarts, from the store), else None. Every accepted cycle ends in an outcome
-      (ok, failed, aborted or interrupted). A refusal may be stored as an outcome too; then a
-      repeated id gets that refusal again.
+      (ok, failed, aborted or interrupted). A refusal is the id's outcome too: store it (ok False,
+      its code, the request's recipe and part, no corrections, no time) so that ``result_of``
+      returns it and a repeated id republishes it; the PLC interface also remembers refusals while
+      it runs.
     - ``command`` / ``change_mode`` return once the request is accepted or refused (not when the
       state machine has settled).
     - ``plc_link_lost`` / ``plc_link_restored`` report the PLC heartbeat; the cell maps them to an

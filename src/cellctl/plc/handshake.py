@@ -2,7 +2,9 @@
 
 - ``CycleHandshake``: the four-way cycle handshake keyed by ``cycle_req_id`` (request -> ack/busy
   -> done with result -> request dropped -> done cleared). A repeated id never starts a second
-  cycle: the stored result of that id is published again with ``replayed`` set.
+  cycle: the stored result of that id is published again with ``replayed`` set. A refusal by the
+  cell is that id's result too (the facade stores it; this side remembers it as well); only the
+  interface's own codes (901-904: no definite answer) are not results.
 - ``LatchedRequest``: a PackML command (``cntrl_cmd`` + ``cmd_change_request``) or a unit mode
   request, latched on the request word, answered with an echo, a result code and an ack.
 
@@ -82,7 +84,7 @@ class CycleHandshake:
     """Serves ``cycle_request`` one request at a time."""
 
     REMEMBERED = 1024
-    """Outcomes kept in memory as a second guard against re-running a finished id."""
+    """Outcomes (results and refusals) kept in memory as a second guard against re-running an id."""
 
     def __init__(self, cell: CellFacade, feed: InputFeed, image: CellImage, flush: Flush,
                  timing: HandshakeTiming, clock: Callable[[], float] = time.monotonic) -> None:
@@ -119,21 +121,21 @@ class CycleHandshake:
         req_id = request.cycle_req_id
         if req_id == 0:
             log.warning("PLC requested a cycle with cycle_req_id 0; refused")
-            await self._publish_refusal(request, PlcErrorCode.CYCLE_REQ_ID_ZERO)
+            await self._publish_error(request, PlcErrorCode.CYCLE_REQ_ID_ZERO)
             return
         t = self._timing
         try:
             stored = await _ask(self._cell.result_of(req_id), t.facade_timeout_s, f"result_of({req_id})",
                                 CycleOutcome, optional=True)
         except _NoAnswer:
-            await self._publish_refusal(request, PlcErrorCode.CELL_NO_ANSWER)
+            await self._publish_error(request, PlcErrorCode.CELL_NO_ANSWER)
             return
         except _BadAnswer:
-            await self._publish_refusal(request, PlcErrorCode.CELL_BAD_ANSWER)
+            await self._publish_error(request, PlcErrorCode.CELL_BAD_ANSWER)
             return
         if stored is not None and stored.req_id != req_id:
             log.error("the cell answered result_of(%d) with the result of cycle %d", req_id, stored.req_id)
-            await self._publish_refusal(request, PlcErrorCode.CELL_BAD_ANSWER)
+            await self._publish_error(request, PlcErrorCode.CELL_BAD_ANSWER)
             return
         stored = stored if stored is not None else self._served.get(req_id)
         if stored is not None:
@@ -147,25 +149,33 @@ class CycleHandshake:
                 self._cell.start_cycle(req_id, request.recipe_id, request.part_id),
                 t.facade_timeout_s, f"start_cycle({req_id})", CycleAcceptance)
         except _NoAnswer:
-            await self._publish_refusal(request, PlcErrorCode.CELL_NO_ANSWER)
+            await self._publish_error(request, PlcErrorCode.CELL_NO_ANSWER)
             return
         except _BadAnswer:
-            await self._publish_refusal(request, PlcErrorCode.CELL_BAD_ANSWER)
+            await self._publish_error(request, PlcErrorCode.CELL_BAD_ANSWER)
             return
         if not acceptance.accepted:
-            log.info("cycle %d refused by the cell: %d %s", req_id, acceptance.error_code, acceptance.reason)
-            await self._publish_refusal(request, acceptance.error_code)
+            log.warning("PLC cycle request %d (recipe_id %d, part_id %d) refused by the cell with error_code "
+                        "%d: %s", req_id, request.recipe_id, request.part_id, acceptance.error_code,
+                        acceptance.reason or "no reason given")
+            refusal = _refusal(request, acceptance.error_code)
+            self._remember(refusal)  # the id's result: a repeat republishes it and runs nothing
+            await self._publish_outcome(refusal, replayed=False, mismatch=False)
             return
         await self._publish(cycle_ack_id=req_id,
                             cycle_flags={**_CLEARED, "ready": False, "busy": True})
         outcome = await self._wait_result(req_id)
         if isinstance(outcome, PlcErrorCode):
-            await self._publish_refusal(request, outcome)
+            await self._publish_error(request, outcome)
             return
-        self._served[req_id] = outcome
+        self._remember(outcome)
+        await self._publish_outcome(outcome, replayed=False, mismatch=False)
+
+    def _remember(self, outcome: CycleOutcome) -> None:
+        self._served[outcome.req_id] = outcome
+        self._served.move_to_end(outcome.req_id)
         while len(self._served) > self.REMEMBERED:
             self._served.popitem(last=False)
-        await self._publish_outcome(outcome, replayed=False, mismatch=False)
 
     async def _publish_outcome(self, o: CycleOutcome, *, replayed: bool, mismatch: bool) -> None:
         try:
@@ -173,7 +183,7 @@ class CycleHandshake:
             self._image.update(**values)
         except (TypeError, ValueError) as exc:  # e.g. a correction beyond float32
             log.error("the result of cycle %d cannot be put in the register map: %s", o.req_id, exc)
-            await self._publish_refusal_values(o.req_id, o.recipe_id, o.part_id, PlcErrorCode.CELL_BAD_ANSWER)
+            await self._publish_error_values(o.req_id, o.recipe_id, o.part_id, PlcErrorCode.CELL_BAD_ANSWER)
             return
         await self._flush()
 
@@ -212,16 +222,25 @@ class CycleHandshake:
                          "replayed": replayed, "request_mismatch": mismatch},
         )
 
-    async def _publish_refusal(self, request: PlcInputs, error_code: int) -> None:
-        await self._publish_refusal_values(request.cycle_req_id, request.recipe_id, request.part_id, error_code)
+    async def _publish_error(self, request: PlcInputs, error_code: int) -> None:
+        """The interface's own error (901-904: no definite answer from the cell). Not the id's result,
+        so not remembered: repeating the id asks the cell again."""
+        await self._publish_error_values(request.cycle_req_id, request.recipe_id, request.part_id, error_code)
 
-    async def _publish_refusal_values(self, req_id: int, recipe_id: int, part_id: int, error_code: int) -> None:
+    async def _publish_error_values(self, req_id: int, recipe_id: int, part_id: int, error_code: int) -> None:
         await self._publish(
             cycle_ack_id=req_id, result_req_id=req_id, result_part_id=part_id, result_recipe_id=recipe_id,
             error_code=int(error_code), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0,
             drx_deg=0.0, dry_deg=0.0, drz_deg=0.0, cycle_time_ms=0,
             cycle_flags={**_CLEARED, "ready": False, "done": True, "nok": True},
         )
+
+
+def _refusal(request: PlcInputs, error_code: int) -> CycleOutcome:
+    """A refused request as its id's outcome: nok with the code, nothing moved, no time spent."""
+    return CycleOutcome(req_id=request.cycle_req_id, recipe_id=request.recipe_id, part_id=request.part_id,
+                        ok=False, error_code=int(error_code), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0,
+                        drx_rad=0.0, dry_rad=0.0, drz_rad=0.0, cycle_time_s=0.0)
 
 
 class LatchedRequest(Generic[E]):

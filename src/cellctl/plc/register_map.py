@@ -17,10 +17,15 @@ import enum
 import re
 from dataclasses import dataclass
 
+from cellctl.cell.alarms import RECOVERY_COMMANDS, AlarmCode
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
+from cellctl.config.cell import ProcessConfig
+from cellctl.config.store import PackMLConfig
 
-MAP_VERSION: tuple[int, int] = (1, 0)
-"""(major, minor), published in the cell block so the PLC can check it talks to the map it expects."""
+MAP_VERSION: tuple[int, int] = (1, 1)
+"""(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
+1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
+stored under their cycle_req_id, exception 11 for another unit id; no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -38,13 +43,30 @@ class CommandReply(enum.IntEnum):
 
 
 class PlcErrorCode(enum.IntEnum):
-    """Error codes raised by the PLC interface itself, within ``PLC_ERROR_CODE_RANGE``."""
+    """Error codes raised by the PLC interface itself, within ``PLC_ERROR_CODE_RANGE``.
+
+    901-904 say the interface could not get a definite answer; 905-907 are the cell's refusals of a
+    request it will never run (stored under the request's ``cycle_req_id``, see ``STORED_REFUSALS``).
+    """
 
     CYCLE_REQ_ID_ZERO = 901
     CELL_NO_ANSWER = 902
     RESULT_TIMEOUT = 903
     CELL_BAD_ANSWER = 904
+    UNKNOWN_RECIPE = 905
+    NOT_READY = 906
+    ID_IN_USE = 907
 
+
+UNIT_ID_EXCEPTION = 11
+"""The Modbus exception code (gateway target device failed to respond) a request to another unit id
+than ``[plc] unit_id`` gets."""
+
+STORED_REFUSALS: frozenset[PlcErrorCode] = frozenset(
+    {PlcErrorCode.UNKNOWN_RECIPE, PlcErrorCode.NOT_READY, PlcErrorCode.ID_IN_USE})
+"""Refusals stored as the result of their ``cycle_req_id``: a repeated id republishes them with
+``replayed`` = 1 (like any refusal by the cell). The other codes are not results: repeating the id
+asks the cell again."""
 
 PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
     PlcErrorCode.CYCLE_REQ_ID_ZERO: "cycle_request = 1 with cycle_req_id = 0: give each cycle a nonzero id.",
@@ -54,6 +76,14 @@ PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
                                  "requesting the same id again waits for it again (it never runs twice).",
     PlcErrorCode.CELL_BAD_ANSWER: "The cell's controller answered with something the map cannot carry "
                                   "(another id's result, a value out of range).",
+    PlcErrorCode.UNKNOWN_RECIPE: "Refused: recipe_id is not one of the cell's recipe numbers (see Recipes). "
+                                 "Nothing ran; send the request again with a valid recipe_id and a new id.",
+    PlcErrorCode.NOT_READY: "Refused: the cell did not take a cycle then; it takes one only in Execute "
+                            "(state_current = 6, `ready` = 1) and the cell's log says why. Nothing ran; bring "
+                            "the cell to Execute (Clear, Reset, Start as the state asks) and request again "
+                            "with a new id.",
+    PlcErrorCode.ID_IN_USE: "Refused: the cell's store holds this cycle_req_id for another request it could "
+                            "not match. Nothing ran; use a new id.",
 }
 
 
@@ -149,15 +179,15 @@ _C = Access.CELL_WRITES
 _U16, _I16, _U32, _F32 = RegType.UINT16, RegType.INT16, RegType.UINT32, RegType.FLOAT32
 
 CYCLE_FLAG_BITS: tuple[Bit, ...] = (
-    Bit(0, "ready", "The cell would accept a cycle request now (its controller says so and no "
-        "request is being served)."),
+    Bit(0, "ready", "The cell would accept a cycle request now: 1 only in Execute (`state_current` = 6), "
+        "while no request is being served and `cycle_request` = 0; 0 in every other state."),
     Bit(1, "busy", "A cycle for `cycle_ack_id` is running."),
     Bit(2, "done", "The result registers hold the result of `cycle_ack_id`; stays on until the "
         "PLC drops `cycle_request`."),
     Bit(3, "ok", "With done: the cycle succeeded (`error_code` = 0)."),
     Bit(4, "nok", "With done: the cycle failed or was refused; `error_code` says why."),
-    Bit(5, "replayed", "With done: `cycle_req_id` was seen before; the stored result was "
-        "published again and no new cycle ran."),
+    Bit(5, "replayed", "With done: `cycle_req_id` was seen before; its stored result (a cycle's "
+        "result or a refusal) was published again and no new cycle ran."),
     Bit(6, "plc_heartbeat_ok", "The cell sees `plc_heartbeat` change within the configured timeout."),
     Bit(7, "request_mismatch", "With replayed: the repeated id came with a part or recipe other than "
         "the stored result's (the stored result stands)."),
@@ -178,11 +208,14 @@ PLC_BLOCK = Block(
                  "Command.CmdChangeRequest: set to 1 to latch cntrl_cmd; keep it until cmd_ack = 1, "
                  "then set 0."),
         Register("unit_mode_request", 3, _U16, _P, "UnitMode",
-                 f"Requested unit mode: {_enum_list(UnitMode)}. Latched by unit_mode_change_request."),
+                 f"Requested unit mode: {_enum_list(UnitMode)}. Latched by unit_mode_change_request; "
+                 "taken only in the states of `[packml] mode_change_states` (see Start-up and states)."),
         Register("unit_mode_change_request", 4, _U16, _P, "0/1",
                  "Command.UnitModeChangeRequest: set to 1 to latch unit_mode_request; keep it until "
                  "unit_mode_ack = 1, then set 0."),
-        Register("recipe_id", 5, _U16, _P, "id", "Recipe (window type) of the requested cycle."),
+        Register("recipe_id", 5, _U16, _P, "id",
+                 "Recipe (window type) of the requested cycle: an `id` of the config's "
+                 "`[[process.recipes]]` (see Recipes)."),
         Register("part_id", 6, _U32, _P, "id", "Part (window) serial of the requested cycle."),
         Register("cycle_req_id", 8, _U32, _P, "id",
                  "Cycle request id, nonzero and new for each cycle: the idempotency key. A repeated "
@@ -298,6 +331,8 @@ def check_map(blocks: tuple[Block, ...] = BLOCKS) -> None:
 check_map()
 if set(PLC_ERROR_TEXT) != set(PlcErrorCode) or not all(c in PLC_ERROR_CODE_RANGE for c in PlcErrorCode):
     raise RuntimeError("every PlcErrorCode needs a text in PLC_ERROR_TEXT and a value in PLC_ERROR_CODE_RANGE")
+if not STORED_REFUSALS <= set(PlcErrorCode):
+    raise RuntimeError("STORED_REFUSALS must name PlcErrorCode members")
 
 
 def register(name: str) -> Register:
@@ -316,9 +351,9 @@ Generated from `src/cellctl/plc/register_map.py` by `python -m cellctl.plc --wri
 docs/plc_register_map.md`; do not edit by hand (a test compares this file with the generator).
 
 Map version {major}.{minor}. The cell is the Modbus TCP server (host, port and unit id from `[plc]` in
-the config; unit id 0 answers any unit id). All values are holding registers at 0-based protocol
-addresses (address 0 is 40001 in Modicon notation): read with FC3, write with FC16 (or FC6, FC22,
-FC23). Other function codes (coils, input registers) get exception code 1 (illegal function).
+the config). All values are holding registers at 0-based protocol addresses (address 0 is 40001
+in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other function codes
+(coils, input registers) get exception code 1 (illegal function).
 
 - The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it.
 - The **cell block** ({c_start}-{c_last}) is written only by the cell. A PLC write into it is refused
@@ -329,12 +364,40 @@ FC23). Other function codes (coils, input registers) get exception code 1 (illeg
 - 32-bit values (uint32, float32) take two registers; their word order is `[plc] float_word_order`:
   `big` puts the high word first (ABCD), `little` the low word first (CDAB). Bytes within a
   register are always big-endian.
+- **Unit id.** The cell answers the unit id `[plc] unit_id` (default 1). A request to any other
+  unit id reads and writes nothing and gets exception code {unit_exc} (gateway target device failed
+  to respond); the cell logs a warning naming the unit id (the first time, then every 1000th).
+  With `unit_id = 0` the cell answers every unit id.
+
+## Start-up and states
+
+`state_current` is the PackML state (PackTags numbers, listed with the register). After every
+start of the service the cell is in **{initial_state}** (`state_current` = {initial_state_id};
+`[packml] initial_state`, default `{initial_state_cfg}`, may say `stopped` instead): it never
+resumes running by itself. To produce, send the PackML commands Clear (9), Reset (1) and Start (2),
+each once the state before has settled:
+{start_path}.
+
+`ready` is 1 only in Execute (`state_current` = 6), while no cycle request is being served and
+`cycle_request` = 0; in every other state it is 0, and a cycle request there is refused with
+`error_code` {not_ready} (stored like any refusal). A cycle requested over the REST API in
+Execute runs first; the PLC's request then waits behind it (`busy`).
+
+A unit mode request (`unit_mode_request`, 1 production, 2 maintenance, 3 manual) is taken only
+in the states of `[packml] mode_change_states`, by default {mode_states};
+in any other state the cell answers `unit_mode_result` = 1 (invalid in this state) and the mode
+stays. A PackML command the state model does not allow in the current state gets `cmd_result` =
+1 the same way ([PackML states](packml_states.md));
+{recovery} are also refused while an alarm with a reaction is active
+([alarm reactions](alarm_reactions.md)).
 
 ## Handshakes
 
 **Heartbeats.** The PLC changes `plc_heartbeat` periodically; if it stays unchanged for
-`heartbeat_timeout_s` the cell raises "PLC heartbeat lost" and clears `plc_heartbeat_ok`. The cell
-increments `cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watch it the same way.
+`heartbeat_timeout_s` the cell raises "PLC heartbeat lost" (alarm {hb_alarm}, with `[plc]
+heartbeat_alarm` on: Hold when the robot stands still, Abort while it moves; a cycle stopped by
+it ends `nok` with `error_code` {hb_alarm}) and clears `plc_heartbeat_ok`. The cell increments
+`cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watch it the same way.
 
 **Cycle** (four-way, keyed by `cycle_req_id`):
 1. With `ready` = 1, the PLC writes `recipe_id`, `part_id`, a new nonzero `cycle_req_id` and
@@ -347,7 +410,10 @@ increments `cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watc
    and `replayed`. The result registers keep the last result.
 
 A repeated `cycle_req_id` never starts a second cycle: the cell publishes that id's stored result
-again with `replayed` = 1. Dropping `cycle_request` before `done` does not cancel a cycle: send
+again with `replayed` = 1. A refusal is that id's result too (refused by the cell: codes
+{stored_codes} and the cell's own ids): repeating the id republishes the refusal, so a refused
+request needs a new id. Only the interface's codes {unstored_codes} are not results: repeating
+that id asks the cell again. Dropping `cycle_request` before `done` does not cancel a cycle: send
 the PackML Stop or Abort command for that.
 
 **PackML commands and unit mode.** The PLC writes `cntrl_cmd` and sets `cmd_change_request` = 1;
@@ -355,6 +421,17 @@ the cell answers with `cmd_ack_cmd`, `cmd_result` and `cmd_ack` = 1; the PLC set
 `cmd_change_request` = 0 and the cell clears `cmd_ack`. The unit mode uses `unit_mode_request`,
 `unit_mode_change_request`, `unit_mode_ack_mode`, `unit_mode_result` and `unit_mode_ack` the
 same way.
+
+## Recipes
+
+`recipe_id` must be the `id` of one of the config's `[[process.recipes]]` tables (each has an `id`
+1-65535, the number the PLC sends, and a `name`, which the cycle records and the REST API use).
+Any other `recipe_id` is refused with `error_code` {unknown_recipe}. A config without
+`[[process.recipes]]` (such as `config/sim.toml`) has this one:
+
+| recipe_id | name | description |
+|---|---|---|
+{recipes}
 """
 
 
@@ -398,18 +475,44 @@ def _codes() -> list[str]:
     lines = ["## Codes", "", "`cmd_result` and `unit_mode_result`:", "", "| Value | Meaning |", "|---|---|"]
     lines += [f"| {m.value} | {m.name.lower().replace('_', ' ')} |" for m in CommandReply]
     lines += ["", f"`error_code` values of the PLC interface itself ({PLC_ERROR_CODE_RANGE.start}-"
-              f"{PLC_ERROR_CODE_RANGE.stop - 1}; other nonzero values are the cell's alarm / stop-reason ids):",
-              "", "| Value | Name | Meaning |", "|---|---|---|"]
-    lines += [f"| {m.value} | `{m.name.lower()}` | {PLC_ERROR_TEXT[m]} |" for m in PlcErrorCode]
+              f"{PLC_ERROR_CODE_RANGE.stop - 1}); every other nonzero value is the cell's alarm / stop-reason "
+              "id: the first-out alarm that failed or stopped the cycle, e.g. "
+              f"{int(AlarmCode.PLC_HEARTBEAT_LOST)} PLC heartbeat lost or {int(AlarmCode.ROBOT_FAULT)} robot fault "
+              "(all of them: [alarm reactions](alarm_reactions.md)). \"Stored\": the code is that id's result, and repeating "
+              "the id republishes it with `replayed` = 1.",
+              "", "| Value | Name | Stored | Meaning |", "|---|---|---|---|"]
+    lines += [f"| {m.value} | `{m.name.lower()}` | {'yes' if m in STORED_REFUSALS else 'no'} | {PLC_ERROR_TEXT[m]} |"
+              for m in PlcErrorCode]
     return lines
+
+
+def _code_list(codes: list[PlcErrorCode]) -> str:
+    return ", ".join(str(int(c)) for c in sorted(codes))
 
 
 def render_markdown() -> str:
     """The register map as the Markdown page committed at ``docs/plc_register_map.md``."""
+    packml = PackMLConfig()
+    initial = PackMLState[packml.initial_state.upper()]
+    path = [PackMLState.ABORTED, PackMLState.CLEARING, PackMLState.STOPPED, PackMLState.RESETTING,
+            PackMLState.IDLE, PackMLState.STARTING, PackMLState.EXECUTE]
+    if initial is not PackMLState.ABORTED:
+        path = path[path.index(initial):]
+    mode_states = sorted(PackMLState[s.upper()] for s in packml.mode_change_states)
     text = _INTRO.format(
         major=MAP_VERSION[0], minor=MAP_VERSION[1],
         p_start=PLC_BLOCK.start, p_last=PLC_BLOCK.end - 1,
         c_start=CELL_BLOCK.start, c_last=CELL_BLOCK.end - 1,
+        unit_exc=UNIT_ID_EXCEPTION,
+        initial_state=initial.name.title(), initial_state_id=int(initial), initial_state_cfg=packml.initial_state,
+        start_path=" -> ".join(f"{s.name.title()} ({int(s)})" for s in path),
+        not_ready=int(PlcErrorCode.NOT_READY), unknown_recipe=int(PlcErrorCode.UNKNOWN_RECIPE),
+        mode_states=", ".join(f"{s.name.title()} ({int(s)})" for s in mode_states),
+        stored_codes=_code_list(sorted(STORED_REFUSALS)),
+        unstored_codes=_code_list([c for c in PlcErrorCode if c not in STORED_REFUSALS]),
+        recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
+        hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST),
+        recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
     )
     parts = [text]
     for block in BLOCKS:

@@ -1,10 +1,16 @@
 """The Modbus TCP server the line PLC talks to (pymodbus 3.16, SimDevice datastore).
 
 The datastore holds exactly the two blocks of the register map; addresses between them do not
-exist. One access hook guards the direction of every write: a PLC write that touches the cell
-block is refused with exception 2 and counted, and the cell's own writes (marked with a context
-variable) may touch only the cell block. A scan loop reads the PLC block, supervises the PLC
-heartbeat, publishes the cell's status words and heartbeat, and feeds the handshakes.
+exist. Only the configured unit id reaches it: a request to another one gets exception 11
+(gateway target device failed to respond) and a warning, never pymodbus's traceback (its
+SimCore raises KeyError for an unknown id, which pymodbus logs with its traceback and answers
+with exception 4). One access hook guards the direction of every write: a PLC write that
+touches the cell block is refused with exception 2 and counted, and the cell's own writes
+(marked with a context variable) may touch only the cell block. A scan loop reads the PLC
+block, supervises the PLC heartbeat, publishes the cell's status words and heartbeat, and feeds
+the handshakes; its first round runs before the listener opens, so the PLC never reads an
+unfilled cell block. ``start`` raises OSError, naming the ``[plc]`` setting, when it cannot
+listen (pymodbus itself only logs that and raises a RuntimeError without the cause).
 
 Use::
 
@@ -20,7 +26,10 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import errno
 import logging
+import socket
+import sys
 import time
 from collections.abc import Callable
 from types import TracebackType
@@ -36,7 +45,7 @@ from cellctl.plc.facade import CellFacade, CellStatus
 from cellctl.plc.handshake import CycleHandshake, HandshakeTiming, LatchedRequest
 from cellctl.plc.heartbeat import HeartbeatWatch, LinkEvent
 from cellctl.plc.process_image import CellImage, InputFeed, PlcInputs
-from cellctl.plc.register_map import CELL_BLOCK, PLC_BLOCK
+from cellctl.plc.register_map import CELL_BLOCK, PLC_BLOCK, UNIT_ID_EXCEPTION
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +53,84 @@ _CELL_WRITING: contextvars.ContextVar[bool] = contextvars.ContextVar("cellctl_pl
 _HOLDING_REGISTER_FCS = frozenset({3, 6, 16, 22, 23})
 _FC_WRITE_MULTIPLE = 16
 _FC_READ_HOLDING = 3
+START_TIMEOUT_S = 5.0
+"""Longest wait for the listener to come up; start() raises after it rather than hang."""
+
+
+def _listen_error(host: str, port: int, exc: BaseException) -> OSError:
+    """An OSError that says which ``[plc]`` setting to change, keeping the cause's errno."""
+    code = getattr(exc, "errno", None)
+    why = (getattr(exc, "strerror", None) or str(exc) or type(exc).__name__).rstrip(".")
+    if isinstance(exc, socket.gaierror) or code == errno.EADDRNOTAVAIL:
+        code, hint = errno.EADDRNOTAVAIL, f"{host!r} is not an address of this machine: set [plc] host"
+    elif code == errno.EADDRINUSE:
+        hint = "another program (another cellctl?) has the port: set [plc] port to a free one, or stop it"
+    elif code == errno.EACCES:
+        hint = f"port {port} needs privileges this process does not have: set [plc] port to 1024 or above"
+    else:
+        hint = "check [plc] host and [plc] port"
+    return OSError(code or errno.EIO, f"the PLC interface cannot listen on {host}:{port}: {why}; {hint}")
+
+
+async def _probe_listen(host: str, port: int) -> None:
+    """Bind and listen on every address of ``host`` as asyncio's create_server will (SO_REUSEADDR,
+    IPv6 sockets v6-only), then let go. A taken port or a foreign host raises OSError here, with
+    its errno: pymodbus's listen() swallows that error (it logs it and returns False)."""
+    try:
+        infos = await asyncio.get_running_loop().getaddrinfo(
+            host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except socket.gaierror as exc:
+        raise _listen_error(host, port, exc) from exc
+    for family, kind, proto, _name, address in {(i[0], i[1], i[2], i[3], i[4]) for i in infos}:
+        try:
+            with socket.socket(family, kind, proto) as sock:
+                if hasattr(socket, "SO_REUSEADDR") and sys.platform != "win32":
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6 and hasattr(socket, "IPPROTO_IPV6"):
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                sock.bind(address)
+                sock.listen(1)
+        except OSError as exc:
+            raise _listen_error(host, port, exc) from exc
+
+
+class _UnitGate:
+    """The server's datastore as Modbus requests reach it: only ``unit_id`` (0: every id) gets through.
+
+    Any other unit id is answered with exception 11, nothing read or written, and a warning
+    (the first time per id, then every 1000th request). pymodbus turns the returned code into
+    the exception response for every function code it serves from the datastore.
+    """
+
+    def __init__(self, inner: object, unit_id: int) -> None:
+        self._inner = inner
+        self._unit_id = unit_id
+        self.refused: dict[int, int] = {}
+
+    def _admit(self, device_id: int, func_code: int) -> bool:
+        if self._unit_id == 0 or device_id == self._unit_id:
+            return True
+        n = self.refused[device_id] = self.refused.get(device_id, 0) + 1
+        if n % 1000 == 1:
+            log.warning("PLC request (FC%d) to unit id %d answered with exception %d: this cell answers unit "
+                        "id %d only ([plc] unit_id); %d such request(s) from unit id %d so far", func_code,
+                        device_id, UNIT_ID_EXCEPTION, self._unit_id, n, device_id)
+        return False
+
+    async def async_getValues(self, device_id: int, func_code: int, address: int,
+                              count: int = 1) -> list[int] | list[bool] | ExcCodes:
+        if not self._admit(device_id, func_code):
+            return ExcCodes(UNIT_ID_EXCEPTION)
+        return await self._inner.async_getValues(device_id, func_code, address, count)  # type: ignore[attr-defined,no-any-return]
+
+    async def async_setValues(self, device_id: int, func_code: int, address: int,
+                              values: list[int] | list[bool]) -> ExcCodes | None:
+        if not self._admit(device_id, func_code):
+            return ExcCodes(UNIT_ID_EXCEPTION)
+        return await self._inner.async_setValues(device_id, func_code, address, values)  # type: ignore[attr-defined,no-any-return]
+
+    def device_ids(self) -> list[int]:
+        return list(self._inner.device_ids())  # type: ignore[attr-defined]
 
 
 class PlcServer:
@@ -64,6 +151,7 @@ class PlcServer:
         self._tasks: list[asyncio.Task[None]] = []
         self._wake = asyncio.Event()
         self._refused_writes = 0
+        self._gate: _UnitGate | None = None
         self._fault: BaseException | None = None
         self._watch = HeartbeatWatch(config.heartbeat_timeout_s, clock())
         self._cell_heartbeat = 0
@@ -86,10 +174,12 @@ class PlcServer:
     # --- life cycle -------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Listen on the configured address and start serving; raises OSError if it cannot listen."""
+        """Listen on the configured address and start serving; raises OSError (within
+        ``START_TIMEOUT_S``) if it cannot listen, naming the ``[plc]`` setting to change."""
         if self._server is not None:
             raise RuntimeError("the PLC server is already running")
         cfg = self._config
+        await _probe_listen(cfg.host, cfg.port)
         device = SimDevice(
             id=cfg.unit_id,
             simdata=[
@@ -99,19 +189,38 @@ class PlcServer:
             action=self._on_access,
         )
         server = ModbusTcpServer(device, address=(cfg.host, cfg.port))
-        try:
-            await server.serve_forever(background=True)
-        except (RuntimeError, OSError) as exc:
-            await server.shutdown()
-            raise OSError(f"PLC interface cannot listen on {cfg.host}:{cfg.port} ({exc}); is the port "
-                          "taken or the host not local? set [plc] host and port") from exc
+        self._gate = _UnitGate(server.context, cfg.unit_id)
+        server.context = self._gate  # type: ignore[assignment]
         self._server = server
         self._wake = asyncio.Event()
         self._fault = None
         now = self._clock()
         self._watch = HeartbeatWatch(cfg.heartbeat_timeout_s, now)
         self._next_beat_s = now
-        await self._flush()
+        try:
+            # The first scan fills the cell block before anyone can connect: the PLC's first read
+            # already shows the cell's state (Aborted after a start), never 0 (undefined).
+            await self._scan()
+        except BaseException:
+            self._server = None
+            await server.shutdown()
+            raise
+        try:
+            # pymodbus returns once its listener is up, or raises RuntimeError when listen() failed
+            # (it logs the OSError and returns False); bounded, so start() can never hang.
+            await asyncio.wait_for(server.serve_forever(background=True), START_TIMEOUT_S)
+            if server.transport is None or not getattr(server.transport, "sockets", None):
+                raise RuntimeError("no listening socket")
+        except (RuntimeError, OSError, asyncio.TimeoutError) as exc:
+            self._server = None
+            await server.shutdown()
+            if isinstance(exc, asyncio.TimeoutError):
+                exc = TimeoutError(f"not listening after {START_TIMEOUT_S:g} s")
+            raise _listen_error(cfg.host, cfg.port, exc) from exc
+        except BaseException:  # cancelled while starting
+            self._server = None
+            await server.shutdown()
+            raise
         self._tasks = [
             asyncio.create_task(self._scan_loop(), name="plc-scan"),
             asyncio.create_task(self._cycle.run(), name="plc-cycle-handshake"),
@@ -160,6 +269,11 @@ class PlcServer:
     def refused_writes(self) -> int:
         """PLC writes into the cell block refused since construction."""
         return self._refused_writes
+
+    @property
+    def other_unit_requests(self) -> dict[int, int]:
+        """Requests to another unit id than ``[plc] unit_id`` (answered with exception 11), by unit id."""
+        return {} if self._gate is None else dict(self._gate.refused)
 
     @property
     def plc_link_alive(self) -> bool:

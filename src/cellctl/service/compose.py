@@ -32,6 +32,7 @@ from cellctl.commissioning.jobs import JobManager
 from cellctl.config.schema import CellConfig
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
+from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.store import AsyncCellStore
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,7 @@ class Service:
     after_start: list[Callable[["Service"], Awaitable[None]]] = field(default_factory=list)
     commissioning: asyncio.Task[None] | None = None
     extras: dict[str, object] = field(default_factory=dict)  # what a root adds (the simulated cell: its twin and operator)
+    stopped: bool = False
 
     async def start(self) -> None:
         await self.orchestrator.start()
@@ -70,11 +72,8 @@ class Service:
             try:
                 await server.start()
             except OSError as err:
-                await self.orchestrator.stop()
-                raise ServiceError(
-                    f"the PLC Modbus server cannot listen on {self.config.plc.host}:{self.config.plc.port} ({err}); "
-                    "is another cellctl running? change [plc] port or stop the other one"
-                ) from None
+                await self.stop()  # devices, jobs and the store too: a failed start leaves nothing running
+                raise ServiceError(f"the PLC Modbus server cannot start: {err}") from None
             self.plc_server = server
             self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
@@ -87,7 +86,10 @@ class Service:
             await asyncio.wait_for(asyncio.shield(self.commissioning), timeout_s)
 
     async def stop(self) -> None:
-        """Stop everything; each part gets ``STOP_STEP_TIMEOUT_S``, so a stuck one cannot hang the rest."""
+        """Stop everything; each part gets ``STOP_STEP_TIMEOUT_S``, so a stuck one cannot hang the rest. Once."""
+        if self.stopped:
+            return
+        self.stopped = True
         steps: list[tuple[str, Closer]] = []
         if self.commissioning is not None and not self.commissioning.done():
             self.commissioning.cancel()
@@ -117,9 +119,9 @@ class Service:
 
         app = create_app(self.orchestrator, self.config.api, self.jobs)
         server = make_server(app, self.config.api.host, self.config.api.port, self.orchestrator.events.close)
-        await self.start()
         demo: asyncio.Task[None] | None = None
         try:
+            await self.start()
             task = asyncio.create_task(server.serve())
             while not server.started and not task.done():
                 await asyncio.sleep(0.05)
@@ -130,6 +132,8 @@ class Service:
                     f"the REST API cannot listen on {self.config.api.host}:{self.config.api.port}; "
                     "is another cellctl running? change [api] port or stop the other one"
                 )
+            print(f"cellctl serving on http://{self.config.api.host}:{self.config.api.port}/ (mode {self.config.mode}); "
+                  "Ctrl-C stops", flush=True)  # fmt: skip
             if ready is not None:
                 ready.set()
             if demo_cycles and not task.done():
@@ -182,6 +186,8 @@ async def assemble_service(
     )
     alarms = AlarmManager(machine, robot_moving=lambda: robot.moving, history=config.alarms.history)
     alarms.install()
+    if isinstance(source, CalibrationSetSource):  # issue 15 item 6: a damaged set file raises its alarm once
+        source.attach_alarms(alarms)
     watchdog = DeviceWatchdog(alarms, defaults=WatchdogSettings(**config.alarms.watchdog.model_dump()))
     watchdog.add("laser", laser)
     watchdog.add("camera", camera)
@@ -206,4 +212,15 @@ async def assemble_service(
     )  # fmt: skip
     orch.add_status("job", jobs.status)
     link = PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm)
-    return Service(config, store, orch, jobs, link, root)
+    service = Service(config, store, orch, jobs, link, root)
+    # -- issue 15 item 7: retention, disk-space alarms and the /status "storage" figures (cellctl.service.retention)
+    retention = StorageRetention(
+        config.store.retention, store, alarms, image_dir=orch.image_dir, db_path=db_path, events=events,
+        cycle_step=lambda: machine.cycle_step,
+    )  # fmt: skip
+    orch.add_status("storage", retention.status)
+    service.extras["retention"] = retention
+    service.after_start.append(lambda _svc: retention.start())
+    service.closers.append(retention.stop)  # runs before the store closes
+    # -- end issue 15 item 7
+    return service

@@ -6,24 +6,19 @@ import uuid
 from typing import TextIO
 
 from cellctl.cell.packml import PackMLMachine
-from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.cell.tags import TO_EXECUTE, PackMLState
 from cellctl.cell.orchestrator import CycleRefused
 from cellctl.service.compose import Service
 from cellctl.store import CycleRequest
 
-_TO_EXECUTE = {
-    PackMLState.ABORTED: PackMLCommand.CLEAR,
-    PackMLState.STOPPED: PackMLCommand.RESET,
-    PackMLState.COMPLETE: PackMLCommand.RESET,
-    PackMLState.IDLE: PackMLCommand.START,
-}
 _SETTLED = {PackMLState.ABORTED, PackMLState.STOPPED, PackMLState.IDLE, PackMLState.EXECUTE, PackMLState.COMPLETE,
             PackMLState.HELD, PackMLState.SUSPENDED}  # fmt: skip
 
 
 async def _to_execute(machine: PackMLMachine) -> None:
     while machine.state is not PackMLState.EXECUTE:
-        cmd = _TO_EXECUTE.get(machine.state)
+        plan = TO_EXECUTE.get(machine.state)
+        cmd = plan[0] if plan else None
         if cmd is None:
             raise RuntimeError(f"the demo cannot bring the cell from {machine.state.name} to EXECUTE")
         await machine.command(cmd, actor="demo", source="cellctl serve --demo-cycles")

@@ -1,4 +1,10 @@
-"""The PLC interface's view of the cell (:class:`cellctl.plc.CellFacade`) over the orchestrator."""
+"""The PLC interface's view of the cell (:class:`cellctl.plc.CellFacade`) over the orchestrator.
+
+A PLC ``cycle_req_id`` is an idempotency key in the store's ``plc`` scope: an accepted request is
+the cycle made under that key; a refused one is stored under it as a finished request whose
+response is the refusal (the store's ``claim_key`` / ``complete_key``), so a repeated id
+republishes the refusal, across restarts too, and can never start a cycle later.
+"""
 
 from __future__ import annotations
 
@@ -10,13 +16,15 @@ from cellctl.cell.alarms import AlarmCode
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused, summarize
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
 from cellctl.cell.tags import PackMLCommand, UnitMode
-from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome
-from cellctl.store import CycleRequest, IdempotencyConflict
+from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
+from cellctl.store import CycleRequest, IdempotencyConflict, IdempotencyInFlight
 
 log = logging.getLogger(__name__)
 
 PLC_SCOPE = "plc"
 PLC_ACTOR = "line-plc"
+REFUSED_REQUEST = {"kind": "refused PLC cycle request"}
+"""What a refused request's key is claimed with; its stored response holds the refusal."""
 
 
 class PlcCellLink:
@@ -43,23 +51,58 @@ class PlcCellLink:
         )
 
     async def start_cycle(self, req_id: int, recipe_id: int, part_id: int) -> CycleAcceptance:
+        key = str(req_id)
+        if await self._orch.store.cycle_for_key(PLC_SCOPE, key) is not None:
+            return CycleAcceptance(True)  # queued or running under this id: idempotent, nothing new starts
         recipe = self._recipes.get(recipe_id)
         if recipe is None:
-            return CycleAcceptance(False, int(AlarmCode.TASK_FAILED), f"unknown recipe number {recipe_id}")
+            valid = ", ".join(f"{n} ({name})" for n, name in sorted(self._recipes.items()))
+            return await self._refuse(req_id, recipe_id, part_id, PlcErrorCode.UNKNOWN_RECIPE,
+                                      f"recipe_id {recipe_id} is not a recipe of this cell (valid: {valid}; "
+                                      "[[process.recipes]] in the config)")
         try:
             await self._orch.submit_cycle(
-                CycleRequest(recipe, str(part_id), None, source="plc"), scope=PLC_SCOPE, key=str(req_id), actor=PLC_ACTOR
+                CycleRequest(recipe, str(part_id), None, source="plc"), scope=PLC_SCOPE, key=key, actor=PLC_ACTOR
             )
-        except CycleRefused as err:
-            return CycleAcceptance(False, err.code, err.reason)
-        except IdempotencyConflict as err:
-            return CycleAcceptance(False, int(AlarmCode.TASK_FAILED), str(err))
+        except CycleRefused as err:  # the cell does not take a cycle now (not in Execute)
+            return await self._refuse(req_id, recipe_id, part_id, PlcErrorCode.NOT_READY, err.reason)
+        except IdempotencyConflict as err:  # the key is taken by something this request cannot match
+            log.warning("PLC cycle request %d: %s", req_id, err)
+            return CycleAcceptance(False, int(PlcErrorCode.ID_IN_USE), str(err))
         return CycleAcceptance(True)
+
+    async def _refuse(self, req_id: int, recipe_id: int, part_id: int, code: PlcErrorCode, reason: str) -> CycleAcceptance:
+        """Store the refusal as the id's result (so a repeat republishes it), then answer it."""
+        store, key = self._orch.store, str(req_id)
+        try:
+            if await store.claim_key(PLC_SCOPE, key, REFUSED_REQUEST) is None:
+                response = {"error_code": int(code), "reason": reason, "recipe_id": recipe_id, "part_id": part_id}
+                await store.complete_key(PLC_SCOPE, key, response)
+        except (IdempotencyConflict, IdempotencyInFlight) as err:  # taken meanwhile: answer, store nothing
+            log.warning("PLC cycle request %d: its refusal could not be stored (%s)", req_id, err)
+        return CycleAcceptance(False, int(code), reason)
+
+    async def _stored_refusal(self, req_id: int) -> CycleOutcome | None:
+        """The refusal stored under ``req_id``, or None (the id is new: nothing is left behind)."""
+        store, key = self._orch.store, str(req_id)
+        try:
+            stored = await store.claim_key(PLC_SCOPE, key, REFUSED_REQUEST)
+        except (IdempotencyConflict, IdempotencyInFlight):
+            return None  # the key is a cycle's or in flight: not a refusal
+        if stored is None:
+            await store.release_key(PLC_SCOPE, key)  # only looked: leave the id free
+            return None
+        r = stored.response
+        return CycleOutcome(
+            req_id=req_id, recipe_id=int(r["recipe_id"]), part_id=int(r["part_id"]), ok=False,
+            error_code=int(r["error_code"]), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0, drx_rad=0.0, dry_rad=0.0, drz_rad=0.0,
+            cycle_time_s=0.0,
+        )  # fmt: skip
 
     async def result_of(self, req_id: int) -> CycleOutcome | None:
         record = await self._orch.store.cycle_for_key(PLC_SCOPE, str(req_id))
         if record is None:
-            return None
+            return await self._stored_refusal(req_id)
         s = summarize(record)
         if s is None:
             return None

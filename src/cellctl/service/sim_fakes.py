@@ -81,9 +81,11 @@ def lkg_fake(cell: SimCell, dialect: str, display_unit: str) -> FakeLkgControlle
     ).start()
 
 
-def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice) -> tuple[KeyenceLkgSensor, Closer]:
-    """The real LK-G driver on a pseudo-terminal served by the fake controller."""
+def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice, fakes: dict[str, object] | None = None) -> tuple[KeyenceLkgSensor, Closer]:
+    """The real LK-G driver on a pseudo-terminal served by the fake controller (kept in ``fakes["laser"]``)."""
     fake = lkg_fake(cell, dev.dialect, dev.display_unit)
+    if fakes is not None:
+        fakes["laser"] = fake  # faults are injected here (silence, garble, vanish)
     driver = KeyenceLkgSensor.from_config(
         {
             "port": fake.path,
@@ -121,12 +123,17 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeControlle
     )
 
 
-def abb_on_fake(cell: SimCell, dev: SimAbbDevice) -> tuple[AbbRobot, Closer, Callable[[Pose], None]]:
+def abb_on_fake(
+    cell: SimCell, dev: SimAbbDevice, fakes: dict[str, object] | None = None
+) -> tuple[AbbRobot, Closer, Callable[[Pose], None]]:
     """The real ABB client talking to the fake controller (its own thread and loop) on loopback.
 
-    Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it).
+    Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it);
+    the fake itself is kept in ``fakes["robot"]`` (faults: drop the client, refuse, delay).
     """
     fake = abb_fake(cell)
+    if fakes is not None:
+        fakes["robot"] = fake
     port = fake.start_in_thread()
     driver = AbbRobot(
         AbbRobotSettings(

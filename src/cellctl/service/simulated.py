@@ -27,7 +27,9 @@ from cellctl.sim.rig import SimRig
 log = logging.getLogger(__name__)
 
 
-def _devices(config: CellConfig, rig: SimRig, closers: list[Closer]) -> tuple[DisplacementSensor, Camera, Robot, Callable[[Pose], None]]:
+def _devices(
+    config: CellConfig, rig: SimRig, closers: list[Closer], fakes: dict[str, object]
+) -> tuple[DisplacementSensor, Camera, Robot, Callable[[Pose], None]]:
     from cellctl.service import hardware
 
     dev = config.devices
@@ -37,7 +39,7 @@ def _devices(config: CellConfig, rig: SimRig, closers: list[Closer]) -> tuple[Di
     if isinstance(dev.laser, SimKeyenceLkgDevice):
         from cellctl.service.sim_fakes import lkg_on_fake
 
-        laser, close = lkg_on_fake(rig.cell, dev.laser)
+        laser, close = lkg_on_fake(rig.cell, dev.laser, fakes)
         closers.append(close)
     elif isinstance(dev.laser, KeyenceLkgDevice):
         laser, close = hardware.keyence_laser(dev.laser)
@@ -53,7 +55,7 @@ def _devices(config: CellConfig, rig: SimRig, closers: list[Closer]) -> tuple[Di
     if isinstance(dev.robot, SimAbbDevice):
         from cellctl.service.sim_fakes import abb_on_fake
 
-        robot, close, jog = abb_on_fake(rig.cell, dev.robot)
+        robot, close, jog = abb_on_fake(rig.cell, dev.robot, fakes)
         closers.append(close)
     elif isinstance(dev.robot, AbbRobotDevice):
         robot, close = hardware.abb_robot(dev.robot)
@@ -67,7 +69,7 @@ async def _auto_commission(service: Service) -> None:
     needed = parts_needed(service.jobs)
     if not needed:
         return
-    log.warning("simulated cell: commissioning %s through the service's jobs (the simulated operator answers)", ", ".join(needed))
+    log.info("simulated cell: commissioning %s through the service's jobs (the simulated operator answers)", ", ".join(needed))
     await commission_missing(service.jobs, service.orchestrator.machine, actor=ACTOR, source="sim")
 
 
@@ -79,7 +81,8 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
 
     rig = SimRig(config.sim, seed=seed)
     closers: list[Closer] = []
-    laser, camera, robot, jog = _devices(config, rig, closers)
+    fakes: dict[str, object] = {}
+    laser, camera, robot, jog = _devices(config, rig, closers, fakes)
     calibration = None
     if config.calibration.source == "oracle":
         from cellctl.sim.oracle import OracleCalibrationSource
@@ -94,7 +97,7 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     service.closers.extend(closers)
     service.closers.append(operator.close)
     service.closers.append(rig.close)
-    service.extras.update(twin=rig, operator=operator)
+    service.extras.update(twin=rig, operator=operator, fakes=fakes)
     if config.calibration.source == "set" and config.calibration.auto_calibrate_in_sim:
 
         async def start_commissioning(svc: Service) -> None:

@@ -119,3 +119,6 @@ class OracleCalibrationSource:
 
     def history(self) -> list[dict[str, Any]]:
         return []
+
+    def reference(self) -> dict[str, Any]:
+        return {"source": "twin truth (oracle)", "version": None}

@@ -3,6 +3,7 @@
 from cellctl.store.aio import AsyncCellStore
 from cellctl.store.db import CellStore, StoreInfo
 from cellctl.store.jobs import JobRecord, UnknownJob
+from cellctl.store.retention import DatabaseSize, KeptImage
 from cellctl.store.records import (
     AuditChainBroken,
     AuditEntry,
@@ -35,12 +36,14 @@ __all__ = [
     "CycleRequest",
     "CycleState",
     "CycleStateError",
+    "DatabaseSize",
     "IdempotencyConflict",
     "IdempotencyInFlight",
     "ImageRef",
     "InstallAlreadyStarted",
     "InterruptedCycle",
     "JobRecord",
+    "KeptImage",
     "RecoveryReport",
     "SchemaTooNew",
     "StepRecord",

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from pathlib import Path
@@ -25,6 +25,7 @@ from cellctl.cell.packml import MachineEvent
 from cellctl.cell.tags import CycleStep
 from cellctl.store.db import CellStore, StoreInfo, Synchronous, _utcnow
 from cellctl.store.jobs import JobRecord
+from cellctl.store.retention import DatabaseSize, KeptImage
 from cellctl.store.records import (
     AuditEntry,
     CalibrationVersion,
@@ -222,3 +223,28 @@ class AsyncCellStore:
 
     async def recover_jobs(self) -> list[int]:
         return await self._run(self._store.recover_jobs)
+
+    # retention
+    async def kept_images(self) -> list[KeptImage]:
+        return await self._run(self._store.kept_images)
+
+    async def mark_images_pruned(self, uris: Sequence[str], *, reason: str, at: datetime | None = None) -> int:
+        return await self._run(self._store.mark_images_pruned, uris, reason=reason, at=at)
+
+    async def pruned_only(self, uris: Sequence[str]) -> set[str]:
+        return await self._run(self._store.pruned_only, uris)
+
+    async def prune_cycles(self, *, created_before: datetime, batch: int = 500) -> tuple[list[int], list[str]]:
+        return await self._run(self._store.prune_cycles, created_before=created_before, batch=batch)
+
+    async def prune_alarms(self, *, raised_before: datetime) -> int:
+        return await self._run(self._store.prune_alarms, raised_before=raised_before)
+
+    async def oldest_cycle(self) -> datetime | None:
+        return await self._run(self._store.oldest_cycle)
+
+    async def database_size(self, *, per_table: bool = False) -> DatabaseSize:
+        return await self._run(self._store.database_size, per_table=per_table)
+
+    async def checkpoint(self) -> None:
+        await self._run(self._store.checkpoint)

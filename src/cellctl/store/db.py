@@ -49,6 +49,7 @@ from cellctl.store.records import (
     UnknownCycle,
 )
 from cellctl.store.jobs import JobRows
+from cellctl.store.retention import RetentionRows
 from cellctl.store.schema import migrate, schema_version
 
 GENESIS_HASH = "0" * 64
@@ -109,7 +110,7 @@ class StoreInfo:
     synchronous: str
 
 
-class CellStore(JobRows):
+class CellStore(JobRows, RetentionRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
 
     _to_json = staticmethod(lambda what, obj: to_json(what, obj))
@@ -406,9 +407,11 @@ class CellStore(JobRows):
             )
         )
         images = tuple(
-            ImageRef(CycleStep(r[0]), r[1], r[2], datetime.fromisoformat(r[3]))
+            ImageRef(CycleStep(r[0]), r[1], r[2], datetime.fromisoformat(r[3]), _dt(r[4]), r[5])
             for r in self._conn.execute(
-                "SELECT step, name, uri, created_at FROM cycle_images WHERE cycle_id = ? ORDER BY id", (cycle_id,)
+                "SELECT step, name, uri, created_at, pruned_at, pruned_reason FROM cycle_images "
+                "WHERE cycle_id = ? ORDER BY id",
+                (cycle_id,),
             )
         )
         return _cycle_from_row(row, steps, images)

@@ -70,10 +70,19 @@ class StepRecord:
 
 @dataclass(frozen=True)
 class ImageRef:
+    """An image of a cycle: the file ``uri`` (relative to the image folder) and, once retention
+    deleted the file, when and why (the reference itself is kept as long as its cycle record)."""
+
     step: CycleStep
     name: str
     uri: str
     created_at: datetime
+    pruned_at: datetime | None = None
+    pruned_reason: str | None = None
+
+    @property
+    def pruned(self) -> bool:
+        return self.pruned_at is not None
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import sqlite3
 from collections.abc import Sequence
 
 from cellctl.store.jobs import V2_JOBS
+from cellctl.store.retention import V3_RETENTION
 from cellctl.store.records import SchemaTooNew, StoreError
 
 _APPEND_ONLY = """
@@ -137,7 +138,7 @@ CREATE TABLE calibrations (
     + _APPEND_ONLY.format(table="calibrations")
 )
 
-MIGRATIONS: Sequence[str] = (V1, V2_JOBS)
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 

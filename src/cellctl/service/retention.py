@@ -1,0 +1,581 @@
+"""Storage retention of the running cell: prune images and old records, watch the disk, report the figures.
+
+What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]):
+
+- **images** first: a pass deletes the oldest image files while they are older than
+  ``images_days`` or all images together exceed ``images_max_gb`` (images of a queued or running
+  cycle are never touched). The image's reference in its cycle record stays, saying when and why
+  the file was pruned. A pass runs every ``period_s`` and, when a finished cycle brings the
+  images near their bound, right after that cycle; it leaves room under the bound for the next
+  cycle's images (the most one of the last few cycles wrote, :func:`cycle_headroom`), so the
+  folder stays under the bound between passes too.
+- **cycle records** (steps, image references, idempotency keys) after ``cycles_days``, and
+  **alarm records** after ``alarms_days`` (inactive ones); each deletion of records is written to
+  the audit log.
+- the **audit log** is never pruned. It is append-only and hash-chained from its first entry
+  (the database refuses deletes, :meth:`cellctl.store.CellStore.verify_audit_chain` checks
+  that no entry is missing), it is the record of who commanded what, and it is small beside the
+  images (a few hundred bytes per command or state change). Pruning it would mean exporting
+  whole segments with a signed anchor first; until that exists, the disk-space alarms guard it.
+
+The disk check runs every ``disk_check_period_s`` on the file systems of the database and the
+images: below ``disk_warn_free_gb`` free it raises :attr:`AlarmCode.DISK_SPACE_LOW` (a warning),
+below ``disk_stop_free_gb`` :attr:`AlarmCode.DISK_SPACE_CRITICAL`, whose reaction (Hold) stops
+production while records can still be written. That alarm waits while the robot installs a
+glass (the install step writes almost nothing; stopping it halfway would leave the glass
+unfinished) and is raised as soon as the step ends. Both are conditions: they clear when the
+free space is back above their threshold (plus a margin, so they do not flap).
+
+:meth:`StorageRetention.status` is the ``storage`` part of /status (cached figures of the last
+pass or check, never a scan per request).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.events import EventHub
+from cellctl.cell.tags import CycleStep
+from cellctl.config.store import RetentionConfig, days_or_none
+from cellctl.store import AsyncCellStore, KeptImage
+
+log = logging.getLogger(__name__)
+
+GB = 1024**3
+MB = 1024**2
+IMAGE_PATTERN = ("cycle-", ".png")  # the recorder's file names: cycle-<id>-<name>.png
+ORPHAN_GRACE_S = 600.0  # a file with no reference younger than this may be one being recorded now
+DEFERRED_CHECK_S = 0.5  # how often the disk check looks again while the stop alarm waits for an install
+NEAR_BOUND = 0.9  # a finished cycle triggers a pass when the images reach this share of their target
+RECENT_CYCLES = 10  # the room a pass leaves: the most one of the last this many cycles wrote
+ALARM_SOURCE = "storage"
+
+
+class DiskUsage(NamedTuple):
+    total: int
+    used: int
+    free: int
+
+
+class FileInfo(NamedTuple):
+    size: int
+    mtime: float
+
+
+def scan_images(image_dir: Path) -> dict[str, FileInfo]:
+    """The cycle image files in ``image_dir`` (name -> size and mtime); an absent folder is empty."""
+    out: dict[str, FileInfo] = {}
+    try:
+        entries = os.scandir(image_dir)
+    except FileNotFoundError:
+        return out
+    with entries:
+        for e in entries:
+            if not (e.name.startswith(IMAGE_PATTERN[0]) and e.name.endswith(IMAGE_PATTERN[1])):
+                continue
+            try:
+                st = e.stat(follow_symlinks=False)
+            except FileNotFoundError:
+                continue
+            if e.is_file(follow_symlinks=False):
+                out[e.name] = FileInfo(st.st_size, st.st_mtime)
+    return out
+
+
+def unlink_all(image_dir: Path, names: Iterable[str]) -> int:
+    """Delete the files; returns how many were there."""
+    n = 0
+    for name in names:
+        if "/" in name or name in ("", ".", ".."):
+            continue  # a reference is a plain file name in the image folder; never follow anything else
+        with contextlib.suppress(FileNotFoundError):
+            (image_dir / name).unlink()
+            n += 1
+    return n
+
+
+@dataclass(frozen=True)
+class ImagePlan:
+    """What an image pass does: references whose file is missing, files to delete and why, what stays."""
+
+    missing: list[str]  # kept references without a file
+    prune: dict[str, list[str]]  # reason -> referenced files to delete (their references are marked)
+    orphans: list[str]  # files no reference names, old enough to delete
+    kept_bytes: int
+    kept_count: int
+    oldest_kept: datetime | None
+
+
+def plan_images(
+    kept: list[KeptImage],
+    files: Mapping[str, FileInfo],
+    *,
+    now: datetime,
+    images_days: float | None,
+    max_bytes: int | None,
+    orphan_grace_s: float = ORPHAN_GRACE_S,
+    stated_bound: int | None = None,
+) -> ImagePlan:
+    """Oldest first, delete while older than ``images_days`` or the total exceeds ``max_bytes``
+    (None: no such bound; both None plans nothing and only measures). ``stated_bound`` is the bound
+    the reason names when ``max_bytes`` is lower to leave room for the next cycle (default ``max_bytes``).
+
+    ``files`` are the image files on disk, ``kept`` the references not yet pruned. Files of a
+    queued or running cycle, and unreferenced files younger than ``orphan_grace_s``, are never
+    chosen (they still count toward the total). A file no kept reference names is an orphan.
+    """
+    by_uri: dict[str, list[KeptImage]] = {}
+    for k in kept:
+        by_uri.setdefault(k.uri, []).append(k)
+    missing = [u for u in by_uri if u not in files]
+    items: list[tuple[datetime, str, int, bool, bool]] = []  # (time, name, size, protected, orphan)
+    for name, info in files.items():
+        refs = by_uri.get(name)
+        if refs:
+            t = min(r.created_at for r in refs)
+            protected = any(r.cycle_active for r in refs)
+            items.append((t, name, info.size, protected, False))
+        else:
+            t = datetime.fromtimestamp(info.mtime, timezone.utc)
+            protected = (now - t).total_seconds() < orphan_grace_s
+            items.append((t, name, info.size, protected, True))
+    items.sort()
+    total = sum(i[2] for i in items)
+    cutoff = datetime.min.replace(tzinfo=timezone.utc) if images_days is None else now - timedelta(days=images_days)
+    bound = total if max_bytes is None else max_bytes
+    prune: dict[str, list[str]] = {}
+    orphans: list[str] = []
+    gone: set[str] = set()
+    for t, name, size, protected, orphan in items:
+        if total <= bound and t >= cutoff:
+            break
+        if protected:
+            continue
+        if t < cutoff:
+            reason = f"retention: older than {images_days:g} days"
+        else:
+            reason = f"retention: images over their bound of {_size(stated_bound or bound)}"
+        (orphans if orphan else prune.setdefault(reason, [])).append(name)
+        gone.add(name)
+        total -= size
+    left = [i for i in items if i[1] not in gone]
+    return ImagePlan(
+        missing=missing,
+        prune=prune,
+        orphans=orphans,
+        kept_bytes=sum(i[2] for i in left),
+        kept_count=len(left),
+        oldest_kept=min((i[0] for i in left if not i[4]), default=None),
+    )
+
+
+def cycle_headroom(kept: list[KeptImage], files: Mapping[str, FileInfo], bound: int) -> int:
+    """The room a pass leaves under the image bound: the most image bytes one of the last
+    :data:`RECENT_CYCLES` cycles wrote, so the next cycle's images fit under the bound too (at most
+    half the bound, so a tiny bound does not empty the folder)."""
+    per_cycle: dict[int, int] = {}
+    for k in kept:
+        info = files.get(k.uri)
+        if info is not None:
+            per_cycle[k.cycle_id] = per_cycle.get(k.cycle_id, 0) + info.size
+    recent = [per_cycle[c] for c in sorted(per_cycle)[-RECENT_CYCLES:]]
+    return min(max(recent, default=0), bound // 2)
+
+
+def largest_cycle_in_names(files: Mapping[str, FileInfo], recent: int = RECENT_CYCLES) -> int:
+    """The most image bytes one of the last ``recent`` cycles has on disk, by the recorder's file
+    names (``cycle-<id>-<name>.png``): the estimate between passes, without the store."""
+    per_cycle: dict[int, int] = {}
+    for name, info in files.items():
+        head = name[len(IMAGE_PATTERN[0]) :].split("-", 1)[0]
+        if head.isdigit():
+            per_cycle[int(head)] = per_cycle.get(int(head), 0) + info.size
+    return max((per_cycle[c] for c in sorted(per_cycle)[-recent:]), default=0)
+
+
+@dataclass
+class PassReport:
+    """What one retention pass did."""
+
+    images_pruned: int = 0
+    images_missing: int = 0
+    orphans_deleted: int = 0
+    cycles_deleted: int = 0
+    alarms_deleted: int = 0
+    seconds: float = 0.0
+
+
+@dataclass
+class _Totals:
+    images: int = 0
+    missing: int = 0
+    orphans: int = 0
+    cycles: int = 0
+    alarms: int = 0
+    passes: int = 0
+
+
+def _utcnow() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def _iso(t: datetime | None) -> str | None:
+    return None if t is None else t.astimezone(timezone.utc).isoformat(timespec="seconds")
+
+
+@dataclass
+class _Figures:
+    images_bytes: int | None = None
+    images_count: int | None = None
+    oldest_image: datetime | None = None
+    images_checked: datetime | None = None
+    database_bytes: int | None = None
+    free_bytes: int | None = None
+    free_path: str | None = None
+    disk: str = "unknown"
+    disk_checked: datetime | None = None
+    last_pass: datetime | None = None
+    last_error: str | None = None
+    deferred: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class StorageRetention:
+    """The background task: :meth:`start` after the store opened, :meth:`stop` before it closes.
+
+    Args:
+        config: [store.retention].
+        store: the cell's store (its queries run on the store's thread).
+        alarms: raises and clears the disk-space alarms.
+        image_dir: where the recorder writes the cycle images.
+        db_path: the database file (its -wal and -shm files count too).
+        events: the cell's event hub; a finished cycle may trigger a pass.
+        cycle_step: the cycle step running now (the stop alarm waits out INSTALL).
+        clock: UTC wall clock (ages of images and records).
+        disk_usage: ``shutil.disk_usage`` (tests give a fake).
+    """
+
+    def __init__(
+        self,
+        config: RetentionConfig,
+        store: AsyncCellStore,
+        alarms: AlarmManager,
+        *,
+        image_dir: Path,
+        db_path: Path,
+        events: EventHub | None = None,
+        cycle_step: Callable[[], CycleStep] = lambda: CycleStep.NONE,
+        clock: Callable[[], datetime] = _utcnow,
+        disk_usage: Callable[[Path], Any] = shutil.disk_usage,
+    ) -> None:
+        self.config = config
+        self.store = store
+        self.alarms = alarms
+        self.image_dir = image_dir
+        self.db_path = db_path
+        self.events = events
+        self._cycle_step = cycle_step
+        self._clock = clock
+        self._disk_usage = disk_usage
+        self._fig = _Figures()
+        self._totals = _Totals()
+        self._task: asyncio.Task[None] | None = None
+        self._wake = asyncio.Event()
+        self._lock = asyncio.Lock()
+        self._queue: asyncio.Queue[Any] | None = None
+        self._failures = 0
+        self._headroom = 0  # bytes a pass leaves free under the image bound for the next cycle's images
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """A first disk check now (so /status has figures at once), then the background task, whose
+        first pass runs at once (a backlog of old images must not hold up the service's start)."""
+        if self._task is not None:
+            return
+        await self._guarded("disk check", self.check_disk)
+        if self.events is not None:
+            self._queue = self.events.subscribe()
+        self._task = asyncio.create_task(self._loop(), name="cellctl-retention")
+
+    async def stop(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if self._queue is not None and self.events is not None:
+            self.events.unsubscribe(self._queue)
+            self._queue = None
+
+    def trigger(self) -> None:
+        """Ask for an image check soon (e.g. after a cycle wrote its images)."""
+        self._wake.set()
+
+    # -- figures ------------------------------------------------------------------------------
+
+    def status(self) -> dict[str, Any]:
+        """The ``storage`` part of /status (as of the last pass or disk check)."""
+        f, c = self._fig, self.config
+        mb = lambda b: None if b is None else round(b / MB, 3)  # noqa: E731
+        return {
+            "images_mb": mb(f.images_bytes),
+            "images_count": f.images_count,
+            "oldest_image_utc": _iso(f.oldest_image),
+            "database_mb": mb(f.database_bytes),
+            "free_disk_gb": None if f.free_bytes is None else round(f.free_bytes / GB, 3),
+            "disk": f.disk,  # ok | low | critical | unknown
+            "checked_utc": _iso(f.disk_checked),
+            "last_pass_utc": _iso(f.last_pass),
+            "last_error": f.last_error,
+            "pruned_since_start": {
+                "images": self._totals.images, "orphan_files": self._totals.orphans,
+                "cycles": self._totals.cycles, "alarms": self._totals.alarms,
+            },  # fmt: skip
+            "retention": {
+                "enabled": c.enabled, "images_days": c.images_days, "images_max_gb": c.images_max_gb,
+                "cycles_days": c.cycles_days, "alarms_days": c.alarms_days, "audit_log": "kept (never pruned)",
+                "disk_warn_free_gb": c.disk_warn_free_gb, "disk_stop_free_gb": c.disk_stop_free_gb,
+            },  # fmt: skip
+        }
+
+    def database_bytes(self) -> int:
+        """The database's files on disk: the file, its write-ahead log and shared memory."""
+        total = 0
+        for suffix in ("", "-wal", "-shm"):
+            with contextlib.suppress(OSError):
+                total += os.stat(f"{self.db_path}{suffix}").st_size
+        return total
+
+    # -- the disk -----------------------------------------------------------------------------
+
+    def _free(self) -> tuple[int, str]:
+        """The least free space of the file systems holding the database and the images."""
+        seen: dict[int, tuple[int, str]] = {}
+        for p in (self.db_path.parent, self.image_dir):
+            q = p
+            while not q.exists() and q != q.parent:
+                q = q.parent
+            try:
+                dev = q.stat().st_dev
+                if dev not in seen:
+                    seen[dev] = (int(self._disk_usage(q).free), str(q))
+            except OSError:
+                continue
+        if not seen:
+            raise OSError(f"cannot read the free space of {self.db_path.parent}")
+        return min(seen.values())
+
+    async def check_disk(self) -> str:
+        """Measure the free space; raise or clear the disk-space alarms. Returns ok, low or critical."""
+        free, where = await asyncio.to_thread(self._free)
+        c = self.config
+        warn, stop = c.disk_warn_free_gb * GB, c.disk_stop_free_gb * GB
+        level = "critical" if free < stop else "low" if free < warn else "ok"
+        detail = f"{free / GB:.2f} GB free on {where}"
+        await self._condition(AlarmCode.DISK_SPACE_LOW, free < warn, free > _clear_at(warn),
+                              f"{detail} (below {c.disk_warn_free_gb:g} GB)")  # fmt: skip
+        deferred = False
+        if free < stop and self.alarms.find_active(AlarmCode.DISK_SPACE_CRITICAL, ALARM_SOURCE) is None:
+            if self._cycle_step() is CycleStep.INSTALL:
+                deferred = True  # raised once the install step ends (checked every DEFERRED_CHECK_S)
+                if not self._fig.deferred:
+                    log.warning("disk space critical (%s); the stop alarm waits for the install step to end", detail)
+        if not deferred:
+            await self._condition(AlarmCode.DISK_SPACE_CRITICAL, free < stop, free > _clear_at(stop),
+                                  f"{detail} (below {c.disk_stop_free_gb:g} GB)")  # fmt: skip
+        self._fig.deferred = deferred
+        self._fig.free_bytes, self._fig.free_path, self._fig.disk = free, where, level
+        self._fig.disk_checked = self._clock()
+        self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
+        return level
+
+    async def _condition(self, code: AlarmCode, raise_it: bool, clear_it: bool, detail: str) -> None:
+        active = self.alarms.find_active(code, ALARM_SOURCE)
+        if raise_it and active is None:
+            log.warning("%s: %s", code.name.lower(), detail)
+            await self.alarms.raise_alarm(code, source=ALARM_SOURCE, detail=detail)
+        elif clear_it and active is not None:
+            log.info("%s cleared: %s", code.name.lower(), detail)
+            self.alarms.clear(code, source=ALARM_SOURCE)
+
+    # -- a pass -------------------------------------------------------------------------------
+
+    async def run_once(self) -> PassReport:
+        """One pass: images, then cycle records, then alarm records (nothing when disabled); the figures after it."""
+        async with self._lock:
+            t0 = time.monotonic()
+            report = PassReport()
+            now = self._clock()
+            c = self.config
+            kept = await self.store.kept_images()
+            files = await asyncio.to_thread(scan_images, self.image_dir)
+            referenced = {k.uri for k in kept}
+            unreferenced = [n for n in files if n not in referenced]
+            # Files whose references all say pruned: a crash came between the mark and the unlink.
+            leftovers = await self.store.pruned_only(unreferenced) if unreferenced else set()
+            files = {n: f for n, f in files.items() if n not in leftovers}
+            if c.enabled:
+                self._headroom = cycle_headroom(kept, files, int(c.images_max_gb * GB))
+                target = int(c.images_max_gb * GB) - self._headroom
+                plan = plan_images(
+                    kept, files, now=now, images_days=c.images_days, max_bytes=target, stated_bound=int(c.images_max_gb * GB)
+                )
+                await self._apply(plan, sorted(leftovers), report, now)
+                report.cycles_deleted = await self._prune_cycles(now)
+                report.alarms_deleted = await self._prune_alarms(now)
+            else:
+                plan = plan_images(kept, files, now=now, images_days=None, max_bytes=None)
+            self._fig.images_bytes, self._fig.images_count = plan.kept_bytes, plan.kept_count
+            self._fig.oldest_image, self._fig.images_checked = plan.oldest_kept, now
+            self._fig.last_pass = now
+            self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
+            t = self._totals
+            t.images += report.images_pruned
+            t.missing += report.images_missing
+            t.orphans += report.orphans_deleted
+            t.cycles += report.cycles_deleted
+            t.alarms += report.alarms_deleted
+            t.passes += 1
+            report.seconds = time.monotonic() - t0
+            if report.images_pruned or report.cycles_deleted or report.alarms_deleted or report.orphans_deleted:
+                # Images go after almost every cycle once the bound is reached: that is debug; records are news.
+                log.log(
+                    logging.INFO if report.cycles_deleted or report.alarms_deleted else logging.DEBUG,
+                    "retention: pruned %d images, %d orphan files, %d cycle records, %d alarm records in %.2f s",
+                    report.images_pruned, report.orphans_deleted, report.cycles_deleted, report.alarms_deleted,
+                    report.seconds,
+                )  # fmt: skip
+            return report
+
+    async def _apply(self, plan: ImagePlan, leftovers: list[str], report: PassReport, now: datetime) -> None:
+        if plan.missing:
+            report.images_missing = await self.store.mark_images_pruned(
+                plan.missing, reason="file missing on disk when retention looked", at=now
+            )
+        # Mark first, then delete: a crash in between leaves a file the next pass deletes, never a
+        # reference that claims an image which is gone without saying so.
+        for reason, names in plan.prune.items():
+            report.images_pruned += await self.store.mark_images_pruned(names, reason=reason, at=now)
+        names = [n for ns in plan.prune.values() for n in ns]
+        await asyncio.to_thread(unlink_all, self.image_dir, [*names, *leftovers])
+        report.orphans_deleted = await asyncio.to_thread(unlink_all, self.image_dir, plan.orphans)
+
+    async def _prune_cycles(self, now: datetime) -> int:
+        days = days_or_none(self.config.cycles_days)
+        if days is None:
+            return 0
+        cutoff = now - timedelta(days=days)
+        deleted: list[int] = []
+        while True:
+            ids, uris = await self.store.prune_cycles(created_before=cutoff)
+            if not ids:
+                break
+            deleted += ids
+            if uris:
+                await asyncio.to_thread(unlink_all, self.image_dir, uris)
+            await asyncio.sleep(0)  # let the cycle's own writes in between batches
+        if deleted:
+            await self.store.append_audit(
+                actor="system", source="retention", action="retention.prune_cycles",
+                params={"cycles": len(deleted), "first_id": min(deleted), "last_id": max(deleted),
+                        "created_before": cutoff.isoformat(), "cycles_days": days},
+            )  # fmt: skip
+        return len(deleted)
+
+    async def _prune_alarms(self, now: datetime) -> int:
+        days = days_or_none(self.config.alarms_days)
+        if days is None:
+            return 0
+        cutoff = now - timedelta(days=days)
+        n = await self.store.prune_alarms(raised_before=cutoff)
+        if n:
+            await self.store.append_audit(
+                actor="system", source="retention", action="retention.prune_alarms",
+                params={"alarms": n, "raised_before": cutoff.isoformat(), "alarms_days": days},
+            )  # fmt: skip
+        return n
+
+    async def _scan_only(self) -> None:
+        """After a cycle: measure the images (a folder scan in a worker thread); a pass if near the bound."""
+        files = await asyncio.to_thread(scan_images, self.image_dir)
+        total = sum(f.size for f in files.values())
+        self._fig.images_bytes, self._fig.images_count = total, len(files)
+        bound = int(self.config.images_max_gb * GB)
+        room = max(self._headroom, min(largest_cycle_in_names(files), bound // 2))
+        if self.config.enabled and total >= NEAR_BOUND * (bound - room):
+            await self._guarded_pass()
+
+    # -- the loop -----------------------------------------------------------------------------
+
+    async def _guarded(self, what: str, fn: Callable[[], Any]) -> None:
+        """Run one step; a failure is logged (with its trace the first time only) and reported in /status."""
+        try:
+            await fn()
+        except asyncio.CancelledError:
+            raise
+        except Exception as err:  # noqa: BLE001 - the task must outlive a failed pass; the next one retries
+            self._failures += 1
+            self._fig.last_error = f"{what}: {type(err).__name__}: {err}"
+            log.warning("retention %s failed: %s", what, err, exc_info=self._failures == 1)
+        else:
+            if self._fig.last_error and self._fig.last_error.startswith(what):
+                self._fig.last_error = None
+
+    async def _guarded_pass(self) -> None:
+        await self._guarded("pass", self.run_once)
+
+    async def _loop(self) -> None:
+        c = self.config
+        next_pass = time.monotonic()  # the first pass at once
+        next_disk = time.monotonic() + (DEFERRED_CHECK_S if self._fig.deferred else c.disk_check_period_s)
+        watcher = asyncio.create_task(self._watch_cycles()) if self._queue is not None else None
+        try:
+            while True:
+                timeout = max(0.0, min(next_pass, next_disk) - time.monotonic())
+                with contextlib.suppress(asyncio.TimeoutError):
+                    await asyncio.wait_for(self._wake.wait(), timeout)
+                now = time.monotonic()
+                if self._wake.is_set():
+                    self._wake.clear()
+                    await self._guarded("scan", self._scan_only)
+                    await self._guarded("disk check", self.check_disk)
+                    next_disk = now + (DEFERRED_CHECK_S if self._fig.deferred else c.disk_check_period_s)
+                if now >= next_pass:
+                    await self._guarded_pass()
+                    next_pass = time.monotonic() + c.period_s
+                if now >= next_disk:
+                    await self._guarded("disk check", self.check_disk)
+                    next_disk = time.monotonic() + (DEFERRED_CHECK_S if self._fig.deferred else c.disk_check_period_s)
+        finally:
+            if watcher is not None:
+                watcher.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await watcher
+
+    async def _watch_cycles(self) -> None:
+        assert self._queue is not None
+        while True:
+            ev = await self._queue.get()
+            if ev.kind == "cycle" and ev.data.get("state") in ("done", "failed"):
+                self._wake.set()
+
+
+def _size(n: float) -> str:
+    return f"{n / GB:g} GB" if n >= GB else f"{n / MB:g} MB"
+
+
+def _clear_at(threshold: float) -> float:
+    """A disk alarm clears only this far above its threshold (no flapping around it)."""
+    return threshold + max(0.1 * threshold, 50 * MB) if threshold > 0 else 0.0

@@ -1,0 +1,192 @@
+"""Retention in the store: what is kept, what was pruned, and the database's own size.
+
+Migration 3 (:data:`V3_RETENTION`) lets an image reference say that its file was pruned (when
+and why), so a record keeps answering for an image that is gone. The queries here are what the
+retention task (:mod:`cellctl.service.retention`) runs on the store's thread:
+
+- images: the references still kept (with whether their cycle is still queued or running, whose
+  images are never pruned), marking references pruned, and which files belong only to pruned
+  references (left on disk by a crash between the mark and the unlink);
+- cycle records older than a cutoff, deleted with their steps, image references and
+  idempotency keys, in batches so no single transaction holds the write lock for long;
+- alarm records older than a cutoff (inactive ones only);
+- the database's size (pages used, free pages, per-table bytes where SQLite has ``dbstat``).
+
+The audit log is never pruned: it is append-only (triggers refuse deletes) and hash-chained from
+its first entry, it says who commanded what, and it is small beside the images.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Callable, Iterable, Sequence
+from contextlib import AbstractContextManager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+V3_RETENTION = """
+ALTER TABLE cycle_images ADD COLUMN pruned_at TEXT;
+ALTER TABLE cycle_images ADD COLUMN pruned_reason TEXT;
+CREATE INDEX cycle_images_by_cycle ON cycle_images (cycle_id);
+CREATE INDEX cycles_by_created ON cycles (created_at);
+"""
+
+FINISHED_CYCLE_STATES = ("done", "failed", "interrupted")
+
+
+@dataclass(frozen=True)
+class KeptImage:
+    """An image reference whose file has not been pruned."""
+
+    id: int
+    cycle_id: int
+    uri: str
+    created_at: datetime
+    cycle_active: bool  # its cycle is queued or running: never pruned
+
+
+@dataclass(frozen=True)
+class DatabaseSize:
+    """The database's pages (``used_bytes`` excludes the free pages SQLite reuses) and, where SQLite
+    has the ``dbstat`` table, the bytes of each table with its indexes."""
+
+    page_size: int
+    page_count: int
+    freelist_count: int
+    tables: dict[str, int] | None = None
+
+    @property
+    def used_bytes(self) -> int:
+        return (self.page_count - self.freelist_count) * self.page_size
+
+    @property
+    def total_bytes(self) -> int:
+        return self.page_count * self.page_size
+
+
+def _ts(t: datetime) -> str:
+    if t.tzinfo is None:
+        raise ValueError("timestamps must be timezone-aware (UTC)")
+    return t.astimezone(timezone.utc).isoformat(timespec="microseconds")
+
+
+def _chunks(items: Sequence[Any], n: int = 500) -> Iterable[Sequence[Any]]:
+    for i in range(0, len(items), n):
+        yield items[i : i + n]
+
+
+class RetentionRows:
+    """The retention methods of :class:`cellctl.store.db.CellStore` (same connection and transactions)."""
+
+    _conn: sqlite3.Connection
+    _clock: Callable[[], datetime]
+    _tx: Callable[[], AbstractContextManager[sqlite3.Connection]]
+
+    # -- images -------------------------------------------------------------------------------
+
+    def kept_images(self) -> list[KeptImage]:
+        """Every image reference not yet pruned, oldest first."""
+        rows = self._conn.execute(
+            "SELECT i.id, i.cycle_id, i.uri, i.created_at, c.state IN ('queued', 'running') "
+            "FROM cycle_images i JOIN cycles c ON c.id = i.cycle_id WHERE i.pruned_at IS NULL ORDER BY i.id"
+        ).fetchall()
+        return [KeptImage(int(r[0]), int(r[1]), r[2], datetime.fromisoformat(r[3]), bool(r[4])) for r in rows]
+
+    def mark_images_pruned(self, uris: Sequence[str], *, reason: str, at: datetime | None = None) -> int:
+        """Say that the files ``uris`` are gone and why; every kept reference to them is marked. Returns how many."""
+        if not reason.strip():
+            raise ValueError("reason must say why the images were pruned")
+        when = _ts(at or self._clock())
+        n = 0
+        with self._tx() as c:
+            for chunk in _chunks(list(dict.fromkeys(uris))):
+                marks = ",".join("?" * len(chunk))
+                n += c.execute(
+                    f"UPDATE cycle_images SET pruned_at = ?, pruned_reason = ? WHERE pruned_at IS NULL AND uri IN ({marks})",
+                    (when, reason, *chunk),
+                ).rowcount
+        return n
+
+    def pruned_only(self, uris: Sequence[str]) -> set[str]:
+        """Of ``uris``, those every reference of which says pruned (their files should be gone)."""
+        out: set[str] = set()
+        for chunk in _chunks(list(dict.fromkeys(uris))):
+            marks = ",".join("?" * len(chunk))
+            out.update(
+                r[0]
+                for r in self._conn.execute(
+                    f"SELECT uri FROM cycle_images WHERE uri IN ({marks}) GROUP BY uri HAVING COUNT(pruned_at) = COUNT(*)",
+                    tuple(chunk),
+                )
+            )
+        return out
+
+    # -- records ------------------------------------------------------------------------------
+
+    def prune_cycles(self, *, created_before: datetime, batch: int = 500) -> tuple[list[int], list[str]]:
+        """Delete up to ``batch`` finished cycles created before the cutoff, oldest first, with their
+        steps, image references and idempotency keys. Returns (the ids deleted, the image files
+        they still referenced: delete those too). Call again until it returns no ids."""
+        cutoff = _ts(created_before)
+        with self._tx() as c:
+            ids = [
+                int(r[0])
+                for r in c.execute(
+                    f"SELECT id FROM cycles WHERE created_at < ? AND state IN {FINISHED_CYCLE_STATES} ORDER BY id LIMIT ?",
+                    (cutoff, int(batch)),
+                )
+            ]
+            if not ids:
+                return [], []
+            marks = ",".join("?" * len(ids))
+            uris = [
+                r[0]
+                for r in c.execute(
+                    f"SELECT DISTINCT uri FROM cycle_images WHERE pruned_at IS NULL AND cycle_id IN ({marks})", ids
+                )
+            ]
+            for table in ("idempotency_keys", "cycle_images", "cycle_steps"):
+                c.execute(f"DELETE FROM {table} WHERE cycle_id IN ({marks})", ids)
+            c.execute(f"DELETE FROM cycles WHERE id IN ({marks})", ids)
+            # A file that a kept reference of another cycle still names stays.
+            kept = {
+                u for u in uris
+                if c.execute("SELECT 1 FROM cycle_images WHERE uri = ? AND pruned_at IS NULL LIMIT 1", (u,)).fetchone()
+            }  # fmt: skip
+        return ids, [u for u in uris if u not in kept]
+
+    def prune_alarms(self, *, raised_before: datetime) -> int:
+        """Delete the records of alarms raised before the cutoff that are no longer active."""
+        with self._tx() as c:
+            return c.execute(
+                "DELETE FROM alarms WHERE raised_at < ? AND active = 0", (_ts(raised_before),)
+            ).rowcount
+
+    def oldest_cycle(self) -> datetime | None:
+        r = self._conn.execute("SELECT MIN(created_at) FROM cycles").fetchone()
+        return None if r is None or r[0] is None else datetime.fromisoformat(r[0])
+
+    # -- size ---------------------------------------------------------------------------------
+
+    def database_size(self, *, per_table: bool = False) -> DatabaseSize:
+        """Pages used and free; ``per_table`` adds each table's bytes (with its indexes) from ``dbstat``
+        (a scan of the whole file: for reports, not for every status call)."""
+        page_size = int(self._conn.execute("PRAGMA page_size").fetchone()[0])
+        page_count = int(self._conn.execute("PRAGMA page_count").fetchone()[0])
+        free = int(self._conn.execute("PRAGMA freelist_count").fetchone()[0])
+        tables: dict[str, int] | None = None
+        if per_table:
+            try:
+                rows = self._conn.execute(
+                    "SELECT COALESCE(m.tbl_name, s.name), SUM(s.pgsize) FROM dbstat s "
+                    "LEFT JOIN sqlite_master m ON m.name = s.name GROUP BY 1 ORDER BY 2 DESC"
+                ).fetchall()
+                tables = {str(r[0]): int(r[1]) for r in rows}
+            except sqlite3.OperationalError:  # SQLite built without SQLITE_ENABLE_DBSTAT_VTAB
+                tables = None
+        return DatabaseSize(page_size, page_count, free, tables)
+
+    def checkpoint(self) -> None:
+        """Move the write-ahead log into the database file and truncate it (e.g. after a large prune)."""
+        self._conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
