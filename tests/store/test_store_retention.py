@@ -22,7 +22,8 @@ from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState
 from cellctl.config import ConfigError, parse_config
 from cellctl.config.store import RetentionConfig
-from cellctl.service.retention import GB, MB, DiskUsage, StorageRetention, plan_images
+from cellctl.service.retention import StorageRetention
+from cellctl.service.retention_plan import GB, MB, DiskUsage, plan_images
 from cellctl.store import AsyncCellStore, CellStore, CycleRequest, KeptImage, schema
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -161,7 +162,7 @@ def _kept(n: int, t: datetime, *, active: bool = False) -> KeptImage:
 
 
 def test_the_plan_takes_the_oldest_first_until_under_both_bounds() -> None:
-    from cellctl.service.retention import FileInfo
+    from cellctl.service.retention_plan import FileInfo
 
     kept = [_kept(i, T0 + timedelta(hours=i)) for i in range(1, 6)]
     files = {k.uri: FileInfo(MB, 0.0) for k in kept}
@@ -394,7 +395,7 @@ def test_bad_retention_settings_are_refused_naming_the_field(fields: dict[str, A
 
 
 def test_the_room_left_for_the_next_cycle_is_the_largest_recent_cycle() -> None:
-    from cellctl.service.retention import FileInfo, cycle_headroom, largest_cycle_in_names
+    from cellctl.service.retention_plan import FileInfo, cycle_headroom, largest_cycle_in_names
 
     kept = [KeptImage(i, c, f"cycle-{c}-shot{i}.png", T0, False) for i, c in enumerate([1, 1, 2, 3, 3, 3])]
     files = {k.uri: FileInfo(100 * (k.cycle_id), 0.0) for k in kept}

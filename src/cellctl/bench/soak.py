@@ -194,7 +194,8 @@ async def _run_async(config: CellConfig, settings: SoakSettings, workdir: Path, 
 
     from cellctl.api.app import create_app
     from cellctl.service import build_service
-    from cellctl.service.retention import StorageRetention, scan_images
+    from cellctl.service.retention import StorageRetention
+    from cellctl.service.retention_plan import scan_images
 
     t0 = time.monotonic()
     service = await build_service(config, workdir=workdir)
