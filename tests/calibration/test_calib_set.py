@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from calib_test_support import NOW
+from calib_test_support import NOW, INPUTS, VALUES
 
 from cellctl.calibration.calibration_set import (
     CalibrationSetError,
@@ -19,15 +19,6 @@ from cellctl.calibration.calibration_set import (
 )
 from cellctl.calibration.dataset import DatasetError, read_dataset, write_dataset
 
-POSE = np.eye(4).tolist()
-VALUES = {
-    "camera": {"K": [[5249.6, 0.0, 1014.7], [0.0, 5248.6, 1012.0], [0.0, 0.0, 1.0]], "dist": [-0.158, -0.025, -3e-4, 4e-4, 0.04], "image_size": [2048, 2048]},
-    "hand_eye": {"T_H_C": POSE},
-    "laser": {"r": [43.68, -40.49, 90.10], "l": (np.array([0.9977, 0.0626, 0.0265]) / np.linalg.norm([0.9977, 0.0626, 0.0265])).tolist()},
-    "teaching": {"T0": POSE, "C_Pos_0": POSE, "g_Pos_0": POSE, "u_d": 1014.0, "v_d": 1012.0, "theta_d": 0.0, "top_angle_d": 0.0, "right_angle_d": 0.0},
-    "pixel_map": {"affine": [[0.0762, 0.0, -77.3], [0.0, 0.0762, -77.1]], "scale_mm_per_px": 0.0762},
-}
-INPUTS = {"camera": [], "hand_eye": ["camera"], "laser": [], "teaching": ["camera", "hand_eye", "laser"], "pixel_map": ["camera", "teaching"]}
 
 
 def _full_store(root: Path) -> CalibrationStore:

@@ -12,61 +12,35 @@ from __future__ import annotations
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
-import time
 from datetime import datetime, timezone
 from pathlib import Path
 
 import httpx
 import pytest
-from service_test_support import ROOT, TOKEN
+from service_test_support import TOKEN, free_port, sim_toml, start_serve, wait_up
 
 from cellctl.calibration.calibration_set import CalibrationStore, check_ready
 
 STEPS = (("calibrate", "camera"), ("calibrate", "hand-eye"), ("calibrate", "laser"), ("teach",), ("calibrate", "nine-point"))
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @pytest.fixture()
 def served_cell(tmp_path: Path):  # type: ignore[no-untyped-def]
-    port = _free_port()
-    text = (ROOT / "config" / "sim.toml").read_text()
-    text = re.sub(r"(?m)^auto_calibrate_in_sim = true$", "auto_calibrate_in_sim = false", text)
-    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text)
-    text = text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
+    port = free_port()
     cfg = tmp_path / "cell.toml"
-    cfg.write_text(text)
-    log = open(tmp_path / "service.log", "ab")  # noqa: SIM115
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "cellctl.cli", "--config", str(cfg), "serve", "--workdir", str(tmp_path)],
-        stdout=log, stderr=log,
-    )  # fmt: skip
-    url = f"http://127.0.0.1:{port}"
+    cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False))
+    proc = start_serve(cfg, tmp_path)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(f"{url}/status", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "service.log").read_text()
-            time.sleep(0.2)
-        yield cfg, url, tmp_path
+        wait_up(f"http://127.0.0.1:{port}", proc, tmp_path)
+        yield cfg, f"http://127.0.0.1:{port}", tmp_path
     finally:
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
             proc.kill()
-        log.close()
 
 
 def _cli(cfg: Path, *args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess[str]:

@@ -68,3 +68,53 @@ async def to_execute(client: httpx.AsyncClient) -> None:
                 break
             await asyncio.sleep(0.01)
     assert state == "EXECUTE", state
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def sim_toml(port: int, *, oracle: bool = True, auto_calibrate: bool = True, time_scale: float | None = None) -> str:
+    """config/sim.toml for a `cellctl serve` subprocess: REST on ``port``, the PLC off, the calibration as asked."""
+    import re
+
+    text = (ROOT / "config" / "sim.toml").read_text()
+    if oracle:
+        text = re.sub(r'(?m)^source = "set"$', 'source = "oracle"', text, count=1)  # no minute of self-commissioning
+    if not auto_calibrate:
+        text = re.sub(r"(?m)^auto_calibrate_in_sim = true$", "auto_calibrate_in_sim = false", text, count=1)
+    if time_scale is not None:
+        text = re.sub(r"(?m)^time_scale = .*$", f"time_scale = {time_scale}", text, count=1)
+    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text, count=1)
+    return text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
+
+
+def start_serve(config: Path, workdir: Path) -> Any:
+    """`cellctl serve` in a subprocess; its output goes to ``workdir/service.log``."""
+    import subprocess
+    import sys
+
+    log = open(workdir / "service.log", "ab")  # noqa: SIM115 - the child writes it; closed with the child
+    proc = subprocess.Popen([sys.executable, "-m", "cellctl.cli", "--config", str(config), "serve", "--workdir", str(workdir)],
+                            stdout=log, stderr=log)  # fmt: skip
+    log.close()
+    return proc
+
+
+def wait_up(url: str, proc: Any, workdir: Path, deadline_s: float = 60.0) -> None:
+    """Until GET /status answers (the process must stay alive meanwhile)."""
+    import time
+
+    end = time.monotonic() + deadline_s
+    while True:
+        try:
+            if httpx.get(f"{url}/status", timeout=2).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        assert proc.poll() is None and time.monotonic() < end, (workdir / "service.log").read_text()
+        time.sleep(0.1)

@@ -3,52 +3,13 @@
 from __future__ import annotations
 
 import os
-import re
 import signal
-import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import httpx
-from service_test_support import AUTH, ROOT
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _write_config(path: Path, port: int) -> None:
-    text = (ROOT / "config" / "sim.toml").read_text()
-    # Slow the simulated motion so the install step lasts long enough to be killed in.
-    text = re.sub(r"(?m)^time_scale = .*$", "time_scale = 0.3", text, count=1)
-    text = re.sub(r'(?m)^source = "set"$', 'source = "oracle"', text, count=1)  # no half-minute self-calibration
-    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text, count=1)
-    text = text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true",
-                        "[plc]\nenabled = false")  # fmt: skip
-    path.write_text(text)
-
-
-def _start(config: Path, workdir: Path) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "cellctl.cli", "--config", str(config), "serve", "--workdir", str(workdir)],
-        stdout=subprocess.DEVNULL, stderr=open(workdir / "service.log", "ab"),  # noqa: SIM115
-    )  # fmt: skip
-
-
-def _wait_up(client: httpx.Client, deadline_s: float = 60.0) -> None:
-    end = time.monotonic() + deadline_s
-    while time.monotonic() < end:
-        try:
-            if client.get("/status").status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.1)
-    raise AssertionError("the service did not come up")
+from service_test_support import AUTH, free_port, sim_toml, start_serve, wait_up
 
 
 def _settle(client: httpx.Client) -> str:
@@ -68,13 +29,14 @@ def _to_execute(client: httpx.Client) -> None:
 
 
 def test_kill_9_during_install_then_restart_repeats_nothing(tmp_path: Path) -> None:
-    port = _free_port()
+    port = free_port()
     config = tmp_path / "cell.toml"
-    _write_config(config, port)
-    client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10.0)
-    proc = _start(config, tmp_path)
+    config.write_text(sim_toml(port, time_scale=0.3))  # slow moves: the install step lasts long enough to be killed in
+    url = f"http://127.0.0.1:{port}"
+    client = httpx.Client(base_url=url, timeout=10.0)
+    proc = start_serve(config, tmp_path)
     try:
-        _wait_up(client)
+        wait_up(url, proc, tmp_path)
         _to_execute(client)
         body = {"recipe": "side-window", "part_id": "P-77"}
         r = client.post("/cycle", json=body, headers={**AUTH, "Idempotency-Key": "crash-1"})
@@ -90,9 +52,9 @@ def test_kill_9_during_install_then_restart_repeats_nothing(tmp_path: Path) -> N
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
-    proc = _start(config, tmp_path)
+    proc = start_serve(config, tmp_path)
     try:
-        _wait_up(client)
+        wait_up(url, proc, tmp_path)
         status = client.get("/status").json()
         assert status["state"] in ("ABORTED", "STOPPED")
         rec = client.get(f"/cycles/{cycle_id}").json()

@@ -2,50 +2,26 @@
 
 from __future__ import annotations
 
-import re
 import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import httpx
 import pytest
-from service_test_support import ROOT
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from service_test_support import free_port, sim_toml, start_serve, wait_up
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_stops_the_service_cleanly_with_an_event_stream_open(tmp_path: Path, sig: signal.Signals) -> None:
-    port = _free_port()
-    text = (ROOT / "config" / "sim.toml").read_text()
-    text = re.sub(r'(?m)^source = "set"$', 'source = "oracle"', text, count=1)
-    text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text, count=1)
-    text = text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
+    port = free_port()
     cfg = tmp_path / "cell.toml"
-    cfg.write_text(text)
-    log = open(tmp_path / "service.log", "ab")  # noqa: SIM115
-    proc = subprocess.Popen([sys.executable, "-m", "cellctl.cli", "--config", str(cfg), "serve", "--workdir", str(tmp_path)],
-                            stdout=log, stderr=log)  # fmt: skip
+    cfg.write_text(sim_toml(port))
+    proc = start_serve(cfg, tmp_path)
     url = f"http://127.0.0.1:{port}"
     streamed: list[str] = []
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(f"{url}/status", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "service.log").read_text()
-            time.sleep(0.2)
+        wait_up(url, proc, tmp_path)
 
         def listen() -> None:  # a dashboard that never lets go of its stream
             try:
@@ -63,7 +39,6 @@ def test_a_signal_stops_the_service_cleanly_with_an_event_stream_open(tmp_path: 
     finally:
         if proc.poll() is None:
             proc.kill()
-        log.close()
     assert code == (130 if sig == signal.SIGINT else 0), (tmp_path / "service.log").read_text()
     assert "event: shutdown" in streamed  # the stream was ended by the service, not cut
     assert not (tmp_path / "var" / "cellctl.db-wal").exists() or (tmp_path / "var" / "cellctl.db-wal").stat().st_size == 0

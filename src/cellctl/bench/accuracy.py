@@ -18,15 +18,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from cellctl.bench.progress import Progress
 from cellctl.bench.sources import (
+    run_workdir,
     CALIBRATION_SOURCE,
     ERROR_SOURCES,
     BenchSettingsError,
@@ -323,16 +323,9 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-@contextlib.contextmanager
-def _workdir(keep: Path | None) -> Iterator[Path]:
-    if keep is not None:
-        keep.mkdir(parents=True, exist_ok=True)
-        if any(keep.iterdir()):
-            raise BenchSettingsError(f"--workdir {keep} is not empty; give a new or empty folder (the run's store goes there)")
-        yield keep
-        return
-    with tempfile.TemporaryDirectory(prefix="cellctl-bench-") as tmp:
-        yield Path(tmp)
+
+def _workdir(keep: Path | None) -> contextlib.AbstractContextManager[Path]:
+    return run_workdir(keep, "cellctl-bench-")
 
 
 def run_accuracy(

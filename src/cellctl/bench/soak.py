@@ -24,18 +24,16 @@ overshoot it until the pass that cycle triggers: one cycle's worth is allowed), 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import statistics
-import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cellctl.bench.accuracy import ACTOR, BenchRunError, bring_to_execute, prepare_calibration
 from cellctl.bench.progress import Progress
-from cellctl.bench.sources import BenchSettingsError, CalibrationMode, DevicesMode, run_config
+from cellctl.bench.sources import BenchSettingsError, CalibrationMode, DevicesMode, run_config, run_workdir
 from cellctl.bench.stats import percentile
 from cellctl.cell.orchestrator import CycleRefused
 from cellctl.cell.tags import PackMLState
@@ -309,16 +307,9 @@ async def _run_async(config: CellConfig, settings: SoakSettings, workdir: Path, 
     )
 
 
-@contextmanager
-def _workdir(keep: Path | None) -> Iterator[Path]:
-    if keep is not None:
-        keep.mkdir(parents=True, exist_ok=True)
-        if any(keep.iterdir()):
-            raise BenchSettingsError(f"--workdir {keep} is not empty; give a new or empty folder")
-        yield keep
-        return
-    with tempfile.TemporaryDirectory(prefix="cellctl-soak-") as tmp:
-        yield Path(tmp)
+
+def _workdir(keep: Path | None) -> contextlib.AbstractContextManager[Path]:
+    return run_workdir(keep, "cellctl-soak-")
 
 
 def run_soak(base: CellConfig, settings: SoakSettings, *, progress: bool = True, workdir: Path | None = None) -> SoakReport:

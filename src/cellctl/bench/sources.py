@@ -10,6 +10,12 @@ mountings (taught by the paper's procedure in the twin).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
+import tempfile
+
+import contextlib
+
 import importlib.util
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -161,3 +167,16 @@ def run_config(
     _set_path(data, "calibration.directory", str((workdir / "var" / "calibration").resolve()))
     _set_path(data, "calibration.auto_calibrate_in_sim", True)
     return parse_config(data, "benchmark run configuration")
+
+
+@contextlib.contextmanager
+def run_workdir(keep: Path | None, prefix: str = "cellctl-bench-") -> Iterator[Path]:
+    """Where a benchmark run keeps its store and images: ``keep`` (new or empty), else a temporary folder."""
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        if any(keep.iterdir()):
+            raise BenchSettingsError(f"--workdir {keep} is not empty; give a new or empty folder (the run's store goes there)")
+        yield keep
+        return
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        yield Path(tmp)
