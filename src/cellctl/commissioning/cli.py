@@ -149,7 +149,7 @@ def _store_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _common(p: argparse.ArgumentParser, positive: Callable[[str], int]) -> None:
+def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--url", default=None, help="the running service (default: $CELLCTL_URL, else the configuration's [api])")
     p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
     p.add_argument("--dry-run", action="store_true", help="print the plan (poses, reach, rotation spread, robot time); move nothing")
@@ -166,27 +166,27 @@ def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], i
     sub = cal.add_subparsers(dest="part", required=True)
 
     p = sub.add_parser("camera", help="camera intrinsics by Zhang's method from checkerboard views")
-    _common(p, positive)
+    _common(p)
     p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
     p.set_defaults(func=_job_command("camera"))
 
     p = sub.add_parser("hand-eye", help="hand-eye T_H_C (Tsai; Park, Horaud, Andreff, Daniilidis compared)")
-    _common(p, positive)
+    _common(p)
     p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
     p.add_argument("--method", dest="method_override", choices=HAND_EYE_METHODS, default=None, help="the method whose result is stored")
     p.set_defaults(func=_job_command("hand_eye"))
 
     p = sub.add_parser("laser", help="laser origin r and direction l from a plane seen from many poses")
-    _common(p, positive)
+    _common(p)
     p.add_argument("--poses", type=positive, default=None, help="number of poses (default: calibration.procedure.laser.n_poses)")
     p.set_defaults(func=_job_command("laser"))
 
     p = sub.add_parser("nine-point", help="pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
-    _common(p, positive)
+    _common(p)
     p.set_defaults(func=_job_command("pixel_map"))
 
     p = sub.add_parser("verify", help="a few minutes' check of how far hand-eye and laser have drifted since they were calibrated")
-    _common(p, positive)
+    _common(p)
     p.set_defaults(func=_job_command("verify"))
 
     p = sub.add_parser("status", help="the current calibration set, its history and whether production may start")
@@ -195,5 +195,5 @@ def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], i
     p.set_defaults(func=_cmd_status)
 
     t = subparsers.add_parser("teach", help="teach T0, C_Pos_0, the corner template and g_Pos_0 (paper 4.3 step 1) on the running cell")
-    _common(t, positive)
+    _common(t)
     t.set_defaults(func=_job_command("teaching"))

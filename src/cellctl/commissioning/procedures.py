@@ -390,7 +390,3 @@ PROCEDURES: dict[str, Procedure] = {
 # The order a cell is commissioned in: each part only needs parts before it.
 ORDER = ("camera", "hand_eye", "laser", "teaching", "pixel_map")
 
-
-def check_inputs(cal: CalibrationSet | None, part: str, names: tuple[str, ...]) -> None:
-    """Refuse ``part`` naming the first of ``names`` that is missing or failed in the set."""
-    _need(cal, part, *names)

@@ -19,6 +19,7 @@ from cellctl.commissioning.context import JobContext, describe_source
 from cellctl.commissioning.registry import ALL_PROCEDURES, motion_settings
 from cellctl.commissioning.prompts import Answer, PromptDesk
 from cellctl.config.schema import CellConfig
+from cellctl.sim.cell import SimCell
 from cellctl.sim.operator import SimulatedOperator, TwinWitness
 from cellctl.sim.rig import SimRig
 
@@ -42,7 +43,7 @@ class TwinCommissioning:
         self.prompts: list[str] = []
 
     @property
-    def cell(self):  # type: ignore[no-untyped-def]
+    def cell(self) -> SimCell:
         """The twin (truth, physics)."""
         return self.rig.cell
 
