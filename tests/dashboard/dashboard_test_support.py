@@ -9,7 +9,6 @@ raise an alarm at a chosen moment) through :meth:`LiveCell.run`.
 from __future__ import annotations
 
 import asyncio
-import os
 import shutil
 import socket
 import threading
@@ -20,6 +19,7 @@ from urllib.parse import urlsplit
 from typing import Any, TypeVar
 
 import httpx
+from shared_support import on_ci
 import uvicorn
 
 from cellctl.api.app import create_app
@@ -59,7 +59,7 @@ def chromium_missing_reason() -> str | None:
     if CHROMIUM.is_file() and shutil.which(str(CHROMIUM)):
         return None
     reason = f"{CHROMIUM} is missing: install Debian's chromium (apt-get install -y chromium)"
-    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+    if on_ci():
         raise RuntimeError(reason + " (CI must install it)")
     return reason
 

@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-import os
 
-import pytest
+from shared_support import tlsimu_path
 
 from _abb_testkit import LOOPBACK, settings_for, start_fake
 from abb_robot import AbbRobot
 from cellctl.ports import Identified
 from keyence_lkg import KeyenceLkgSensor
 from keyence_lkg.fake import FakeLkgController
-
-
-def _missing(reason: str) -> None:
-    """Skip for want of the camera extra; on CI (CI=true) that is a failure, as the service test treats it."""
-    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
-        pytest.fail(reason + " (CI must install the camera extra)")
-    pytest.skip(reason)
 
 
 def _all_strings(identity: dict[str, str]) -> bool:
@@ -56,18 +48,11 @@ async def test_keyence_identity_names_dialect_port_output_and_unit() -> None:
 
 
 async def test_genicam_identity_before_and_after_open() -> None:
-    try:
-        import genicam
-        import harvesters.core  # noqa: F401
-    except ImportError as err:
-        _missing(f"the optional extra 'camera' (harvesters, genicam) is not installed: {err}")
+    tlsimu = tlsimu_path()
     from genicam_camera import GenicamCamera
 
-    tlsimu = os.path.join(os.path.dirname(genicam.__file__), "TLSimu.cti")
     before = GenicamCamera(cti_path="/nowhere/producer.cti").identity()
     assert before == {"vendor": "", "model": "", "serial_number": "", "user_id": "", "cti_path": "/nowhere/producer.cti"}
-    if not os.path.isfile(tlsimu):
-        _missing(f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it)")
     camera = GenicamCamera(cti_path=tlsimu, serial_number="SN_InterfaceA_0", timeout_s=10.0)
     try:
         assert isinstance(camera, Identified)

@@ -7,7 +7,6 @@ import json
 import os
 import select
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -15,43 +14,13 @@ from pathlib import Path
 from typing import Any, IO
 
 import pytest
+from shared_support import LOOPBACK, free_port, on_ci, tlsimu_path  # noqa: F401 - the hardware tests import them from here
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 PY = sys.executable
 NO_TWIN = HERE / "no_twin.py"
-LOOPBACK = "127.0.0.1"
 TLSIMU_MONO = "SN_InterfaceA_0"  # TLSimu's monochrome camera
-
-
-def on_ci() -> bool:
-    return os.environ.get("CI", "").lower() in ("1", "true", "yes")
-
-
-def tlsimu_path() -> str:
-    """TLSimu.cti of the genicam wheel (1.3.0-1.5.0); skips without it, and fails on CI (CI=true)."""
-
-    def missing(reason: str) -> None:
-        if on_ci():
-            pytest.fail(reason + " (CI must install the camera extra: pip install -e '.[camera]')")
-        pytest.skip(reason)
-
-    try:
-        import genicam
-        import harvesters.core  # noqa: F401
-    except ImportError as err:
-        missing(f"the optional extra 'camera' (harvesters, genicam) is not installed: {err}")
-    path = os.path.join(os.path.dirname(genicam.__file__), "TLSimu.cti")
-    if not os.path.isfile(path):
-        missing(f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it): "
-                "install the camera extra's pin 'genicam>=1.3,<1.5.1'")  # fmt: skip
-    return path
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
 
 
 # -- TOML ---------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from shared_support import free_port  # noqa: F401 - the service tests import it from here
 
 from cellctl.config import CellConfig, parse_config
 from cellctl.service import build_service
@@ -68,14 +69,6 @@ async def to_execute(client: httpx.AsyncClient) -> None:
                 break
             await asyncio.sleep(0.01)
     assert state == "EXECUTE", state
-
-
-def free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def sim_toml(port: int, *, oracle: bool = True, auto_calibrate: bool = True, time_scale: float | None = None) -> str:

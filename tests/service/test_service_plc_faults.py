@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 from plc_test_support import PlcClient
 from pymodbus.client import AsyncModbusTcpClient
-from service_test_support import ROOT, running_service, sim_config
+from service_test_support import ROOT, free_port, running_service, sim_config
 
 from cellctl.cell.alarms import AlarmCode
 from cellctl.cell.tags import PackMLCommand, PackMLState
@@ -185,17 +185,11 @@ async def test_refusals_have_their_own_codes_are_stored_and_replayed_after_a_res
     assert noisy == [], [r.getMessage() for r in noisy]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def test_cellctl_serve_exits_nonzero_naming_the_plc_port_when_it_is_taken(tmp_path: Path) -> None:
     with socket.socket() as other:  # another program listens on the Modbus port
         other.bind(("127.0.0.1", 0))
         other.listen()
-        plc_port, api_port = other.getsockname()[1], _free_port()
+        plc_port, api_port = other.getsockname()[1], free_port()
         text = (ROOT / "config" / "sim.toml").read_text()
         text, n_plc = re.subn(r"(?m)^port = 5020$", f"port = {plc_port}", text)
         text, n_api = re.subn(r"(?m)^port = 8080$", f"port = {api_port}", text)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cellctl.ports import CartesianPose, MotionRequest, Robot, RobotState
+from cellctl.ports import CartesianPose, Identified, MotionRequest, Robot, RobotState
 
 
 class RobotProxy:
@@ -28,6 +28,11 @@ class RobotProxy:
 
     async def close(self) -> None:
         await self._robot.close()
+
+    def identity(self) -> dict[str, str]:
+        """The wrapped robot's (Identified port), or its kind when it says nothing."""
+        inner = self._robot
+        return dict(inner.identity()) if isinstance(inner, Identified) else {"kind": type(inner).__name__}
 
 
 class TrackedRobot(RobotProxy):

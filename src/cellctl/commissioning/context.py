@@ -72,9 +72,6 @@ class DatasetDraft:
 
 def device_identity(device: object) -> dict[str, str]:
     """What a device says about itself (model, serial, address), or its kind when it says nothing."""
-    inner = getattr(device, "_robot", None)
-    while inner is not None and not isinstance(device, Identified):
-        device, inner = inner, getattr(inner, "_robot", None)
     if isinstance(device, Identified):
         return {k: str(v) for k, v in device.identity().items()}
     return {"kind": type(device).__name__}

@@ -37,7 +37,7 @@ from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
-from cellctl.commissioning.registry import ALL_PROCEDURES, PLANNERS, JobRefused, check_options, motion_settings
+from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
@@ -215,7 +215,7 @@ class JobManager:
         start = await self._robot_pose()
         cal = await asyncio.to_thread(self.current_calibration)
         try:
-            return await asyncio.to_thread(PLANNERS[procedure], self.config, cal, opts, start)
+            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, self.config, cal, opts, start)
         except (PlanError, CalibrationRefused) as err:
             raise JobRefused(str(err)) from None
 

@@ -342,6 +342,7 @@ async def collect_nine_point(ctx: JobContext) -> Dataset:
 
 # -- the table ------------------------------------------------------------------------------------
 
+Plan = Callable[[CellConfig, "CalibrationSet | None", dict[str, Any], "Pose | None"], MotionPlan]
 Collect = Callable[..., Awaitable[Dataset]]
 Compute = Callable[[Dataset, "CalibrationSet | None", CellConfig], Outcome]
 
@@ -358,6 +359,7 @@ class Procedure:
     kind: str
     method: str
     needs: tuple[str, ...]
+    plan: Plan  # what the collection will move through (the dry run), from the config, the set, its options
     collect: Collect
     compute: Compute
     options: tuple[str, ...] = ()
@@ -381,12 +383,30 @@ def _hand_eye(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outco
 
 
 PROCEDURES: dict[str, Procedure] = {
-    "camera": Procedure("camera", "board_views", "zhang", (), _board_camera, lambda ds, cal, cfg: compute_camera(ds, cfg), ("views",)),
-    "hand_eye": Procedure("hand_eye", "board_views", "tsai", ("camera",), _board_hand_eye, _hand_eye, ("views",)),
-    "laser": Procedure("laser", "laser_plane", "plane constraint", (), collect_laser_plane, lambda ds, cal, cfg: compute_laser(ds, cfg), ("poses",)),
-    "teaching": Procedure("teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"), collect_teaching, compute_teaching),
-    "pixel_map": Procedure("pixel_map", "nine_point", "nine-point", ("camera", "teaching"), collect_nine_point, compute_nine_point),
-}
+    "camera": Procedure(
+        "camera", "board_views", "zhang", (),
+        lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
+        _board_camera, lambda ds, cal, cfg: compute_camera(ds, cfg), ("views",),
+    ),
+    "hand_eye": Procedure(
+        "hand_eye", "board_views", "tsai", ("camera",),
+        lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
+        _board_hand_eye, _hand_eye, ("views",),
+    ),
+    "laser": Procedure(
+        "laser", "laser_plane", "plane constraint", (),
+        lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
+        collect_laser_plane, lambda ds, cal, cfg: compute_laser(ds, cfg), ("poses",),
+    ),
+    "teaching": Procedure(
+        "teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"),
+        lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching,
+    ),
+    "pixel_map": Procedure(
+        "pixel_map", "nine_point", "nine-point", ("camera", "teaching"),
+        lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start), collect_nine_point, compute_nine_point,
+    ),
+}  # fmt: skip
 # The order a cell is commissioned in: each part only needs parts before it.
 ORDER = ("camera", "hand_eye", "laser", "teaching", "pixel_map")
 

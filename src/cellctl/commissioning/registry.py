@@ -1,30 +1,22 @@
-"""What a commissioning job may be: the procedures, their planners and options, and a job as the API shows it."""
+"""What a commissioning job may be: the procedures (verify among them) and their options, and a job as the API shows it."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.collect import MotionSettings
-from cellctl.commissioning.plans import MotionPlan, plan_board, plan_laser, plan_nine_point, plan_teaching
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
 from cellctl.config.schema import CellConfig
-from cellctl.geometry.pose import Pose
 from cellctl.store import JobRecord
 
 ALL_PROCEDURES: dict[str, Procedure] = {
     **PROCEDURES,
-    "verify": Procedure("verify", "verify", "revisit", ("camera", "hand_eye"), collect_verify, compute_verify, records_part=False),
-}
-PLANNERS: dict[str, Callable[[CellConfig, CalibrationSet | None, dict[str, Any], Pose | None], MotionPlan]] = {
-    "camera": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
-    "hand_eye": lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
-    "laser": lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
-    "teaching": lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start),
-    "pixel_map": lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start),
-    "verify": lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
+    "verify": Procedure(
+        "verify", "verify", "revisit", ("camera", "hand_eye"), lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
+        collect_verify, compute_verify, records_part=False,
+    ),
 }
 HAND_EYE_METHODS = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
 

@@ -26,8 +26,16 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import board_pose
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
-from cellctl.commissioning.procedures import confirm_start, current_pose, grab, move_to, PoseRefused, place_board, remove_board
-from cellctl.commissioning.procedures import car_body_in_place
+from cellctl.commissioning.procedures import (
+    PoseRefused,
+    car_body_in_place,
+    confirm_start,
+    current_pose,
+    grab,
+    move_to,
+    place_board,
+    remove_board,
+)
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, invert_pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, skew

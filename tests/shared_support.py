@@ -1,0 +1,44 @@
+"""What every test folder may need: a free loopback port, and "skip here, but fail on CI" for optional kit."""
+
+from __future__ import annotations
+
+import os
+import socket
+from typing import NoReturn
+
+import pytest
+
+LOOPBACK = "127.0.0.1"
+
+
+def on_ci() -> bool:
+    """True under CI (CI=true), where every optional piece the tests use must be installed."""
+    return os.environ.get("CI", "").lower() in ("1", "true", "yes")
+
+
+def skip_or_fail(reason: str, fix: str) -> NoReturn:
+    """Skip for want of an optional tool on a workstation; on CI that is a failure naming ``fix``."""
+    if on_ci():
+        pytest.fail(f"{reason} (CI must provide it: {fix})")
+    pytest.skip(reason)
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A loopback port nobody listens on now (TCP, or UDP with SOCK_DGRAM)."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind((LOOPBACK, 0))
+        return int(s.getsockname()[1])
+
+
+def tlsimu_path() -> str:
+    """TLSimu.cti, the simulated GenTL producer of the genicam wheel (1.3.0-1.5.0)."""
+    fix = "pip install -e '.[camera]' (genicam>=1.3,<1.5.1)"
+    try:
+        import genicam
+        import harvesters.core  # noqa: F401
+    except ImportError as err:
+        skip_or_fail(f"the optional extra 'camera' (harvesters, genicam) is not installed: {err}", fix)
+    path = os.path.join(os.path.dirname(genicam.__file__), "TLSimu.cti")
+    if not os.path.isfile(path):
+        skip_or_fail(f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it)", fix)
+    return path
