@@ -75,6 +75,16 @@ def test_teaching_finds_the_workpiece_frame_and_the_template() -> None:
     ct = corner_truth(CameraModel(cfg.sim.camera.intrinsics), T_B_C, world)
     assert np.hypot(v["u_d"] - ct.corner_undistorted_px[0], v["v_d"] - ct.corner_undistorted_px[1]) < 0.5
     assert abs(np.degrees(v["theta_d"] - ct.edge_angle_rad)) < 0.02
+    # The twin's opening shows a paint edge, the wall's edge, a flange and a seal: the template's
+    # profiles show them and the record keeps which step the rule picked (the wall's edge, as the
+    # corner's agreement with the truth above shows: any other step lies 4 mm or more away).
+    fe = teach.quality["feature_edge"]
+    assert fe["rule"]["count_from"] == "wall" and fe["rule"]["index"] == 0
+    for edge in ("top", "right"):
+        steps, picked = fe[edge]["steps"], fe[edge]["feature"]
+        assert len(steps) >= 3 and picked is not None
+        assert steps[picked]["change_dn"] < 0 and steps[picked]["fraction"] >= fe["rule"]["min_step_fraction"]
+        assert any(s["offset_px"] < steps[picked]["offset_px"] - 50 for s in steps)  # the paint edge, outside it
     # g_Pos_0 as an operator leaves it: within the hand-guiding error of the exact install.
     ie = truth["g_Pos_0_install_error"]
     assert max(abs(ie["dx_mm"]), abs(ie["dy_mm"]), abs(ie["dz_mm"])) < 0.3

@@ -8,6 +8,7 @@ import pytest
 from cellctl.config.mounting import CameraIntrinsics
 from cellctl.config.render import DisturbanceConfig, GlareConfig, OcclusionConfig, RenderConfig
 from cellctl.config.sim import WorldConfig
+from cellctl.config.surface import CLEAN_SURFACE
 from cellctl.geometry.rotation import rot_z
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.image_truth import camera_pose_seeing_corner, edge_curve_px, straight_range_mm
@@ -114,7 +115,7 @@ def test_glare_spot_sits_on_a_visible_edge_and_saturates() -> None:
 @pytest.mark.parametrize("kind", ["wall_like", "dark"])
 def test_occlusion_hides_a_stretch_of_one_edge(kind: str) -> None:
     occ = OcclusionConfig(edge="top", edge_fraction=0.3, width_mm=4.0, kind=kind)
-    r = CameraRenderer(INTR, RenderConfig(disturbances=DisturbanceConfig(occlusion=occ)))
+    r = CameraRenderer(INTR, RenderConfig(surface=CLEAN_SURFACE, disturbances=DisturbanceConfig(occlusion=occ)))
     T = _pose(r, CORNER_VIEW)
     signal, applied = r.render_signal(T, WORLD, rng=np.random.default_rng(5))
     assert applied.occluded_edge == "top" and applied.occluded_span_mm is not None
@@ -135,8 +136,9 @@ def test_occlusion_hides_a_stretch_of_one_edge(kind: str) -> None:
         assert inside_val < 30.0 and outside_val > 100.0  # dark where the wall was
 
 
-def test_low_contrast_halves_the_step_about_its_mean(renderer: CameraRenderer) -> None:
-    low = CameraRenderer(INTR, RenderConfig(disturbances=DisturbanceConfig(contrast_factor=0.5)))
+def test_low_contrast_halves_the_step_about_its_mean() -> None:
+    renderer = CameraRenderer(INTR, RenderConfig(surface=CLEAN_SURFACE))
+    low = CameraRenderer(INTR, RenderConfig(surface=CLEAN_SURFACE, disturbances=DisturbanceConfig(contrast_factor=0.5)))
     T = _pose(renderer, CORNER_VIEW)
     full, _ = renderer.render_signal(T, WORLD)
     half, applied = low.render_signal(T, WORLD)

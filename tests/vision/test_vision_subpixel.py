@@ -80,3 +80,29 @@ def test_profiles_off_the_image_or_without_a_crossing_are_invalid() -> None:
     )
     assert np.all(np.abs(r.contrast) < 1e-9)
     assert r.saturated.tolist() == [False, True, False]
+
+
+@pytest.mark.parametrize(("rows", "line_dn"), [((33, 35), 5.0), ((26, 28), 240.0)])
+def test_a_mark_inside_the_window_leaves_its_profile_out(rows: tuple[int, int], line_dn: float) -> None:
+    # A 2 px line 3 px from the edge (inside every window, not at its ends) on half the columns,
+    # dark on the bright side or bright on the dark side: without the check those crossings move
+    # by a pixel or more and look valid.
+    edge = np.full(60, 30.3)
+    img = _image(edge, 0.8)
+    img[rows[0] : rows[1], :30] = line_dn
+    r = measure_crossings(
+        img, np.arange(60), edge + 0.4, along_rows=False, search_px=3.0, level_samples=2, max_blur_sigma_px=4.0
+    )
+    assert not r.valid[:30].any()
+    assert r.valid[30:].all() and np.max(np.abs(r.position[30:] - 30.3)) < 2e-3
+
+
+def test_noise_on_a_faint_edge_does_not_thin_its_profiles() -> None:
+    # A 16 DN edge with 2 DN noise: the allowance grows with the plateaus' noise, so the profiles stay.
+    edge = np.full(400, 30.0)
+    rng = np.random.default_rng(4)
+    img = _image(edge, 0.8, lo=20.0, hi=36.0) + rng.normal(0.0, 2.0, (64, 400))
+    r = measure_crossings(
+        img, np.arange(400), edge, along_rows=False, search_px=3.0, level_samples=2, max_blur_sigma_px=4.0
+    )
+    assert r.valid.mean() > 0.9

@@ -6,6 +6,8 @@ The full 200-render statistics (and 100 renders per disturbance) are printed by
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from cellctl.bench.vision import DISTURBANCES, measure_accuracy
 from cellctl.compensate import corrected_workpiece_frame
 from cellctl.config.render import DisturbanceConfig, OcclusionConfig
 from cellctl.config.sim import SimConfig
+from cellctl.config.surface import CLEAN_SURFACE
 from cellctl.config.vision import VisionConfig
 from cellctl.geometry.planar import PlanarOffset
 from cellctl.geometry.pose import apply_pose, invert_pose, pose_error
@@ -21,7 +24,7 @@ from cellctl.geometry.rotation import rot_z
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.image_truth import camera_pose_seeing_corner, corner_truth
 from cellctl.sim.targets import Checkerboard, NinePointTarget, PlacedTarget, place_on_world_plane
-from cellctl.sim.world import World, nominal_world
+from cellctl.sim.world import nominal_world
 from cellctl.vision import (
     Lens,
     Refusal,
@@ -45,7 +48,9 @@ def renderer() -> CameraRenderer:
 
 
 def _with(dist: DisturbanceConfig) -> CameraRenderer:
-    return CameraRenderer(SIM.camera.intrinsics, SIM.camera.render.model_copy(update={"disturbances": dist}))
+    """Disturbances on the clean opening (the bench's way: figures comparable with earlier ones)."""
+    update = {"disturbances": dist, "surface": CLEAN_SURFACE}
+    return CameraRenderer(SIM.camera.intrinsics, SIM.camera.render.model_copy(update=update))
 
 
 def test_corner_accuracy_with_default_noise(renderer: CameraRenderer) -> None:
@@ -163,7 +168,7 @@ def test_eq16_offset_has_the_signs_of_the_twin(renderer: CameraRenderer, taught,
     # Production: the camera at the same pose relative to the estimated frame T1 (= the taught T0),
     # the true workpiece frame displaced in its plane by the known T'.
     T1 = world.T_B_T
-    moved = World(T1 @ true_offset.as_pose(), world.width_mm, world.height_mm, world.corner_radius_mm)
+    moved = replace(world, T_B_T=T1 @ true_offset.as_pose())  # the same car body, moved
     m = detect_corner(renderer.render(pose, moved, rng=np.random.default_rng(8)).image, LENS, CONFIG)
     assert m.ok, m.message
     s = corner_truth(renderer.camera, pose, world).depth_mm / 5249.08
@@ -178,7 +183,7 @@ def test_eq16_offset_has_the_signs_of_the_twin(renderer: CameraRenderer, taught,
 
 def test_annotated_png_shows_the_measurement(renderer: CameraRenderer, taught) -> None:
     world, pose, m0 = taught
-    moved = World(world.T_B_T @ PlanarOffset(3.0, 2.0, 0.01).as_pose(), world.width_mm, world.height_mm, world.corner_radius_mm)
+    moved = replace(world, T_B_T=world.T_B_T @ PlanarOffset(3.0, 2.0, 0.01).as_pose())
     image = renderer.render(pose, moved, rng=np.random.default_rng(9)).image
     m = detect_corner(image, LENS, CONFIG)
     png = annotate(image, m, LENS, taught=m0.features, offset=offset_from_scale(m0.features, m.features, 0.0762))

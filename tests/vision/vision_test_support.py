@@ -51,13 +51,19 @@ def corner_image(
     rng: np.random.Generator | None = None,
     edges: tuple[bool, bool] = (True, True),
     glare: tuple[float, float, float, float] | None = None,
+    steps: tuple[tuple[float, float], ...] | None = None,
+    marks: tuple[tuple[float, float, float, float, float], ...] = (),
 ) -> NDArray[np.uint8]:
     """A raw 8-bit image of the opening's upper-right corner.
 
     ``angle_rad`` turns the corner (the top edge's angle to u); ``right_extra_rad`` turns the right
     edge further so the corner is not square (then the corner is left sharp). ``edges`` switches
     the top and the right edge off (the opening then extends past that side). ``glare`` is
-    (u, v, peak DN, sigma px) of a Gaussian veil of light added on top.
+    (u, v, peak DN, sigma px) of a Gaussian veil of light added on top. ``steps`` draws several
+    edges parallel to the opening's: (offset px into the opening, grey beyond it), from the wall
+    inwards (negative offsets lie on the wall; the last grey is the interior's); None is the one
+    step to ``opening_dn`` at 0. ``marks`` are thin strips laid over everything: (u, v, angle to u
+    in rad, width px, grey), long enough to cross the whole image.
     """
     u, v = grid
     c, s = np.cos(angle_rad), np.sin(angle_rad)
@@ -78,7 +84,15 @@ def corner_image(
         outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
         sd = outside + np.minimum(np.maximum(dx, dy), 0.0) - radius_px
     sigma = np.hypot(blur_px, np.sqrt(1.0 / 12.0))
-    level = wall_dn + (opening_dn - wall_dn) * ndtr(-sd / sigma)
+    level = np.full_like(sd, wall_dn)
+    before = wall_dn
+    for offset, grey in steps if steps is not None else ((0.0, opening_dn),):
+        level += (grey - before) * ndtr(-(sd + offset) / sigma)
+        before = grey
+    for mu, mv, ma, mw, grey in marks:
+        across = np.abs(-np.sin(ma) * (u - mu) + np.cos(ma) * (v - mv))
+        cover = ndtr((mw / 2.0 - across) / sigma)
+        level += (grey - level) * cover
     if gradient:
         level = level * (1.0 + gradient * (u - lens.cx) / lens.width_px)
     if glare is not None:

@@ -150,6 +150,12 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return 0 if bench.passed() else 1
 
 
+def _cmd_vision(args: argparse.Namespace) -> int:
+    from cellctl.bench.vision import main as vision_main
+
+    return vision_main(args.vision_args)
+
+
 _positive_int = positive_int
 _seed = non_negative_int
 
@@ -214,6 +220,15 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=_seed, default=1)
     _report_options(p)
     p.set_defaults(func=_cmd_speed)
+
+    p = sub.add_parser(
+        "vision",
+        help="the corner detector against the twin's truth: clean, real openings (seal, flange, marks, dirt), disturbances",
+        description="Runs python -m cellctl.bench.vision; its options follow (see --help there).",
+        add_help=False,
+    )
+    p.add_argument("vision_args", nargs=argparse.REMAINDER)
+    p.set_defaults(func=_cmd_vision)
 
     p = sub.add_parser(
         "calibration",

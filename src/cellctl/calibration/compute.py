@@ -32,7 +32,7 @@ from cellctl.compensate import deviation_in_frame
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import invert_pose, mean_pose, pose_error
 from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
-from cellctl.vision.corner import detect_corner
+from cellctl.vision.corner import CornerMeasurement, detect_corner
 from cellctl.vision.lens import Lens
 from cellctl.vision.ninepoint import NinePointError
 from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
@@ -400,6 +400,21 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
 # -- teaching -----------------------------------------------------------------------------------
 
 
+def _taught_feature(m: CornerMeasurement, config: CellConfig) -> dict[str, Any]:
+    """The recipe's feature rule and, per edge, the steps the template's profile shows and the one it picked."""
+    feature = config.vision.feature
+    out: dict[str, Any] = {"rule": feature.model_dump()}
+    for edge in (m.top, m.right):
+        prof = edge.profile if edge is not None else None
+        if prof is None:
+            continue
+        out[edge.name] = {
+            "steps": [{"offset_px": st.offset_px, "change_dn": st.change_dn, "fraction": st.fraction} for st in prof.steps],
+            "feature": prof.feature,
+        }
+    return out
+
+
 def _taught_install(ds: Dataset, config: CellConfig, T0: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
     """g_Pos_0: the mean of the hand-guided installs, and how far the installs lie from it.
 
@@ -475,6 +490,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         "corner_sigma_px": m.corner_sigma_px,
         "corner_angle_deg": None if m.corner_angle_rad is None else float(np.degrees(m.corner_angle_rad)),
         "corner_checks": [{"name": c.name, "value": c.value, "limit": c.limit, "ok": c.passed} for c in m.checks],
+        "feature_edge": _taught_feature(m, config),
         "T0_from_layout_mm": dn.tolist(),
         "T0_from_layout_deg": np.degrees(rn).tolist(),
         "operator": ds.manifest.get("operator", {}),
@@ -485,6 +501,12 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         f"{np.array2string(C_Pos_0[:3, 3], precision=2)} mm",
         f"template: u_d {f.u_px:.3f} px, v_d {f.v_px:.3f} px, theta_d {np.degrees(f.theta_rad):+.4f} deg "
         f"(corner sigma {m.corner_sigma_px:.3f} px)",
+        "feature edge: "
+        + "; ".join(
+            f"{e.name} edge step {e.profile.feature} of {len(e.profile.steps)} found across it"
+            for e in (m.top, m.right)
+            if e is not None and e.profile is not None
+        ),
         f"T0 at {np.array2string(T0[:3, 3], precision=2)} mm, {np.linalg.norm(dn):.2f} mm from the layout's nominal corner",
         f"g_Pos_0 at {np.array2string(g_Pos_0[:3, 3], precision=2)} mm, the mean of {installs['count']} hand-guided "
         f"install(s) (corner within {installs['spread_mm']:.3f} mm, glass within {installs['spread_deg']:.4f} deg of it)",

@@ -12,6 +12,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from cellctl.config.surface import SurfaceConfig
 from cellctl.config.types import Finite, StrictModel
 
 
@@ -64,6 +65,7 @@ class RenderConfig(StrictModel):
     lighting_gradient: Finite = Field(0.1, ge=0, lt=1)  # relative change across the image width
     lighting_gradient_angle_deg: Finite = Field(30.0, ge=-360, le=360)  # direction, from +u towards +v
     disturbances: DisturbanceConfig = DisturbanceConfig()
+    surface: SurfaceConfig = SurfaceConfig()  # seal, flange, paint edge, marks, dirt (cellctl.config.surface)
 
     @model_validator(mode="after")
     def _levels(self) -> "RenderConfig":

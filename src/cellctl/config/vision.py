@@ -59,6 +59,9 @@ class CoarseConfig(StrictModel):
     hough_max_gap_px: Finite = Field(24.0, ge=0)
     max_tilt_deg: Finite = Field(12.0, gt=0, le=40)  # an edge may lean this far from the image axes
     cluster_tolerance_px: Finite = Field(6.0, gt=0)  # segments this close belong to one line
+    # The two lines of a corner must meet within this of a right angle: a mark lying across one
+    # edge is not taken for the other edge unless it runs nearly parallel to it.
+    max_corner_skew_deg: Finite = Field(3.0, gt=0, le=45)
 
     @model_validator(mode="after")
     def _order(self) -> "CoarseConfig":
@@ -105,6 +108,31 @@ class LimitsConfig(StrictModel):
     min_arc_coverage_deg: Finite = Field(30.0, ge=0, le=90)
 
 
+class FeatureConfig(StrictModel):
+    """Which edge of the opening's profile is the feature the corner is measured on.
+
+    A real opening shows several edges parallel to each other (a paint edge, the wall's edge, a
+    flange, a seal's inner edge). Across each straight edge the detector takes the median profile
+    of many cross-sections (a mark or a dirt spot crossing a few of them does not move it), finds
+    its steps, and keeps those of the opening's polarity (``opening_polarity``: a darker opening
+    means steps that fall towards it) whose size is at least ``min_step_fraction`` of the
+    profile's whole wall-to-opening range. The feature is the step ``index`` (0 the first) counted
+    from ``count_from``: "wall" (outside in) or "opening" (inside out). The default, the first
+    strong falling step from the wall, is the wall's own edge; a seal's inner edge is the first
+    step from the opening with a lower ``min_step_fraction``. Teaching checks the rule on the
+    template image and records the step it picks (cellctl.commissioning).
+    """
+
+    count_from: Literal["wall", "opening"] = "wall"
+    index: int = Field(0, ge=0, le=5)
+    min_step_fraction: Finite = Field(0.25, gt=0, lt=1)
+    # Half-length of the cross-sections, either side of the coarse line (px): it must reach past
+    # every band the rule counts (the default covers 30 mm at 0.0762 mm/px).
+    profile_half_px: int = Field(400, ge=20, le=1000)
+    # Cross-sections taken along each straight edge (their median is the profile).
+    cross_sections: int = Field(24, ge=8, le=400)
+
+
 class VisionConfig(StrictModel):
     """Corner detection of paper section 4.2: ROI, coarse search, fits and refusal limits.
 
@@ -117,3 +145,4 @@ class VisionConfig(StrictModel):
     fit: FitConfig = FitConfig()
     limits: LimitsConfig = LimitsConfig()
     opening_polarity: Literal["darker", "brighter", "auto"] = "darker"
+    feature: FeatureConfig = FeatureConfig()

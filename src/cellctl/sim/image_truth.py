@@ -14,6 +14,11 @@ the straight edges are straight lines. In the raw (distorted) image the edges ar
 Edges are parametrised by the along-edge distance ``a`` (mm) from the virtual corner, away from it:
 the top edge is (x, y) = (-a, 0) in T, the right edge is (0, a); their straight parts are
 a in [r, width - r] and a in [r, height - r].
+
+A feature edge parallel to the opening's (a step of the drawn surface, cellctl.sim.surface) is
+the opening's edge offset by ``inset_mm`` into the opening (negative: outwards, onto the wall):
+its lines are y = inset and x = -inset, its virtual corner T's point (-inset, inset, 0), and ``a``
+is measured from that corner. An inset does not turn the edges.
 """
 
 from __future__ import annotations
@@ -34,14 +39,18 @@ EDGES: tuple[EdgeName, EdgeName] = ("top", "right")
 F64 = NDArray[np.float64]
 
 
-def edge_points_T(world: World, edge: EdgeName, a_mm: ArrayLike) -> F64:
-    """Points (N, 3) of an edge's line in T at along-edge distances ``a_mm`` from the corner."""
+def edge_points_T(world: World, edge: EdgeName, a_mm: ArrayLike, *, inset_mm: float = 0.0) -> F64:
+    """Points (N, 3) of an edge's line in T at along-edge distances ``a_mm`` from the corner.
+
+    ``inset_mm`` offsets the line into the opening (see the module docstring).
+    """
     a = np.atleast_1d(np.asarray(a_mm, dtype=float))
     zeros = np.zeros_like(a)
+    d = float(inset_mm)
     if edge == "top":
-        return np.column_stack([-a, zeros, zeros])
+        return np.column_stack([-d - a, zeros + d, zeros])
     if edge == "right":
-        return np.column_stack([zeros, a, zeros])
+        return np.column_stack([zeros - d, d + a, zeros])
     raise ValueError(f"edge must be 'top' or 'right', got {edge!r}")
 
 
@@ -51,9 +60,11 @@ def straight_range_mm(world: World, edge: EdgeName) -> tuple[float, float]:
     return world.corner_radius_mm, length - world.corner_radius_mm
 
 
-def edge_curve_px(camera: CameraModel, T_B_C: ArrayLike, world: World, edge: EdgeName, a_mm: ArrayLike) -> F64:
+def edge_curve_px(
+    camera: CameraModel, T_B_C: ArrayLike, world: World, edge: EdgeName, a_mm: ArrayLike, *, inset_mm: float = 0.0
+) -> F64:
     """Distorted image positions (N, 2) of points of an edge's line (the projected true edge)."""
-    return camera.project(apply_pose(world.T_B_T, edge_points_T(world, edge, a_mm)), T_B_C)
+    return camera.project(apply_pose(world.T_B_T, edge_points_T(world, edge, a_mm, inset_mm=inset_mm)), T_B_C)
 
 
 def visible_edge_interval(
@@ -103,10 +114,11 @@ def visible_edge_interval(
 
 @dataclass(frozen=True)
 class CornerTruth:
-    """Where the window corner and its edges truly appear in one image.
+    """Where the window corner and its edges truly appear in one image (see ``corner_truth``).
 
     Attributes:
-        corner_px: the virtual sharp corner (T's origin) in the raw, distorted image (u, v).
+        corner_px: the virtual sharp corner (T's origin, or the inset corner) in the raw,
+            distorted image (u, v).
         corner_undistorted_px: the same point in the ideal pinhole image (camera matrix A, no
             distortion), where a pipeline that undistorts first measures it.
         top_edge_dir_px, right_edge_dir_px: unit directions of the straight edges in the ideal
@@ -163,15 +175,26 @@ def _unit(v: F64) -> F64:
     return v / np.linalg.norm(v)
 
 
-def corner_truth(camera: CameraModel, T_B_C: ArrayLike, world: World) -> CornerTruth:
+def corner_truth(camera: CameraModel, T_B_C: ArrayLike, world: World, inset_mm: float = 0.0) -> CornerTruth:
     """The true image of the window corner for a camera pose and a car-body placement.
 
+    ``inset_mm`` gives the truth of a feature edge offset that far into the opening (negative:
+    outwards), whose virtual corner is T's point (-inset, inset, 0); see the module docstring.
     Raises ValueError when the corner is behind the camera.
     """
     T = check_pose(T_B_C, "T_B_C")
     T_C_T = invert_pose(T) @ world.T_B_T
     step = 10.0  # mm along each edge; the ideal image of a straight line is straight
-    pts_T = np.vstack([np.zeros((1, 3)), edge_points_T(world, "top", [step]), edge_points_T(world, "right", [step])])
+    d = float(inset_mm)
+    if not np.isfinite(d):
+        raise ValueError(f"inset_mm must be a finite number, got {inset_mm!r}")
+    pts_T = np.vstack(
+        [
+            np.array([[0.0 - d, d, 0.0]]),
+            edge_points_T(world, "top", [step], inset_mm=d),
+            edge_points_T(world, "right", [step], inset_mm=d),
+        ]
+    )
     P_C = apply_pose(T_C_T, pts_T)
     if P_C[0, 2] <= 0.0:
         raise ValueError("the window corner lies behind the camera at this pose (Z <= 0 in the camera frame)")
@@ -183,7 +206,7 @@ def corner_truth(camera: CameraModel, T_B_C: ArrayLike, world: World) -> CornerT
     h = 1e-3  # mm: central differences through the virtual corner along each edge's line
     tangents = []
     for edge in EDGES:
-        ends = camera.project_camera(apply_pose(T_C_T, edge_points_T(world, edge, [-h, h])))
+        ends = camera.project_camera(apply_pose(T_C_T, edge_points_T(world, edge, [-h, h], inset_mm=d)))
         tangents.append(_unit(ends[1] - ends[0]))
     corner = camera.project_camera(P_C[:1])[0]
     line = top_dir if top_dir[0] >= 0.0 else -top_dir

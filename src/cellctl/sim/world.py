@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,12 +21,17 @@ class World:
         T_B_T: the true workpiece frame at the opening's upper-right corner (see WorldConfig).
         width_mm, height_mm, corner_radius_mm: the opening, a rounded rectangle in T's x-y plane
             occupying x in [-width, 0], y in [0, height].
+        surface_seed: seeds the drawing of this car body's surface around the opening (its
+            bands, marks and dirt: cellctl.sim.surface), so every frame of it shows the same one;
+            sample_world derives it from the placement. The same body moved keeps it
+            (``dataclasses.replace(world, T_B_T=...)``).
     """
 
     T_B_T: Pose
     width_mm: float
     height_mm: float
     corner_radius_mm: float
+    surface_seed: int = 0
 
     @property
     def normal_B(self) -> NDArray[np.float64]:
@@ -85,9 +91,20 @@ def sample_world(config: WorldConfig, rng: np.random.Generator) -> World:
     # Rotate about the pivot, expressed in T, then translate (translation in T's axes).
     T_T_Tnew = make_pose(np.eye(3), centre_T) @ make_pose(R, np.zeros(3)) @ make_pose(np.eye(3), -centre_T)
     T_T_Tnew[:3, 3] += dt
-    return World(T_nom @ T_T_Tnew, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm)
+    T_B_T = T_nom @ T_T_Tnew
+    return World(
+        T_B_T, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm, placement_seed(T_B_T)
+    )
 
 
 def nominal_world(config: WorldConfig) -> World:
-    """The car body exactly at its nominal placement."""
-    return World(config.T_B_T_nominal(), config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm)
+    """The car body exactly at its nominal placement (its surface seeded from that placement too)."""
+    T_B_T = config.T_B_T_nominal()
+    return World(
+        T_B_T, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm, placement_seed(T_B_T)
+    )
+
+
+def placement_seed(T_B_T: ArrayLike) -> int:
+    """A surface seed derived from a placement (CRC-32 of its float64 bytes); draws nothing from an rng."""
+    return zlib.crc32(np.ascontiguousarray(T_B_T, dtype=np.float64).tobytes())

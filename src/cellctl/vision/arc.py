@@ -41,6 +41,10 @@ class ArcMeasurement:
     points_raw: F64
     points_ideal: F64
     inliers: NDArray[np.bool_]
+    gap_sigma_top_px: float = 0.0
+    gap_sigma_right_px: float = 0.0
+    """1-sigma of each gap from the circle fit's scatter and the arc's span (a short or partly hidden
+    arc pins its centre less well)."""
 
 
 def _unit(v: F64) -> F64:
@@ -76,8 +80,16 @@ def estimate_radius(corner: F64, top: Line2D, right: Line2D, pixels: F64, max_ra
     if ok.sum() < 10:
         return None
     R = (k * qb[ok] + np.sqrt(disc[ok])) / a2
-    R = R[(R > 0) & (R < 2 * max_radius_px)]
-    return float(np.median(R)) if len(R) >= 10 else None
+    R = np.sort(R[(R > 0) & (R < 2 * max_radius_px)])
+    if len(R) < 10:
+        return None
+    # The densest 4 px window, not the median: a seal or a flange draws more arcs beside the
+    # feature's (concentric, so their pixels spread over many radii), and marks add pixels too.
+    ends = np.searchsorted(R, R + 4.0, side="right")
+    i = int(np.argmax(ends - np.arange(len(R))))
+    if ends[i] - i < 10:
+        return None
+    return float(np.median(R[i : ends[i]]))
 
 
 def _fit_circle(points: F64) -> tuple[F64, float]:
@@ -98,6 +110,26 @@ def _fit_circle(points: F64) -> tuple[F64, float]:
         if np.max(np.abs(step)) < 1e-6:
             break
     return c, R
+
+
+def _ransac_circle(points: F64, band_px: float, iterations: int, rng: np.random.Generator) -> NDArray[np.bool_]:
+    """Inliers of the circle through three of the points that most points lie within ``band_px`` of."""
+    n = len(points)
+    idx = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+    # Circumcentre of each triplet (perpendicular bisectors); collinear triplets are skipped.
+    d = 2.0 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
+    ok = np.abs(d) > 1e-9
+    a, b, c, d = a[ok], b[ok], c[ok], d[ok]
+    if len(d) == 0:
+        return np.ones(n, dtype=bool)
+    sa, sb, sc = np.sum(a * a, axis=1), np.sum(b * b, axis=1), np.sum(c * c, axis=1)
+    ux = (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / d
+    uy = (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / d
+    radius = np.hypot(a[:, 0] - ux, a[:, 1] - uy)
+    dist = np.hypot(points[:, None, 0] - ux[None, :], points[:, None, 1] - uy[None, :]) - radius[None, :]
+    inside = np.abs(dist) < band_px
+    return inside[:, int(np.argmax(inside.sum(axis=0)))]
 
 
 def measure_arc(
@@ -172,9 +204,19 @@ def measure_arc(
     if len(pts_raw) < 10:
         return None
     pts = lens.undistort(pts_raw)
-    c, R = _fit_circle(pts)
-    inl = np.ones(len(pts), dtype=bool)
-    for _ in range(2):
+    # Start from the points near the predicted arc: a mark or a spot crossing the arc gives
+    # crossings far off it, which a first unweighted circle would follow.
+    near = np.abs(np.hypot(*(pts - centre).T) - radius_px) < search_px
+    if near.sum() < 10:
+        return None
+    # Then the circle most of them agree on (RANSAC), so that a stretch of points displaced by a
+    # mark along the arc cannot pull the first fit (and with it the robust band) off.
+    inl = near.copy()
+    inl[near] = _ransac_circle(pts[near], max(min_band_px, 0.5), 100, np.random.default_rng(0))
+    if inl.sum() < 10:
+        return None
+    c, R = _fit_circle(pts[inl])
+    for _ in range(3):
         r = np.hypot(*(pts - c).T) - R
         ri = r[inl]
         sigma = 1.4826 * float(np.median(np.abs(ri - np.median(ri))))
@@ -188,6 +230,21 @@ def measure_arc(
     mid = _unit(e1 + e2)
     ang = np.arctan2(mid[0] * d[:, 1] - mid[1] * d[:, 0], d @ mid)  # about the arc's middle
     coverage = float(np.degrees(ang.max() - ang.min()))
+    # Covariance of (centre, radius) from the fit's Jacobian and residual scatter.
+    d_in = pts[inl] - c
+    dist = np.maximum(np.hypot(d_in[:, 0], d_in[:, 1]), 1e-9)
+    J = np.column_stack([-d_in[:, 0] / dist, -d_in[:, 1] / dist, -np.ones(len(dist))])
+    s2 = float(np.sum(r * r)) / max(len(r) - 3, 1)
+    cov = s2 * np.linalg.pinv(J.T @ J)
+
+    def gap_sigma(line: Line2D) -> float:
+        n = line.normal * np.sign(float(line.signed_distance(c[None])[0]) or 1.0)
+        g = np.array([n[0], n[1], -1.0])
+        return float(np.sqrt(max(g @ cov @ g, 0.0)))
+
     gap_top = abs(float(top.signed_distance(c[None])[0])) - R
     gap_right = abs(float(right.signed_distance(c[None])[0])) - R
-    return ArcMeasurement(c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl)
+    return ArcMeasurement(
+        c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl,
+        gap_sigma(top), gap_sigma(right),
+    )

@@ -174,6 +174,10 @@ def find_coarse_corner(
             if c is None or not (x0 <= c[0] <= x1 and y0 <= c[1] <= y1):
                 reasons.append("lines meet outside the region of interest")
                 continue
+            skew = abs(90.0 - float(np.degrees(np.arccos(np.clip(abs(top.line.direction @ right.line.direction), 0.0, 1.0)))))
+            if skew > cfg.max_corner_skew_deg:
+                reasons.append(f"no pair of lines meets within {cfg.max_corner_skew_deg:g} deg of a right angle")
+                continue
             # The top edge lies left of the corner, the right edge below it.
             mid_top = (top.segments[:, 0] + top.segments[:, 2]) / 2
             mid_right = (right.segments[:, 1] + right.segments[:, 3]) / 2

@@ -23,6 +23,7 @@ class Refusal(str, Enum):
     UNCERTAIN = "uncertain"  # the fits predict a corner uncertainty above the limit
     ARC_NOT_SEEN = "arc_not_seen"  # the rounded corner could not be measured to check the edges
     ARC_MISMATCH = "arc_mismatch"  # an edge line does not touch the arc: not the true edge
+    FEATURE_NOT_FOUND = "feature_not_found"  # the recipe's feature edge is not among the edge's steps
 
 
 @dataclass(frozen=True)

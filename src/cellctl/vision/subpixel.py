@@ -38,8 +38,9 @@ class EdgeCrossings:
     ``level_before``/``level_after`` are those plateau levels),
     ``blur_sigma_px`` the edge's Gaussian-equivalent spread (pixel footprint included; it reads
     up to 15 % high below 1 px of blur, and high on a sloping background), ``valid`` whether the profile gave
-    a crossing inside its window with both plateaus inside the image, ``saturated`` whether a
-    sample reached the sensor's top value.
+    a crossing inside its window with both plateaus inside the image and nothing else in the
+    window (a mark or a spot crossing it: see ``_foreign``), ``saturated`` whether a sample reached
+    the sensor's top value.
     """
 
     position: F64
@@ -49,6 +50,12 @@ class EdgeCrossings:
     saturated: NDArray[np.bool_]
     level_before: F64
     level_after: F64
+
+    @classmethod
+    def empty(cls) -> "EdgeCrossings":
+        """No profiles at all."""
+        z = np.zeros(0)
+        return cls(z, z, z, np.zeros(0, bool), np.zeros(0, bool), z, z)
 
 
 def _sample_profiles(
@@ -75,6 +82,27 @@ def _sample_profiles(
     saturated = np.any(raw >= top, axis=1)
     values = raw[:, :-1] * (1.0 - frac[:, None]) + raw[:, 1:] * frac[:, None]
     return values, inside, saturated
+
+
+def _foreign(values: F64, lo: F64, contrast: F64, level_samples: int) -> NDArray[np.bool_]:
+    """Profiles whose window holds something besides the one blurred step: a mark, a spot, another edge.
+
+    A blurred step normalised to 0 and 1 on its plateaus rises monotonically within [0, 1] but
+    for noise; a line or a spot in the window either leaves that range or turns the profile back
+    by its own contrast. The allowance is a quarter of the step, or five sigmas of the plateaus' noise
+    (estimated over all profiles) if that is larger, so a faint edge is not thinned out by noise.
+    """
+    m = level_samples
+    plateau = np.concatenate([values[:, :m] - values[:, :m].mean(axis=1, keepdims=True),
+                              values[:, -m:] - values[:, -m:].mean(axis=1, keepdims=True)], axis=1)
+    noise_dn = 1.4826 * float(np.median(np.abs(plateau))) * np.sqrt(m / max(m - 1, 1)) if m > 1 else 0.0
+    safe = np.where(np.abs(contrast) > 1e-9, contrast, 1e-9)
+    f = (values - lo[:, None]) / safe[:, None]
+    allowance = np.maximum(0.25, 5.0 * noise_dn / np.abs(safe))
+    # A blurred step never turns back; noise does, by up to the spread of its extremes in a window.
+    dip = np.max(np.maximum.accumulate(f, axis=1) - f, axis=1)
+    dip_allowance = np.maximum(0.25, 7.0 * noise_dn / np.abs(safe))
+    return (f.min(axis=1) < -allowance) | (f.max(axis=1) > 1.0 + allowance) | (dip > dip_allowance)
 
 
 def _area_estimate(values: F64, centre: F64, half: int, level_samples: int) -> tuple[F64, F64, F64, F64]:
@@ -129,4 +157,5 @@ def measure_crossings(
         centre = np.where(ok, pos2, centre)
         if not np.any(ok) or float(np.percentile(step[ok], 90)) < _CENTRING_TOLERANCE_PX:
             break
+    ok &= ~_foreign(values, lo, contrast, m)
     return EdgeCrossings(centre, contrast, spread, ok, saturated, lo, lo + contrast)
