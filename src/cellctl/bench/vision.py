@@ -42,6 +42,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from cellctl.bench.vision_args import add_arguments  # noqa: E402
 from cellctl.config.render import DisturbanceConfig, GlareConfig, OcclusionConfig, RenderConfig  # noqa: E402
 from cellctl.config.sim import SimConfig  # noqa: E402
 from cellctl.config.surface import CLEAN_SURFACE, BandConfig, DirtConfig, MarksConfig, SurfaceConfig  # noqa: E402
@@ -222,16 +223,15 @@ def _figures(acc: Accuracy) -> dict[str, object]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m cellctl.bench.vision", description=__doc__.splitlines()[0])
-    parser.add_argument("--runs", type=int, default=30, help="timed detections of one frame (default 30)")
-    parser.add_argument("--renders", type=int, default=200, help="renders of the clean opening (default 200)")
-    parser.add_argument("--surface-renders", type=int, default=200, help="renders per surface case (default 200)")
-    parser.add_argument("--disturbed-renders", type=int, default=100, help="renders per disturbance (default 100)")
-    parser.add_argument("--only", default="", help="run only the cases whose name contains this text")
-    parser.add_argument("--seed", type=int, default=2026)
-    parser.add_argument("--json", default=None, help="write the figures to this JSON file")
-    args = parser.parse_args(argv)
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+def run(args: argparse.Namespace) -> int:
+    """The benchmark with parsed options (``cellctl bench vision`` calls it too); 0 when every bar is met."""
     if args.runs < 1 or args.renders < 1 or args.disturbed_renders < 0 or args.surface_renders < 0:
-        parser.error("--runs and --renders must be at least 1, --surface-renders and --disturbed-renders at least 0")
+        print("bench vision: --runs and --renders must be at least 1, --surface-renders and --disturbed-renders at least 0")
+        return 2
     cv2.setNumThreads(1)
     sim = SimConfig()
     config = VisionConfig()
