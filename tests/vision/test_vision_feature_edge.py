@@ -114,3 +114,19 @@ def test_marks_crossing_an_edge_near_the_corner_are_rejected_not_refused(grid, g
     # The crossings under the mark on the top edge (u about 242 +- 3.2) were dropped, not fitted.
     kept_u = m.top.points_ideal[m.top.inliers][:, 0]
     assert not np.any(np.abs(kept_u - (corner[0] - 270.0)) < 2.0)
+
+
+def test_a_mark_along_the_arc_is_left_out_of_the_circle(grid) -> None:
+    # A thin dark line 1 px outside the arc, along its tangent at 45 deg: the arc looks bulged
+    # there (the line merges with the opening), a monotone step in the wrong place. The circle is
+    # the one most arc points agree on, so both edges still touch it.
+    corner = (512.0, 500.0)
+    centre, normal = np.array([312.0, 700.0]), np.array([np.sqrt(0.5), -np.sqrt(0.5)])
+    on_arc = centre + 201.0 * normal
+    marks = ((on_arc[0], on_arc[1], np.radians(45.0), 4.0, 20.0),)
+    img = corner_image(SMALL_LENS, grid, corner, 0.0, marks=marks, noise_dn=1.0, rng=np.random.default_rng(2))
+    m = detect_corner(img, SMALL_LENS, _config())
+    assert m.ok, m.message
+    assert abs(m.arc.gap_top_px) < 0.1 and abs(m.arc.gap_right_px) < 0.1
+    assert m.arc.inliers.sum() < len(m.arc.inliers)  # the bulge's points were left out
+    assert np.linalg.norm(m.corner_px - corner) < 0.1

@@ -192,3 +192,21 @@ def test_annotated_png_shows_the_measurement(renderer: CameraRenderer, taught) -
     b, g, r = picture[..., 0].astype(int), picture[..., 1].astype(int), picture[..., 2].astype(int)
     assert np.sum((g > 150) & (r < 80) & (b < 80)) > 200  # green edge points
     assert np.sum((b > 200) & (r > 200) & (g < 80)) > 20  # magenta taught corner and arrow
+
+
+def test_a_mark_square_across_one_edge_is_not_taken_for_the_other() -> None:
+    # A bright 60 mm strip square across the right edge 29.5 mm from the corner runs nearly
+    # parallel to the top edge, through the dark opening: longer than the top edge's visible part.
+    # The coarse stage pairs only lines that meet within 3 deg of a right angle, so it stays a mark.
+    from cellctl.config.surface import MarksConfig, SurfaceConfig
+
+    marks = MarksConfig(count=(1, 1), within_mm=30.0, width_mm=(0.7, 0.7), length_mm=(60.0, 60.0), angle_deg=(85.0, 85.0), kind="bright")
+    r = CameraRenderer(SIM.camera.intrinsics, SIM.camera.render.model_copy(update={"surface": SurfaceConfig(marks=marks)}))
+    world = replace(nominal_world(SIM.world), surface_seed=4)
+    mark = r.surface_of(world).marks[0]
+    assert mark.edge == "right" and mark.along_mm > 25.0
+    intr = SIM.camera.intrinsics
+    pose = camera_pose_seeing_corner(r.camera, world, (intr.cx, intr.cy), distance_mm=400.0)
+    m = detect_corner(r.render(pose, world, rng=np.random.default_rng(4)).image, LENS, CONFIG)
+    assert m.ok, m.message
+    assert np.linalg.norm(m.corner_raw_px - corner_truth(r.camera, pose, world).corner_px) < 0.15

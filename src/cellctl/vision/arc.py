@@ -41,10 +41,6 @@ class ArcMeasurement:
     points_raw: F64
     points_ideal: F64
     inliers: NDArray[np.bool_]
-    gap_sigma_top_px: float = 0.0
-    gap_sigma_right_px: float = 0.0
-    """1-sigma of each gap from the circle fit's scatter and the arc's span (a short or partly hidden
-    arc pins its centre less well)."""
 
 
 def _unit(v: F64) -> F64:
@@ -112,8 +108,14 @@ def _fit_circle(points: F64) -> tuple[F64, float]:
     return c, R
 
 
-def _ransac_circle(points: F64, band_px: float, iterations: int, rng: np.random.Generator) -> NDArray[np.bool_]:
-    """Inliers of the circle through three of the points that most points lie within ``band_px`` of."""
+def _ransac_circle(
+    points: F64, radius_px: float, band_px: float, iterations: int, rng: np.random.Generator
+) -> NDArray[np.bool_]:
+    """Inliers of the circle through three of the points that most points lie within ``band_px`` of.
+
+    Only circles within 20 % of the expected radius count: a straight stretch (a mark's border)
+    is a circle too, of a huge radius.
+    """
     n = len(points)
     idx = rng.integers(0, n, size=(iterations, 3))
     a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
@@ -127,6 +129,10 @@ def _ransac_circle(points: F64, band_px: float, iterations: int, rng: np.random.
     ux = (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / d
     uy = (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / d
     radius = np.hypot(a[:, 0] - ux, a[:, 1] - uy)
+    plausible = np.abs(radius - radius_px) <= 0.2 * radius_px
+    if not np.any(plausible):
+        return np.zeros(n, dtype=bool)
+    ux, uy, radius = ux[plausible], uy[plausible], radius[plausible]
     dist = np.hypot(points[:, None, 0] - ux[None, :], points[:, None, 1] - uy[None, :]) - radius[None, :]
     inside = np.abs(dist) < band_px
     return inside[:, int(np.argmax(inside.sum(axis=0)))]
@@ -212,7 +218,7 @@ def measure_arc(
     # Then the circle most of them agree on (RANSAC), so that a stretch of points displaced by a
     # mark along the arc cannot pull the first fit (and with it the robust band) off.
     inl = near.copy()
-    inl[near] = _ransac_circle(pts[near], max(min_band_px, 0.5), 100, np.random.default_rng(0))
+    inl[near] = _ransac_circle(pts[near], radius_px, max(min_band_px, 0.5), 100, np.random.default_rng(0))
     if inl.sum() < 10:
         return None
     c, R = _fit_circle(pts[inl])
@@ -230,21 +236,6 @@ def measure_arc(
     mid = _unit(e1 + e2)
     ang = np.arctan2(mid[0] * d[:, 1] - mid[1] * d[:, 0], d @ mid)  # about the arc's middle
     coverage = float(np.degrees(ang.max() - ang.min()))
-    # Covariance of (centre, radius) from the fit's Jacobian and residual scatter.
-    d_in = pts[inl] - c
-    dist = np.maximum(np.hypot(d_in[:, 0], d_in[:, 1]), 1e-9)
-    J = np.column_stack([-d_in[:, 0] / dist, -d_in[:, 1] / dist, -np.ones(len(dist))])
-    s2 = float(np.sum(r * r)) / max(len(r) - 3, 1)
-    cov = s2 * np.linalg.pinv(J.T @ J)
-
-    def gap_sigma(line: Line2D) -> float:
-        n = line.normal * np.sign(float(line.signed_distance(c[None])[0]) or 1.0)
-        g = np.array([n[0], n[1], -1.0])
-        return float(np.sqrt(max(g @ cov @ g, 0.0)))
-
     gap_top = abs(float(top.signed_distance(c[None])[0])) - R
     gap_right = abs(float(right.signed_distance(c[None])[0])) - R
-    return ArcMeasurement(
-        c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl,
-        gap_sigma(top), gap_sigma(right),
-    )
+    return ArcMeasurement(c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl)

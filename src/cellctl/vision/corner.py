@@ -269,11 +269,8 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
         else:
             checks += [
                 at_least("arc coverage", arc.coverage_deg, lim.min_arc_coverage_deg, Refusal.ARC_NOT_SEEN, " deg"),
-                # The limit, or three sigmas of the gap if the arc was measured less well (partly hidden).
-                at_most("top edge gap to the arc", abs(arc.gap_top_px), max(lim.max_arc_gap_px, 3.0 * arc.gap_sigma_top_px),
-                        Refusal.ARC_MISMATCH, " px"),
-                at_most("right edge gap to the arc", abs(arc.gap_right_px), max(lim.max_arc_gap_px, 3.0 * arc.gap_sigma_right_px),
-                        Refusal.ARC_MISMATCH, " px"),
+                at_most("top edge gap to the arc", abs(arc.gap_top_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
+                at_most("right edge gap to the arc", abs(arc.gap_right_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
             ]
     inside = roi.x_px <= corner[0] <= roi.x_px + roi.width_px - 1 and roi.y_px <= corner[1] <= roi.y_px + roi.height_px - 1
     theta = 0.5 * (top.angle_rad + right.angle_rad)
