@@ -5,9 +5,15 @@
 - :mod:`abb_robot.protocol`: the line protocol, defined once (codec, limits, error codes, the
   README's table).
 - :class:`AbbRobot` (:mod:`abb_robot.client`): implements ``cellctl.ports.Robot`` over the line
-  protocol and ``cellctl.ports.FineCorrection`` through EGM.
+  protocol and ``cellctl.ports.FineCorrection`` through EGM. It composes the layers:
+  :mod:`abb_robot.link` (connection, framing, request multiplexing, heartbeat, reconnection),
+  :mod:`abb_robot.verbs` (the robot commands), :mod:`abb_robot.egm_session` (EGM sessions) and
+  :mod:`abb_robot.settings` (:class:`AbbRobotSettings`).
+- :mod:`abb_robot.unit_quaternion`: the wire's quaternion convention (unit, w >= 0) and the angle
+  between two orientations; conversions to and from matrices are the ports'.
 - :mod:`abb_robot.egm`: the EGM schema (``egm.proto``, compiled to ``egm_pb2``) and the
-  sensor-side UDP peer :class:`~abb_robot.egm.EgmPeer`.
+  sensor-side UDP peer :class:`~abb_robot.egm.EgmPeer` (its loop in ``peer_core``, run in a child
+  process by ``peer_process``; its settings and reports in ``peer_types``).
 - :mod:`abb_robot.fake`: a fake controller serving both protocols, run as
   ``python -m abb_robot.fake --rapid-port P --egm-port Q``.
 - :mod:`abb_robot.bench`: ``python -m abb_robot.bench [--seconds 60]``, the EGM loop's rate and
@@ -16,9 +22,12 @@
 From the core this package imports only ``cellctl.ports``.
 """
 
-from abb_robot.client import AbbRobot, AbbRobotSettings, ControllerInfo
-from abb_robot.egm.peer import EgmPeer, EgmPeerSettings, EgmSnapshot
+from abb_robot.client import AbbRobot
+from abb_robot.egm.peer import EgmPeer
+from abb_robot.egm.peer_types import EgmPeerSettings, EgmSnapshot
+from abb_robot.link import ControllerInfo
 from abb_robot.protocol import PROTOCOL_VERSION, ErrorCode
+from abb_robot.settings import AbbRobotSettings
 
 __all__ = [
     "PROTOCOL_VERSION",

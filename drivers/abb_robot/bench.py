@@ -31,7 +31,7 @@ import tempfile
 import time
 
 from abb_robot.client import AbbRobot, AbbRobotSettings
-from abb_robot.egm.peer import latency_percentiles_ms
+from abb_robot.egm.peer_types import latency_percentiles_ms
 from cellctl.ports import CartesianPose, MotionInterrupted
 
 

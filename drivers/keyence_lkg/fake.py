@@ -28,44 +28,22 @@ from __future__ import annotations
 
 import collections
 import logging
-import math
 import os
 import random
-import re
 import select
 import tempfile
 import threading
 import tty
 from dataclasses import dataclass
-from typing import Callable, Final, Literal, Mapping, Sequence
+from typing import Callable, Literal, Mapping
 
-from cellctl.ports import LaserStatus
-from keyence_lkg.errors import (
-    COMMAND_ERROR,
-    DIALECTS,
-    ERROR_CODES,
-    LENGTH_ERROR,
-    OTHER_ERROR,
-    PARAMETER_COUNT_ERROR,
-    PARAMETER_ERROR,
-    STATUS_ERROR,
-    Dialect,
-)
-from keyence_lkg.units import (
-    NO_VALUE,
-    OVER_RANGE_MINUS,
-    OVER_RANGE_PLUS,
-    format_value,
-    parse_setting_integer,
-    unit_format,
-)
+from keyence_lkg.errors import DIALECTS, ERROR_CODES, Dialect
+from keyence_lkg.fake_commands import MAX_COMMAND_CHARS, DistanceSource, LkgCommandSet, Mode, setting_specs
+from keyence_lkg.units import unit_format
 
 _log = logging.getLogger(__name__)
 
-DistanceSource = Callable[[], "float | None | LaserStatus"]
-Mode = Literal["general", "communication"]
 GarbleKind = Literal["noise_line", "prefix", "replace", "truncate"]
-MAX_COMMAND_CHARS: Final = 64
 
 
 @dataclass(frozen=True)
@@ -77,51 +55,7 @@ class FakeExchange:
     values_mm: tuple[float | None, ...] = ()  # the displayed value(s) in mm, for measurement replies
 
 
-class _Refuse(Exception):
-    def __init__(self, code: str) -> None:
-        self.code = code
-
-
-def _digit_in(n: int) -> Callable[[str], bool]:
-    return lambda p: len(p) == 1 and p.isdigit() and int(p) < n
-
-
-def _out_3001(p: str) -> bool:
-    return p in ("1", "2")
-
-
-def _out_5001(p: str) -> bool:
-    return re.fullmatch(r"[0-9]{2}", p) is not None and 1 <= int(p) <= 12
-
-
-def _setting_integer(p: str) -> bool:
-    return re.fullmatch(r"[+-][0-9]{6}", p) is not None
-
-
-@dataclass(frozen=True)
-class _SettingSpec:
-    address: tuple[Callable[[str], bool], ...]
-    values: tuple[Callable[[str], bool], ...]
-    default: tuple[str, ...]
-
-
-def _setting_specs(dialect: Dialect) -> dict[str, _SettingSpec]:
-    if dialect == "LK-G3001":
-        return {
-            "CA": _SettingSpec((), (_digit_in(6),), ("5",)),  # sampling cycle 20 us .. 1 ms
-            "OC": _SettingSpec((_out_3001,), (lambda p: p == "0", _digit_in(10)), ("0", "0")),  # averaging
-            "HB": _SettingSpec((_out_3001,), (_digit_in(5),), ("0",)),  # measurement mode
-            "OF": _SettingSpec((_out_3001,), (_setting_integer,), ("+000000",)),  # offset
-        }
-    return {
-        "CA": _SettingSpec((), (_digit_in(9),), ("8",)),  # sampling cycle 2.55 us .. 1 ms
-        "OC": _SettingSpec((_out_5001,), (lambda p: p == "0", _digit_in(10)), ("0", "0")),
-        "HB": _SettingSpec((lambda p: p == "M", _out_5001), (_digit_in(5),), ("0",)),
-        "OF": _SettingSpec((_out_5001,), (_setting_integer,), ("+000000",)),
-    }
-
-
-class FakeLkgController:
+class FakeLkgController(LkgCommandSet):
     """The simulated controller. Use as a context manager, or call :meth:`start` / :meth:`stop`.
 
     Args:
@@ -173,7 +107,7 @@ class FakeLkgController:
             link_path = os.path.join(self._own_dir, "ttyLKG0")
         self.path = link_path
         self.mode: Mode = "general"
-        self._specs = _setting_specs(self.dialect)
+        self._specs = setting_specs(self.dialect)
         self._settings: dict[tuple[str, tuple[str, ...]], tuple[str, ...]] = {}
         self._rng = random.Random(seed)
         self._lock = threading.Lock()
@@ -458,166 +392,3 @@ class FakeLkgController:
     def _log(self, exchange: FakeExchange) -> None:
         with self._lock:
             self.exchanges.append(exchange)
-
-    # ------------------------------------------------------------------------------------------
-    # the protocol
-
-    @staticmethod
-    def _main_of(text: str) -> str:
-        main = text.split(",", 1)[0].upper()
-        return "".join(c if " " <= c <= "~" else "?" for c in main)
-
-    def _handle(self, text: str) -> tuple[str, tuple[float | None, ...]]:
-        main = self._main_of(text)
-        params = [p.upper() for p in text.split(",")[1:]]
-        d = self.dialect
-        try:
-            if len(text) > MAX_COMMAND_CHARS or len(main) != 2:
-                raise _Refuse(LENGTH_ERROR[d])
-            handler = self._handlers().get(main)
-            if handler is None:
-                raise _Refuse(COMMAND_ERROR[d])
-            needs, run = handler
-            with self._lock:
-                mode = self.mode
-            if needs == "general" and mode != "general":
-                raise _Refuse(STATUS_ERROR[d])
-            if needs == "communication" and mode != "communication":
-                raise _Refuse(STATUS_ERROR[d])
-            return run(main, params)
-        except _Refuse as refusal:
-            return f"ER,{main},{refusal.code}", ()
-
-    def _handlers(self) -> dict[str, tuple[str, Callable[[str, list[str]], tuple[str, tuple[float | None, ...]]]]]:
-        common = {
-            "Q0": ("any", self._q0),
-            "R0": ("any", self._r0),
-            "SW": ("communication", self._sw),
-            "SR": ("communication", self._sr),
-        }
-        if self.dialect == "LK-G3001":
-            return {"M0": ("general", self._m0), "M1": ("general", self._m12), "M2": ("general", self._m12), **common}
-        return {"MS": ("general", self._ms), "MM": ("general", self._mm), "MA": ("general", self._ma), **common}
-
-    def _no_params(self, params: Sequence[str]) -> None:
-        if params:
-            raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
-
-    def _q0(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        with self._lock:
-            if self.mode == "communication":
-                raise _Refuse(STATUS_ERROR[self.dialect])
-            self.mode = "communication"
-        return "Q0", ()
-
-    def _r0(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        with self._lock:
-            if self.mode == "general":
-                raise _Refuse(STATUS_ERROR[self.dialect])
-            self.mode = "general"
-        return "R0", ()
-
-    def _values(self, main_echo: str, outs: Sequence[int]) -> tuple[str, tuple[float | None, ...]]:
-        tokens, shown = [], []
-        for out in outs:
-            token, mm = self._display(out)
-            tokens.append(token)
-            shown.append(mm)
-        return ",".join([main_echo, *tokens]), tuple(shown)
-
-    def _m0(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        return self._values("M0", (1, 2))
-
-    def _m12(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        return self._values(main, (int(main[1]),))
-
-    def _ms(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        if len(params) != 1:
-            raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
-        if not _out_5001(params[0]):
-            raise _Refuse(PARAMETER_ERROR[self.dialect])
-        return self._values(f"MS,{params[0]}", (int(params[0]),))
-
-    def _mm(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        if len(params) != 1:
-            raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
-        mask = params[0]
-        if re.fullmatch(r"[01]{12}", mask) is None or "1" not in mask:
-            raise _Refuse(PARAMETER_ERROR[self.dialect])
-        return self._values(f"MM,{mask}", [i + 1 for i, c in enumerate(mask) if c == "1"])
-
-    def _ma(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        return self._values("MA", range(1, self.out_count + 1))
-
-    def _sw(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        ident, spec, address, values = self._setting_args(params, write=True)
-        with self._lock:
-            self._settings[(ident, address)] = values
-        return f"SW,{ident}", ()
-
-    def _sr(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        ident, spec, address, _ = self._setting_args(params, write=False)
-        with self._lock:
-            values = self._settings.get((ident, address), spec.default)
-        if ident == "OF":  # the setting check format: sign, six digits and a decimal point
-            values = (format_value(parse_setting_integer(values[0], self.unit), self.unit),)
-        return ",".join(("SR", ident, *address, *values)), ()
-
-    def _setting_args(
-        self, params: list[str], *, write: bool
-    ) -> tuple[str, _SettingSpec, tuple[str, ...], tuple[str, ...]]:
-        if not params:
-            raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
-        ident, rest = params[0], params[1:]
-        spec = self._specs.get(ident)
-        if spec is None:
-            raise _Refuse(PARAMETER_ERROR[self.dialect])
-        n_addr = len(spec.address)
-        expected = n_addr + (len(spec.values) if write else 0)
-        if len(rest) != expected:
-            raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
-        checks = spec.address + (spec.values if write else ())
-        if not all(check(p) for check, p in zip(checks, rest, strict=True)):
-            raise _Refuse(PARAMETER_ERROR[self.dialect])
-        return ident, spec, tuple(rest[:n_addr]), tuple(rest[n_addr:])
-
-    def _offset_mm(self, out: int) -> float:
-        key = ("OF", (f"{out:0{1 if self.dialect == 'LK-G3001' else 2}d}",))
-        with self._lock:
-            stored = self._settings.get(key)
-        return parse_setting_integer(stored[0], self.unit) if stored else 0.0
-
-    def _display(self, out: int) -> tuple[str, float | None]:
-        """The token an OUT shows now, and its value in mm (None for the special tokens)."""
-        source = self._sources.get(out)
-        if source is None or out > self.out_count:
-            return NO_VALUE, None
-        try:
-            distance = source()
-        except Exception:  # the physics callback failed: the controller reports "other error"
-            _log.exception("fake LK-G: distance callback of OUT%d raised", out)
-            raise _Refuse(OTHER_ERROR) from None
-        far = OVER_RANGE_PLUS if self._sign > 0 else OVER_RANGE_MINUS
-        near = OVER_RANGE_MINUS if self._sign > 0 else OVER_RANGE_PLUS
-        if distance is None or distance is LaserStatus.OVER_RANGE_FAR:
-            return far, None
-        if distance is LaserStatus.OVER_RANGE_NEAR:
-            return near, None
-        if distance is LaserStatus.NO_VALUE:
-            return NO_VALUE, None
-        if isinstance(distance, LaserStatus) or not isinstance(distance, (int, float)) or not math.isfinite(distance):
-            _log.error("fake LK-G: distance callback of OUT%d returned %r", out, distance)
-            raise _Refuse(OTHER_ERROR)
-        displacement = self._sign * (float(distance) - self.reference_distance_mm)
-        if abs(displacement) > self.measuring_range_mm:
-            return (OVER_RANGE_PLUS if displacement > 0 else OVER_RANGE_MINUS), None
-        token = format_value(displacement + self._offset_mm(out), self.unit)
-        if token in (OVER_RANGE_PLUS, OVER_RANGE_MINUS):
-            return token, None
-        return token, float(token) * self.unit.mm_per_unit
-

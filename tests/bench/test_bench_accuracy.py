@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cellctl.bench.accuracy import RunSettings, budget_plan, run_accuracy
+from cellctl.bench.accuracy import RunSettings, run_accuracy
+from cellctl.bench.budget import budget_plan
 from cellctl.bench.report import format_accuracy
 from cellctl.bench.sources import ERROR_SOURCES, BenchSettingsError
 from cellctl.bench.stats import AXES

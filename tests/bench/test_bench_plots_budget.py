@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.bench.accuracy import AccuracyRun, Budget, BudgetRow, RunSettings, Trial
+from cellctl.bench.accuracy import AccuracyRun, RunSettings, Trial
+from cellctl.bench.budget import Budget, BudgetRow
 from cellctl.bench.report import format_budget
 from cellctl.bench.stats import AXES, axis_stats
 

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from cellctl.bench.sources import BenchSettingsError
-from cellctl.bench.speed import SpeedSettings, _DeviceTimer, format_speed, run_driver_bench, run_speed
+from cellctl.bench.speed import SpeedSettings, format_speed, run_speed
+from cellctl.bench.speed_cycle import _DeviceTimer
+from cellctl.bench.speed_drivers import run_driver_bench
 from cellctl.config import load_config
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"

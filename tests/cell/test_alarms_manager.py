@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.cell import alarms as alarms_mod
+from cellctl.cell import alarms_doc
 from cellctl.cell.alarms import (
     ALARM_CATALOGUE,
     REACTIONS,
@@ -236,6 +236,6 @@ async def test_observers_get_every_alarm_event() -> None:
 
 def test_committed_alarm_docs_equal_the_generated_tables() -> None:
     doc = ROOT / "docs" / "alarm_reactions.md"
-    assert doc.read_text(encoding="utf-8") == alarms_mod.render_markdown(), (
-        "docs/alarm_reactions.md is stale: run `python -m cellctl.cell.alarms -o docs/alarm_reactions.md`"
+    assert doc.read_text(encoding="utf-8") == alarms_doc.render_markdown(), (
+        "docs/alarm_reactions.md is stale: run `python -m cellctl.cell.alarms_doc -o docs/alarm_reactions.md`"
     )

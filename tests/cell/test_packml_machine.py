@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.cell import packml
+from cellctl.cell import packml, packml_doc
 from cellctl.cell.packml import (
     COMMANDED,
     STATE_COMPLETE,
@@ -304,14 +304,14 @@ async def test_wait_for_state() -> None:
 
 def test_committed_docs_equal_the_generated_table() -> None:
     doc = ROOT / "docs" / "packml_states.md"
-    assert doc.read_text(encoding="utf-8") == packml.render_markdown(), (
-        "docs/packml_states.md is stale: run `python -m cellctl.cell.packml -o docs/packml_states.md`"
+    assert doc.read_text(encoding="utf-8") == packml_doc.render_markdown(), (
+        "docs/packml_states.md is stale: run `python -m cellctl.cell.packml_doc -o docs/packml_states.md`"
     )
 
 
 def test_markdown_lists_every_edge(tmp_path: Path) -> None:
-    text = packml.render_markdown()
+    text = packml_doc.render_markdown()
     for e in TRANSITIONS:
         assert f"| {e.source.name.title()} ({e.source.value}) |" in text
-    assert packml.main(["-o", str(tmp_path / "x.md")]) == 0
+    assert packml_doc.main(["-o", str(tmp_path / "x.md")]) == 0
     assert (tmp_path / "x.md").read_text() == text

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 import math
 import socket
 import time
@@ -187,6 +188,13 @@ async def _settle() -> None:
     await asyncio.sleep(0.03)
 
 
+async def _until(condition: Callable[[], object], timeout_s: float = 5.0) -> None:
+    """Wait until the peer shows what was sent (a process peer publishes its status after replying)."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not condition() and asyncio.get_running_loop().time() < deadline:
+        await asyncio.sleep(0.01)
+
+
 @pytest.mark.parametrize("isolation", ["process", "thread"])
 async def test_peer_locks_on_supervises_sequences_and_replies(isolation: str) -> None:
     peer = EgmPeer(EgmPeerSettings(port=0, bind_host=LOOPBACK, receive_timeout_s=0.5, isolation=isolation))  # type: ignore[arg-type]
@@ -201,6 +209,7 @@ async def test_peer_locks_on_supervises_sequences_and_replies(isolation: str) ->
         for seq in (1, 2, 5, 5, 3, 6):  # gap of two, a duplicate, a stale one
             ctl.send(_robot_msg(seq))
             await _settle()
+        await _until(lambda: peer.stats().received == 5 and peer.stats().foreign == 1)
         s = peer.stats()
         assert s.foreign == 1 and s.lost == 2 and s.gap_events == 1 and s.duplicates == 1 and s.stale == 1
         assert s.received == 5 and s.sessions == 1
@@ -216,22 +225,23 @@ async def test_peer_locks_on_supervises_sequences_and_replies(isolation: str) ->
         ctl.send(_robot_msg(7))
         r = await asyncio.to_thread(ctl.reply)
         assert r.planned.cartesian.pos.x == 1001.0 and r.header.seqno >= 4
+        await _until(lambda: peer.snapshot().position_error_mm == pytest.approx(1.0))
         snap = peer.snapshot()
         assert snap.position_error_mm == pytest.approx(1.0) and snap.converged_cycles == 0
         ctl.send(b"\x08\x96\x01garbage")
-        await _settle()
+        await _until(lambda: peer.stats().bad == 1)
         assert peer.stats().bad == 1
         ctl.send(_robot_msg(0))  # seqno 0: the controller started a new session
-        await _settle()
+        await _until(lambda: peer.stats().sessions == 2)
         assert peer.stats().sessions == 2
         ctl.send(_robot_msg(1, motors=2))
-        await _settle()
+        await _until(lambda: peer.snapshot().fault == "motors are off")
         assert peer.snapshot().fault == "motors are off"
         ctl.send(_robot_msg(2, mci=1))
-        await _settle()
+        await _until(lambda: "MCI_ERROR" in (peer.snapshot().fault or ""))
         assert "MCI_ERROR" in (peer.snapshot().fault or "")
         ctl.send(_robot_msg(3, rapid=0))  # RAPID_UNDEFINED is accepted
-        await _settle()
+        await _until(lambda: peer.snapshot().fault is None)
         assert peer.snapshot().fault is None
     finally:
         ctl.close()

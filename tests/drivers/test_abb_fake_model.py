@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from abb_robot import quat
+import _abb_quat as quat
 from abb_robot.fake import DEFAULT_HOME, RobotModel, SimpleArmModel
 from abb_robot.fake.robot import FakeRobot
 from cellctl.ports import CartesianPose

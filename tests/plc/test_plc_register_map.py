@@ -17,6 +17,7 @@ from cellctl.config.cell import ProcessConfig
 from cellctl.config.plc import PlcConfig
 from cellctl.config.store import PackMLConfig
 from cellctl.plc.codec import decode_block, decode_value, encode_block, encode_value
+from cellctl.plc.register_doc import render_markdown
 from cellctl.plc.register_map import (
     BLOCKS,
     CELL_BLOCK,
@@ -32,7 +33,6 @@ from cellctl.plc.register_map import (
     RegType,
     check_map,
     register,
-    render_markdown,
 )
 
 REPO = Path(__file__).resolve().parents[2]

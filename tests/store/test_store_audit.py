@@ -10,7 +10,7 @@ import pytest
 from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.tags import CycleStep, PackMLCommand, UnitMode
 from cellctl.store import AuditChainBroken, CellStore
-from cellctl.store.db import GENESIS_HASH
+from cellctl.store.audit import GENESIS_HASH
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Store: cycles, steps, idempotency keys, calibration history, alarms round trip."""
+"""Store: cycles, steps, idempotency keys, alarms round trip."""
 
 from __future__ import annotations
 
@@ -171,26 +171,6 @@ def test_command_idempotency_replays_and_refuses(store: CellStore) -> None:
         store.claim_key("rest-cmd", "c9", req)
     assert store.forget_keys("rest-cmd", created_before=T0 + timedelta(days=1)) == 2
     assert store.submit_cycle(REQ, scope="rest-cmd", key="c9", actor="line").cycle.id != cid
-
-
-def test_calibration_history_is_versioned_and_immutable(store: CellStore, tmp_path: Path) -> None:
-    assert store.calibration("hand_eye") is None
-    v1 = store.save_calibration("hand_eye", {"T_H_C": np.eye(4)}, metadata={"rms_mm": 0.12}, created_by="eng")
-    v2 = store.save_calibration("hand_eye", {"T_H_C": np.eye(4) * 2}, metadata={"rms_mm": 0.08}, created_by="eng")
-    store.save_calibration("laser", {"r": [1, 2, 3]}, metadata={}, created_by="eng")
-    assert (v1.version, v2.version) == (1, 2)
-    latest = store.calibration("hand_eye")
-    assert latest is not None and latest.version == 2 and latest.metadata == {"rms_mm": 0.08}
-    old = store.calibration("hand_eye", 1)
-    assert old is not None and old.data["T_H_C"][0] == [1.0, 0.0, 0.0, 0.0]
-    assert [c.version for c in store.calibration_history("hand_eye")] == [1, 2]
-    assert store.calibration_kinds() == ["hand_eye", "laser"]
-    raw = sqlite3.connect(tmp_path / "cell.db")
-    with pytest.raises(sqlite3.IntegrityError, match="append-only"):
-        raw.execute("UPDATE calibrations SET data_json = '{}'")
-    with pytest.raises(sqlite3.IntegrityError, match="append-only"):
-        raw.execute("DELETE FROM calibrations")
-    raw.close()
 
 
 async def test_alarm_records_round_trip(store: CellStore) -> None:

@@ -211,7 +211,7 @@ async def rig(tmp_path: Path) -> AsyncIterator[SimpleNamespace]:
         )  # fmt: skip
 
     def sync(fn: Callable[[CellStore], Any]) -> Any:
-        return store._run(fn, store._store)
+        return store.call(fn, store._store)
 
     yield SimpleNamespace(clock=clock, store=store, machine=machine, alarms=alarms, disk=disk, step=step, make=make,
                           sync=sync, images=tmp_path / "images", tmp=tmp_path)  # fmt: skip

@@ -27,13 +27,15 @@ so the robot holds still. Poses are TCP poses in the frame the RAPID side gave t
 :meth:`EgmPeer.correct_to` implements :class:`cellctl.ports.FineCorrection` on its own, for a
 controller whose RAPID program runs the EGM session; :class:`abb_robot.AbbRobot` uses the peer
 together with its RAPID link, which starts the session itself.
+
+The peer's settings and what it reports (:class:`EgmPeerSettings`, :class:`EgmPeerStats`,
+:class:`EgmSnapshot`) live in :mod:`abb_robot.egm.peer_types`; they are importable from here too.
 """
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
-import ipaddress
 import json
 import logging
 import math
@@ -42,160 +44,70 @@ import subprocess
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from multiprocessing.shared_memory import SharedMemory
-from typing import Literal
 
 import numpy as np
 
-from abb_robot import quat
+from abb_robot import unit_quaternion
 from abb_robot.egm.peer_core import (
     R_HAS_REF,
     R_POS,
     R_QUAT,
     REF_LEN,
-    S_CONV_MET,
-    S_CONVERGED,
-    S_CTRL_IP,
-    S_CTRL_PORT,
-    S_FB,
-    S_GENERATION,
-    S_HAS_REF,
-    S_JOINTS,
-    S_LAST_RX,
-    S_MCI,
-    S_MOTORS,
-    S_NJ,
-    S_POS_ERR,
-    S_RAPID,
-    S_REF,
-    S_ROT_ERR,
-    S_SEQNO,
-    S_SESSION,
     S_STATS,
     STAT_NAMES,
     STATUS_LEN,
     Hooks,
     LatencySink,
-    empty_status,
     PeerCore,
+    empty_status,
     reference_vector,
     serve,
     set_realtime_priority,
     warm_up,
 )
-from abb_robot.egm.peer_process import RING, RING_AT, REF_AT, STATUS_AT, TOTAL, SeqBlock, command
-from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceTimeout, MotionInterrupted
+from abb_robot.egm.peer_process import (
+    REF_AT,
+    RING,
+    RING_AT,
+    STATUS_AT,
+    TOTAL,
+    SeqBlock,
+    command,
+)
+from abb_robot.egm.peer_types import (
+    EgmPeerSettings,
+    EgmPeerStats,
+    EgmSnapshot,
+    latency_percentiles_ms,
+    snapshot_from_status,
+)
+from cellctl.ports import (
+    CartesianPose,
+    DeviceDisconnected,
+    DeviceTimeout,
+    MotionInterrupted,
+)
+
+__all__ = [
+    "EgmPeer",
+    "EgmPeerSettings",
+    "EgmPeerStats",
+    "EgmSnapshot",
+    "check_tolerances",
+    "latency_percentiles_ms",
+    "snapshot_from_status",
+]
 
 log = logging.getLogger(__name__)
 
-_MOTORS = {0: "undefined", 1: "on", 2: "off"}
-_MCI = {0: "undefined", 1: "error", 2: "stopped", 3: "running"}
-_RAPID = {0: "undefined", 1: "stopped", 2: "running"}
 
-
-@dataclass(frozen=True)
-class EgmPeerSettings:
-    """How the sensor-side peer listens and supervises.
-
-    Attributes:
-        port: UDP port to bind (the controller's UDPUC "Remote Port Number").
-        bind_host: local address to bind ("0.0.0.0": every interface).
-        controller_host: if set, only datagrams from this IP are accepted.
-        max_rate_hz: average reply rate cap (token bucket, bursts of up to 3 replies).
-        receive_timeout_s: silence after which the session counts as ended (or never started).
-        settle_cycles: consecutive converged cycles :meth:`EgmPeer.correct_to` waits for.
-        rt_priority: if set, the receive loop asks for SCHED_FIFO at this priority (1..99;
-            needs CAP_SYS_NICE; refused with a logged warning otherwise).
-        isolation: "process" runs the loop in a child process, "thread" in this one.
-        name: the device name in errors.
-    """
-
-    port: int = 6511
-    bind_host: str = "0.0.0.0"
-    controller_host: str | None = None
-    max_rate_hz: float = 250.0
-    receive_timeout_s: float = 0.5
-    settle_cycles: int = 5
-    rt_priority: int | None = None
-    isolation: Literal["process", "thread"] = "process"
-    name: str = "robot EGM"
-
-    def __post_init__(self) -> None:
-        if not (0 <= self.port <= 65535):
-            raise ValueError(f"port must be 0..65535, got {self.port}")
-        if not (0 < self.max_rate_hz <= 1000):
-            raise ValueError(f"max_rate_hz must be in (0, 1000], got {self.max_rate_hz}")
-        if not (0 < self.receive_timeout_s <= 60):
-            raise ValueError(f"receive_timeout_s must be in (0, 60], got {self.receive_timeout_s}")
-        if self.settle_cycles < 1:
-            raise ValueError(f"settle_cycles must be >= 1, got {self.settle_cycles}")
-        if self.isolation not in ("process", "thread"):
-            raise ValueError(f"isolation must be 'process' or 'thread', got {self.isolation!r}")
-        if self.rt_priority is not None and not (1 <= self.rt_priority <= 99):
-            raise ValueError(f"rt_priority must be 1..99 or None, got {self.rt_priority}")
-
-
-@dataclass
-class EgmPeerStats:
-    """Counters since the peer started (read them through :meth:`EgmPeer.stats`)."""
-
-    received: int = 0
-    replied: int = 0
-    sessions: int = 0
-    lost: int = 0
-    gap_events: int = 0
-    duplicates: int = 0
-    stale: int = 0
-    superseded: int = 0
-    foreign: int = 0
-    bad: int = 0
-    rate_limited: int = 0
-    max_interarrival_s: float = 0.0
-    reply_latency_s: deque[float] = field(default_factory=lambda: deque(maxlen=RING))
-    """Receive-to-send time of the latest replies (up to 131072), seconds."""
-
-
-@dataclass(frozen=True)
-class EgmSnapshot:
-    """What the peer knows now; a copy, safe to keep.
-
-    Attributes:
-        session: number of sessions seen so far (0: none yet).
-        controller: the address the peer is locked onto.
-        seqno: sequence number of the newest accepted datagram.
-        received_at: ``time.monotonic()`` of the newest accepted datagram.
-        feedback: the robot's pose as the controller reports it.
-        joints_rad: the robot's joints as reported.
-        motors, mci, rapid: "on"/"off"/"undefined", "running"/"stopped"/"error"/"undefined",
-            "running"/"stopped"/"undefined".
-        convergence_met: the controller's own convergence flag.
-        reference: the reference sent from the next cycle on (None: the session's start pose).
-        reference_generation: the generation of the reference the newest cycle was judged
-            against (:meth:`EgmPeer.set_reference` returns it).
-        converged_cycles: consecutive cycles with the feedback within tolerance of the reference.
-        position_error_mm, rotation_error_rad: feedback against reference in the newest cycle.
-        fault: why the session cannot go on (motors off, MCI error, RAPID stopped), or None.
-        ended: the controller ended the session (MCI_STOPPED or MCI_ERROR).
-    """
-
-    session: int
-    controller: tuple[str, int] | None
-    seqno: int | None
-    received_at: float | None
-    feedback: CartesianPose | None
-    joints_rad: tuple[float, ...]
-    motors: str
-    mci: str
-    rapid: str
-    convergence_met: bool
-    reference: CartesianPose | None
-    reference_generation: int
-    converged_cycles: int
-    position_error_mm: float | None
-    rotation_error_rad: float | None
-    fault: str | None
-    ended: bool
+def check_tolerances(tolerance_mm: float, tolerance_rad: float) -> None:
+    """ValueError unless both convergence tolerances are finite and > 0."""
+    if not (tolerance_mm > 0 and math.isfinite(tolerance_mm)):
+        raise ValueError(f"tolerance_mm must be > 0, got {tolerance_mm}")
+    if not (tolerance_rad > 0 and math.isfinite(tolerance_rad)):
+        raise ValueError(f"tolerance_rad must be > 0, got {tolerance_rad}")
 
 
 class EgmPeer:
@@ -349,11 +261,7 @@ class EgmPeer:
                 await loop.run_in_executor(None, process.wait)
             if process.stdout is not None:
                 process.stdout.close()
-        # Keep the last status and latencies readable after the process is gone.
-        if self._status_block is not None:
-            values = self._status_block.read()
-            if values is not None:
-                self._core_status = values
+        self._read_status_block()  # the last status and latencies stay readable after the process is gone
         if self._ring is not None:
             self._ring = self._ring.copy()
         self._ref_block = self._status_block = None
@@ -373,11 +281,8 @@ class EgmPeer:
 
         Returns the reference generation, which :class:`EgmSnapshot` echoes once the loop uses it.
         """
-        if not (tolerance_mm > 0 and math.isfinite(tolerance_mm)):
-            raise ValueError(f"tolerance_mm must be > 0, got {tolerance_mm}")
-        if not (tolerance_rad > 0 and math.isfinite(tolerance_rad)):
-            raise ValueError(f"tolerance_rad must be > 0, got {tolerance_rad}")
-        pose = (tuple(map(float, target.position_mm)), quat.normalise(target.quaternion_wxyz))
+        check_tolerances(tolerance_mm, tolerance_rad)
+        pose = (tuple(map(float, target.position_mm)), unit_quaternion.normalise(target.quaternion_wxyz))
         self._generation += 1
         self._publish_reference(reference_vector(self._generation, pose, tolerance_mm, tolerance_rad))
         return self._generation
@@ -402,23 +307,29 @@ class EgmPeer:
                 with self._lock:
                     self._core.export(self._core_status)
             return self._core_status.copy()
+        self._read_status_block()
+        return self._core_status.copy()
+
+    def _read_status_block(self) -> None:
+        """Take the child's newest status from shared memory (process isolation), if it has one."""
         if self._status_block is not None:
             values = self._status_block.read()
             if values is not None:
                 self._core_status = values
-        return self._core_status.copy()
 
     def snapshot(self) -> EgmSnapshot:
+        """What the peer knows now, with the reference the next cycle sends."""
         snap = snapshot_from_status(self._status())
         v = self._reference_vec  # what the next cycle sends, whether or not a cycle used it yet
         reference = None
         if v[R_HAS_REF] > 0.5:
             reference = CartesianPose(
-                (v[R_POS], v[R_POS + 1], v[R_POS + 2]), quat.normalise(v[R_QUAT : R_QUAT + 4])
+                (v[R_POS], v[R_POS + 1], v[R_POS + 2]), unit_quaternion.normalise(v[R_QUAT : R_QUAT + 4])
             )
         return dataclasses.replace(snap, reference=reference)
 
     def stats(self) -> EgmPeerStats:
+        """Counters and reply latencies since the peer started."""
         v = self._status()
         counts = {name: v[S_STATS + i] for i, name in enumerate(STAT_NAMES)}
         st = EgmPeerStats(**{k: int(counts[k]) for k in (
@@ -494,68 +405,3 @@ class EgmPeer:
                 )
                 raise DeviceTimeout(name, f"pose did not converge within {timeout_s:g} s{err}")
             await asyncio.sleep(0.004)
-
-def _mono(perf_t: float) -> float:
-    """A perf_counter time (CLOCK_MONOTONIC, shared by processes) as time.monotonic()."""
-    return time.monotonic() - (time.perf_counter() - perf_t)
-
-
-def _opt(v: float) -> float | None:
-    return None if math.isnan(v) else float(v)
-
-
-def snapshot_from_status(v: np.ndarray) -> EgmSnapshot:
-    """The :class:`EgmSnapshot` of a status vector (see :mod:`abb_robot.egm.peer_core`)."""
-    motors = _MOTORS.get(int(v[S_MOTORS]), "undefined")
-    mci = _MCI.get(int(v[S_MCI]), "undefined")
-    rapid = _RAPID.get(int(v[S_RAPID]), "undefined")
-    fault = None
-    if motors == "off":
-        fault = "motors are off"
-    elif mci == "error":
-        fault = "the controller reports an EGM error (MCI_ERROR)"
-    elif rapid == "stopped":
-        fault = "RAPID execution is stopped"
-    controller = None
-    if not math.isnan(v[S_CTRL_IP]):
-        controller = (str(ipaddress.IPv4Address(int(v[S_CTRL_IP]))), int(v[S_CTRL_PORT]))
-    feedback = None
-    if not math.isnan(v[S_FB]):
-        feedback = CartesianPose(
-            (float(v[S_FB]), float(v[S_FB + 1]), float(v[S_FB + 2])),
-            quat.normalise(v[S_FB + 3 : S_FB + 7]),
-        )
-    reference = None
-    if v[S_HAS_REF] > 0.5:
-        reference = CartesianPose(
-            (float(v[S_REF]), float(v[S_REF + 1]), float(v[S_REF + 2])), quat.normalise(v[S_REF + 3 : S_REF + 7])
-        )
-    seqno = _opt(v[S_SEQNO])
-    last_rx = _opt(v[S_LAST_RX])
-    return EgmSnapshot(
-        session=int(v[S_SESSION]),
-        controller=controller,
-        seqno=None if seqno is None else int(seqno),
-        received_at=None if last_rx is None else _mono(last_rx),
-        feedback=feedback,
-        joints_rad=tuple(float(j) for j in v[S_JOINTS : S_JOINTS + int(v[S_NJ])]),
-        motors=motors,
-        mci=mci,
-        rapid=rapid,
-        convergence_met=bool(v[S_CONV_MET] > 0.5),
-        reference=reference,
-        reference_generation=int(v[S_GENERATION]),
-        converged_cycles=int(v[S_CONVERGED]),
-        position_error_mm=_opt(v[S_POS_ERR]),
-        rotation_error_rad=_opt(v[S_ROT_ERR]),
-        fault=fault,
-        ended=mci in ("stopped", "error"),
-    )
-
-
-def latency_percentiles_ms(samples: "deque[float] | list[float]") -> tuple[float, float, float]:
-    """p50, p99 and max of latency samples given in seconds, in milliseconds."""
-    if not samples:
-        return (float("nan"), float("nan"), float("nan"))
-    a = np.asarray(samples, dtype=float) * 1000.0
-    return (float(np.percentile(a, 50)), float(np.percentile(a, 99)), float(a.max()))

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from abb_robot.egm import egm_pb2 as pb
+from abb_robot.unit_quaternion import angle_between, unit
 
 NAN = float("nan")
 BURST = 3.0
@@ -53,26 +54,13 @@ REF_LEN = 11
 def reference_vector(
     generation: int, pose: tuple[Sequence[float], Sequence[float]] | None, tol_mm: float, tol_rad: float
 ) -> list[float]:
+    """The reference vector the loop reads: a pose and its tolerances, or None to hold the start pose."""
     v = [float(generation), 0.0, NAN, NAN, NAN, NAN, NAN, NAN, NAN, tol_mm, tol_rad]
     if pose is not None:
         v[R_HAS_REF] = 1.0
         v[R_POS : R_POS + 3] = [float(c) for c in pose[0]]
         v[R_QUAT : R_QUAT + 4] = [float(c) for c in pose[1]]
     return v
-
-
-def _normalise(w: float, x: float, y: float, z: float) -> tuple[float, float, float, float] | None:
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if not math.isfinite(n) or n < 1e-12:
-        return None
-    if w < 0:
-        n = -n
-    return (w / n, x / n, y / n, z / n)
-
-
-def _angle(a: Sequence[float], b: Sequence[float]) -> float:
-    d = abs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
-    return 2.0 * math.acos(min(1.0, d))
 
 
 class LatencySink:
@@ -167,7 +155,7 @@ class PeerCore:
             return False
         cart = msg.feedBack.cartesian
         o = cart.orient
-        q = _normalise(o.u0, o.u1, o.u2, o.u3)
+        q = unit(o.u0, o.u1, o.u2, o.u3)
         pos = (cart.pos.x, cart.pos.y, cart.pos.z)
         if q is None or not all(math.isfinite(c) for c in pos):
             st["bad"] += 1
@@ -206,7 +194,7 @@ class PeerCore:
         ref = self.reference
         if ref is not None:
             dp = math.dist(pos, ref[0])
-            dq = _angle(q, ref[1])
+            dq = angle_between(q, ref[1])
             self.pos_err, self.rot_err = dp, dq
             self.converged_cycles = self.converged_cycles + 1 if dp <= self.tol_mm and dq <= self.tol_rad else 0
         else:

@@ -9,13 +9,17 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from abb_robot.fake.egm_robot import EgmDynamics, EgmRobotSide, EgmSessionStats
 from abb_robot.fake.model import RobotModel, SimpleArmModel
 from abb_robot.fake.rapid_server import RapidLineServer, ServerIdentity
 from abb_robot.fake.robot import FakeRobot
 from cellctl.ports import CartesianPose
+
+T = TypeVar("T")
 
 # A comfortable start pose for the default model: flange 2 m in front of the base, 1.5 m up,
 # tool z pointing forward (+x).
@@ -96,6 +100,7 @@ class FakeController:
         return self.rapid_port
 
     async def aclose(self) -> None:
+        """Stop serving and end the EGM side."""
         if self.server is not None:
             await self.server.close()
         if self.egm is not None:
@@ -143,16 +148,14 @@ class FakeController:
             self._loop.call_soon_threadsafe(self._stopped.set)
             self._thread.join(timeout_s)
 
-    def call(self, fn, timeout_s: float = 5.0):  # type: ignore[no-untyped-def]
+    def call(self, fn: Callable[[], T], timeout_s: float = 5.0) -> T:
         """Run ``fn()`` on the controller's loop thread and return its result (test hook)."""
         assert self._loop is not None
-        fut: "asyncio.Future[object]"
 
-        async def wrapper():  # type: ignore[no-untyped-def]
+        async def wrapper() -> T:
             return fn()
 
-        fut = asyncio.run_coroutine_threadsafe(wrapper(), self._loop)  # type: ignore[assignment]
-        return fut.result(timeout_s)  # type: ignore[attr-defined]
+        return asyncio.run_coroutine_threadsafe(wrapper(), self._loop).result(timeout_s)
 
     # -- fault injection ----------------------------------------------------------------------
 
@@ -172,9 +175,11 @@ class FakeController:
         self.call(apply)
 
     def set_motors(self, on: bool) -> None:
+        """Switch the motors on or off (thread-safe)."""
         with self.robot.lock:
             self.robot.motors_on = on
 
     @property
     def last_egm_stats(self) -> EgmSessionStats | None:
+        """The statistics of the last EGM session that ended (None: none yet)."""
         return None if self.egm is None else self.egm.last_stats

@@ -33,9 +33,10 @@ from typing import Callable
 
 import numpy as np
 
-from abb_robot import quat
+from abb_robot import unit_quaternion
 from abb_robot.egm import egm_pb2 as pb
 from abb_robot.egm.peer_core import set_realtime_priority
+from abb_robot.fake.model import rot_x, rot_y, rot_z
 from abb_robot.fake.robot import FakeRobot, interpolate
 from cellctl.ports import CartesianPose
 
@@ -372,7 +373,7 @@ def _follow(current: CartesianPose, goal: CartesianPose, dyn: EgmDynamics) -> Ca
     alpha = 1.0 - math.exp(-dyn.period_s / dyn.tau_s)
     dp = np.subtract(goal.position_mm, current.position_mm)
     dist = float(np.linalg.norm(dp))
-    ang = quat.angle_between(current.quaternion_wxyz, goal.quaternion_wxyz)
+    ang = unit_quaternion.angle_between(current.quaternion_wxyz, goal.quaternion_wxyz)
     s = alpha
     max_step = dyn.max_speed_mm_s * dyn.period_s
     if dist * s > max_step:
@@ -388,9 +389,16 @@ def _within_band(actual: CartesianPose, reference: CartesianPose, band_mm: float
     d = np.subtract(actual.position_mm, reference.position_mm)
     if np.any(np.abs(d) > band_mm):
         return False
-    w, x, y, z = reference.quaternion_wxyz
-    rel = quat.multiply((w, -x, -y, -z), actual.quaternion_wxyz)
-    return all(abs(a) <= band_deg for a in quat.to_euler_zyx_deg(rel))
+    R = reference.to_matrix()[:3, :3].T @ actual.to_matrix()[:3, :3]
+    return all(abs(a) <= band_deg for a in _euler_zyx_deg(R))
+
+
+def _euler_zyx_deg(R: np.ndarray) -> tuple[float, float, float]:
+    """ABB's Euler angles (EulerZYX: rx, ry, rz in degrees) of a rotation, R = Rz Ry Rx."""
+    ry = math.asin(max(-1.0, min(1.0, -R[2, 0])))
+    rx = math.atan2(R[2, 1], R[2, 2])
+    rz = math.atan2(R[1, 0], R[0, 0])
+    return (math.degrees(rx), math.degrees(ry), math.degrees(rz))
 
 
 def _robot_message(
@@ -434,15 +442,17 @@ def _parse_sensor(raw: bytes) -> CartesianPose | None:
     cart = msg.planned.cartesian
     if not cart.HasField("pos"):
         return None
-    if cart.HasField("euler"):
-        rx, ry, rz = (math.radians(v) for v in (cart.euler.x, cart.euler.y, cart.euler.z))
-        q = quat.multiply(quat.multiply(quat.from_rotation_vector((0, 0, rz)), quat.from_rotation_vector((0, ry, 0))),
-                          quat.from_rotation_vector((rx, 0, 0)))
-    elif cart.HasField("orient"):
-        q = (cart.orient.u0, cart.orient.u1, cart.orient.u2, cart.orient.u3)
-    else:
-        return None
+    pos = (cart.pos.x, cart.pos.y, cart.pos.z)
     try:
-        return CartesianPose((cart.pos.x, cart.pos.y, cart.pos.z), quat.normalise(q))
+        if cart.HasField("euler"):  # ABB's EulerZYX in degrees: R = Rz(z) Ry(y) Rx(x)
+            rx, ry, rz = (math.radians(v) for v in (cart.euler.x, cart.euler.y, cart.euler.z))
+            T = np.eye(4)
+            T[:3, :3] = rot_z(rz) @ rot_y(ry) @ rot_x(rx)
+            T[:3, 3] = pos
+            return CartesianPose.from_matrix(T)
+        if cart.HasField("orient"):
+            q = (cart.orient.u0, cart.orient.u1, cart.orient.u2, cart.orient.u3)
+            return CartesianPose(pos, unit_quaternion.normalise(q))
     except ValueError:
         return None
+    return None

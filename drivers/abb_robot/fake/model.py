@@ -21,7 +21,7 @@ from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from abb_robot import quat
+from abb_robot import unit_quaternion
 from cellctl.ports import CartesianPose
 
 RefusalKind = Literal["reach", "joint_limit"]
@@ -149,7 +149,7 @@ class SimpleArmModel:
 
     def _solve(self, pose: CartesianPose) -> tuple[tuple[float, ...] | None, Unreachable | None]:
         g = self.geometry
-        R = quat.to_matrix(pose.quaternion_wxyz)
+        R = pose.to_matrix()[:3, :3]
         p = np.asarray(pose.position_mm, dtype=float)
         w = p - g.c4 * R[:, 2]
         j1 = math.atan2(w[1], w[0])
@@ -209,9 +209,8 @@ class SimpleArmModel:
         r = g.a1 + g.c2 * math.sin(j2) + g.forearm * math.sin(psi)
         h = g.c1 + g.c2 * math.cos(j2) + g.forearm * math.cos(psi)
         w = np.array([r * c1, r * s1, h])
-        R = self._forearm_frame(j1, psi) @ _rz(j4) @ _ry(j5) @ _rz(j6)
-        p = w + g.c4 * R[:, 2]
-        return CartesianPose((float(p[0]), float(p[1]), float(p[2])), quat.from_matrix(R))
+        R = self._forearm_frame(j1, psi) @ rot_z(j4) @ rot_y(j5) @ rot_z(j6)
+        return _pose(w + g.c4 * R[:, 2], R)
 
     # -- RobotModel ---------------------------------------------------------------------------
 
@@ -229,7 +228,7 @@ class SimpleArmModel:
         self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, linear: bool
     ) -> float:
         dist = float(np.linalg.norm(np.subtract(target.position_mm, start.position_mm)))
-        angle_deg = math.degrees(quat.angle_between(start.quaternion_wxyz, target.quaternion_wxyz))
+        angle_deg = math.degrees(unit_quaternion.angle_between(start.quaternion_wxyz, target.quaternion_wxyz))
         v = min(speed_mm_s, self.max_speed_mm_s)
         t_lin = _trapezoid(dist, v, self.acceleration_mm_s2)
         t_rot = _trapezoid(angle_deg, speed_deg_s, self.angular_acceleration_deg_s2)
@@ -240,8 +239,7 @@ class SimpleArmModel:
         dp = self._rng.normal(0.0, self.repeatability_mm, 3) if self.repeatability_mm > 0 else np.zeros(3)
         dr = self._rng.normal(0.0, self.repeatability_rad, 3) if self.repeatability_rad > 0 else np.zeros(3)
         p = np.asarray(target.position_mm, dtype=float) + dp
-        q = quat.multiply(quat.from_rotation_vector(dr), target.quaternion_wxyz)
-        return CartesianPose((float(p[0]), float(p[1]), float(p[2])), quat.normalise(q))
+        return _pose(p, rot_vector(dr) @ target.to_matrix()[:3, :3])
 
 
 def _trapezoid(distance: float, v_max: float, accel: float) -> float:
@@ -257,11 +255,37 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def _rz(a: float) -> np.ndarray:
+def _pose(p: np.ndarray, R: np.ndarray) -> CartesianPose:
+    """The pose at position ``p`` (mm) with rotation ``R`` (through the ports' conversion)."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p
+    return CartesianPose.from_matrix(T)
+
+
+def rot_x(a: float) -> np.ndarray:
+    """Rotation by ``a`` rad about x."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    """Rotation by ``a`` rad about y."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    """Rotation by ``a`` rad about z."""
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _ry(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+def rot_vector(v: np.ndarray) -> np.ndarray:
+    """Rotation of a rotation vector (axis times angle, rad), Rodrigues' formula."""
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-15:
+        return np.eye(3)
+    k = np.asarray(v, dtype=float) / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)

@@ -10,34 +10,42 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from abb_robot import quat
+from abb_robot import unit_quaternion
 from abb_robot.fake.model import RobotModel, Unreachable
 from cellctl.ports import CartesianPose
 
 IDENTITY = CartesianPose((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
 
 
-def pose_matrix(p: CartesianPose) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = quat.to_matrix(p.quaternion_wxyz)
-    T[:3, 3] = p.position_mm
-    return T
-
-
-def matrix_pose(T: np.ndarray) -> CartesianPose:
-    return CartesianPose((float(T[0, 3]), float(T[1, 3]), float(T[2, 3])), quat.from_matrix(T[:3, :3]))
-
-
 def interpolate(a: CartesianPose, b: CartesianPose, s: float) -> CartesianPose:
     """The pose a fraction ``s`` (0..1) of the way from a to b (straight line, slerp)."""
     pa, pb = np.asarray(a.position_mm), np.asarray(b.position_mm)
     p = pa + s * (pb - pa)
-    return CartesianPose((float(p[0]), float(p[1]), float(p[2])), quat.slerp(a.quaternion_wxyz, b.quaternion_wxyz, s))
+    return CartesianPose((float(p[0]), float(p[1]), float(p[2])), _slerp(a.quaternion_wxyz, b.quaternion_wxyz, s))
+
+
+def _slerp(a: Sequence[float], b: Sequence[float], t: float) -> unit_quaternion.Quat:
+    """Spherical interpolation from a (t = 0) to b (t = 1) along the shorter arc, w >= 0.
+
+    The fake robot's path between two orientations, run every EGM cycle: on the quaternions
+    themselves, which the ports carry (a round trip through rotation matrices would cost
+    several times as much).
+    """
+    ua, ub = unit_quaternion.normalise(a), unit_quaternion.normalise(b)
+    d = sum(x * y for x, y in zip(ua, ub))
+    if d < 0:
+        ub, d = (-ub[0], -ub[1], -ub[2], -ub[3]), -d
+    if d > 0.9995:
+        return unit_quaternion.normalise([x + t * (y - x) for x, y in zip(ua, ub)])
+    theta = math.acos(d)
+    s = math.sin(theta)
+    wa, wb = math.sin((1 - t) * theta) / s, math.sin(t * theta) / s
+    return unit_quaternion.normalise([wa * x + wb * y for x, y in zip(ua, ub)])
 
 
 @dataclass
@@ -114,16 +122,15 @@ class FakeRobot:
         if frames is None:
             return tcp_in_wobj
         tool, wobj = frames
-        T = pose_matrix(wobj) @ pose_matrix(tcp_in_wobj) @ np.linalg.inv(pose_matrix(tool))
-        return matrix_pose(T)
+        return CartesianPose.from_matrix(wobj.to_matrix() @ tcp_in_wobj.to_matrix() @ np.linalg.inv(tool.to_matrix()))
 
     def flange_to_tcp(self, flange: CartesianPose) -> CartesianPose:
+        """The current TCP in the current work object for a flange pose (base frame)."""
         frames = self._frames()
         if frames is None:
             return flange
         tool, wobj = frames
-        T = np.linalg.inv(pose_matrix(wobj)) @ pose_matrix(flange) @ pose_matrix(tool)
-        return matrix_pose(T)
+        return CartesianPose.from_matrix(np.linalg.inv(wobj.to_matrix()) @ flange.to_matrix() @ tool.to_matrix())
 
     # -- state --------------------------------------------------------------------------------
 

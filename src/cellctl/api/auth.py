@@ -1,4 +1,4 @@
-"""Bearer-token guard for mutating routes; the token's name is the actor in the audit log."""
+"""Bearer-token guard: mutating routes need a token, reads too with ``[api] open_reads = false``; the token's name is the actor in the audit log."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from fastapi import HTTPException, Request, status
+from fastapi import Depends, HTTPException, Request, status
 from fastapi.dependencies.models import Dependant
+from fastapi.params import Depends as DependsParam
 from fastapi.routing import APIRoute
 from starlette.datastructures import Headers
 from starlette.responses import JSONResponse
@@ -58,15 +59,21 @@ class TokenGuard:
         return None if name is None else Caller(name, _source(request))
 
     def require(self, request: Request) -> Caller:
+        """The caller of a mutating route: a valid bearer token, or 401."""
         caller = self.identify(request)
         if caller is None:
             raise HTTPException(status.HTTP_401_UNAUTHORIZED, detail=UNAUTHORIZED_DETAIL, headers={"WWW-Authenticate": "Bearer"})
         return caller
 
     def read(self, request: Request) -> Caller:
+        """The caller of a read: anyone with open reads (``anonymous`` without a token), else a token holder."""
         if self.open_reads:
             return self.identify(request) or Caller("anonymous", _source(request))
         return self.require(request)
+
+    def reads(self) -> list[DependsParam]:
+        """``dependencies=`` of a router of reads: :meth:`read` runs before each of its handlers (401 when closed)."""
+        return [Depends(self.read)]
 
     def may_read_details(self, request: Request) -> bool:
         """Reads are open, or the request carries a valid token (e.g. /health's details)."""

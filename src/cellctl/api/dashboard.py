@@ -22,7 +22,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, FastAPI, Query, Request
+from fastapi import APIRouter, FastAPI, Query
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
 
@@ -30,6 +30,7 @@ from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
 from cellctl.api.routes_cycles import image_file
 from cellctl.api.schemas import CycleId
+from cellctl.api.schemas_dashboard import CycleDigest, DashboardConfig, Tolerance
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.tags import CycleStep
 from cellctl.store import CycleRecord, UnknownCycle
@@ -116,7 +117,9 @@ def scale_png(png: bytes, width: int) -> bytes:
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
+    """The page itself is open (it holds no data); its feeds (``reads``) need read access."""
     router = APIRouter(tags=["dashboard"])
+    reads = APIRouter(tags=["dashboard"], dependencies=guard.reads())
     thumbs: OrderedDict[tuple[int, str, int], bytes] = OrderedDict()
 
     @router.get("/", include_in_schema=False)
@@ -124,39 +127,36 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         html = (STATIC_DIR / "index.html").read_text(encoding="utf-8")
         return HTMLResponse(html, headers={"Cache-Control": "no-cache"})
 
-    @router.get("/dashboard/config")
-    async def dashboard_config(request: Request) -> dict[str, Any]:
-        guard.read(request)
+    @reads.get("/dashboard/config", response_model=DashboardConfig)
+    async def dashboard_config() -> DashboardConfig:
         cfg = orch.config
-        return {
-            "tolerance": {
-                "position_mm": cfg.process.tolerance.position_mm,
-                "orientation_deg": cfg.process.tolerance.orientation_deg,
-            },
-            "simulation": cfg.mode == "sim",
-            "plc_enabled": cfg.plc.enabled,
-            "plc_heartbeat_alarm": cfg.plc.heartbeat_alarm,
-            "mode_change_states": [s.upper() for s in cfg.packml.mode_change_states],
-            "status_period_s": SSE_STATUS_PERIOD_S,
-            "stale_after_s": STALE_AFTER_S,
-        }
+        return DashboardConfig(
+            tolerance=Tolerance(position_mm=cfg.process.tolerance.position_mm, orientation_deg=cfg.process.tolerance.orientation_deg),
+            simulation=cfg.mode == "sim",
+            plc_enabled=cfg.plc.enabled,
+            plc_heartbeat_alarm=cfg.plc.heartbeat_alarm,
+            mode_change_states=[s.upper() for s in cfg.packml.mode_change_states],
+            status_period_s=SSE_STATUS_PERIOD_S,
+            stale_after_s=STALE_AFTER_S,
+        )
 
-    @router.get("/dashboard/cycles")
-    async def dashboard_cycles(request: Request, limit: int = Query(40, ge=1, le=200)) -> list[dict[str, Any]]:
+    @reads.get("/dashboard/cycles", response_model=list[CycleDigest])
+    async def dashboard_cycles(limit: int = Query(40, ge=1, le=200)) -> list[CycleDigest]:
         """The newest cycles first, each with its deviations, cycle time and last image."""
-        guard.read(request)
         out = []
         for brief in await orch.store.cycles(limit=limit):
             try:
                 record = await orch.store.cycle(brief.id)
             except UnknownCycle:
                 continue
-            out.append(deviation_digest(record))
+            out.append(CycleDigest.model_validate(deviation_digest(record)))
         return out
 
-    @router.get("/dashboard/thumbs/{cycle_id}/{name}", response_class=Response)
-    async def thumb(cycle_id: CycleId, name: str, request: Request, width: int = Query(256, ge=32, le=1024)) -> Response:
-        guard.read(request)
+    @reads.get(
+        "/dashboard/thumbs/{cycle_id}/{name}", response_class=Response,
+        responses={200: {"content": {"image/png": {}}, "description": "the image scaled down (PNG)"}},
+    )  # fmt: skip
+    async def thumb(cycle_id: CycleId, name: str, width: int = Query(256, ge=32, le=1024)) -> Response:
         key = (cycle_id, name, width)
         png = thumbs.get(key)
         if png is None:
@@ -167,6 +167,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
                 thumbs.popitem(last=False)
         return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
 
+    router.include_router(reads)
     return router
 
 

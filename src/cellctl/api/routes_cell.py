@@ -7,19 +7,25 @@ import enum
 import json
 import time
 from collections.abc import AsyncIterator
-from typing import Any
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
-from fastapi.responses import PlainTextResponse, StreamingResponse
+from fastapi.responses import StreamingResponse
 
 from cellctl.api.auth import Caller, TokenGuard
-from cellctl.api.metrics import metric
-from cellctl.api.schemas import CommandResult, HealthView, StoreHealth
+from cellctl.api.metrics import CONTENT_TYPE_LATEST, CellMetrics
+from cellctl.api.schemas_cell import (
+    AlarmsView,
+    AlarmView,
+    CalibrationView,
+    CommandResult,
+    HealthView,
+    StatusView,
+    StoreHealth,
+)
 from cellctl.cell.alarms import Alarm, UnknownAlarm
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
 from cellctl.cell.tags import PackMLCommand, UnitMode
-from cellctl.store import CycleState
 
 CommandName = enum.Enum("CommandName", {c.name.lower(): c.name.lower() for c in PackMLCommand if c.value})  # type: ignore[misc]
 ModeName = enum.Enum("ModeName", {m.name.lower(): m.name.lower() for m in UnitMode if m.value})  # type: ignore[misc]
@@ -30,33 +36,36 @@ the dashboard, and a client that hears nothing for a few periods knows its data 
 comment would not do: EventSource never shows comments to the page)."""
 
 
-def alarm_json(a: Alarm) -> dict[str, Any]:
-    return {
-        "uid": a.uid,
-        "code": int(a.code),
-        "value": a.value,
-        "message": a.message,
-        "category": a.category.name.lower(),
-        "severity": a.severity.name.lower(),
-        "source": a.source,
-        "raised_at": a.raised_at.isoformat(),
-        "active": a.active,
-        "acknowledged": a.acknowledged,
-        "ack_by": a.ack_by,
-        "ack_at": a.ack_at.isoformat() if a.ack_at else None,
-        "cleared_at": a.cleared_at.isoformat() if a.cleared_at else None,
-        "reaction": a.reaction.name.lower() if a.reaction else None,
-        "cycle_id": a.cycle_id,
-    }
+def alarm_view(a: Alarm) -> AlarmView:
+    """An alarm as the API shows it."""
+    return AlarmView(
+        uid=a.uid,
+        code=int(a.code),
+        value=a.value,
+        message=a.message,
+        category=a.category.name.lower(),
+        severity=a.severity.name.lower(),
+        source=a.source,
+        raised_at=a.raised_at.isoformat(),
+        active=a.active,
+        acknowledged=a.acknowledged,
+        ack_by=a.ack_by,
+        ack_at=a.ack_at.isoformat() if a.ack_at else None,
+        cleared_at=a.cleared_at.isoformat() if a.cleared_at else None,
+        reaction=a.reaction.name.lower() if a.reaction else None,
+        cycle_id=a.cycle_id,
+    )
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
+    """The cell routes: mutating ones need the token, ``reads`` need read access, ``/health`` is open."""
     router = APIRouter(tags=["cell"])
+    reads = APIRouter(tags=["cell"], dependencies=guard.reads())
+    cell_metrics = CellMetrics(orch)
 
-    @router.get("/status")
-    async def get_status(request: Request) -> dict[str, Any]:
-        guard.read(request)
-        return orch.status()
+    @reads.get("/status", response_model=StatusView, response_model_exclude_unset=True)
+    async def get_status() -> StatusView:
+        return StatusView.model_validate(orch.status())
 
     @router.post("/commands/{name}", response_model=CommandResult, responses={409: {"description": "the state table forbids it now"}})
     async def post_command(name: CommandName, caller: Caller = Depends(guard.require)) -> CommandResult:  # type: ignore[valid-type]
@@ -76,20 +85,16 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             raise HTTPException(status.HTTP_409_CONFLICT, detail=str(err)) from None
         return CommandResult(command=f"mode:{mode.name.lower()}", state=ev.state_after.name, mode=ev.mode_after.name)
 
-    @router.get("/alarms")
-    async def get_alarms(request: Request, history: bool = False) -> dict[str, Any]:
-        guard.read(request)
+    @reads.get("/alarms", response_model=AlarmsView, response_model_exclude_unset=True)
+    async def get_alarms(history: bool = False) -> AlarmsView:
         stop = orch.alarms.stop_reason
-        out: dict[str, Any] = {
-            "current": [alarm_json(a) for a in orch.alarms.current()],
-            "stop_reason": None if stop is None else alarm_json(stop),
-        }
+        view = AlarmsView(current=[alarm_view(a) for a in orch.alarms.current()], stop_reason=None if stop is None else alarm_view(stop))
         if history:
-            out["history"] = [alarm_json(a) for a in await orch.store.alarms(limit=200)]
-        return out
+            view.history = [alarm_view(a) for a in await orch.store.alarms(limit=200)]
+        return view
 
-    @router.post("/alarms/{uid}/acknowledge")
-    async def acknowledge(uid: str, caller: Caller = Depends(guard.require)) -> dict[str, Any]:
+    @router.post("/alarms/{uid}/acknowledge", response_model=AlarmView)
+    async def acknowledge(uid: str, caller: Caller = Depends(guard.require)) -> AlarmView:
         try:
             alarm = orch.alarms.acknowledge(uid, by=caller.actor)
         except UnknownAlarm:
@@ -98,29 +103,29 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge",
             params={"uid": uid, "code": int(alarm.code)},
         )  # fmt: skip
-        return alarm_json(alarm)
+        return alarm_view(alarm)
 
-    @router.post("/alarms/acknowledge-all")
-    async def acknowledge_all(caller: Caller = Depends(guard.require)) -> list[dict[str, Any]]:
+    @router.post("/alarms/acknowledge-all", response_model=list[AlarmView])
+    async def acknowledge_all(caller: Caller = Depends(guard.require)) -> list[AlarmView]:
         done = orch.alarms.acknowledge_all(by=caller.actor)
         await orch.store.append_audit(
             actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge_all",
             params={"uids": [a.uid for a in done]},
         )  # fmt: skip
-        return [alarm_json(a) for a in done]
+        return [alarm_view(a) for a in done]
 
-    @router.get("/calibration")
-    async def get_calibration(request: Request) -> dict[str, Any]:
-        guard.read(request)
+    @reads.get("/calibration", response_model=CalibrationView, response_model_exclude_unset=True)
+    async def get_calibration() -> CalibrationView:
         versions = await asyncio.to_thread(orch.calibration.history)
-        return {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
+        return CalibrationView.model_validate(
+            {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
+        )
 
-    @router.get(
+    @reads.get(
         "/events", response_class=StreamingResponse,
         responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: state, alarm, cycle, job, prompt, ..."}},
     )  # fmt: skip
     async def events(request: Request) -> StreamingResponse:
-        guard.read(request)
         queue = orch.events.subscribe()
 
         async def stream() -> AsyncIterator[str]:
@@ -135,7 +140,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
                         continue
                     try:
                         ev = await asyncio.wait_for(queue.get(), wait_s)
-                    except asyncio.TimeoutError:
+                    except TimeoutError:
                         continue
                     yield f"id: {ev.seq}\nevent: {ev.kind}\ndata: {json.dumps(ev.data)}\n\n"
                     if ev.kind == "shutdown":  # the service is stopping: end the stream so shutdown need not wait for it
@@ -159,34 +164,14 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         info = await orch.store.info()
         return HealthView(ok=not lost, devices_lost=lost, store=StoreHealth(journal_mode=info.journal_mode))
 
-    @router.get(
+    @reads.get(
         "/metrics",
         response_class=Response,  # errors stay JSON (ErrorBody); the metrics are text
         responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}, "description": "the cell's figures"}},
     )
-    async def metrics(request: Request) -> PlainTextResponse:
+    async def metrics() -> Response:
         """Prometheus text format. With ``[api] open_reads = false`` the scraper sends the token (its ``authorization``)."""
-        guard.read(request)
-        st = orch.status()
-        counts = await orch.store.cycle_counts()
-        parts = [
-            metric("cellctl_packml_state", "gauge", "PackML StateCurrent (PackTags integer)", [({}, st["state_id"])]),
-            metric("cellctl_unit_mode", "gauge", "PackML UnitModeCurrent", [({}, st["mode_id"])]),
-            metric(
-                "cellctl_cycles", "gauge", "Cycles in the store by state",
-                [({"state": s.value}, counts.get(s, 0)) for s in CycleState],
-            ),  # fmt: skip
-            metric("cellctl_alarms_active", "gauge", "Active alarms", [({}, sum(a.active for a in orch.alarms.current()))]),
-            metric(
-                "cellctl_device_up", "gauge", "1 while the watchdog sees the device",
-                [({"device": n}, 1.0 if d["link"] == "up" else 0.0) for n, d in st["devices"].items()],
-            ),  # fmt: skip
-            metric(
-                "cellctl_device_heartbeat_age_seconds", "gauge", "Time since the device last answered",
-                [({"device": n}, d["heartbeat_age_s"]) for n, d in st["devices"].items() if d["heartbeat_age_s"] is not None],
-            ),  # fmt: skip
-            metric("cellctl_scrape_timestamp_seconds", "gauge", "Wall time of this scrape", [({}, time.time())]),
-        ]
-        return PlainTextResponse("".join(parts))
+        return Response(await cell_metrics.exposition(), media_type=CONTENT_TYPE_LATEST)
 
+    router.include_router(reads)
     return router

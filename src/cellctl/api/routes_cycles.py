@@ -2,28 +2,22 @@
 
 from __future__ import annotations
 
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from fastapi import (
-    APIRouter,
-    Depends,
-    Header,
-    HTTPException,
-    Query,
-    Request,
-    Response,
-    status,
-)
+from fastapi import APIRouter, Depends, Header, HTTPException, Query, Response, status
 from fastapi.responses import FileResponse
 
 from cellctl.api.auth import Caller, TokenGuard
-from cellctl.api.schemas import (
-    BeforeId,
+from cellctl.api.schemas import BeforeId, CycleId, ErrorBody
+from cellctl.api.schemas_cycles import (
     CycleAccepted,
-    CycleId,
+    CycleBrief,
     CycleRequestBody,
-    ErrorBody,
+    CycleView,
+    ImageView,
+    StepView,
 )
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.store import (
@@ -36,9 +30,35 @@ from cellctl.store import (
 from cellctl.store.records import MAX_TEXT_LEN
 
 
-def cycle_json(record: CycleRecord, *, full: bool = True) -> dict[str, Any]:
-    """A cycle record as the API shows it."""
-    out: dict[str, Any] = {
+def cycle_brief(record: CycleRecord) -> CycleBrief:
+    """A cycle record as ``GET /cycles`` lists it (without steps and images)."""
+    return CycleBrief(**_brief_fields(record))
+
+
+def cycle_view(record: CycleRecord) -> CycleView:
+    """A cycle record as the API shows it, with its steps and images."""
+    steps = [
+        StepView(
+            step=s.step.name.lower(), attempt=s.attempt, started_at=s.started_at.isoformat(), duration_s=s.duration_s,
+            ok=s.ok, figures=dict(s.figures), error=s.error,
+        )
+        for s in record.steps
+    ]  # fmt: skip
+    images = [
+        ImageView(
+            name=i.name, step=i.step.name.lower(), url=f"/cycles/{record.id}/images/{i.name}",
+            pruned_at=i.pruned_at.isoformat() if i.pruned_at else None, pruned_reason=i.pruned_reason,
+        )
+        for i in record.images
+    ]  # fmt: skip
+    return CycleView(**_brief_fields(record), steps=steps, images=images)
+
+
+def _brief_fields(record: CycleRecord) -> dict[str, Any]:
+    def iso(t: datetime | None) -> str | None:
+        return t.isoformat() if t else None
+
+    return {
         "id": record.id,
         "state": record.state.value,
         "recipe": record.request.recipe,
@@ -48,34 +68,15 @@ def cycle_json(record: CycleRecord, *, full: bool = True) -> dict[str, Any]:
         "actor": record.actor,
         "idempotency_key": record.idempotency_key,
         "current_step": record.current_step.name.lower(),
-        "result": record.result,
+        "result": None if record.result is None else dict(record.result),
         "error": record.error,
-        "true_error": record.true_error,
+        "true_error": None if record.true_error is None else dict(record.true_error),
         "created_at": record.created_at.isoformat(),
-        "started_at": record.started_at.isoformat() if record.started_at else None,
-        "finished_at": record.finished_at.isoformat() if record.finished_at else None,
-        "install_started_at": record.install_started_at.isoformat() if record.install_started_at else None,
+        "started_at": iso(record.started_at),
+        "finished_at": iso(record.finished_at),
+        "install_started_at": iso(record.install_started_at),
         "interrupted_step": record.interrupted_step.name.lower() if record.interrupted_step else None,
     }
-    if full:
-        out["steps"] = [
-            {
-                "step": s.step.name.lower(),
-                "attempt": s.attempt,
-                "started_at": s.started_at.isoformat(),
-                "duration_s": s.duration_s,
-                "ok": s.ok,
-                "figures": s.figures,
-                "error": s.error,
-            }
-            for s in record.steps
-        ]
-        out["images"] = [
-            {"name": i.name, "step": i.step.name.lower(), "url": f"/cycles/{record.id}/images/{i.name}",
-             "pruned_at": i.pruned_at.isoformat() if i.pruned_at else None, "pruned_reason": i.pruned_reason}
-            for i in record.images
-        ]  # fmt: skip
-    return out
 
 
 async def image_file(orch: CellOrchestrator, cycle_id: int, name: str) -> Path:
@@ -97,14 +98,16 @@ async def image_file(orch: CellOrchestrator, cycle_id: int, name: str) -> Path:
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -> APIRouter:
+    """``POST /cycle`` (needs the token) and the cycle records (``reads``: read access)."""
     router = APIRouter(tags=["cycles"])
+    reads = APIRouter(tags=["cycles"], dependencies=guard.reads())
 
     @router.post(
         "/cycle",
         status_code=status.HTTP_202_ACCEPTED,
         response_model=None,
         responses={
-            200: {"description": "with ?wait=true: the finished cycle"},
+            200: {"model": CycleView, "description": "with ?wait=true: the finished cycle"},
             202: {"model": CycleAccepted, "description": "queued (or already known under this key)"},
             401: {"model": ErrorBody, "description": "no or wrong bearer token"},
             409: {"model": ErrorBody, "description": "the cell is not in a state to take a cycle"},
@@ -120,7 +123,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
         wait: bool = Query(False, description="answer when the cycle has finished (or after timeout_s)"),
         timeout_s: float = Query(120.0, gt=0, description="how long ?wait=true waits"),
         caller: Caller = Depends(guard.require),
-    ) -> Any:
+    ) -> CycleAccepted | CycleView:
         known = sorted(orch.config.process.recipe_names().values())
         if body.recipe not in known:
             raise HTTPException(
@@ -143,7 +146,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
             record = await orch.wait_cycle(cid, min(timeout_s, wait_max_s))
             if record.state in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
                 response.status_code = status.HTTP_200_OK
-                return cycle_json(record)
+                return cycle_view(record)
         return CycleAccepted(
             cycle_id=cid,
             state=sub.cycle.state.value,
@@ -151,26 +154,23 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
             links={"self": f"/cycles/{cid}", "events": "/events"},
         )
 
-    @router.get("/cycles")
+    @reads.get("/cycles", response_model=list[CycleBrief])
     async def list_cycles(
-        request: Request,
         limit: int = Query(50, ge=1, le=1000),
         before_id: BeforeId = None,
         state: CycleState | None = None,
-    ) -> list[dict[str, Any]]:
-        guard.read(request)
+    ) -> list[CycleBrief]:
         records = await orch.store.cycles(limit=limit, before_id=before_id, state=state)
-        return [cycle_json(r, full=False) for r in records]
+        return [cycle_brief(r) for r in records]
 
-    @router.get("/cycles/{cycle_id}", responses={404: {"model": ErrorBody, "description": "no such cycle"}})
-    async def get_cycle(cycle_id: CycleId, request: Request) -> dict[str, Any]:
-        guard.read(request)
+    @reads.get("/cycles/{cycle_id}", response_model=CycleView, responses={404: {"model": ErrorBody, "description": "no such cycle"}})
+    async def get_cycle(cycle_id: CycleId) -> CycleView:
         try:
-            return cycle_json(await orch.store.cycle(cycle_id))
+            return cycle_view(await orch.store.cycle(cycle_id))
         except UnknownCycle:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no cycle {cycle_id}") from None
 
-    @router.get(
+    @reads.get(
         "/cycles/{cycle_id}/images/{name}",
         response_class=FileResponse,
         responses={
@@ -179,8 +179,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
             410: {"model": ErrorBody, "description": "the image file is no longer on disk"},
         },
     )
-    async def get_image(cycle_id: CycleId, name: str, request: Request) -> FileResponse:
-        guard.read(request)
+    async def get_image(cycle_id: CycleId, name: str) -> FileResponse:
         return FileResponse(await image_file(orch, cycle_id, name), media_type="image/png")
 
+    router.include_router(reads)
     return router

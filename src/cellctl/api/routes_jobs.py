@@ -8,22 +8,38 @@ progress and live image on ``GET /jobs/{id}`` and on the event stream (``job``, 
 from __future__ import annotations
 
 import asyncio
-from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response, status
+
+from fastapi import APIRouter, Depends, HTTPException, Query, Response, status
 
 from cellctl.api.auth import Caller, TokenGuard
 from cellctl.api.dashboard import scaled_png
-from cellctl.api.schemas import JobId, JobRequestBody, JobView, PlanView, ProcedureView, PromptAnswerBody, PromptId, PromptView
+from cellctl.api.schemas import JobId, PromptId
+from cellctl.api.schemas_jobs import (
+    JobRequestBody,
+    JobView,
+    PlanView,
+    ProcedureView,
+    PromptAnswerBody,
+    PromptView,
+)
 from cellctl.calibration.calibration_set import COMMANDS
 from cellctl.commissioning.jobs import JobManager
-from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS, JobRefused, job_view
 from cellctl.commissioning.prompts import Answer, PromptError, UnknownPrompt
+from cellctl.commissioning.registry import (
+    ALL_PROCEDURES,
+    HAND_EYE_METHODS,
+    JobRefused,
+    job_view,
+)
 from cellctl.store import UnknownJob
 
 IMAGE_WIDTH_MAX = 2048
 
 
 def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
+    """Starting, cancelling and answering jobs needs the token; ``reads`` (planning too) need read access."""
     router = APIRouter(tags=["commissioning"])
+    reads = APIRouter(tags=["commissioning"], dependencies=guard.reads())
 
     async def view(job_id: int) -> JobView:
         try:
@@ -35,8 +51,8 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
     def refused(err: JobRefused) -> HTTPException:
         return HTTPException(status.HTTP_409_CONFLICT if err.conflict else 422, detail=str(err))
 
-    @router.get("/procedures", response_model=list[ProcedureView])
-    async def procedures(caller: Caller = Depends(guard.read)) -> list[ProcedureView]:
+    @reads.get("/procedures", response_model=list[ProcedureView])
+    async def procedures() -> list[ProcedureView]:
         c = jobs.config.calibration.procedure
         defaults = {"views": c.camera.n_views, "poses": c.laser.n_poses, "store": True, "method": c.hand_eye.method}
         limits = {"views": [3.0, 200.0], "poses": [float(c.laser.min_poses), 5000.0]}
@@ -51,12 +67,12 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
             ))  # fmt: skip
         return out
 
-    @router.get("/jobs", response_model=list[JobView])
-    async def list_jobs(caller: Caller = Depends(guard.read), limit: int = Query(20, ge=1, le=500)) -> list[JobView]:
+    @reads.get("/jobs", response_model=list[JobView])
+    async def list_jobs(limit: int = Query(20, ge=1, le=500)) -> list[JobView]:
         return [JobView.model_validate(job_view(r, jobs.live(r.id))) for r in await jobs.store.jobs(limit=limit)]
 
-    @router.post("/jobs/plan", response_model=PlanView, responses={422: {"description": "no plan: the reason names the setting"}})
-    async def plan_job(body: JobRequestBody, caller: Caller = Depends(guard.read), poses: bool = Query(False, description="list every pose")) -> PlanView:
+    @reads.post("/jobs/plan", response_model=PlanView, responses={422: {"description": "no plan: the reason names the setting"}})
+    async def plan_job(body: JobRequestBody, poses: bool = Query(False, description="list every pose")) -> PlanView:
         try:
             plan = await jobs.plan(body.procedure, body.options.model_dump(exclude_none=True))
         except JobRefused as err:
@@ -72,8 +88,8 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
             raise refused(err) from None
         return await view(rec.id)
 
-    @router.get("/jobs/{job_id}", response_model=JobView, responses={404: {"description": "no such job"}})
-    async def get_job(job_id: JobId, caller: Caller = Depends(guard.read)) -> JobView:
+    @reads.get("/jobs/{job_id}", response_model=JobView, responses={404: {"description": "no such job"}})
+    async def get_job(job_id: JobId) -> JobView:
         return await view(job_id)
 
     @router.post("/jobs/{job_id}/cancel", response_model=JobView, responses={409: {"description": "the job is not running"}})
@@ -101,13 +117,14 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
             raise HTTPException(422, detail=str(err)) from None
         return PromptView.model_validate(prompt.as_dict())
 
-    @router.get("/jobs/{job_id}/image", responses={200: {"content": {"image/png": {}}}, 404: {"description": "no frame yet"}})
-    async def job_image(job_id: JobId, request: Request, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
-        guard.read(request)
+    @reads.get("/jobs/{job_id}/image", response_class=Response,
+               responses={200: {"content": {"image/png": {}}, "description": "the job's last frame, scaled"}, 404: {"description": "no frame yet"}})  # fmt: skip
+    async def job_image(job_id: JobId, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
         frame = jobs.latest_frame(job_id)
         if frame is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"job {job_id} has no frame (yet)")
         png = await asyncio.to_thread(scaled_png, frame.image, width)
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
 
+    router.include_router(reads)
     return router

@@ -27,7 +27,8 @@ def _write_json(path: Path | None, data: dict[str, Any]) -> None:
 
 
 def _cmd_accuracy(args: argparse.Namespace) -> int:
-    from cellctl.bench.accuracy import BenchRunError, RunSettings, run_accuracy, run_budget
+    from cellctl.bench.accuracy import BenchRunError, RunSettings, run_accuracy
+    from cellctl.bench.budget import run_budget
     from cellctl.bench.plots import PlotsUnavailable, check_plots_available
     from cellctl.bench.report import format_accuracy, format_budget
     from cellctl.bench.sources import BenchSettingsError, parse_off
@@ -166,6 +167,16 @@ def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figu
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
 
+def _seeds_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
+    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+
+
+def _run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
+    p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
+
+
 def register(subparsers: Any) -> None:
     """Add ``bench accuracy``, ``speed``, ``calibration`` and ``verify`` to ``cellctl``'s sub-commands."""
     bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment), speed, calibration")
@@ -199,8 +210,7 @@ def register(subparsers: Any) -> None:
         help="twin: the twin's in-process devices (default); config: the devices of --config (in config/sim.toml "
         "the real drivers against their protocol fakes)",
     )  # fmt: skip
-    p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
-    p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
+    _run_options(p)
     p.set_defaults(func=_cmd_accuracy)
 
     p = sub.add_parser(
@@ -237,8 +247,7 @@ def register(subparsers: Any) -> None:
         description="Runs the calibration procedures (as `cellctl calibrate` does) on --seeds simulated cells and "
         "prints each figure per seed, its median and worst beside the bar it must meet.",
     )
-    p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
-    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+    _seeds_options(p)
     p.add_argument(
         "--parts", default="laser",
         help="comma-separated: laser, camera, hand_eye (default laser; camera and hand_eye render board views)",
@@ -252,8 +261,7 @@ def register(subparsers: Any) -> None:
         description="Calibrates camera, hand-eye and laser on --seeds simulated cells, then runs `cellctl calibrate verify` "
         "unchanged and with the twin's camera moved on the flange (0.3 mm + 0.05 deg, 0.3 mm, 0.05 deg).",
     )
-    p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
-    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+    _seeds_options(p)
     _report_options(p)
     p.set_defaults(func=_cmd_verify)
 
@@ -272,8 +280,7 @@ def register(subparsers: Any) -> None:
     )  # fmt: skip
     p.add_argument("--image-bound-mb", type=float, default=50.0, help="the retention's image bound for the run (default 50 MB)")
     p.add_argument("--status-requests", type=_positive_int, default=300, help="GET /status requests at start and end (default 300)")
-    p.add_argument("--time-scale", type=float, default=None, help="override sim.time_scale (real s per simulated s)")
-    p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
+    _run_options(p)
     _report_options(p)
     p.set_defaults(func=_cmd_soak)
 

@@ -9,12 +9,13 @@ marked along the bottom. Needs matplotlib (the optional extra ``bench``).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from cellctl.bench.accuracy import AccuracyRun, Budget
+from cellctl.bench.accuracy import AccuracyRun
+from cellctl.bench.budget import Budget
 from cellctl.bench.stats import AXES, PAPER_TRIALS
-
 
 # Below this fraction of the tolerance the panel zooms in on the deviations.
 ZOOM_BELOW = 0.05
@@ -24,7 +25,8 @@ class PlotsUnavailable(RuntimeError):
     """matplotlib is not installed."""
 
 
-def _pyplot():  # type: ignore[no-untyped-def]
+def _pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend, or PlotsUnavailable with the fix."""
     try:
         import matplotlib
     except ImportError:

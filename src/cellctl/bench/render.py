@@ -12,7 +12,6 @@ import argparse
 import os
 import statistics
 import time
-from typing import Callable
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -20,6 +19,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from cellctl.bench.timing import median_s  # noqa: E402
 from cellctl.config.render import DisturbanceConfig, GlareConfig, OcclusionConfig, RenderConfig  # noqa: E402
 from cellctl.config.sim import SimConfig  # noqa: E402
 from cellctl.geometry.pose import make_pose  # noqa: E402
@@ -29,15 +29,6 @@ from cellctl.sim.camera import CameraRenderer  # noqa: E402
 from cellctl.sim.image_truth import camera_pose_seeing_corner  # noqa: E402
 from cellctl.sim.targets import Checkerboard, PlacedTarget  # noqa: E402
 from cellctl.sim.world import sample_world  # noqa: E402
-
-
-def _median_s(fn: Callable[[], object], runs: int) -> float:
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         renderer.render(pose, world, rng=rng)
 
     frame()  # warm-up (page faults, first-call overheads)
-    frame_s = _median_s(frame, args.runs)
+    frame_s = median_s(frame, args.runs)
     # The same frames split into their two stages, timed frame by frame.
     shade_t, sensor_t = [], []
     for world, pose in scenes:
@@ -96,15 +87,15 @@ def main(argv: list[str] | None = None) -> int:
         world, pose = next(it_d)
         disturbed.render(pose, world, rng=rng)
 
-    disturbed_s = _median_s(disturbed_frame, args.runs)
+    disturbed_s = median_s(disturbed_frame, args.runs)
 
     board = Checkerboard()
     placed = PlacedTarget(board, make_pose(rot_y(0.3) @ rot_x(-0.2), [-45.0, -25.0, 420.0]))
     board_runs = max(1, min(args.runs, 5))
-    board_s = _median_s(lambda: renderer.render(np.eye(4), None, targets=[placed], rng=rng), board_runs)
+    board_s = median_s(lambda: renderer.render(np.eye(4), None, targets=[placed], rng=rng), board_runs)
 
     image = renderer.render(scenes[0][1], scenes[0][0], rng=rng).image
-    blur_s = _median_s(lambda: cv2.GaussianBlur(image, (0, 0), 1.0), max(args.runs, 20))
+    blur_s = median_s(lambda: cv2.GaussianBlur(image, (0, 0), 1.0), max(args.runs, 20))
 
     print(
         f"twin camera render, {intr.width_px} x {intr.height_px} 8-bit, one core, {args.runs} frames, seed {args.seed}"

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from cellctl.bench.accuracy import AccuracyRun, Budget
+from cellctl.bench.accuracy import AccuracyRun
+from cellctl.bench.budget import Budget
 from cellctl.bench.sources import CALIBRATION_SOURCE, ERROR_SOURCES
 from cellctl.bench.stats import AXES, PAPER_TRIALS, TARGET_P99
 

@@ -29,11 +29,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
-import time
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Callable
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -42,6 +39,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from cellctl.bench.timing import median_s  # noqa: E402
 from cellctl.bench.vision_args import add_arguments  # noqa: E402
 from cellctl.config.render import DisturbanceConfig, GlareConfig, OcclusionConfig, RenderConfig  # noqa: E402
 from cellctl.config.sim import SimConfig  # noqa: E402
@@ -188,15 +186,6 @@ def measure_accuracy(
     return acc
 
 
-def _median_s(fn: Callable[[], object], runs: int) -> float:
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def _report(name: str, acc: Accuracy, factor: float, min_accepted: float = 0.0) -> None:
     f = acc.figures()
     refused = ", ".join(f"{k} {v}" for k, v in sorted(acc.refusals.items())) or "none"
@@ -245,9 +234,9 @@ def run(args: argparse.Namespace) -> int:
         world, pose = shooting_scene(r, sim, rng)
         image = r.render(pose, world, rng=rng).image
         detect_corner(image, lens, config)  # warm-up
-        detect_s = _median_s(lambda: detect_corner(image, lens, config), args.runs)
+        detect_s = median_s(lambda: detect_corner(image, lens, config), args.runs)
         c = config.coarse
-        canny_s = _median_s(lambda: cv2.Canny(image, c.canny_low, c.canny_high, L2gradient=c.canny_l2_gradient), args.runs)
+        canny_s = median_s(lambda: cv2.Canny(image, c.canny_low, c.canny_high, L2gradient=c.canny_l2_gradient), args.runs)
         if not times:
             print(f"window-corner detector, {image.shape[1]} x {image.shape[0]} 8-bit, one core, seed {args.seed}")
         print(f"  {label}: median detection {detect_s * 1e3:.1f} ms, cv2.Canny on the same frame {canny_s * 1e3:.1f} ms, "

@@ -31,18 +31,19 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    field_validator,
-    model_validator,
-)
+from pydantic import Field, ValidationError
 
+from cellctl.calibration.set_parts import (
+    PART_MODELS,
+    CalibrationSetError,
+    DatasetRef,
+    Parts,
+    StrictRecord,
+    PartRecord,
+)
 from cellctl.compensate import TaughtPoses
 from cellctl.config.loader import format_validation_errors
-from cellctl.geometry.pose import Pose, check_pose
+from cellctl.geometry.pose import Pose
 
 FORMAT = "cellctl-calibration-set"
 FORMAT_VERSION = 1
@@ -64,198 +65,7 @@ COMMANDS = {
 }
 
 
-class CalibrationSetError(ValueError):
-    """A calibration set file cannot be used; the message names each bad field."""
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-def _finite_matrix(v: Any, shape: tuple[int, ...], what: str) -> list[Any]:
-    a = np.asarray(v, dtype=float)
-    if a.shape != shape:
-        raise ValueError(f"{what} must be a {' x '.join(map(str, shape))} array, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{what} contains NaN or infinite values")
-    return a.tolist()  # type: ignore[no-any-return]
-
-
-def _pose(v: Any) -> list[list[float]]:
-    m = _finite_matrix(v, (4, 4), "pose")
-    check_pose(np.asarray(m), "pose", tol=1e-6)
-    return m
-
-
-class CameraValues(_Model):
-    K: list[list[float]]
-    dist: list[float]
-    image_size: tuple[int, int]
-
-    @field_validator("K")
-    @classmethod
-    def _k(cls, v: Any) -> list[list[float]]:
-        K = np.asarray(_finite_matrix(v, (3, 3), "K"))
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[1, 0]) + abs(K[2, 0]) + abs(K[2, 1]) > 0 or K[2, 2] != 1.0:
-            raise ValueError("K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-        return K.tolist()  # type: ignore[no-any-return]
-
-    @field_validator("dist")
-    @classmethod
-    def _dist(cls, v: Any) -> list[float]:
-        return _finite_matrix(v, (5,), "dist (k1, k2, p1, p2, k3)")
-
-    @model_validator(mode="after")
-    def _pp_inside(self) -> "CameraValues":
-        w, h = self.image_size
-        if w <= 0 or h <= 0:
-            raise ValueError(f"image_size must be positive (width, height), got {self.image_size}")
-        if not (0 <= self.K[0][2] < w and 0 <= self.K[1][2] < h):
-            raise ValueError("the principal point (K[0][2], K[1][2]) lies outside the image")
-        return self
-
-
-class HandEyeValues(_Model):
-    T_H_C: list[list[float]]
-
-    @field_validator("T_H_C")
-    @classmethod
-    def _pose_ok(cls, v: Any) -> list[list[float]]:
-        return _pose(v)
-
-
-class LaserValues(_Model):
-    r: list[float]
-    l: list[float]  # noqa: E741
-
-    @field_validator("r")
-    @classmethod
-    def _r(cls, v: Any) -> list[float]:
-        return _finite_matrix(v, (3,), "r")
-
-    @field_validator("l")
-    @classmethod
-    def _l(cls, v: Any) -> list[float]:
-        a = np.asarray(_finite_matrix(v, (3,), "l"))
-        if abs(np.linalg.norm(a) - 1.0) > 1e-6:
-            raise ValueError(f"l must be a unit vector, its length is {np.linalg.norm(a):.9f}")
-        return a.tolist()  # type: ignore[no-any-return]
-
-
-class PixelMapValues(_Model):
-    affine: list[list[float]]
-    scale_mm_per_px: float = Field(gt=0)
-
-    @field_validator("affine")
-    @classmethod
-    def _affine(cls, v: Any) -> list[list[float]]:
-        a = np.asarray(_finite_matrix(v, (2, 3), "affine"))
-        if abs(np.linalg.det(a[:, :2])) < 1e-12:
-            raise ValueError("affine: its 2x2 part is singular (it maps the image onto a line)")
-        return a.tolist()  # type: ignore[no-any-return]
-
-
-class TeachingValues(_Model):
-    T0: list[list[float]]
-    C_Pos_0: list[list[float]]
-    g_Pos_0: list[list[float]]
-    u_d: float
-    v_d: float
-    theta_d: float
-    top_angle_d: float
-    right_angle_d: float
-
-    @field_validator("T0", "C_Pos_0", "g_Pos_0")
-    @classmethod
-    def _pose_ok(cls, v: Any) -> list[list[float]]:
-        return _pose(v)
-
-    @field_validator("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")
-    @classmethod
-    def _finite(cls, v: float) -> float:
-        if not np.isfinite(v):
-            raise ValueError("must be a finite number")
-        return v
-
-
-class DatasetRef(_Model):
-    """Where the data of a part lies and a fingerprint of it, for audits and recomputation."""
-
-    kind: str
-    path: str
-    manifest_sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
-    summary: dict[str, Any] = {}
-
-
-class _Part(_Model):
-    id: str = Field(min_length=1)
-    status: Literal["ok", "failed"]
-    calibrated_utc: datetime
-    valid_days: float = Field(gt=0)
-    method: str
-    software: dict[str, str] = {}
-    inputs: dict[str, str] = {}
-    dataset: DatasetRef | None = None
-    quality: dict[str, Any] = {}
-    warnings: list[str] = []
-    failure: str | None = None
-
-    @field_validator("calibrated_utc")
-    @classmethod
-    def _aware(cls, v: datetime) -> datetime:
-        if v.tzinfo is None:
-            raise ValueError("needs a time zone (write it as UTC, e.g. 2025-01-31T12:00:00Z)")
-        return v.astimezone(timezone.utc)
-
-    @model_validator(mode="after")
-    def _status(self) -> "_Part":
-        values = getattr(self, "values", None)
-        if self.status == "ok" and (values is None or self.failure is not None):
-            raise ValueError("a part with status 'ok' needs values and no failure")
-        if self.status == "failed" and not self.failure:
-            raise ValueError("a part with status 'failed' needs the failure reason")
-        return self
-
-
-class CameraPart(_Part):
-    values: CameraValues | None = None
-
-
-class HandEyePart(_Part):
-    values: HandEyeValues | None = None
-
-
-class LaserPart(_Part):
-    values: LaserValues | None = None
-
-
-class PixelMapPart(_Part):
-    values: PixelMapValues | None = None
-
-
-class TeachingPart(_Part):
-    values: TeachingValues | None = None
-
-
-AnyPart = CameraPart | HandEyePart | LaserPart | PixelMapPart | TeachingPart
-PART_MODELS: dict[str, type[_Part]] = {
-    "camera": CameraPart,
-    "hand_eye": HandEyePart,
-    "laser": LaserPart,
-    "pixel_map": PixelMapPart,
-    "teaching": TeachingPart,
-}
-
-
-class Parts(_Model):
-    camera: CameraPart | None = None
-    hand_eye: HandEyePart | None = None
-    laser: LaserPart | None = None
-    pixel_map: PixelMapPart | None = None
-    teaching: TeachingPart | None = None
-
-
-class CalibrationSet(_Model):
+class CalibrationSet(StrictRecord):
     """One version of the calibration set (see the module docstring)."""
 
     format: Literal["cellctl-calibration-set"] = FORMAT
@@ -266,7 +76,7 @@ class CalibrationSet(_Model):
     note: str = ""
     parts: Parts = Parts()
 
-    def part(self, name: str) -> _Part | None:
+    def part(self, name: str) -> PartRecord | None:
         if name not in PART_NAMES:
             raise KeyError(f"unknown calibration part {name!r}; the parts are {', '.join(PART_NAMES)}")
         return getattr(self.parts, name)  # type: ignore[no-any-return]
@@ -311,7 +121,7 @@ class CalibrationSet(_Model):
         v = self._ok("teaching")
         return {k: float(getattr(v, k)) for k in ("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")}
 
-    def with_part(self, name: str, part: _Part, *, version: int, created_utc: datetime, note: str = "") -> "CalibrationSet":
+    def with_part(self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "") -> "CalibrationSet":
         """A new version with ``part`` as ``name`` and every other part kept."""
         if not isinstance(part, PART_MODELS[name]):
             raise TypeError(f"part {name} must be a {PART_MODELS[name].__name__}, got {type(part).__name__}")
@@ -385,7 +195,7 @@ def make_part(
     dataset: DatasetRef | None = None,
     software: dict[str, str] | None = None,
     failure: str | None = None,
-) -> _Part:
+) -> PartRecord:
     """A validated part record; ``values`` None with a ``failure`` makes a failed part."""
     if name not in PART_MODELS:
         raise KeyError(f"unknown calibration part {name!r}")
@@ -533,7 +343,7 @@ class CalibrationStore:
             os.fsync(f.fileno())
         os.replace(tmp, path)
 
-    def commit(self, name: str, part: _Part, *, note: str = "", now: datetime | None = None) -> CalibrationSet:
+    def commit(self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None) -> CalibrationSet:
         """Store a new version with ``part`` replacing ``name`` and make it current."""
         when = now or datetime.now(timezone.utc)
         self.root.mkdir(parents=True, exist_ok=True)

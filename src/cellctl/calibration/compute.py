@@ -27,6 +27,7 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import HandEyeLimits, board_pose, solve_hand_eye
 from cellctl.calibration.laser import LaserLimits, calibrate_laser
 from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
+from cellctl.calibration.summary import summary_lines
 from cellctl.calibration.teach import workpiece_frame_from_corner
 from cellctl.compensate import deviation_in_frame
 from cellctl.config.schema import CellConfig
@@ -49,8 +50,12 @@ class Outcome:
     quality: dict[str, Any]
     warnings: list[str] = field(default_factory=list)
     inputs: dict[str, str] = field(default_factory=dict)
-    summary: list[str] = field(default_factory=list)
     detail: Any = None
+
+    @property
+    def summary(self) -> list[str]:
+        """The outcome in a few readable lines (cellctl.calibration.summary)."""
+        return summary_lines(self.part, self.values, self.quality)
 
 
 def _board(ds: Dataset) -> BoardSpec:
@@ -124,19 +129,6 @@ def compute_camera(
             "cx_error_px": i.cx - truth["cx"],
             "cy_error_px": i.cy - truth["cy"],
         }
-    summary = [
-        f"fx {i.fx:.2f} +- {res.std['fx']:.2f} px, fy {i.fy:.2f} +- {res.std['fy']:.2f} px",
-        f"cx {i.cx:.2f} +- {res.std['cx']:.2f} px, cy {i.cy:.2f} +- {res.std['cy']:.2f} px",
-        "k1 k2 p1 p2 k3 " + " ".join(f"{v:.5g}" for v in i.dist),
-        f"RMS reprojection {res.rms_px:.4f} px over {len(res.per_view_rms_px)} of {len(views)} views, "
-        f"image coverage {res.coverage:.0%}",
-    ]
-    if "twin_truth" in quality:
-        t = quality["twin_truth"]
-        summary.append(
-            f"true error: fx {t['fx_error_pct']:+.4f} %, fy {t['fy_error_pct']:+.4f} %, "
-            f"cx {t['cx_error_px']:+.3f} px, cy {t['cy_error_px']:+.3f} px"
-        )
     return Outcome(
         "camera",
         "zhang (cv2.calibrateCameraExtended), corners by findChessboardCornersSB" + f" + {cc.refine}",
@@ -144,7 +136,6 @@ def compute_camera(
         quality,
         warnings,
         {},
-        summary,
         res,
     )
 
@@ -228,18 +219,6 @@ def compute_hand_eye(
         "max_disagreement_deg": worst_deg,
     }
     truth = ds.manifest.get("twin_truth", {}).get("T_H_C")
-    summary = [
-        f"T_H_C translation {np.array2string(X[:3, 3], precision=3)} mm ({rep.chosen}, {len(H)} views, {d.n_pairs} motion pairs)",
-        f"residuals: AX=XB {rep.solutions[rep.chosen].residual.rotation_rms_deg:.4f} deg / "
-        f"{rep.solutions[rep.chosen].residual.translation_rms_mm:.3f} mm RMS, board spread "
-        f"{rep.solutions[rep.chosen].residual.board_spread_mm:.3f} mm, chain reprojection "
-        f"{rep.solutions[rep.chosen].residual.reprojection_rms_px:.3f} px",
-        "methods vs " + rep.chosen + ": " + ", ".join(
-            f"{m.replace('opencv_', 'cv2-')} {rep.agreement_mm[m]:.3f} mm/{rep.agreement_deg[m]:.4f} deg"
-            for m in rep.solutions if m != rep.chosen
-        ),
-        f"motion: axis spread {d.axis_spread:.2f} (3-D {d.axis_spread_3d:.2f}), pair angles up to {d.max_pair_angle_deg:.0f} deg",
-    ]
     if truth is not None:
         Xt = np.asarray(truth, dtype=float)
         tq = {}
@@ -249,10 +228,6 @@ def compute_hand_eye(
                 "rotation_error_deg": float(np.degrees(rotation_angle_between(s.T_H_C[:3, :3], Xt[:3, :3]))),
             }
         quality["twin_truth"] = tq
-        summary.append(
-            f"true error: {tq[rep.chosen]['translation_error_mm']:.3f} mm, {tq[rep.chosen]['rotation_error_deg']:.4f} deg "
-            "(robot poses are the controller's beliefs: its accuracy and repeatability are in them)"
-        )
     return Outcome(
         "hand_eye",
         f"{rep.chosen} (" + ("own implementation of Tsai-Lenz" if rep.chosen == "tsai" else "cv2.calibrateHandEye") + ")",
@@ -260,7 +235,6 @@ def compute_hand_eye(
         quality,
         warnings,
         {"camera": camera_id},
-        summary,
         rep,
     )
 
@@ -301,12 +275,6 @@ def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
     warnings = []
     if dropped > 0.2 * len(rows):
         warnings.append(f"{dropped} of {len(rows)} readings had no value; check the aim point and the sensor's range")
-    summary = [
-        f"r {np.array2string(res.r, precision=4)} mm +- {np.array2string(res.r_sigma_mm, precision=3)}",
-        f"l {np.array2string(res.l, precision=6)} +- {np.array2string(res.l_sigma_deg, precision=4)} deg",
-        f"plane residual {res.rms_mm:.4f} mm RMS (max {res.max_residual_mm:.4f}) over {res.n_poses} readings "
-        f"({dropped} without value), normal seen over {res.direction_spread_deg[0]:.1f} / {res.direction_spread_deg[1]:.1f} deg",
-    ]
     truth = ds.manifest.get("twin_truth")
     if truth and "r" in truth:
         rt, ltrue = np.asarray(truth["r"], float), np.asarray(truth["l"], float)
@@ -315,15 +283,10 @@ def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
             "r_error_components_mm": (res.r - rt).tolist(),
             "l_error_deg": float(np.degrees(angle_between_vectors(res.l, ltrue))),
         }
-        t = quality["twin_truth"]
-        summary.append(
-            f"true error: r {t['r_error_mm']:.3f} mm, l {t['l_error_deg']:.4f} deg (robot poses are the "
-            "controller's beliefs: its accuracy and repeatability are in them)"
-        )
     method = "plane constraint, Levenberg-Marquardt, |l| = 1, plane estimated" + (
         f", sensor linearity modelled ({lc.linearity_terms} Legendre terms)" if lc.linearity_terms else ""
     )
-    return Outcome("laser", method, {"r": res.r.tolist(), "l": res.l.tolist()}, quality, warnings, {}, summary, res)
+    return Outcome("laser", method, {"r": res.r.tolist(), "l": res.l.tolist()}, quality, warnings, {}, res)
 
 
 # -- nine-point and scale -----------------------------------------------------------------------
@@ -379,12 +342,6 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
             f"the nine-point map's scale ({amap.mm_per_px:.6f} mm/px) and the checkerboard's ({s:.6f} mm/px) differ by "
             f"{agree:.2%}: is the checkerboard flat on the wall, and the camera at the taught pose?"
         )
-    summary = [
-        f"nine-point map: {amap.mm_per_px:.6f} mm/px, image u axis at {np.degrees(amap.rotation_rad):+.4f} deg in T0, "
-        f"residual {amap.rms_mm:.4f} mm RMS (max {amap.max_mm:.4f})",
-        f"pixel scale s (eq. 15) {s:.6f} mm/px over {scale.n_pairs} corner pairs (spread {scale.ratio_std:.2e}); "
-        f"map and s differ by {agree:.3%}",
-    ]
     return Outcome(
         "pixel_map",
         "nine-point by robot moves over the window corner (vision.fit_affine_map); scale by eq. 15 (vision.checkerboard_scale)",
@@ -392,7 +349,6 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
         quality,
         warnings,
         {"camera": camera_id, "teaching": teaching_id},
-        summary,
         (amap, scale),
     )
 
@@ -496,21 +452,6 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         "operator": ds.manifest.get("operator", {}),
         "g_Pos_0_installs": installs,
     }
-    summary = [
-        f"wall fit {plane.rms:.4f} mm RMS over {len(align.wall.inliers)} spots; C_Pos_0 at "
-        f"{np.array2string(C_Pos_0[:3, 3], precision=2)} mm",
-        f"template: u_d {f.u_px:.3f} px, v_d {f.v_px:.3f} px, theta_d {np.degrees(f.theta_rad):+.4f} deg "
-        f"(corner sigma {m.corner_sigma_px:.3f} px)",
-        "feature edge: "
-        + "; ".join(
-            f"{e.name} edge step {e.profile.feature} of {len(e.profile.steps)} found across it"
-            for e in (m.top, m.right)
-            if e is not None and e.profile is not None
-        ),
-        f"T0 at {np.array2string(T0[:3, 3], precision=2)} mm, {np.linalg.norm(dn):.2f} mm from the layout's nominal corner",
-        f"g_Pos_0 at {np.array2string(g_Pos_0[:3, 3], precision=2)} mm, the mean of {installs['count']} hand-guided "
-        f"install(s) (corner within {installs['spread_mm']:.3f} mm, glass within {installs['spread_deg']:.4f} deg of it)",
-    ]
     truth = ds.manifest.get("twin_truth")
     if truth:
         Tt = np.asarray(truth["T_B_T"], dtype=float)
@@ -520,12 +461,6 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
             "T0_error_deg": np.degrees(dr).tolist(),
             "g_Pos_0_install_error": truth.get("g_Pos_0_install_error"),
         }
-        ie = truth.get("g_Pos_0_install_error") or {}
-        summary.append(
-            f"true error: T0 {np.array2string(dt, precision=3)} mm, {np.array2string(np.degrees(dr), precision=4)} deg; "
-            f"glass at g_Pos_0 off by ({ie.get('dx_mm', float('nan')):+.3f}, {ie.get('dy_mm', float('nan')):+.3f}, "
-            f"{ie.get('dz_mm', float('nan')):+.3f}) mm"
-        )
     values = {
         "T0": T0.tolist(),
         "C_Pos_0": C_Pos_0.tolist(),
@@ -544,7 +479,6 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         quality,
         [],
         ids,
-        summary,
         (align, m, T0),
     )
 

@@ -1,30 +1,15 @@
-"""Hand-eye calibration: the camera's pose T_H_C on the flange from robot poses and board views.
+"""Hand-eye calibration (paper section 2, Tsai's method [28], result eq. 18): T_H_C from flange poses and board views.
 
-The board stands still in the base frame while the robot moves the camera around it. For views i
-and j, with T_B_H the flange poses the robot reports and T_C_P the board poses the camera sees,
-``T_B_H_i @ X @ T_C_P_i = T_B_H_j @ X @ T_C_P_j`` for the unknown X = T_H_C, i.e.
+The board stands still in B while the camera moves around it. For views i, j with flange poses
+T_B_H and board poses T_C_P, X = T_H_C solves ``A @ X = X @ B`` with
+``A = inv(T_B_H_j) @ T_B_H_i`` (flange motion) and ``B = T_C_P_j @ inv(T_C_P_i)`` (camera motion).
 
-    A @ X = X @ B,   A = inv(T_B_H_j) @ T_B_H_i  (flange motion),  B = T_C_P_j @ inv(T_C_P_i)  (camera motion).
-
-:func:`tsai_lenz` solves it the way the paper does (Tsai and Lenz, 1989), written here from the
-method: with P = 2 sin(theta/2) * axis (modified Rodrigues vectors) of A and B, the rotation of X
-maps P_B onto P_A, so for every pair ``skew(P_A + P_B) @ P' = P_B - P_A`` with
-P' = tan(phi/2) * axis of X; P' comes from linear least squares over all pairs, then
-P_X = 2 P' / sqrt(1 + |P'|^2) and R_X = (1 - |P_X|^2/2) I + (P_X P_X^T + sqrt(4 - |P_X|^2) skew(P_X)) / 2.
-The translation follows from ``(R_A - I) t_X = R_X t_B - t_A`` by least squares. Because
-tan(phi/2) grows without bound as X's rotation nears 180 deg, the solve runs twice: the second
-time for the small rotation left after the first estimate (B turned into its frame), which is
-well conditioned whatever the mounting.
-
-OpenCV's ``cv2.calibrateHandEye`` (Tsai, Park, Horaud, Andreff, Daniilidis) runs beside it on the
-same data; the method goes in by keyword (positionally it lands in an output argument and Tsai
-runs regardless, DESIGN.md section 7). :func:`solve_hand_eye` reports every method with its
-residuals and how far the methods are from each other, and refuses data whose motions cannot
-determine X (too few views, rotations all about one axis, rotations too small).
-
-The robot poses are the controller's beliefs: the twin's absolute-accuracy field and
-repeatability are in them, while the camera sees the truth, so the residuals include the robot's
-own error, as on a real cell.
+:func:`tsai_lenz` (Tsai and Lenz, 1989): with P = 2 sin(theta/2) axis of A and B,
+``skew(P_A + P_B) @ P' = P_B - P_A`` by least squares over all pairs, P_X = 2 P' / sqrt(1 + |P'|^2),
+then ``(R_A - I) t_X = R_X t_B - t_A``; a second pass on the rotation left after the first keeps
+it well conditioned near 180 deg. OpenCV's five methods run beside it (method passed by keyword,
+DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion sets that cannot
+determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
 """
 
 from __future__ import annotations
@@ -38,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose
+from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose, mean_pose
 from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
 
 F64 = NDArray[np.float64]
@@ -246,12 +231,6 @@ class HandEyeReport:
         return self.solutions[self.chosen].T_H_C
 
 
-def _mean_pose(poses: Sequence[F64]) -> F64:
-    R = nearest_rotation(np.sum([p[:3, :3] for p in poses], axis=0))
-    t = np.mean([p[:3, 3] for p in poses], axis=0)
-    return make_pose(R, t)
-
-
 def evaluate_hand_eye(
     X: ArrayLike,
     T_B_H: Sequence[ArrayLike],
@@ -272,7 +251,7 @@ def evaluate_hand_eye(
         rot.append(np.linalg.norm(matrix_to_axis_angle(E[:3, :3])))
         tra.append(np.linalg.norm(E[:3, 3]))
     boards = [np.asarray(h, dtype=float) @ Xm @ np.asarray(c, dtype=float) for h, c in zip(T_B_H, T_C_P)]
-    mean = _mean_pose(boards)
+    mean = mean_pose(np.stack(boards))
     spread_t = np.sqrt(np.mean([np.sum((b[:3, 3] - mean[:3, 3]) ** 2) for b in boards]))
     spread_r = np.sqrt(np.mean([rotation_angle_between(b[:3, :3], mean[:3, :3]) ** 2 for b in boards]))
     reproj = None

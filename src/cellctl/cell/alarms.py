@@ -1,25 +1,18 @@
-"""Alarms: PackML alarm records, the fault-to-command reaction table, first-out stop reason, acknowledge.
+"""Alarms: the alarm manager (raise, clear, acknowledge, react, first-out stop reason).
 
-Two tables are the single sources of truth here:
-
-- :data:`REACTIONS`: fault class -> the PackML command the cell issues (cell_conventions.md 1.3):
-  vision/measurement NOK or operator intervention -> Hold (internal, the operator fixes it);
-  external conditions (no car, PLC not ready) -> Suspend (resumes when the condition clears);
-  robot/controller fault, or the PLC heartbeat lost while the robot moves -> Abort.
-- :data:`ALARM_CATALOGUE`: alarm code (PackML ``Alarm.ID``) -> fault class, text, and whether
-  the alarm is a *condition* (active until its source clears it, e.g. a lost link) or an *event*
-  (latched: active until acknowledged, e.g. a corner not found).
-
-A record carries the fields of PackML's alarm structure (``PackMLAlarmDataType``: ID, Value,
-Message, Category, DateTime, AckDateTime, Trigger) plus severity, source and the reaction taken.
-The fault class's integer is the PackML ``Category``.
+The manager applies the tables of :mod:`cellctl.cell.alarm_table` (fault class -> PackML command,
+alarm code -> fault class, text, condition or event) and makes :class:`~cellctl.domain.Alarm`
+records: the fields of PackML's alarm structure (``PackMLAlarmDataType``: ID, Value, Message,
+Category, DateTime, AckDateTime, Trigger) plus severity, source and the reaction taken. The fault
+class's integer is the PackML ``Category``.
 
 Recovery interlock: while an alarm with a reaction is active, Reset, Start, Unhold and Unsuspend
 are refused (``install()`` registers the guards) and entering Execute re-applies the strongest
 pending reaction, so production never resumes over an unresolved fault. Clear (Aborted ->
 Stopped) stays open so the operator can always leave Aborted.
 
-Regenerate the docs with ``python -m cellctl.cell.alarms -o docs/alarm_reactions.md``.
+The alarm records and enumerations (:mod:`cellctl.domain`) and the tables are re-exported here,
+so ``from cellctl.cell.alarms import AlarmCode, AlarmManager`` gives a caller all it needs.
 """
 
 from __future__ import annotations
@@ -31,229 +24,48 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
-from types import MappingProxyType
 
+from cellctl.cell.alarm_table import (
+    ALARM_CATALOGUE,
+    REACTIONS,
+    RECOVERY_COMMANDS,
+    STOP_REASON_RESET_COMMANDS,
+    reaction_for,
+)
 from cellctl.cell.observers import Fanout
-from cellctl.cell.packml import CommandRefused, MachineEvent, PackMLMachine, next_state
-from cellctl.cell.tags import PackMLCommand, PackMLState
-from cellctl.markdown_doc import markdown_doc_main
+from cellctl.cell.packml import CommandRefused, PackMLMachine, next_state
+from cellctl.domain import (
+    Alarm,
+    AlarmCode,
+    FaultClass,
+    MachineEvent,
+    PackMLCommand,
+    PackMLState,
+    Severity,
+)
+
+# The records (cellctl.domain) and tables (cellctl.cell.alarm_table) are re-exported for the callers.
+__all__ = [
+    "ALARM_CATALOGUE",
+    "REACTIONS",
+    "RECOVERY_COMMANDS",
+    "Alarm",
+    "AlarmCode",
+    "AlarmEvent",
+    "AlarmEventKind",
+    "AlarmManager",
+    "FaultClass",
+    "Severity",
+    "UnknownAlarm",
+]
 
 C = PackMLCommand
 
-
-class FaultClass(enum.IntEnum):
-    """What kind of fault; the value is the PackML alarm ``Category``."""
-
-    MEASUREMENT_NOK = 1
-    OPERATOR_INTERVENTION = 2
-    SENSOR_LOST = 3
-    EXTERNAL_CONDITION = 4
-    PLC_HEARTBEAT_LOST = 5
-    ROBOT_FAULT = 6
-    SOFTWARE_FAULT = 7
-    WARNING = 8
-
-
-class Severity(enum.IntEnum):
-    WARNING = 1  # shown and logged, no state change
-    ERROR = 2  # production pauses (Hold or Suspend)
-    CRITICAL = 3  # the cell aborts (or may, e.g. heartbeat lost while moving)
-
-
-@dataclass(frozen=True)
-class Reaction:
-    """The command for a fault class, with the robot standing still or moving."""
-
-    when_still: PackMLCommand | None
-    when_moving: PackMLCommand | None
-    severity: Severity
-    why: str
-
-    def command(self, robot_moving: bool) -> PackMLCommand | None:
-        return self.when_moving if robot_moving else self.when_still
-
-
-REACTIONS: Mapping[FaultClass, Reaction] = MappingProxyType(
-    {
-        FaultClass.MEASUREMENT_NOK: Reaction(
-            C.HOLD, C.HOLD, Severity.ERROR, "vision or measurement NOK: internal, the operator fixes it"
-        ),
-        FaultClass.OPERATOR_INTERVENTION: Reaction(
-            C.HOLD, C.HOLD, Severity.ERROR, "needs an operator decision: internal, the operator fixes it"
-        ),
-        FaultClass.SENSOR_LOST: Reaction(
-            C.HOLD, C.HOLD, Severity.ERROR, "laser or camera link lost: the cell cannot measure until it is back"
-        ),
-        FaultClass.EXTERNAL_CONDITION: Reaction(
-            C.SUSPEND, C.SUSPEND, Severity.ERROR, "no car in position, PLC not ready: external, resumes when it clears"
-        ),
-        FaultClass.PLC_HEARTBEAT_LOST: Reaction(
-            C.HOLD, C.ABORT, Severity.CRITICAL, "line PLC silent: Hold if the robot stands still, Abort if it moves"
-        ),
-        FaultClass.ROBOT_FAULT: Reaction(
-            C.ABORT, C.ABORT, Severity.CRITICAL, "robot or controller fault, or its link lost"
-        ),
-        FaultClass.SOFTWARE_FAULT: Reaction(
-            C.ABORT, C.ABORT, Severity.CRITICAL, "a supervised task of the cell died"
-        ),
-        FaultClass.WARNING: Reaction(None, None, Severity.WARNING, "shown and logged; no state change"),
-    }
-)
-
 _STRENGTH: Mapping[PackMLCommand, int] = {C.SUSPEND: 1, C.HOLD: 2, C.STOP: 3, C.ABORT: 4}
+"""How strong a reaction is: entering Execute applies the strongest pending one."""
 
 
-class AlarmCode(enum.IntEnum):
-    """PackML ``Alarm.ID`` values of this cell (the thousands group the fault family)."""
-
-    LASER_LOST = 1101
-    CAMERA_LOST = 1102
-    ROBOT_LOST = 1103
-    LASER_READ_FAILED = 1104
-    CAMERA_GRAB_FAILED = 1105
-    PLC_HEARTBEAT_LOST = 1201
-    PLC_NOT_READY = 1202
-    NO_CAR_IN_POSITION = 1203
-    ALIGNMENT_FAILED = 1301
-    CORNER_NOT_FOUND = 1302
-    RESIDUAL_OVER_LIMIT = 1303
-    CORRECTION_LIMIT_EXCEEDED = 1304
-    CALIBRATION_INVALID = 1305
-    CYCLE_INTERRUPTED = 1306
-    CALIBRATION_DRIFT = 1307
-    CALIBRATION_CHECK_DUE = 1308
-    CYCLE_STOPPED = 1309
-    NOT_IN_EXECUTE = 1310
-    ROBOT_FAULT = 1401
-    TASK_FAILED = 1501
-    DEVICE_SLOW = 1601
-    DISK_SPACE_LOW = 1701
-    DISK_SPACE_CRITICAL = 1702
-
-
-@dataclass(frozen=True)
-class AlarmSpec:
-    fault_class: FaultClass
-    text: str
-    condition: bool  # True: active until cleared by its source; False: latched until acknowledged
-
-
-ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
-    {
-        AlarmCode.LASER_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Laser sensor link lost", True),
-        AlarmCode.CAMERA_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Camera link lost", True),
-        AlarmCode.ROBOT_LOST: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot controller link lost", True),
-        # What a cycle saw fail (an event: acknowledge it); the link itself is the watchdog's 1101/1102.
-        AlarmCode.LASER_READ_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A laser reading failed during the cycle", False),
-        AlarmCode.CAMERA_GRAB_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A camera grab failed during the cycle", False),
-        AlarmCode.PLC_HEARTBEAT_LOST: AlarmSpec(FaultClass.PLC_HEARTBEAT_LOST, "Line PLC heartbeat lost", True),
-        AlarmCode.PLC_NOT_READY: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "Line PLC not ready", True),
-        AlarmCode.NO_CAR_IN_POSITION: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "No car body in position", True),
-        AlarmCode.ALIGNMENT_FAILED: AlarmSpec(FaultClass.MEASUREMENT_NOK, "Laser alignment failed", False),
-        AlarmCode.CORNER_NOT_FOUND: AlarmSpec(FaultClass.MEASUREMENT_NOK, "Opening corner not found in the image", False),
-        AlarmCode.RESIDUAL_OVER_LIMIT: AlarmSpec(
-            FaultClass.MEASUREMENT_NOK, "Verification shot residual above the threshold", False
-        ),
-        AlarmCode.CORRECTION_LIMIT_EXCEEDED: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Correction larger than the configured limit", False
-        ),
-        AlarmCode.CALIBRATION_INVALID: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Calibration set incomplete, invalid or out of date", False
-        ),
-        AlarmCode.CYCLE_INTERRUPTED: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "A cycle was interrupted by a restart: inspect the part", False
-        ),
-        AlarmCode.CALIBRATION_DRIFT: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Calibration check: camera or laser moved beyond the limit, recalibrate", False
-        ),
-        AlarmCode.CYCLE_STOPPED: AlarmSpec(
-            FaultClass.WARNING, "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised)", False
-        ),
-        AlarmCode.NOT_IN_EXECUTE: AlarmSpec(
-            FaultClass.WARNING, "Cycle refused: the cell is not in Execute (the code of that refusal; never raised)", False
-        ),
-        AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(
-            FaultClass.WARNING, "Calibration check due: run `cellctl calibrate verify`", True
-        ),
-        AlarmCode.ROBOT_FAULT: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot refused or interrupted a motion", False),
-        AlarmCode.TASK_FAILED: AlarmSpec(FaultClass.SOFTWARE_FAULT, "A cell task failed", False),
-        AlarmCode.DEVICE_SLOW: AlarmSpec(FaultClass.WARNING, "Device missed a watchdog ping", True),
-        # The store's disk ([store.retention] disk_warn_free_gb / disk_stop_free_gb): a warning first, then
-        # a Hold so production stops while records and images can still be written; cleared when space is back.
-        AlarmCode.DISK_SPACE_LOW: AlarmSpec(
-            FaultClass.WARNING, "Disk space low for the store and images: free space or lower the retention", True
-        ),
-        AlarmCode.DISK_SPACE_CRITICAL: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION,
-            "Disk almost full: production held before the store's writes fail; free space, then Unhold",
-            True,
-        ),
-    }
-)
-
-RECOVERY_COMMANDS: frozenset[PackMLCommand] = frozenset({C.RESET, C.START, C.UNHOLD, C.UNSUSPEND})
-"""Refused while an alarm with a reaction is active."""
-
-STOP_REASON_RESET_COMMANDS: frozenset[PackMLCommand] = frozenset({C.RESET, C.UNHOLD, C.UNSUSPEND})
-"""Accepting one of these ends the stop, so the first-out stop reason is released."""
-
-
-def reaction_for(fault_class: FaultClass, *, robot_moving: bool) -> PackMLCommand | None:
-    """The PackML command :data:`REACTIONS` prescribes."""
-    return REACTIONS[fault_class].command(robot_moving)
-
-
-# --- Records and events --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Alarm:
-    """One alarm occurrence (PackML ``PackMLAlarmDataType`` plus what the cell needs).
-
-    Attributes:
-        uid: unique id of this occurrence (the store's key, the API's ``/alarms/{uid}``).
-        code: PackML ``ID`` (an :class:`AlarmCode`).
-        value: PackML ``Value``, a sub-code (e.g. the device's own error code), 0 if none.
-        message: PackML ``Message``: the catalogue text and the detail.
-        category: PackML ``Category``: the fault class.
-        severity: from :data:`REACTIONS`.
-        source: what raised it in the cell's words (``laser``, ``plc``, ``cycle``...).
-        raised_at: PackML ``DateTime`` (UTC).
-        ack_at / ack_by: PackML ``AckDateTime`` and who acknowledged.
-        active: PackML ``Trigger``.
-        condition: True for a condition alarm (cleared by its source), False for a latched event.
-        cleared_at: when it went inactive.
-        reaction: the command the cell issued for it, None if none was (needed).
-        cycle_id: the cycle it happened in, if any.
-    """
-
-    uid: str
-    code: AlarmCode
-    value: int
-    message: str
-    category: FaultClass
-    severity: Severity
-    source: str
-    raised_at: datetime
-    active: bool = True
-    condition: bool = True
-    ack_at: datetime | None = None
-    ack_by: str | None = None
-    cleared_at: datetime | None = None
-    reaction: PackMLCommand | None = None
-    cycle_id: int | None = None
-
-    @property
-    def acknowledged(self) -> bool:
-        return self.ack_at is not None
-
-    @property
-    def listed(self) -> bool:
-        """Shown among the current alarms: active, or gone but not yet acknowledged."""
-        return self.active or not self.acknowledged
-
-    def summary(self) -> str:
-        return f"alarm {self.code.value} ({self.message}) from {self.source}"
+# --- Events --------------------------------------------------------------------------------------
 
 
 class AlarmEventKind(enum.Enum):
@@ -398,7 +210,10 @@ class AlarmManager:
         try:
             code = AlarmCode(code)
         except ValueError:
-            raise ValueError(f"unknown alarm code {code!r}: add it to cellctl.cell.alarms.ALARM_CATALOGUE") from None
+            raise ValueError(
+                f"unknown alarm code {code!r}: add it to cellctl.domain.AlarmCode and "
+                "cellctl.cell.alarm_table.ALARM_CATALOGUE"
+            ) from None
         if not source:
             raise ValueError("source must name what raised the alarm (e.g. 'laser', 'plc', 'cycle')")
         existing = self.find_active(code, source)
@@ -504,57 +319,3 @@ class AlarmManager:
         if pending:
             cmd, alarm = max(pending, key=lambda ca: _STRENGTH[ca[0]])  # type: ignore[index]
             await self._react(alarm.uid, cmd)
-
-
-# --- Documentation -------------------------------------------------------------------------------
-
-
-def _cmd(c: PackMLCommand | None) -> str:
-    return "-" if c is None else c.name.title()
-
-
-def render_markdown() -> str:
-    """The reaction table and the alarm catalogue as Markdown (docs/alarm_reactions.md)."""
-    lines = [
-        "# Alarm reactions",
-        "",
-        "Generated from `cellctl.cell.alarms.REACTIONS` and `ALARM_CATALOGUE` by "
-        "`python -m cellctl.cell.alarms -o docs/alarm_reactions.md`; do not edit by hand.",
-        "",
-        "## Fault class -> PackML command",
-        "",
-        "| Category | Fault class | Robot still | Robot moving | Severity | Why |",
-        "|---|---|---|---|---|---|",
-    ]
-    for fc, r in REACTIONS.items():
-        lines.append(
-            f"| {fc.value} | {fc.name.lower()} | {_cmd(r.when_still)} | {_cmd(r.when_moving)} | "
-            f"{r.severity.name.lower()} | {r.why} |"
-        )
-    lines += [
-        "",
-        "A reaction the current state does not accept (e.g. Hold in Idle) is not issued; the alarm then",
-        "blocks " + ", ".join(sorted(c.name.title() for c in RECOVERY_COMMANDS)) + " while it is active,",
-        "and entering Execute applies the strongest pending reaction. The first alarm whose reaction",
-        "stopped production is the first-out stop reason until "
-        + ", ".join(sorted(c.name.title() for c in STOP_REASON_RESET_COMMANDS))
-        + " is accepted.",
-        "",
-        "## Alarm catalogue",
-        "",
-        "| ID | Name | Fault class | Kind | Text |",
-        "|---|---|---|---|---|",
-    ]
-    for code, spec in ALARM_CATALOGUE.items():
-        kind = "condition (until cleared)" if spec.condition else "event (until acknowledged)"
-        lines.append(f"| {code.value} | {code.name.lower()} | {spec.fault_class.name.lower()} | {kind} | {spec.text} |")
-    lines.append("")
-    return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return markdown_doc_main(argv, prog="python -m cellctl.cell.alarms", description=__doc__.splitlines()[0], render=render_markdown)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

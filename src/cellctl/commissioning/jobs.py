@@ -427,7 +427,11 @@ class JobManager:
             if ctx.plan is not None:
                 fields.setdefault("plan", ctx.plan.summary())
             fields["progress"] = run.progress or {}
-            run.record = await self.store.update_job(rec.id, **fields)
+            # The record says the job ended and the manager takes the next one at the same moment:
+            # a client that sees "done" and submits again is not refused as "one job at a time".
+            async with self._lock:
+                run.record = await self.store.update_job(rec.id, **fields)
+                self._running = None
             run.ctx = None  # the dataset's frames go with it
             await asyncio.to_thread(release_free_memory)
             if run.frame is not None:
@@ -438,7 +442,8 @@ class JobManager:
             log.info("commissioning job %d (%s) ended %s%s", rec.id, rec.procedure, run.record.state,
                      f": {run.record.error}" if run.record.error else "")  # fmt: skip
         finally:
-            self._running = None
+            if self._running is run:  # the store update failed: free the manager anyway
+                self._running = None
             ev = self._finished.pop(rec.id, None)
             if ev is not None:
                 ev.set()

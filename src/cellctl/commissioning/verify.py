@@ -378,20 +378,15 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
         beyond.append(f"hand-eye moved {he['translation_mm']:.3f} mm / {he['rotation_deg']:.4f} deg "
                       f"(limits {vc.max_hand_eye_mm:g} mm, {vc.max_hand_eye_deg:g} deg): `cellctl calibrate hand-eye`")  # fmt: skip
     quality: dict[str, Any] = {"hand_eye": he, "limits": vc.model_dump()}
-    summary = [f"hand-eye: {he['translation_mm']:.3f} mm, {he['rotation_deg']:.4f} deg from the stored calibration's data "
-               f"({he['views']} views; limits {vc.max_hand_eye_mm:g} mm, {vc.max_hand_eye_deg:g} deg)"]  # fmt: skip
     if ref.get("laser_dataset") and ds.manifest["readings"]:
         la = laser_drift(ds, read_dataset(ref["laser_dataset"], "laser_plane"), cal)
         quality["laser"] = la
-        summary.append(f"laser: r {la['r_mm']:.3f} mm, l {la['l_deg']:.4f} deg ({la['readings']} readings; limits "
-                       f"{vc.max_laser_r_mm:g} mm, {vc.max_laser_l_deg:g} deg)")  # fmt: skip
         if la["r_mm"] > vc.max_laser_r_mm or la["l_deg"] > vc.max_laser_l_deg:
             beyond.append(f"laser moved r {la['r_mm']:.3f} mm / l {la['l_deg']:.4f} deg (limits {vc.max_laser_r_mm:g} mm, "
                           f"{vc.max_laser_l_deg:g} deg): `cellctl calibrate laser`")  # fmt: skip
     quality["passed"] = not beyond
     quality["beyond_limits"] = beyond
-    summary.append("within limits: the stored calibration still holds" if not beyond else "DRIFT: " + "; ".join(beyond))
     truth = ds.manifest.get("twin_truth")
     if truth:
         quality["twin_truth"] = truth
-    return Outcome("verify", "revisit and recompute against the stored calibration's own data", {}, quality, beyond, {}, summary, None)
+    return Outcome("verify", "revisit and recompute against the stored calibration's own data", {}, quality, beyond, {}, None)

@@ -11,10 +11,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry.rotation import (
     axis_angle_to_matrix,
-    nearest_rotation,
     is_rotation,
     matrix_to_axis_angle,
     matrix_to_xyz_fixed,
+    nearest_rotation,
     xyz_fixed_to_matrix,
 )
 

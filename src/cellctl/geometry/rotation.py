@@ -1,13 +1,14 @@
-"""Rotation conversions: matrix, quaternion (ABB w, x, y, z), fixed angles, Euler, axis-angle.
+"""Rotations: elementary, quaternion (ABB order w, x, y, z), XYZ fixed angles (eq. 13), axis-angle.
 
-All angles are radians. Every function takes and returns numpy arrays and has no state.
+Radians throughout; pure functions over numpy arrays. Conventions: quaternions with w >= 0;
+rotation vectors with the angle in [0, pi], taken from that quaternion; eq. 13's inverse puts
+gamma = 0 at gimbal lock. ``tests/unit/test_geometry_scipy.py`` checks every function against
+``scipy.spatial.transform.Rotation``; the conversions stay written out here because scipy rounds
+differently, and the calibration figures follow the last bit of every robot pose (scipy in their
+place moved the laser calibration's figures by up to 1e-5 relative).
 
-Angle conventions used in the cell:
-
-- The paper's XYZ fixed angles (eq. 13): rotate by gamma about the fixed X axis, then beta about
-  the fixed Y axis, then alpha about the fixed Z axis: ``R = Rz(alpha) @ Ry(beta) @ Rx(gamma)``.
-- RAPID's ZYX Euler angles (``OrientZYX``/``EulerZYX``) rotate about Z, then the new Y, then the
-  new X, which is the same matrix ``Rz(z) @ Ry(y) @ Rx(x)``. The two differ only in argument order.
+- Paper's XYZ fixed angles (eq. 13): ``R = Rz(alpha) @ Ry(beta) @ Rx(gamma)``.
+- RAPID's ``OrientZYX(z, y, x)`` is the same matrix ``Rz(z) @ Ry(y) @ Rx(x)``.
 """
 
 from __future__ import annotations
@@ -20,19 +21,19 @@ Vector = NDArray[np.float64]
 
 
 def rot_x(angle: float) -> Matrix3:
-    """Rotation about the X axis by ``angle`` radians."""
+    """Rotation about the X axis by ``angle`` (rad)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
 
 
 def rot_y(angle: float) -> Matrix3:
-    """Rotation about the Y axis by ``angle`` radians."""
+    """Rotation about the Y axis by ``angle`` (rad)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def rot_z(angle: float) -> Matrix3:
-    """Rotation about the Z axis by ``angle`` radians."""
+    """Rotation about the Z axis by ``angle`` (rad)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -52,9 +53,9 @@ def is_rotation(R: ArrayLike, tol: float = 1e-9) -> bool:
 
 
 def nearest_rotation(M: ArrayLike) -> Matrix3:
-    """The rotation closest to ``M`` in the Frobenius norm (SVD projection onto SO(3)).
+    """The rotation nearest ``M`` in the Frobenius norm: SVD projection onto SO(3), reflections turned.
 
-    Use it to re-orthonormalise rounded matrices such as a printed hand-eye result (paper eq. 18).
+    Re-orthonormalises rounded matrices such as the paper's printed hand-eye result (eq. 18).
     """
     A = np.asarray(M, dtype=float)
     if A.shape != (3, 3) or not np.all(np.isfinite(A)):
@@ -67,10 +68,7 @@ def nearest_rotation(M: ArrayLike) -> Matrix3:
 
 
 def quat_to_matrix(q: ArrayLike) -> Matrix3:
-    """Rotation matrix from a quaternion in ABB order (w, x, y, z), i.e. (q1, q2, q3, q4).
-
-    The quaternion is normalised first; a zero or non-finite quaternion is refused.
-    """
+    """Rotation matrix of a quaternion in ABB order (w, x, y, z) = (q1, q2, q3, q4), normalised first."""
     v = np.asarray(q, dtype=float)
     if v.shape != (4,) or not np.all(np.isfinite(v)):
         raise ValueError(f"quaternion must be 4 finite numbers (w, x, y, z), got {q!r}")
@@ -88,13 +86,15 @@ def quat_to_matrix(q: ArrayLike) -> Matrix3:
 
 
 def matrix_to_quat(R: ArrayLike) -> Vector:
-    """Unit quaternion (w, x, y, z) of a rotation matrix, with w >= 0 (Shepperd's method)."""
+    """Unit quaternion (w, x, y, z) of a rotation matrix, w >= 0 (Shepperd's method).
+
+    At w = 0 (a half turn) the largest of x, y, z is positive.
+    """
     M = np.asarray(R, dtype=float)
     if M.shape != (3, 3) or not np.all(np.isfinite(M)):
         raise ValueError(f"rotation must be a finite 3x3 matrix, got shape {M.shape}")
     tr = np.trace(M)
-    diag = np.diag(M)
-    k = int(np.argmax([tr, *diag]))
+    k = int(np.argmax([tr, *np.diag(M)]))
     if k == 0:
         s = 2.0 * np.sqrt(1.0 + tr)
         q = np.array([0.25 * s, (M[2, 1] - M[1, 2]) / s, (M[0, 2] - M[2, 0]) / s, (M[1, 0] - M[0, 1]) / s])
@@ -112,7 +112,7 @@ def matrix_to_quat(R: ArrayLike) -> Vector:
 
 
 def xyz_fixed_to_matrix(alpha: float, beta: float, gamma: float) -> Matrix3:
-    """Paper eq. 13: gamma about fixed X, then beta about fixed Y, then alpha about fixed Z.
+    """Paper eq. 13: gamma about fixed X, then beta about fixed Y, then alpha about fixed Z (rad).
 
     ``R = Rz(alpha) @ Ry(beta) @ Rx(gamma)``.
     """
@@ -120,20 +120,17 @@ def xyz_fixed_to_matrix(alpha: float, beta: float, gamma: float) -> Matrix3:
 
 
 def matrix_to_xyz_fixed(R: ArrayLike) -> tuple[float, float, float]:
-    """(alpha, beta, gamma) with ``R = Rz(alpha) @ Ry(beta) @ Rx(gamma)``, beta in [-pi/2, pi/2].
+    """(alpha, beta, gamma) with ``R = Rz(alpha) @ Ry(beta) @ Rx(gamma)`` (eq. 13), beta in [-pi/2, pi/2].
 
-    At and near gimbal lock (beta = +-pi/2) only alpha -+ gamma is determined. gamma is taken from
-    the matrix directly (exactly 0 at the lock) and alpha is then solved from what remains, so the
-    returned triple rebuilds ``R`` to rounding error everywhere, including at the lock.
+    At gimbal lock (beta = +-pi/2) only alpha -+ gamma is determined: gamma is 0 there, and
+    alpha is solved from what remains, so the triple rebuilds ``R`` to rounding at and near the lock.
     """
     M = np.asarray(R, dtype=float)
     if not is_rotation(M, tol=1e-6):
         raise ValueError("matrix_to_xyz_fixed needs a rotation matrix (orthonormal, det +1)")
     beta = float(np.arctan2(-M[2, 0], np.hypot(M[0, 0], M[1, 0])))
-    cb = np.cos(beta)
-    gamma = float(np.arctan2(M[2, 1], M[2, 2])) if cb > 1e-12 else 0.0
-    # Rz(alpha) = R @ Rx(gamma)^T @ Ry(beta)^T, which is well conditioned even at the lock.
-    Mz = M @ rot_x(gamma).T @ rot_y(beta).T
+    gamma = float(np.arctan2(M[2, 1], M[2, 2])) if np.cos(beta) > 1e-12 else 0.0
+    Mz = M @ rot_x(gamma).T @ rot_y(beta).T  # Rz(alpha), well conditioned even at the lock
     alpha = float(np.arctan2(Mz[1, 0], Mz[0, 0]))
     return alpha, beta, gamma
 
@@ -144,26 +141,25 @@ def zyx_euler_to_matrix(z: float, y: float, x: float) -> Matrix3:
 
 
 def matrix_to_zyx_euler(R: ArrayLike) -> tuple[float, float, float]:
-    """RAPID's ``EulerZYX`` triple (z, y, x) in radians; same matrix as the paper's XYZ fixed angles."""
+    """RAPID's ``EulerZYX`` triple (z, y, x) in radians; the same matrix as the XYZ fixed angles."""
     return matrix_to_xyz_fixed(R)
 
 
 def axis_angle_to_matrix(rotvec: ArrayLike) -> Matrix3:
-    """Rotation from a rotation vector (unit axis times angle in radians), Rodrigues' formula."""
+    """Rotation of a rotation vector (unit axis times angle, rad), Rodrigues' formula."""
     v = np.asarray(rotvec, dtype=float)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"rotation vector must be 3 finite numbers, got {rotvec!r}")
     theta = float(np.linalg.norm(v))
     K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     if theta < 1e-8:
-        # Second-order series keeps full precision for tiny angles.
-        return np.eye(3) + K + 0.5 * K @ K
+        return np.eye(3) + K + 0.5 * K @ K  # second-order series: full precision for tiny angles
     K /= theta
     return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
 
 
 def matrix_to_axis_angle(R: ArrayLike) -> Vector:
-    """Rotation vector (axis times angle, angle in [0, pi]) of a rotation matrix, via the quaternion."""
+    """Rotation vector (axis times angle, angle in [0, pi]) of a rotation matrix, from its w >= 0 quaternion."""
     w, x, y, z = matrix_to_quat(R)
     s = float(np.linalg.norm([x, y, z]))
     if s < 1e-15:
@@ -173,21 +169,21 @@ def matrix_to_axis_angle(R: ArrayLike) -> Vector:
 
 
 def rotation_angle_between(Ra: ArrayLike, Rb: ArrayLike) -> float:
-    """Angle in radians of the relative rotation ``Ra^T @ Rb`` (geodesic distance on SO(3))."""
+    """Angle (rad) of the relative rotation ``Ra^T @ Rb``: the geodesic distance on SO(3)."""
     return float(np.linalg.norm(matrix_to_axis_angle(np.asarray(Ra).T @ np.asarray(Rb))))
 
 
 def angle_between_vectors(a: ArrayLike, b: ArrayLike) -> float:
-    """Angle in radians between two 3-vectors, accurate for tiny and near-pi angles."""
+    """Angle (rad) between two 3-vectors, accurate for tiny and near-pi angles."""
     u = np.asarray(a, dtype=float)
     v = np.asarray(b, dtype=float)
     return float(np.arctan2(np.linalg.norm(np.cross(u, v)), np.dot(u, v)))
 
 
 def minimal_rotation(a: ArrayLike, b: ArrayLike) -> Matrix3:
-    """The smallest rotation that turns direction ``a`` onto direction ``b`` (no spin about them).
+    """The smallest rotation turning direction ``a`` onto ``b`` (no spin about them).
 
-    For antiparallel inputs the rotation is pi about an axis perpendicular to ``a``.
+    Antiparallel inputs: pi about the axis ``a x e_k``, e_k the base axis least along ``a``.
     """
     u = np.asarray(a, dtype=float)
     v = np.asarray(b, dtype=float)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from cellctl.plc.register_map import render_markdown
+from cellctl.plc.register_doc import render_markdown
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,11 +2,11 @@
 
 The devices of ``[devices]`` are the twin's own (``kind = "sim"``), or the real LK-G and ABB
 drivers talking to their protocol fakes whose physics is the twin (``sim_keyence_lkg``,
-``sim_abb``); the rest of the cell is assembled exactly as on hardware. Only here (and in the
-benchmarks) is :mod:`cellctl.sim` imported. The twin also brings what a real cell has in its
-people: the simulated operator answers commissioning prompts by acting on the twin, and with
-``calibration.auto_calibrate_in_sim`` the cell commissions itself at start, through the same
-jobs an engineer would run.
+``sim_abb``); the rest of the cell is assembled exactly as on hardware. The twin (one
+:class:`~cellctl.sim.rig.SimRig`) also brings its operator, who answers commissioning prompts by
+acting on it; with ``calibration.auto_calibrate_in_sim`` the cell commissions itself at start
+through the same jobs an engineer would run. Only here (and in the benchmarks) is
+:mod:`cellctl.sim` imported.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.compose import Closer, Service, ServiceError, assemble_service
-from cellctl.sim.operator import ACTOR, SimulatedOperator, TwinWitness
+from cellctl.sim.operator import ACTOR
 from cellctl.sim.rig import SimRig
 
 log = logging.getLogger(__name__)
@@ -88,15 +88,14 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
         from cellctl.sim.oracle import OracleCalibrationSource
 
         calibration = OracleCalibrationSource(rig, config)
-    operator = SimulatedOperator(rig.cell, config.sim, rig.targets, jog)
+    operator, witness = rig.add_operator(jog, twin_camera=camera is rig.camera)
     service = await assemble_service(
         config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
-        witness=TwinWitness(rig.cell, config.sim, operator, camera if camera is rig.camera else None),
+        witness=witness,
     )  # fmt: skip
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
     service.closers.extend(closers)
-    service.closers.append(operator.close)
-    service.closers.append(rig.close)
+    service.closers.append(rig.close)  # the twin's devices, then its operator
     service.extras.update(twin=rig, operator=operator, fakes=fakes)
     if config.calibration.source == "set" and config.calibration.auto_calibrate_in_sim:
 

@@ -1,40 +1,22 @@
 """The twin's camera: renders the car-body wall with its window opening, and calibration targets.
 
-The scene, as decided for the twin: the car body is painted mid grey and lit by a ring light beside
-the camera, so the wall is bright and even (``wall_dn``); through the opening the camera looks into
-the unlit car interior, which is dark (``opening_dn``). Around the edge the car body shows the
-surface of a real opening (RenderConfig.surface: a paint band, a flange, a seal, marks, dirt),
-drawn once per car body from World.surface_seed (cellctl.sim.surface). Targets
-(cellctl.sim.targets) are printed plates in front of the wall or stuck on it.
+Scene: a mid-grey wall lit by a ring light beside the camera (``wall_dn``), the dark car interior
+through the opening (``opening_dn``), the drawn surface of a real opening around its edge
+(cellctl.sim.surface, one per car body), and targets (cellctl.sim.targets). Per frame:
 
-Image formation, per frame:
+1. Geometry: each pixel centre's ray (camera_model.ray_map, cached) meets the wall or a target plane.
+2. Shading: the scene convolved with the optics' Gaussian (``blur_sigma_px``, ``defocus_sigma_px``
+   in quadrature) over each pixel's square footprint, exact for straight edges as a function of
+   the signed distance (edge_coverage), plane mm turned into px by each pixel's Jacobian.
+3. Blocks of 16 x 16 px (8 x 8 on the wall) farther from every edge than their footprint plus the
+   kernel's reach are filled with one level; only blocks near edges are shaded per pixel, to
+   within 1e-9 of the contrast of full per-pixel shading (camera_blocks).
+4. Lighting: vignetting cos^``vignetting_power`` of the field angle, a linear gradient, glare.
+5. Sensor: shot noise (Poisson, its normal approximation above 100 e-), read noise, black level,
+   rounding and clipping to 8 bits.
 
-1. Geometry. Each pixel centre's ray (camera_model.ray_map, the inverse of the distortion, cached)
-   meets the wall plane (a homography of the undistorted ray) or a target's plane.
-2. Shading with analytic anti-aliasing. A pixel's value is the scene convolved with the optics'
-   Gaussian blur (``blur_sigma_px``, with ``defocus_sigma_px`` added in quadrature) and integrated
-   over its square footprint; near an edge that is a function of the signed distance to the edge,
-   computed exactly for straight edges (edge_coverage). The plane distance is turned into pixels
-   with the plane-from-pixel Jacobian of each pixel (finite differences of neighbouring rays).
-3. Band rendering. The image is cut into 16 x 16 px blocks (8 x 8 for the wall, whose surface
-   has several parallel edges). For each block the wall position of its centre and a bound on its
-   footprint's radius on the wall (mm) are computed from the rays at the block corners; a
-   signed-distance function is 1-Lipschitz, so a block whose centre lies farther from every edge
-   (each step of the surface's profile, mark, dirt spot, occluder) than that radius plus the blur
-   kernel's reach (6 sigma + half a pixel diagonal, beyond which the coverage is 0 or 1 to within
-   1e-9 of the contrast) is uniform and is filled with its level. Only blocks near edges are
-   shaded per pixel (one plane hit per ray of the block's grid; neighbouring hits give the
-   Jacobians), and in them each edge's coverage only for the pixels within the kernel's reach of
-   it: the result equals per-pixel shading of the whole frame to within 1e-9 of the contrast
-   (camera_blocks holds the ray-plane geometry and the blocks).
-4. Lighting: natural vignetting, cos(field angle)^``vignetting_power`` computed from the true rays,
-   times a linear gradient across the image (uneven lighting); a glare spot is added on top.
-5. Sensor: shot noise (Poisson; for counts above 100 electrons its normal approximation, whose
-   error is far below one grey level), read noise, black level, rounding and clipping to 8 bits.
-
-Disturbances (RenderConfig.disturbances) are drawn from the frame's rng (camera_disturbances) and
-reported in :class:`AppliedDisturbances` with the drawn surface, so tests know what was done to an
-image.
+Disturbances are drawn from the frame's rng (camera_disturbances) and reported in
+:class:`AppliedDisturbances` with the drawn surface.
 """
 
 from __future__ import annotations

@@ -14,7 +14,6 @@ thread timing.
 from __future__ import annotations
 
 import asyncio
-import math
 import time
 from typing import Callable, Sequence
 
@@ -23,19 +22,9 @@ import numpy as np
 from cellctl.geometry.pose import Pose
 from cellctl.ports import DeviceDisconnected, DeviceTimeout, Frame
 from cellctl.sim.camera import AppliedDisturbances, CameraRenderer
+from cellctl.sim.devices import check_timeout
 from cellctl.sim.targets import PlacedTarget
 from cellctl.sim.world import World
-
-
-def _check_timeout(device: str, timeout_s: float) -> float:
-    if (
-        isinstance(timeout_s, bool)
-        or not isinstance(timeout_s, (int, float))
-        or not math.isfinite(timeout_s)
-        or timeout_s <= 0
-    ):
-        raise ValueError(f"{device}: timeout_s must be a positive number of seconds, got {timeout_s!r}")
-    return float(timeout_s)
 
 
 class SimCamera:
@@ -88,7 +77,7 @@ class SimCamera:
         Raises DeviceTimeout when the frame is not ready within ``timeout_s``, DeviceDisconnected
         after close().
         """
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         trigger_ns = time.monotonic_ns()
         pose = np.array(self._pose(), dtype=float)
@@ -111,7 +100,7 @@ class SimCamera:
 
     async def ping(self, *, timeout_s: float) -> float:
         """A harmless round trip; returns its duration in seconds."""
-        _check_timeout(self.name, timeout_s)
+        check_timeout(self.name, timeout_s)
         self._check_open()
         start = time.perf_counter()
         await asyncio.sleep(0)

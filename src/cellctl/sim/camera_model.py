@@ -1,17 +1,10 @@
-"""The twin camera's geometry: pinhole projection with Brown-Conrady distortion (paper eq. 17).
+"""The twin camera's geometry: pinhole projection with the lens distortion of paper eq. 17.
 
-OpenCV's model and conventions: camera frame x right, y down, z along the optical axis; pixel
-(u, v) with u right, v down and the centre of pixel [row i, column j] at (u, v) = (j, i);
-distortion coefficients in OpenCV's order (k1, k2, p1, p2, k3):
-
-    x = X/Z, y = Y/Z, r^2 = x^2 + y^2, R = 1 + k1 r^2 + k2 r^4 + k3 r^6
-    x' = x R + 2 p1 x y + p2 (r^2 + 2 x^2),   y' = y R + p1 (r^2 + 2 y^2) + 2 p2 x y
-    u = fx x' + cx,   v = fy y' + cy
-
-The renderer needs the inverse, the ray through each pixel centre. :func:`ray_map` computes it
-once per set of intrinsics by Newton's method in float64 and caches it; it checks that
-re-distorting every ray lands back on its pixel (to 1e-6 px) and refuses a distortion model that
-folds over inside the image.
+OpenCV's conventions: camera frame C (x right, y down, z along the optical axis); pixel (u, v),
+u right, v down, the centre of pixel [row i, column j] at (u, v) = (j, i). The distortion and its
+Newton inverse are :mod:`cellctl.vision.lens`'s. The renderer needs the ray through every pixel
+centre: :func:`ray_map` computes it once per set of intrinsics and caches it, checking that every
+ray re-distorts onto its pixel to 1e-6 px and refusing a model that folds over inside the image.
 """
 
 from __future__ import annotations
@@ -24,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.config.mounting import CameraIntrinsics
 from cellctl.geometry.pose import apply_pose, check_pose, invert_pose
+from cellctl.vision.lens import Coefficients, distort_normalised, distortion_jacobian, undistort_normalised
 
 F64 = NDArray[np.float64]
 
@@ -55,7 +49,7 @@ class RayMap:
 
 
 class CameraModel:
-    """Projection and back-projection for one set of intrinsics."""
+    """Projection and back-projection for one set of intrinsics (px, camera frame C)."""
 
     def __init__(self, intrinsics: CameraIntrinsics) -> None:
         self.intrinsics = intrinsics
@@ -65,17 +59,11 @@ class CameraModel:
         self.cx, self.cy = intrinsics.cx, intrinsics.cy
         self.k1, self.k2, self.k3 = intrinsics.k1, intrinsics.k2, intrinsics.k3
         self.p1, self.p2 = intrinsics.p1, intrinsics.p2
-
-    # --- forward model -----------------------------------------------------------------------
+        self.dist: Coefficients = (self.k1, self.k2, self.p1, self.p2, self.k3)
 
     def distort_normalized(self, x: F64, y: F64) -> tuple[F64, F64]:
-        """Distorted normalised coordinates (x', y') of undistorted ones (x, y)."""
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        xy = x * y
-        xd = x * radial + 2.0 * self.p1 * xy + self.p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * xy
-        return xd, yd
+        """Distorted normalised coordinates (x', y') of undistorted ones (x, y) (eq. 17)."""
+        return distort_normalised(x, y, self.dist)
 
     def normalized_to_pixels(self, x: ArrayLike, y: ArrayLike) -> tuple[F64, F64]:
         """Pixel coordinates (u, v) of undistorted normalised coordinates, with distortion."""
@@ -83,10 +71,7 @@ class CameraModel:
         return self.fx * xd + self.cx, self.fy * yd + self.cy
 
     def project_camera(self, points_C: ArrayLike) -> F64:
-        """Pixel coordinates (N, 2) of points (N, 3) given in the camera frame C.
-
-        Raises ValueError if a point is not in front of the camera (Z <= 0).
-        """
+        """Pixel coordinates (N, 2) of points (N, 3, mm) in the camera frame C; refuses points with Z <= 0."""
         P = np.atleast_2d(np.asarray(points_C, dtype=float))
         if P.ndim != 2 or P.shape[1] != 3:
             raise ValueError(f"points must have shape (N, 3), got {np.shape(points_C)}")
@@ -102,42 +87,23 @@ class CameraModel:
         return np.column_stack([u, v])
 
     def project(self, points_B: ArrayLike, T_B_C: ArrayLike) -> F64:
-        """Pixel coordinates (N, 2) of points (N, 3) in the robot base frame, seen from T_B_C.
-
-        Same model and numbers as ``cv2.projectPoints`` with the camera matrix A and the
-        coefficients (k1, k2, p1, p2, k3).
-        """
+        """Pixel coordinates (N, 2) of points (N, 3, mm) in the base frame B seen from T_B_C (as ``cv2.projectPoints``)."""
         T = check_pose(T_B_C, "T_B_C")
         return self.project_camera(apply_pose(invert_pose(T), np.atleast_2d(np.asarray(points_B, dtype=float))))
 
-    # --- inverse model -----------------------------------------------------------------------
-
     def undistort_normalized(self, xd: F64, yd: F64) -> tuple[F64, F64, float]:
-        """Undistorted normalised coordinates of distorted ones, by Newton's method.
+        """Undistorted normalised coordinates of distorted ones, and the worst re-distortion error (px).
 
-        Returns (x, y, max_residual_px). Raises DistortionNotInvertible when Newton's method does
-        not converge to RAY_MAP_TOLERANCE_PX or the distortion's Jacobian is not positive there.
+        Raises DistortionNotInvertible when that error exceeds RAY_MAP_TOLERANCE_PX or the
+        distortion's Jacobian is not positive somewhere.
         """
-        x = np.array(xd, dtype=np.float64, copy=True)
-        y = np.array(yd, dtype=np.float64, copy=True)
-        scale = max(self.fx, self.fy)
-        residual = np.inf
-        for _ in range(_NEWTON_MAX_ITER):
-            fx_, fy_ = self.distort_normalized(x, y)
-            ex = fx_ - xd
-            ey = fy_ - yd
-            residual = float(np.max(np.abs(ex) + np.abs(ey))) * scale if ex.size else 0.0
-            if residual < RAY_MAP_TOLERANCE_PX * 1e-2:
-                break
-            a, b, c, d = self._distortion_jacobian(x, y)
-            det = a * d - b * c
-            det = np.where(np.abs(det) > 1e-12, det, 1e-12)
-            x -= (d * ex - b * ey) / det
-            y -= (a * ey - c * ex) / det
+        x, y, _ = undistort_normalised(
+            xd, yd, self.dist, stop=RAY_MAP_TOLERANCE_PX * 1e-2, max_iter=_NEWTON_MAX_ITER, scale=max(self.fx, self.fy)
+        )
         fx_, fy_ = self.distort_normalized(x, y)
         residual = float(np.max(np.hypot((fx_ - xd) * self.fx, (fy_ - yd) * self.fy))) if x.size else 0.0
-        a, b, c, d = self._distortion_jacobian(x, y)
-        if not np.isfinite(residual) or residual > RAY_MAP_TOLERANCE_PX or np.any(a * d - b * c <= 0.0):
+        a, b, d = distortion_jacobian(x, y, self.dist)
+        if not np.isfinite(residual) or residual > RAY_MAP_TOLERANCE_PX or np.any(a * d - b * b <= 0.0):
             raise DistortionNotInvertible(
                 f"the distortion model (k1={self.k1}, k2={self.k2}, k3={self.k3}, p1={self.p1}, "
                 f"p2={self.p2}) cannot be inverted over the image (residual {residual:.3g} px): it folds "
@@ -157,17 +123,6 @@ class CameraModel:
         """Where pixel positions would lie without distortion (same camera matrix A)."""
         xy = self.undistort_pixels(uv)
         return np.column_stack([self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy])
-
-    def _distortion_jacobian(self, x: F64, y: F64) -> tuple[F64, F64, F64, F64]:
-        """d(x', y') / d(x, y) as (dx'/dx, dx'/dy, dy'/dx, dy'/dy)."""
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        dradial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * self.k3 * r2)
-        a = radial + 2.0 * x * x * dradial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
-        b = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
-        c = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
-        d = radial + 2.0 * y * y * dradial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
-        return a, b, c, d
 
     def ray_map(self, rows: int | None = None, cols: int | None = None) -> RayMap:
         """The cached ray map of ``rows`` x ``cols`` pixel centres (default: the image)."""

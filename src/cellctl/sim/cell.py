@@ -1,16 +1,10 @@
-"""The simulated cell: one car body at its posture, one robot with its laser and camera, and the truth.
+"""The twin's physics and truth: one car body at its posture, one robot with its laser, the true mountings.
 
-:class:`SimCell` holds the state that every simulated device reads: where the car body stands and
-where the flange really is. Its methods are the twin's physics entry points:
-
-- for the in-process devices (:mod:`cellctl.sim.devices`) and the camera renderer:
-  :meth:`SimCell.world`, :meth:`SimCell.true_camera_pose`, :meth:`SimCell.laser_reading`, and the
-  robot arm :attr:`SimCell.arm`;
-- for the protocol fakes of the driver packages, which keep their own time and wire format and
-  take their physics from callbacks: :meth:`SimCell.laser_reading` (status and distance for a true
-  flange pose), :meth:`SimCell.execute` (belief target in, true pose out) and
-  :meth:`SimCell.motion_time`;
-- for scoring: :meth:`SimCell.truth` and :meth:`SimCell.install_error`.
+:class:`SimCell` holds the state every simulated device reads (where the car body stands, where
+the flange really is) and is the physics behind them: the in-process devices and the camera
+(assembled with it in :class:`cellctl.sim.rig.SimRig`) and the driver packages' protocol fakes,
+which take :meth:`SimCell.laser_reading`, :meth:`SimCell.execute` and :meth:`SimCell.motion_time`
+as callbacks. :meth:`SimCell.truth` and :meth:`SimCell.install_error` score an install.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
-"""Commissioning procedures on a twin without the service: for tests and benchmarks.
+"""Commissioning procedures on a twin without the service, for tests and benchmarks.
 
-The same procedure coroutines the service's jobs run (:mod:`cellctl.commissioning`), on the
-twin's in-process devices behind the ports, with the simulated operator answering the prompts
-and the twin's truth written into the datasets. Only the job bookkeeping (store rows, events,
-the PackML interlock) is left out, so many simulated cells can be calibrated quickly.
+The service's own procedure coroutines (:mod:`cellctl.commissioning`) on a :class:`SimRig`'s
+devices, its operator answering every prompt at once; only the job bookkeeping (store rows,
+events, the PackML interlock) is left out, so many twins can be calibrated quickly.
 """
 
 from __future__ import annotations
@@ -16,16 +15,15 @@ from cellctl.calibration.dataset import Dataset
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, describe_source
-from cellctl.commissioning.registry import ALL_PROCEDURES, motion_settings
 from cellctl.commissioning.prompts import Answer, PromptDesk
+from cellctl.commissioning.registry import ALL_PROCEDURES, motion_settings
 from cellctl.config.schema import CellConfig
 from cellctl.sim.cell import SimCell
-from cellctl.sim.operator import SimulatedOperator, TwinWitness
 from cellctl.sim.rig import SimRig
 
 
 class TwinCommissioning:
-    """A twin (seeded), its devices and its operator, ready to run commissioning procedures.
+    """A seeded :class:`SimRig` with its operator on a prompt desk of its own, ready to run procedures.
 
     Args:
         config: the cell configuration (its ``sim`` section builds the twin).
@@ -34,10 +32,8 @@ class TwinCommissioning:
 
     def __init__(self, config: CellConfig, *, seed: int | None = None) -> None:
         self.config = config
-        sim = config.sim.model_copy(update={"operator": config.sim.operator.model_copy(update={"answers": "all", "answer_delay_s": 0.0})})
         self.rig = SimRig(config.sim, seed=seed)
-        self.operator = SimulatedOperator(self.rig.cell, sim, self.rig.targets, self.rig.cell.execute)
-        self.witness = TwinWitness(self.rig.cell, config.sim, self.operator, self.rig.camera)
+        self.operator, self.witness = self.rig.add_operator(answer_everything=True)
         self.desk = PromptDesk(lambda kind, data: None)
         self.operator.attach(self.desk.watch, self._answer)
         self.prompts: list[str] = []
@@ -52,6 +48,7 @@ class TwinCommissioning:
         self.prompts.append(prompt.kind.value)
 
     def context(self, cal: CalibrationSet | None, dest: Path) -> JobContext:
+        """A job's context on the rig's devices, the robot at the reduced speed of commissioning."""
         motion = motion_settings(self.config)
         r = self.rig
         devices = CellDevices(r.laser, r.camera, ReducedSpeedRobot(r.robot, motion.speed_mm_s, motion.speed_deg_s))
@@ -65,5 +62,4 @@ class TwinCommissioning:
         return await ALL_PROCEDURES[procedure].collect(self.context(cal, dest), **options)
 
     async def close(self) -> None:
-        await self.operator.close()
         await self.rig.close()

@@ -30,14 +30,45 @@ from cellctl.sim.cell import SimCell
 from cellctl.sim.robot import Motion, ReachError, RobotBusy
 
 
-def _check_timeout(device: str, timeout_s: float) -> float:
+def check_timeout(device: str, timeout_s: float) -> float:
+    """``timeout_s`` as a float, or ValueError naming ``device`` if it is not a positive finite number (s)."""
     number = isinstance(timeout_s, (int, float)) and not isinstance(timeout_s, bool)
     if not number or not math.isfinite(timeout_s) or timeout_s <= 0:
         raise ValueError(f"{device}: timeout_s must be a positive number of seconds, got {timeout_s!r}")
     return float(timeout_s)
 
 
-class SimRobot:
+class _TwinDevice:
+    """What the robot and the laser share at the port: the closed state and a round trip of fixed latency (s)."""
+
+    _closed_message = "the connection is closed; create a new device to reconnect"
+
+    def __init__(self, cell: SimCell, name: str, latency_s: float) -> None:
+        self._cell = cell
+        self.name = name
+        self._latency_s = latency_s * cell.time_scale
+        self._closed = False
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DeviceDisconnected(self.name, self._closed_message)
+
+    async def _round_trip(self, timeout_s: float) -> None:
+        if self._latency_s > timeout_s:
+            await asyncio.sleep(timeout_s)
+            raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
+        await asyncio.sleep(self._latency_s)
+
+    async def ping(self, *, timeout_s: float) -> float:
+        """A harmless round trip; returns its duration in seconds."""
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        t0 = time.monotonic()
+        await self._round_trip(timeout_s)
+        return time.monotonic() - t0
+
+
+class SimRobot(_TwinDevice):
     """The cell's robot as a :class:`cellctl.ports.Robot`.
 
     Args:
@@ -46,27 +77,14 @@ class SimRobot:
     """
 
     def __init__(self, cell: SimCell, *, name: str = "robot") -> None:
-        self._cell = cell
+        super().__init__(cell, name, cell.config.robot.call_latency_s)
         self._arm = cell.arm
-        self.name = name
-        self._latency_s = cell.config.robot.call_latency_s * cell.time_scale
-        self._closed = False
         self._outcome: asyncio.Future[Literal["reached", "stopped"]] | None = None
         self._waiter: asyncio.Task[None] | None = None
 
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DeviceDisconnected(self.name, "the connection is closed; create a new device to reconnect")
-
-    async def _round_trip(self, timeout_s: float) -> None:
-        if self._latency_s > timeout_s:
-            await asyncio.sleep(timeout_s)
-            raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
-        await asyncio.sleep(self._latency_s)
-
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
         """Move to ``request.target`` (the controller's belief) and return the pose read back after it."""
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         if not isinstance(request, MotionRequest):
             raise TypeError(f"{self.name}: move needs a MotionRequest, got {type(request).__name__}")
@@ -108,21 +126,21 @@ class SimRobot:
 
     async def read_pose(self, *, timeout_s: float) -> CartesianPose:
         """The flange pose the controller believes it has (interpolated while moving)."""
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         await self._round_trip(timeout_s)
         return CartesianPose.from_matrix(self._arm.belief_pose())
 
     async def state(self, *, timeout_s: float) -> RobotState:
         """Motors on, program running, and whether it is moving (joint angles are not modelled)."""
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         await self._round_trip(timeout_s)
         return RobotState(motors_on=True, program_running=True, moving=self._arm.moving())
 
     async def stop(self, *, timeout_s: float) -> None:
         """Stop the current motion where the flange is now; a move waiting on it raises MotionInterrupted."""
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         await self._round_trip(timeout_s)
         if self._arm.moving():
@@ -131,14 +149,6 @@ class SimRobot:
             self._outcome.set_result("stopped")
         if self._waiter is not None:
             self._waiter.cancel()
-
-    async def ping(self, *, timeout_s: float) -> float:
-        """A harmless round trip; returns its duration in seconds."""
-        timeout_s = _check_timeout(self.name, timeout_s)
-        self._check_open()
-        t0 = time.monotonic()
-        await self._round_trip(timeout_s)
-        return time.monotonic() - t0
 
     async def close(self) -> None:
         """Close the connection (the arm finishes any motion on its own). Safe to call twice."""
@@ -152,7 +162,7 @@ class SimRobot:
             self._waiter.cancel()
 
 
-class SimDisplacementSensor:
+class SimDisplacementSensor(_TwinDevice):
     """The cell's LK-G500 as a :class:`cellctl.ports.DisplacementSensor`.
 
     Args:
@@ -161,25 +171,14 @@ class SimDisplacementSensor:
         name: the device's name in messages.
     """
 
+    _closed_message = "the port is closed; create a new device to reopen it"
+
     def __init__(self, cell: SimCell, *, head: int = 1, name: str = "laser") -> None:
         if head < 1:
             raise ValueError(f"head must be 1 or more, got {head}")
-        self._cell = cell
+        super().__init__(cell, name, cell.config.laser.read_latency_s)
         self.head = head
-        self.name = name
-        self._latency_s = cell.config.laser.read_latency_s * cell.time_scale
-        self._closed = False
         self._waiting = False
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DeviceDisconnected(self.name, "the port is closed; create a new device to reopen it")
-
-    async def _round_trip(self, timeout_s: float) -> None:
-        if self._latency_s > timeout_s:
-            await asyncio.sleep(timeout_s)
-            raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
-        await asyncio.sleep(self._latency_s)
 
     def identity(self) -> dict[str, str]:
         """The twin's laser (Identified port): which simulated cell it belongs to."""
@@ -191,7 +190,7 @@ class SimDisplacementSensor:
 
     async def read(self, *, timeout_s: float) -> DistanceReading:
         """One reading of the beam where the flange really is now."""
-        timeout_s = _check_timeout(self.name, timeout_s)
+        timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
         await self._round_trip(timeout_s)
         if self._waiting:
@@ -199,14 +198,6 @@ class SimDisplacementSensor:
             return DistanceReading(None, LaserStatus.NO_VALUE, time.monotonic(), self.head)
         status, distance = self._cell.laser_reading()
         return DistanceReading(distance, status, time.monotonic(), self.head)
-
-    async def ping(self, *, timeout_s: float) -> float:
-        """A harmless round trip; returns its duration in seconds."""
-        timeout_s = _check_timeout(self.name, timeout_s)
-        self._check_open()
-        t0 = time.monotonic()
-        await self._round_trip(timeout_s)
-        return time.monotonic() - t0
 
     async def close(self) -> None:
         """Release the (simulated) port. Safe to call twice."""

@@ -1,23 +1,13 @@
-"""Anti-aliased edges: how much of a pixel's response lies inside a shape, from a signed distance.
+"""Anti-aliased edges: the fraction of a pixel's response inside a shape, from a signed distance.
 
-A camera pixel reports the scene convolved with the lens point-spread function (a Gaussian of
-standard deviation ``sigma`` px) and integrated over the pixel's square footprint (1 x 1 px, full
-fill factor). Near a locally straight edge the scene is a half-plane, so the pixel value depends
-only on the signed distance ``d`` (px) from the pixel centre to the edge and on the edge's normal
-direction ``m`` in the image: it is the fraction of the kernel "Gaussian * pixel box" lying on the
-inner side. Projected onto ``m`` the pixel box becomes the sum of two uniform distributions of
-widths ``|m_u|`` and ``|m_v|``; the fraction is therefore
+A pixel integrates the scene blurred by a Gaussian (``sigma`` px) over its 1 x 1 px footprint.
+Near a straight edge with image normal ``m`` and signed distance ``d`` (px) from the pixel centre:
 
     F(d) = E[ Phi((d - a - b) / sigma) ],   a ~ U(+-|m_u|/2),  b ~ U(+-|m_v|/2),
 
-which has a closed form in the second antiderivative of ``Phi`` (:func:`edge_coverage`). ``F`` is
-odd-symmetric about 1/2 (``F(0) = 1/2``), so the 50 % level of a rendered edge lies exactly on the
-true edge; the curvature of the window's corner arc (radius hundreds of px) is far too small to
-matter at the kernel's scale (a few px).
-
-The signed-distance functions here return the distance in the plane of the shape (mm) and the unit
-gradient of that distance, so a renderer can turn plane distances into image distances with the
-local Jacobian of the plane-to-pixel mapping.
+closed form in the second antiderivative of Phi (:func:`edge_coverage`); F(0) = 1/2, so a
+rendered edge's 50 % level lies on the true edge. The signed-distance functions return the
+distance in the shape's plane (mm) and its unit gradient, for the renderer's plane-to-pixel Jacobian.
 """
 
 from __future__ import annotations

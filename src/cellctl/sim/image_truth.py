@@ -1,24 +1,14 @@
 """What the twin's camera truly sees of the window corner: the truth for vision tests.
 
-"The corner" is the virtual sharp corner of the opening: the point where the lines of the top and
-the right straight edges meet, i.e. the origin of the workpiece frame T (WorldConfig). It is not a
-point on the rounded arc; the arc of radius ``corner_radius_mm`` cuts the corner off, and the
-virtual corner lies outside the opening, r (sqrt(2) - 1) from the arc. Its true image position is
-the projection of T's origin with the camera's distortion (:class:`CornerTruth` ``corner_px``).
+"The corner" is the virtual sharp corner where the lines of the top and right straight edges
+meet, the origin of the workpiece frame T (outside the rounded arc, r (sqrt(2) - 1) from it). Its
+true image position is T's origin projected with distortion (``corner_px``);
+``corner_undistorted_px`` is the same in the ideal pinhole image (same camera matrix A), where
+the edges are straight; ``*_tangent_px`` are the raw edges' tangents at the corner.
 
-A vision pipeline that undistorts before fitting lines measures the corner in the ideal pinhole
-image with the same camera matrix A: ``corner_undistorted_px`` and the edge directions there, where
-the straight edges are straight lines. In the raw (distorted) image the edges are slightly curved;
-``*_tangent_px`` are their tangents at the corner.
-
-Edges are parametrised by the along-edge distance ``a`` (mm) from the virtual corner, away from it:
-the top edge is (x, y) = (-a, 0) in T, the right edge is (0, a); their straight parts are
-a in [r, width - r] and a in [r, height - r].
-
-A feature edge parallel to the opening's (a step of the drawn surface, cellctl.sim.surface) is
-the opening's edge offset by ``inset_mm`` into the opening (negative: outwards, onto the wall):
-its lines are y = inset and x = -inset, its virtual corner T's point (-inset, inset, 0), and ``a``
-is measured from that corner. An inset does not turn the edges.
+Edges are parametrised by the distance ``a`` (mm) from the virtual corner: the top edge is
+(x, y) = (-a, 0) in T, the right edge (0, a). A feature edge ``inset_mm`` into the opening
+(negative: onto the wall) has lines y = inset and x = -inset and its corner at (-inset, inset, 0).
 """
 
 from __future__ import annotations

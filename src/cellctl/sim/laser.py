@@ -1,21 +1,15 @@
-"""The twin's Keyence LK-G500 laser displacement sensor: a ray cast with the sensor's error sources.
+"""The twin's Keyence LK-G500: a ray cast from the true flange pose, with the sensor's errors.
 
-The beam leaves the sensor at r along l, both fixed in the flange frame (paper eq. 19), and is
-traced from the *true* flange pose to the car-body wall. The sensor reports
+The beam leaves at r along l, fixed in the flange frame H (paper eq. 19), and meets the car-body
+wall. ``d_reported = d_true + linearity(d_true) + noise`` (mm):
 
-    d_reported = d_true + linearity(d_true) + noise
+- linearity: a smooth systematic curve over the range, fixed per sensor (from its seed), at most
+  +-``linearity_fraction_fs`` of full scale (paper: +-0.02 % of 200 mm), with no gain or offset part;
+- noise: white Gaussian repeatability, ``noise_mm`` one sigma, per reading.
 
-- linearity: the sensor's deviation from a straight-line response, +-(linearity_fraction_fs *
-  full scale) at most (paper: +-0.02 % of the 200 mm span, so +-0.04 mm). It is systematic: a
-  smooth curve over the measuring range, fixed for one sensor (drawn from its seed), with no
-  straight-line part (gain and offset belong to calibration, not linearity).
-- noise: white Gaussian repeatability, ``noise_mm`` one sigma, drawn per reading.
-
-A reading outside the measuring range, or a beam that finds no surface (it passes through the
-window opening), carries no distance but a status, as the LK-G controller reports it: nearer than
-the range is ``-FFFFFFF`` (OVER_RANGE_NEAR), beyond it ``+FFFFFFF`` (OVER_RANGE_FAR); no return is
-reported as ``no_return_status`` (default over range far: the receiver sees no spot in its window).
-NO_VALUE (``XXXXXXXX``) is the controller's "no measurement yet", which the device layer produces.
+Without a distance the reading carries the LK-G status: nearer than the range OVER_RANGE_NEAR
+(``-FFFFFFF``), beyond it OVER_RANGE_FAR (``+FFFFFFF``), no surface (the beam passes through the
+opening) ``no_return_status``; NO_VALUE (``XXXXXXXX``) comes from the device layer.
 """
 
 from __future__ import annotations

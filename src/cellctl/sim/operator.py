@@ -1,16 +1,12 @@
-"""The simulated cell's commissioning engineer, and the twin's truth for calibration datasets.
+"""The simulated commissioning engineer, and the twin's witness for calibration datasets.
 
-:class:`SimulatedOperator` answers the prompts of commissioning jobs the way an engineer's hands
-would act on a real cell, only on the twin: it clamps the car body at its nominal place, sticks
-a checkerboard on the car-body wall where the prompt says (and reports its square size, which
-the twin prints exactly), takes it off again, and guides the glass into the opening with a
-hand-guiding error before confirming. A guided or jogged robot is moved through ``jog``, which
-goes through the robot controller's own state (the ABB fake's teach-pendant jog, or the twin's
-in-process arm), so the job reads the pose through the Robot port as it would on hardware. It is
-the only twin code a commissioning job meets; the procedures themselves are the production ones.
-
-:class:`TwinWitness` adds what the twin knows to a dataset's manifest (``twin_truth``), for the
-report only.
+:class:`SimulatedOperator` answers a commissioning job's prompts as an engineer's hands would act
+on a real cell, only on the twin: it clamps the car body at its nominal place, sticks a
+checkerboard on the wall where asked (and reports its printed square size), takes it off, and
+guides the glass into the opening with a hand-guiding error. Guided moves go through ``jog``
+(the ABB fake's jog or the twin's arm), so the job reads them through the Robot port.
+:class:`TwinWitness` adds the twin's truth to a dataset's manifest (``twin_truth``), for the
+report only. :meth:`cellctl.sim.rig.SimRig.add_operator` builds both.
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
-"""A whole simulated cell in-process: the twin and its three devices behind the ports.
+"""The one assembly of the digital twin: physics, devices behind the ports, operator and witness.
 
-The rig is what the simulated cell's composition uses when the devices are the twin's own
-(``kind = "sim"``); the protocol fakes of the driver packages take their physics from the same
-:class:`SimCell`.
+:class:`~cellctl.sim.cell.SimCell` is the twin's physics and truth (car body, robot, laser); the
+rig adds the camera renderer, the calibration targets on the wall, the three in-process devices
+(``kind = "sim"``), and on request the simulated operator with the witness that writes the truth
+beside a dataset. The simulated cell's root, the oracle calibration and the commissioning harness
+all build on it; the driver packages' protocol fakes take their physics from ``rig.cell``.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.camera_device import SimCamera
 from cellctl.sim.cell import SimCell
 from cellctl.sim.devices import SimDisplacementSensor, SimRobot
+from cellctl.sim.operator import Jog, SimulatedOperator, TwinWitness
 from cellctl.sim.streams import rng_stream
 from cellctl.sim.targets import PlacedTarget
 
@@ -22,13 +25,15 @@ TEACH_CAMERA_NOISE = "camera.noise.teach"
 
 
 class SimRig:
-    """The twin with its laser, camera and robot.
+    """The twin with its laser, camera and robot, and (after :meth:`add_operator`) its operator.
 
     Attributes:
-        cell: the twin (truth, physics).
+        cell: the twin's physics and truth.
         renderer: the camera's image formation (its ray map is built once, here).
         targets: the calibration targets stuck on the wall now (the camera renders them).
         laser, camera, robot: the devices, implementing the ports.
+        teach_rng: the camera noise of the oracle's teaching shots.
+        operator, witness: the simulated operator and the twin's witness (None until added).
     """
 
     def __init__(self, config: SimConfig, *, seed: int | None = None) -> None:
@@ -42,6 +47,26 @@ class SimRig:
             targets=lambda: tuple(self.targets),
         )
         self.teach_rng = rng_stream(self.cell.seed, TEACH_CAMERA_NOISE)
+        self.operator: SimulatedOperator | None = None
+        self.witness: TwinWitness | None = None
+
+    def add_operator(
+        self, jog: Jog | None = None, *, answer_everything: bool = False, twin_camera: bool = True
+    ) -> tuple[SimulatedOperator, TwinWitness]:
+        """The simulated operator acting on this twin, and the witness that reports what it did.
+
+        Args:
+            jog: moves the robot as a jog or lead-through would (default: the twin's arm directly).
+            answer_everything: answer every prompt at once, whatever ``sim.operator`` says.
+            twin_camera: the cell's camera is this rig's (the witness then reads its last pose).
+        """
+        sim = self.cell.config
+        acting = sim
+        if answer_everything:
+            acting = sim.model_copy(update={"operator": sim.operator.model_copy(update={"answers": "all", "answer_delay_s": 0.0})})
+        self.operator = SimulatedOperator(self.cell, acting, self.targets, self.cell.execute if jog is None else jog)
+        self.witness = TwinWitness(self.cell, sim, self.operator, self.camera if twin_camera else None)
+        return self.operator, self.witness
 
     # SimTruth of the orchestrator
 
@@ -54,5 +79,8 @@ class SimRig:
         return self.cell.install_error().as_dict()
 
     async def close(self) -> None:
+        """Close the devices, then stop the operator (if any)."""
         for dev in (self.laser, self.camera, self.robot):
             await dev.close()
+        if self.operator is not None:
+            await self.operator.close()

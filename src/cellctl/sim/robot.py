@@ -1,28 +1,15 @@
 """The twin's ABB IRB 7600-325: what the controller believes versus where the flange really is.
 
-A robot controller knows its flange pose only through its kinematic model and encoders. The pose
-it reports, and the pose it accepts as a target, is its *belief* X. The flange really ends up at
+For a commanded (believed) flange pose X the flange really reaches ``T_true = N * E(X)`` (base frame):
 
-    T_true = N * E(X)
+- E(X), absolute accuracy: a smooth deformation fixed per robot (drawn once from its seed),
+  evaluated at the wrist centre, bounded by ``absolute_accuracy_mm`` / ``absolute_accuracy_deg``.
+  It barely changes over tens of mm, so taught poses and relative moves cancel most of it.
+- N, repeatability: drawn per move. ISO 9283's RP = mean(l) + 3 S_l is 3.616 sigma for an
+  isotropic 3-D Gaussian, so sigma = RP / 3.616 per axis (0.0277 mm for the IRB 7600's 0.1 mm);
+  orientation RP_a = 3 S, so sigma = RP_a / 3 about each base axis.
 
-where E is the robot's absolute-accuracy deformation and N the repeatability noise of one move:
-
-- E(X) is smooth, pose-dependent and fixed for a robot (drawn once from its seed): link lengths,
-  joint offsets, gear play and deflection under load that the nominal model does not know. It is
-  evaluated at the wrist centre, so it depends on the flange's orientation as well as its position.
-  It is bounded by ``absolute_accuracy_mm`` in position and ``absolute_accuracy_deg`` in
-  orientation; over a few tens of millimetres it barely changes, so a pose taught and revisited, or
-  a move relative to a measured pose, cancels most of it, while a pose computed in the base frame
-  carries all of it.
-- N is drawn per move. ISO 9283 states position repeatability as RP = mean(l) + 3 S_l, where l is
-  the distance of each attained position from their barycentre and S_l its standard deviation. For
-  an isotropic Gaussian scatter with sigma per axis, l follows a chi distribution with 3 degrees of
-  freedom: mean(l) = 2 sqrt(2/pi) sigma and S_l = sqrt(3 - 8/pi) sigma, so RP = 3.616 sigma and the
-  twin uses sigma = RP / 3.616 (0.0277 mm per axis for the IRB 7600's 0.1 mm). Orientation
-  repeatability in ISO 9283 is +-3 S per angle, so sigma = RP_a / 3 about each base axis.
-
-Reading the pose back returns the belief, as a real controller does: the twin's truth is never
-visible through the robot's own interface.
+Reading the pose back returns the belief, as a real controller does.
 """
 
 from __future__ import annotations
@@ -36,10 +23,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.config.layout import RobotEnvelope
 from cellctl.config.sim import RobotSimConfig
-from cellctl.geometry.pose import Pose, check_pose, make_pose
-from cellctl.geometry.rotation import axis_angle_to_matrix
-from cellctl.sim.fields import SmoothRandomField
 from cellctl.geometry.motion import PathTiming, interpolate_pose, path_timing
+from cellctl.geometry.pose import Pose, check_pose, make_pose
+from cellctl.geometry.rotation import axis_angle_to_matrix, nearest_rotation
+from cellctl.sim.fields import SmoothRandomField
 from cellctl.sim.streams import ROBOT_ACCURACY, ROBOT_REPEATABILITY, rng_stream
 
 # ISO 9283 RP = mean(l) + 3 S_l for a 3-D isotropic Gaussian, in units of the per-axis sigma.
@@ -150,7 +137,7 @@ class RobotModel:
             X = make_pose(dR.T @ X[:3, :3], X[:3, 3] - dp)
             if np.linalg.norm(dp) < tol and np.linalg.norm(dR - np.eye(3)) < tol:
                 break
-        return make_pose(_orthonormalise(X[:3, :3]), X[:3, 3])
+        return make_pose(nearest_rotation(X[:3, :3]), X[:3, 3])
 
     def draw_noise(self) -> Pose:
         """One move's repeatability noise N (a small pose in the base frame).
@@ -193,11 +180,6 @@ class RobotModel:
     ) -> float:
         """Seconds a real robot takes from ``X_from`` to ``X_to``, settling at the fine point included."""
         return self.timing(X_from, X_to, speed_mm_s, speed_deg_s).duration_s
-
-
-def _orthonormalise(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    U, _, Vt = np.linalg.svd(R)
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
 
 @dataclass(frozen=True)

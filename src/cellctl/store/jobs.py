@@ -3,46 +3,24 @@
 A job row says which procedure ran, who started it and from where, with which options, the plan
 it showed, how far it got, the dataset it wrote (complete or partial), its result or the reason
 it ended, and the calibration-set version before and after. Rows left ``running`` by a process
-that died become ``interrupted`` at the next start (:meth:`JobRows.recover_jobs`).
+that died become ``interrupted`` at the next start (:meth:`JobRows.recover_jobs`). The table is
+migration 2 of :mod:`cellctl.store.schema`.
 """
 
 from __future__ import annotations
 
 import json
-import sqlite3
-from collections.abc import Callable, Mapping
-from contextlib import AbstractContextManager
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Literal
 
+from cellctl.store.connection import Database, dt, from_json, to_json
 from cellctl.store.records import StoreError
 
 JobState = Literal["running", "computing", "done", "refused", "failed", "cancelled", "interrupted"]
 JOB_STATES: tuple[str, ...] = ("running", "computing", "done", "refused", "failed", "cancelled", "interrupted")
 FINISHED_JOB_STATES = frozenset({"done", "refused", "failed", "cancelled", "interrupted"})
-
-V2_JOBS = """
-CREATE TABLE jobs (
-    id                INTEGER PRIMARY KEY AUTOINCREMENT,
-    procedure         TEXT NOT NULL,
-    state             TEXT NOT NULL
-        CHECK (state IN ('running', 'computing', 'done', 'refused', 'failed', 'cancelled', 'interrupted')),
-    actor             TEXT NOT NULL,
-    source            TEXT NOT NULL,
-    options_json      TEXT NOT NULL DEFAULT '{}',
-    plan_json         TEXT,
-    progress_json     TEXT,
-    dataset           TEXT,
-    result_json       TEXT,
-    error             TEXT,
-    version_before    INTEGER,
-    version_after     INTEGER,
-    created_at        TEXT NOT NULL,
-    finished_at       TEXT
-);
-CREATE INDEX jobs_by_state ON jobs (state);
-"""
 
 
 class UnknownJob(StoreError):
@@ -80,25 +58,16 @@ _COLUMNS = (
 )
 
 
-def _loads(s: str | None) -> Any:
-    return None if s is None else json.loads(s)
-
-
 def _row(r: tuple[Any, ...]) -> JobRecord:
     return JobRecord(
-        int(r[0]), r[1], r[2], r[3], r[4], json.loads(r[5]), _loads(r[6]), _loads(r[7]), r[8], _loads(r[9]), r[10],
-        None if r[11] is None else int(r[11]), None if r[12] is None else int(r[12]),
-        datetime.fromisoformat(r[13]), None if r[14] is None else datetime.fromisoformat(r[14]),
+        int(r[0]), r[1], r[2], r[3], r[4], json.loads(r[5]), from_json(r[6]), from_json(r[7]), r[8],
+        from_json(r[9]), r[10], None if r[11] is None else int(r[11]), None if r[12] is None else int(r[12]),
+        datetime.fromisoformat(r[13]), dt(r[14]),
     )  # fmt: skip
 
 
-class JobRows:
-    """The job methods of :class:`cellctl.store.db.CellStore` (same connection and transactions)."""
-
-    _conn: sqlite3.Connection
-    _clock: Callable[[], datetime]
-    _tx: Callable[[], AbstractContextManager[sqlite3.Connection]]
-    _to_json: Callable[[str, object], str]
+class JobRows(Database):
+    """The job methods of :class:`cellctl.store.db.CellStore`."""
 
     def create_job(
         self, procedure: str, *, actor: str, source: str, options: Mapping[str, Any], version_before: int | None
@@ -108,7 +77,7 @@ class JobRows:
             cur = c.execute(
                 "INSERT INTO jobs (procedure, state, actor, source, options_json, version_before, created_at) "
                 "VALUES (?, 'running', ?, ?, ?, ?, ?)",
-                (procedure, actor, source, self._to_json("options", dict(options)), version_before, self._clock().isoformat()),
+                (procedure, actor, source, to_json("options", dict(options)), version_before, self._clock().isoformat()),
             )
             job_id = int(cur.lastrowid or 0)
         return self.job(job_id)
@@ -131,10 +100,10 @@ class JobRows:
         sets: list[str] = []
         args: list[Any] = []
         for column, value in (
-            ("plan_json", None if plan is None else self._to_json("plan", dict(plan))),
-            ("progress_json", None if progress is None else self._to_json("progress", dict(progress))),
+            ("plan_json", None if plan is None else to_json("plan", dict(plan))),
+            ("progress_json", None if progress is None else to_json("progress", dict(progress))),
             ("dataset", dataset),
-            ("result_json", None if result is None else self._to_json("result", dict(result))),
+            ("result_json", None if result is None else to_json("result", dict(result))),
             ("error", error),
             ("version_after", version_after),
         ):

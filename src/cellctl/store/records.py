@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from cellctl.cell.tags import CycleStep
+from cellctl.domain import CycleStep
 
 MAX_TEXT_LEN = 128
 
@@ -174,16 +174,6 @@ class AuditEntry:
     cycle_id: int | None
     prev_hash: str
     hash: str
-
-
-@dataclass(frozen=True)
-class CalibrationVersion:
-    kind: str
-    version: int
-    data: Mapping[str, Any]
-    metadata: Mapping[str, Any]
-    created_at: datetime
-    created_by: str
 
 
 # --- Errors --------------------------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """Retention in the store: what is kept, what was pruned, and the database's own size.
 
-Migration 3 (:data:`V3_RETENTION`) lets an image reference say that its file was pruned (when
-and why), so a record keeps answering for an image that is gone. The queries here are what the
-retention task (:mod:`cellctl.service.retention`) runs on the store's thread:
+Migration 3 of :mod:`cellctl.store.schema` lets an image reference say that its file was pruned
+(when and why), so a record keeps answering for an image that is gone. The queries here are what
+the retention task (:mod:`cellctl.service.retention`) runs on the store's thread:
 
 - images: the references still kept (with whether their cycle is still queued or running, whose
   images are never pruned), marking references pruned, and which files belong only to pruned
@@ -19,18 +19,12 @@ its first entry, it says who commanded what, and it is small beside the images.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Callable, Iterable, Sequence
-from contextlib import AbstractContextManager
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime
 from typing import Any
 
-V3_RETENTION = """
-ALTER TABLE cycle_images ADD COLUMN pruned_at TEXT;
-ALTER TABLE cycle_images ADD COLUMN pruned_reason TEXT;
-CREATE INDEX cycle_images_by_cycle ON cycle_images (cycle_id);
-CREATE INDEX cycles_by_created ON cycles (created_at);
-"""
+from cellctl.store.connection import Database, ts
 
 FINISHED_CYCLE_STATES = ("done", "failed", "interrupted")
 
@@ -65,23 +59,13 @@ class DatabaseSize:
         return self.page_count * self.page_size
 
 
-def _ts(t: datetime) -> str:
-    if t.tzinfo is None:
-        raise ValueError("timestamps must be timezone-aware (UTC)")
-    return t.astimezone(timezone.utc).isoformat(timespec="microseconds")
-
-
 def _chunks(items: Sequence[Any], n: int = 500) -> Iterable[Sequence[Any]]:
     for i in range(0, len(items), n):
         yield items[i : i + n]
 
 
-class RetentionRows:
-    """The retention methods of :class:`cellctl.store.db.CellStore` (same connection and transactions)."""
-
-    _conn: sqlite3.Connection
-    _clock: Callable[[], datetime]
-    _tx: Callable[[], AbstractContextManager[sqlite3.Connection]]
+class RetentionRows(Database):
+    """The retention methods of :class:`cellctl.store.db.CellStore`."""
 
     # -- images -------------------------------------------------------------------------------
 
@@ -97,7 +81,7 @@ class RetentionRows:
         """Say that the files ``uris`` are gone and why; every kept reference to them is marked. Returns how many."""
         if not reason.strip():
             raise ValueError("reason must say why the images were pruned")
-        when = _ts(at or self._clock())
+        when = ts(at or self._clock())
         n = 0
         with self._tx() as c:
             for chunk in _chunks(list(dict.fromkeys(uris))):
@@ -128,7 +112,7 @@ class RetentionRows:
         """Delete up to ``batch`` finished cycles created before the cutoff, oldest first, with their
         steps, image references and idempotency keys. Returns (the ids deleted, the image files
         they still referenced: delete those too). Call again until it returns no ids."""
-        cutoff = _ts(created_before)
+        cutoff = ts(created_before)
         with self._tx() as c:
             ids = [
                 int(r[0])
@@ -160,7 +144,7 @@ class RetentionRows:
         """Delete the records of alarms raised before the cutoff that are no longer active."""
         with self._tx() as c:
             return c.execute(
-                "DELETE FROM alarms WHERE raised_at < ? AND active = 0", (_ts(raised_before),)
+                "DELETE FROM alarms WHERE raised_at < ? AND active = 0", (ts(raised_before),)
             ).rowcount
 
     def oldest_cycle(self) -> datetime | None:

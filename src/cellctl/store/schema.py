@@ -2,7 +2,11 @@
 
 Migration N brings a database from version N-1 to N. Each runs in one transaction together with
 the user_version update, so a failed migration leaves the database at the previous version.
-Never edit a released migration; append a new one.
+Never edit a released migration; append a new one (the one exception, a table nothing reads any
+more, is told at :data:`V1`).
+
+This module imports nothing of the store but its errors: every repository and the connection
+build on it.
 """
 
 from __future__ import annotations
@@ -10,8 +14,6 @@ from __future__ import annotations
 import sqlite3
 from collections.abc import Sequence
 
-from cellctl.store.jobs import V2_JOBS
-from cellctl.store.retention import V3_RETENTION
 from cellctl.store.records import SchemaTooNew, StoreError
 
 _APPEND_ONLY = """
@@ -122,21 +124,48 @@ CREATE TABLE audit_log (
     prev_hash     TEXT NOT NULL,
     hash          TEXT NOT NULL
 );
-
-CREATE TABLE calibrations (
-    id             INTEGER PRIMARY KEY AUTOINCREMENT,
-    kind           TEXT NOT NULL,
-    version        INTEGER NOT NULL,
-    data_json      TEXT NOT NULL,
-    metadata_json  TEXT NOT NULL,
-    created_at     TEXT NOT NULL,
-    created_by     TEXT NOT NULL,
-    UNIQUE (kind, version)
-);
 """
     + _APPEND_ONLY.format(table="audit_log")
-    + _APPEND_ONLY.format(table="calibrations")
 )
+"""Cycles with their steps, images and idempotency keys; alarms; the audit log.
+
+V1 once also created an append-only ``calibrations`` table, a calibration history that nothing in
+production wrote or read (the versioned calibration set lives in files:
+:mod:`cellctl.calibration.calibration_set`, reported by ``GET /calibration``). It was taken out of
+V1 rather than dropped by a new migration: a database created before keeps that table and its
+triggers, unused and harmless; no code reads or writes it.
+"""
+
+V2_JOBS = """
+CREATE TABLE jobs (
+    id                INTEGER PRIMARY KEY AUTOINCREMENT,
+    procedure         TEXT NOT NULL,
+    state             TEXT NOT NULL
+        CHECK (state IN ('running', 'computing', 'done', 'refused', 'failed', 'cancelled', 'interrupted')),
+    actor             TEXT NOT NULL,
+    source            TEXT NOT NULL,
+    options_json      TEXT NOT NULL DEFAULT '{}',
+    plan_json         TEXT,
+    progress_json     TEXT,
+    dataset           TEXT,
+    result_json       TEXT,
+    error             TEXT,
+    version_before    INTEGER,
+    version_after     INTEGER,
+    created_at        TEXT NOT NULL,
+    finished_at       TEXT
+);
+CREATE INDEX jobs_by_state ON jobs (state);
+"""
+"""Commissioning jobs (:mod:`cellctl.store.jobs`)."""
+
+V3_RETENTION = """
+ALTER TABLE cycle_images ADD COLUMN pruned_at TEXT;
+ALTER TABLE cycle_images ADD COLUMN pruned_reason TEXT;
+CREATE INDEX cycle_images_by_cycle ON cycle_images (cycle_id);
+CREATE INDEX cycles_by_created ON cycles (created_at);
+"""
+"""An image reference says when and why its file was pruned (:mod:`cellctl.store.retention`)."""
 
 MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""

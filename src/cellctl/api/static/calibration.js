@@ -1,0 +1,101 @@
+/* cellctl dashboard: the calibration page: whether the set is ready for production, the current
+   set (one row per part for a versioned set) and its versions. The commissioning page shows the
+   same versions table. */
+
+import { getJSON } from "./api.js";
+import { $, el, kvList, setClass } from "./dom.js";
+import { dateTime } from "./format.js";
+import { emit, model } from "./state.js";
+import { renderCalibrationTile } from "./status.js";
+
+export async function refreshCalibration() {
+  model.calibration = await getJSON("/calibration");
+  renderCalibration();
+  if (model.status) renderCalibrationTile();
+  emit("calibration", model.calibration);
+}
+
+function calibrationCurrent(current) {
+  if (!current || !Object.keys(current).length) return el("p", { class: "muted", text: "No calibration set loaded." });
+  const parts = current.parts;
+  if (!parts || typeof parts !== "object") return el("div", { class: "panel" }, kvList(current));
+  // The versioned calibration set: one row per part with its status, date, method and quality.
+  const { parts: _omit, ...rest } = current;
+  const names = Object.keys(parts);
+  const rows = names.map((name) => {
+    const p = parts[name];
+    if (!p) {
+      const missing = el("td", { text: "missing" });
+      setClass(missing, "is-warn", true);
+      return el("tr", { "data-part": name }, el("th", { scope: "row", text: name }), missing, el("td", { text: "-" }), el("td", { text: "-" }), el("td", { text: "-" }));
+    }
+    const status = el("td", { text: p.status || "-" });
+    setClass(status, "is-alarm", p.status === "failed");
+    return el(
+      "tr",
+      { "data-part": name },
+      el("th", { scope: "row", text: name }),
+      status,
+      el("td", { text: dateTime(p.calibrated_utc) }),
+      el("td", { text: p.method || "-" }),
+      el("td", {}, p.quality && Object.keys(p.quality).length ? kvList(p.quality) : "-", p.failure ? el("p", { text: p.failure }) : null),
+    );
+  });
+  return el(
+    "div",
+    { class: "panel" },
+    kvList(rest),
+    names.length
+      ? el(
+          "table",
+          { class: "data", id: "cal-parts" },
+          el("thead", {}, el("tr", {}, ["Part", "Status", "Calibrated", "Method", "Quality figures"].map((h) => el("th", { scope: "col", text: h })))),
+          el("tbody", {}, rows),
+        )
+      : el("p", { class: "muted", text: "The set has no parts yet." }),
+  );
+}
+
+function renderCalibration() {
+  const cal = model.calibration;
+  if (!cal) return;
+  const problems = cal.problems || [];
+  $("cal-problems").replaceChildren(
+    problems.length
+      ? el("div", { class: "panel problems is-warn", role: "alert" }, el("strong", { text: "Not ready for production:" }), el("ul", {}, problems.map((p) => el("li", { text: p }))))
+      : el("p", { class: "panel", text: "Ready for production: the set is complete, valid and in date." }),
+  );
+  $("cal-current").replaceChildren(calibrationCurrent(cal.current));
+  $("cal-history").replaceChildren(versionsTable(cal.versions || [], cal.current ? cal.current.version : null));
+}
+
+// The calibration set's versions, newest first: each part's status in that version.
+export function versionsTable(versions, currentVersion) {
+  if (!versions.length) return el("p", { class: "muted", text: "No calibration-set version stored yet." });
+  const names = [...new Set(versions.flatMap((v) => Object.keys(v.parts || {})))];
+  const rows = versions.slice().reverse().map((v) => {
+    const isCurrent = v.version === currentVersion;
+    const cells = names.map((n) => {
+      const st = (v.parts || {})[n];
+      const td = el("td", { text: st || "-", "data-part": n });
+      setClass(td, "is-alarm", isCurrent && st === "failed"); // colour only what is in use now
+      return td;
+    });
+    return el(
+      "tr",
+      { "data-version": v.version, class: isCurrent ? "is-current" : null },
+      el("th", { scope: "row" }, `v${v.version}`, isCurrent ? el("strong", { text: " (in use)" }) : null),
+      el("td", { text: dateTime(v.created_utc) }),
+      el("td", { text: v.note || "-" }),
+      cells,
+    );
+  });
+  return el(
+    "table",
+    { class: "data versions" },
+    el("caption", { class: "visually-hidden", text: "Calibration-set versions, newest first" }),
+    el("thead", {}, el("tr", {}, ["Version", "Created", "Note", ...names].map((h) => el("th", { scope: "col", text: h })))),
+    el("tbody", {}, rows),
+  );
+}
+

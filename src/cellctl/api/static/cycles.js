@@ -1,0 +1,141 @@
+/* cellctl dashboard: the cycles page (#/cycles, #/cycles/12): the cycle history with its filters
+   (state from the API, part id in the page) and the selected cycle's detail: its figures, true
+   install error (simulation), images and steps. */
+
+import { getJSON, thumbUrl } from "./api.js";
+import { $, el, kvList, setClass } from "./dom.js";
+import { dateTime, isNum, num, signed } from "./format.js";
+import { AXES, NOK_CYCLES, model, schedule } from "./state.js";
+
+export async function refreshCycleTable() {
+  const state = $("filter-state").value;
+  const url = "/cycles?limit=200" + (state ? `&state=${encodeURIComponent(state)}` : "");
+  model.cycles = await getJSON(url);
+  renderCycleTable();
+}
+
+export async function refreshDetail() {
+  if (model.detailId === null) return;
+  const id = model.detailId;
+  try {
+    const record = await getJSON(`/cycles/${id}`);
+    if (model.detailId === id) renderDetail(record);
+  } catch (err) {
+    if (model.detailId === id) $("cycle-detail").replaceChildren(el("p", { class: "is-warn problems", text: err.message }));
+  }
+}
+
+function triple(v, digits) {
+  return Array.isArray(v) && v.length === 3 ? v.map((x) => signed(x, digits)).join(" ") : "-";
+}
+
+function renderCycleTable() {
+  const q = $("filter-part").value.trim().toLowerCase();
+  const rows = model.cycles.filter((c) => !q || (c.part_id || "").toLowerCase().includes(q));
+  $("cycle-count").textContent = `${rows.length} of ${model.cycles.length} loaded cycles`;
+  const body = rows.map((c) => {
+    const res = c.result || {};
+    const stateCell = el("td", { text: c.state });
+    setClass(stateCell, "is-alarm", NOK_CYCLES.has(c.state));
+    const tr = el(
+      "tr",
+      { class: "clickable" + (model.detailId === c.id ? " is-selected" : ""), "data-cycle": c.id },
+      el("td", {}, el("a", { href: `#/cycles/${c.id}`, text: `#${c.id}` })),
+      stateCell,
+      el("td", { text: c.part_id }),
+      el("td", { text: c.car_id || "-" }),
+      el("td", { text: dateTime(c.started_at || c.created_at) }),
+      el("td", { class: "num", text: num(res.cycle_time_s, 2) }),
+      el("td", { class: "num", text: triple(res.correction_mm, 2) }),
+      el("td", { class: "num", text: triple(res.correction_deg, 3) }),
+      el("td", { text: c.error || "" }),
+    );
+    tr.addEventListener("click", (ev) => {
+      if (ev.target.tagName !== "A") location.hash = `#/cycles/${c.id}`;
+    });
+    return tr;
+  });
+  $("cycle-table").tBodies[0].replaceChildren(...body);
+}
+
+function renderDetail(rec) {
+  const res = rec.result || {};
+  const parts = [
+    el("h2", { text: `Cycle ${rec.id}: ${rec.state}` }),
+    rec.error ? el("p", { class: "problems is-alarm", text: rec.error }) : null,
+    el(
+      "dl",
+      { class: "kv" },
+      [
+        ["Part", rec.part_id],
+        ["Car", rec.car_id || "-"],
+        ["Recipe", rec.recipe],
+        ["Requested by", `${rec.actor} via ${rec.source}`],
+        ["Created", dateTime(rec.created_at)],
+        ["Started", dateTime(rec.started_at)],
+        ["Finished", dateTime(rec.finished_at)],
+        ["Cycle time", isNum(res.cycle_time_s) ? `${res.cycle_time_s.toFixed(2)} s` : "-"],
+        ["Correction", `${triple(res.correction_mm, 3)} mm, ${triple(res.correction_deg, 4)} deg`],
+        ["Interrupted in", rec.interrupted_step || "-"],
+      ].map(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]),
+    ),
+  ];
+  if (rec.true_error) {
+    parts.push(el("h3", { text: "True install error (simulation)" }));
+    const te = rec.true_error;
+    const tol = model.config.tolerance;
+    const cells = AXES.map((ax) => {
+      const v = te[ax.key];
+      const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
+      const td = el("td", { class: "num", text: signed(v, 4) });
+      setClass(td, "is-alarm", isNum(v) && Math.abs(v) > band);
+      return td;
+    });
+    parts.push(
+      el(
+        "table",
+        { class: "data" },
+        el("thead", {}, el("tr", {}, AXES.map((ax) => el("th", { scope: "col", text: `${ax.label} ${ax.unit}` })))),
+        el("tbody", {}, el("tr", {}, cells)),
+      ),
+    );
+  }
+  parts.push(el("h3", { text: "Images" }));
+  const images = (rec.images || []).map((i) =>
+    el(
+      "a",
+      { href: i.url, target: "_blank", rel: "noopener" },
+      el("img", { src: thumbUrl(rec.id, i.name, 320), alt: `Annotated image ${i.name} of cycle ${rec.id} (${i.step})`, loading: "lazy" }),
+      `${i.name} (${i.step})`,
+    ),
+  );
+  parts.push(images.length ? el("div", { class: "thumbs" }, images) : el("p", { class: "muted", text: "No images." }));
+  parts.push(el("h3", { text: "Steps" }));
+  const steps = (rec.steps || []).map((s) => {
+    const okCell = el("td", { text: s.ok === null ? "open" : s.ok ? "ok" : "NOT OK" });
+    setClass(okCell, "is-alarm", s.ok === false);
+    return el(
+      "tr",
+      {},
+      el("td", { text: `${s.step} ${s.attempt}` }),
+      el("td", { class: "num", text: num(s.duration_s, 3) }),
+      okCell,
+      el("td", {}, Object.keys(s.figures || {}).length ? kvList(s.figures) : "-", s.error ? el("p", { text: s.error }) : null),
+    );
+  });
+  parts.push(
+    el(
+      "table",
+      { class: "data steps" },
+      el("thead", {}, el("tr", {}, ["Step", "Duration s", "Result", "Figures"].map((h) => el("th", { scope: "col", text: h })))),
+      el("tbody", {}, steps),
+    ),
+  );
+  $("cycle-detail").replaceChildren(...parts.filter(Boolean));
+}
+
+export function bindCycles() {
+  $("filter-state").addEventListener("change", () => schedule("cycles", refreshCycleTable, 0));
+  $("filter-part").addEventListener("input", renderCycleTable);
+  $("cycle-filters").addEventListener("submit", (e) => e.preventDefault());
+}

@@ -1,0 +1,125 @@
+/* cellctl dashboard: the overview page: the last camera image, the install-deviation and
+   cycle-time trends, and the filmstrip of recent cycles (not OK ones pinned first). All of it comes
+   from GET /dashboard/cycles, the recent cycles digested. */
+
+import { getJSON, thumbUrl } from "./api.js";
+import { $, el } from "./dom.js";
+import { chart, chartWidth } from "./chart.js";
+import { clock, isNum } from "./format.js";
+import { AXES, NOK_CYCLES, model } from "./state.js";
+import { renderPart } from "./status.js";
+
+const TREND_CYCLES = 30;
+const FILM_RECENT = 10;
+const FILM_PINNED = 6;
+
+export async function refreshDigest() {
+  model.digest = await getJSON("/dashboard/cycles?limit=60");
+  renderTrends();
+  renderFilmstrip();
+  renderLastImage();
+  renderPart();
+}
+
+// -- trends ---------------------------------------------------------------------------------------
+
+export function renderTrends() {
+  const tol = model.config.tolerance;
+  const sixWidth = chartWidth($("trend-charts"), 3);
+  const chronological = model.digest.slice().reverse();
+  const useTruth = model.config.simulation || chronological.some((c) => c.true_error);
+  const installed = chronological.filter((c) => c.state === "done").slice(-TREND_CYCLES);
+  const source = useTruth ? "true_error" : "residual";
+  $("h-trends").textContent = useTruth ? "Install deviation: true error (simulated cell)" : "Install deviation: verification shot residual";
+  $("trend-note").textContent =
+    (useTruth
+      ? "The twin's truth of the installed glass against the template, "
+      : "The last verification shot's offset; dZ, dRx and dRy are set by the laser alignment and not measured by the shot. ") +
+    (installed.length ? `last ${installed.length} installed cycle${installed.length === 1 ? "" : "s"}` : "no installed cycle yet") +
+    `; grey band: tolerance \u00b1${tol.position_mm} mm, \u00b1${tol.orientation_deg} deg.`;
+  const charts = AXES.map((ax) => {
+    const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
+    const points = installed.map((c) => ({ id: c.id, y: c[source] ? c[source][ax.key] : null, nok: false }));
+    const c = chart({
+      title: ax.label,
+      unit: ax.unit,
+      band,
+      points,
+      digits: 3,
+      width: sixWidth,
+      height: 130,
+      emptyText: useTruth || installed.length === 0 ? "no installed cycle yet" : "not measured by the verification shot",
+    });
+    c.dataset.axis = ax.key;
+    return c;
+  });
+  $("trend-charts").replaceChildren(...charts);
+  const timed = chronological.filter((c) => isNum(c.cycle_time_s)).slice(-TREND_CYCLES);
+  const ct = chart({
+    title: "Cycle time",
+    unit: "s",
+    band: null,
+    points: timed.map((c) => ({ id: c.id, y: c.cycle_time_s, nok: c.state !== "done" })),
+    digits: 2,
+    emptyText: "no finished cycle yet",
+    width: chartWidth($("cycle-time-chart"), 1),
+    height: 110,
+  });
+  ct.dataset.axis = "cycle_time_s";
+  $("cycle-time-chart").replaceChildren(ct);
+}
+
+// -- the last image and the filmstrip -------------------------------------------------------------
+
+export function renderLastImage() {
+  let shown = model.liveImage;
+  if (!shown) {
+    const c = model.digest.find((d) => d.image);
+    if (c) shown = { cycle_id: c.id, name: c.image.name };
+  }
+  const img = $("last-image");
+  const link = $("last-image-link");
+  img.hidden = !shown;
+  if (!shown) return;
+  const src = thumbUrl(shown.cycle_id, shown.name, 640);
+  if (img.getAttribute("src") !== src) {
+    img.src = src;
+    img.alt = `Annotated camera image ${shown.name} of cycle ${shown.cycle_id}, with the vision overlay`;
+    img.dataset.cycle = String(shown.cycle_id);
+    link.href = `/cycles/${shown.cycle_id}/images/${encodeURIComponent(shown.name)}`;
+  }
+  const c = model.digest.find((d) => d.id === shown.cycle_id);
+  const what = c ? `part ${c.part_id}, ${c.state}` : "running";
+  $("last-image-caption").textContent = `Cycle ${shown.cycle_id}, ${shown.name}: ${what}. Select the image for full size.`;
+}
+
+function filmItem(c, pinned) {
+  const img = c.image
+    ? el("img", { src: thumbUrl(c.id, c.image.name, 240), alt: "", loading: "lazy", width: 240, height: 240 })
+    : el("span", { class: "noimg", text: "no image" });
+  const btn = el(
+    "button",
+    {
+      type: "button",
+      class: "film" + (pinned ? " is-pinned" : ""),
+      "data-cycle": c.id,
+      "aria-label": `Cycle ${c.id}, part ${c.part_id}, ${c.state}${pinned ? ", not OK, pinned" : ""}: show its detail`,
+      onclick: () => {
+        location.hash = `#/cycles/${c.id}`;
+      },
+    },
+    img,
+    el("span", { class: "cap" }, pinned ? el("span", { class: "pin", text: "NOT OK" }) : null, ` #${c.id} ${c.part_id}`),
+    el("span", { class: "cap", text: `${c.state} ${clock(c.finished_at || c.created_at)}` }),
+  );
+  return el("li", {}, btn);
+}
+
+function renderFilmstrip() {
+  const pinned = model.digest.filter((c) => NOK_CYCLES.has(c.state)).slice(0, FILM_PINNED);
+  const pinnedIds = new Set(pinned.map((c) => c.id));
+  const recent = model.digest.filter((c) => !pinnedIds.has(c.id)).slice(0, FILM_RECENT);
+  const items = [...pinned.map((c) => filmItem(c, true)), ...recent.map((c) => filmItem(c, false))];
+  $("filmstrip").replaceChildren(...(items.length ? items : [el("li", { class: "muted", text: "No cycles yet." })]));
+}
+

@@ -1,0 +1,197 @@
+"""The register map as the Markdown page ``docs/plc_register_map.md`` (``python -m cellctl.plc --write PATH``)."""
+
+from __future__ import annotations
+
+from cellctl.cell.alarms import RECOVERY_COMMANDS, AlarmCode
+from cellctl.cell.tags import PackMLState
+from cellctl.config.cell import ProcessConfig
+from cellctl.config.store import PackMLConfig
+from cellctl.plc.register_map import (
+    BLOCKS,
+    CELL_BLOCK,
+    MAP_VERSION,
+    PLC_BLOCK,
+    UNIT_ID_EXCEPTION,
+    PLC_ERROR_CODE_RANGE,
+    PLC_ERROR_TEXT,
+    STORED_REFUSALS,
+    Block,
+    CommandReply,
+    PlcErrorCode,
+)
+
+_INTRO = """\
+# PLC register map (Modbus TCP)
+
+Generated from `src/cellctl/plc/register_map.py` by `python -m cellctl.plc --write
+docs/plc_register_map.md`; do not edit by hand (a test compares this file with the generator).
+
+Map version {major}.{minor}. The cell is the Modbus TCP server (host, port and unit id from `[plc]` in
+the config). All values are holding registers at 0-based protocol addresses (address 0 is 40001
+in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other function codes
+(coils, input registers) get exception code 1 (illegal function).
+
+- The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it.
+- The **cell block** ({c_start}-{c_last}) is written only by the cell. A PLC write into it is refused
+  with exception code 2 (illegal data address), leaves it unchanged and counts in
+  `refused_write_count`. Addresses between the blocks do not exist (exception code 2), so read
+  each block with its own request.
+- Reserved addresses inside a block read 0.
+- 32-bit values (uint32, float32) take two registers; their word order is `[plc] float_word_order`:
+  `big` puts the high word first (ABCD), `little` the low word first (CDAB). Bytes within a
+  register are always big-endian.
+- **Unit id.** The cell answers the unit id `[plc] unit_id` (default 1). A request to any other
+  unit id reads and writes nothing and gets exception code {unit_exc} (gateway target device failed
+  to respond); the cell logs a warning naming the unit id (the first time, then every 1000th).
+  With `unit_id = 0` the cell answers every unit id.
+
+## Start-up and states
+
+`state_current` is the PackML state (PackTags numbers, listed with the register). After every
+start of the service the cell is in **{initial_state}** (`state_current` = {initial_state_id};
+`[packml] initial_state`, default `{initial_state_cfg}`, may say `stopped` instead): it never
+resumes running by itself. To produce, send the PackML commands Clear (9), Reset (1) and Start (2),
+each once the state before has settled:
+{start_path}.
+
+`ready` is 1 only in Execute (`state_current` = 6), while no cycle request is being served and
+`cycle_request` = 0; in every other state it is 0, and a cycle request there is refused with
+`error_code` {not_ready} (stored like any refusal). A cycle requested over the REST API in
+Execute runs first; the PLC's request then waits behind it (`busy`).
+
+A unit mode request (`unit_mode_request`, 1 production, 2 maintenance, 3 manual) is taken only
+in the states of `[packml] mode_change_states`, by default {mode_states};
+in any other state the cell answers `unit_mode_result` = 1 (invalid in this state) and the mode
+stays. A PackML command the state model does not allow in the current state gets `cmd_result` =
+1 the same way ([PackML states](packml_states.md));
+{recovery} are also refused while an alarm with a reaction is active
+([alarm reactions](alarm_reactions.md)).
+
+## Handshakes
+
+**Heartbeats.** The PLC changes `plc_heartbeat` periodically; if it stays unchanged for
+`heartbeat_timeout_s` the cell raises "PLC heartbeat lost" (alarm {hb_alarm}, with `[plc]
+heartbeat_alarm` on: Hold when the robot stands still, Abort while it moves; a cycle stopped by
+it ends `nok` with `error_code` {hb_alarm}) and clears `plc_heartbeat_ok`. The cell increments
+`cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watch it the same way.
+
+**Cycle** (four-way, keyed by `cycle_req_id`):
+1. With `ready` = 1, the PLC writes `recipe_id`, `part_id`, a new nonzero `cycle_req_id` and
+   `cycle_request` = 1 in one FC16 write.
+2. The cell echoes the id in `cycle_ack_id` and sets `busy` (or, if it refuses, `done` + `nok`
+   with `error_code`).
+3. When the cycle ends the cell writes the result registers (`result_req_id` = the id) and sets
+   `done` with `ok` or `nok`, clearing `busy`, in one update.
+4. The PLC reads the result and sets `cycle_request` = 0; the cell then clears `done`, `ok`, `nok`
+   and `replayed`. The result registers keep the last result.
+
+A repeated `cycle_req_id` never starts a second cycle: the cell publishes that id's stored result
+again with `replayed` = 1. A refusal is that id's result too (refused by the cell: codes
+{stored_codes} and the cell's own ids): repeating the id republishes the refusal, so a refused
+request needs a new id. Only the interface's codes {unstored_codes} are not results: repeating
+that id asks the cell again. Dropping `cycle_request` before `done` does not cancel a cycle: send
+the PackML Stop or Abort command for that.
+
+**PackML commands and unit mode.** The PLC writes `cntrl_cmd` and sets `cmd_change_request` = 1;
+the cell answers with `cmd_ack_cmd`, `cmd_result` and `cmd_ack` = 1; the PLC sets
+`cmd_change_request` = 0 and the cell clears `cmd_ack`. The unit mode uses `unit_mode_request`,
+`unit_mode_change_request`, `unit_mode_ack_mode`, `unit_mode_result` and `unit_mode_ack` the
+same way.
+
+## Recipes
+
+`recipe_id` must be the `id` of one of the config's `[[process.recipes]]` tables (each has an `id`
+1-65535, the number the PLC sends, and a `name`, which the cycle records and the REST API use).
+Any other `recipe_id` is refused with `error_code` {unknown_recipe}. A config without
+`[[process.recipes]]` (such as `config/sim.toml`) has this one:
+
+| recipe_id | name | description |
+|---|---|---|
+{recipes}
+"""
+
+
+def _table(block: Block) -> list[str]:
+    lines = [
+        f"## {block.name[0].upper()}{block.name[1:]}: {block.start}-{block.end - 1}, "
+        f"written by the {block.access.value}",
+        "",
+        "| Address | Name | Type | Units | Description |",
+        "|---|---|---|---|---|",
+    ]
+    for reg in sorted(block.registers, key=lambda r: r.address):
+        addr = str(reg.address) if reg.words == 1 else f"{reg.address}-{reg.end - 1}"
+        desc = reg.description.replace("|", "\\|")
+        lines.append(f"| {addr} | `{reg.name}` | {reg.type.label} | {reg.units} | {desc} |")
+    used = {a for r in block.registers for a in range(r.address, r.end)}
+    free = [a for a in range(block.start, block.end) if a not in used]
+    if free:
+        lines.append("")
+        lines.append(f"Reserved: {_ranges(free)}.")
+    for reg in block.registers:
+        if reg.bits:
+            lines += ["", f"### `{reg.name}` bits", "", "| Bit | Name | Meaning |", "|---|---|---|"]
+            for bit in sorted(reg.bits, key=lambda b: b.index):
+                lines.append(f"| {bit.index} | `{bit.name}` | {bit.description} |")
+    return lines
+
+
+def _ranges(addresses: list[int]) -> str:
+    """Sorted addresses as "a-b, c" spans."""
+    spans: list[list[int]] = []
+    for a in addresses:
+        if spans and a == spans[-1][1] + 1:
+            spans[-1][1] = a
+        else:
+            spans.append([a, a])
+    return ", ".join(str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in spans)
+
+
+def _codes() -> list[str]:
+    lines = ["## Codes", "", "`cmd_result` and `unit_mode_result`:", "", "| Value | Meaning |", "|---|---|"]
+    lines += [f"| {m.value} | {m.name.lower().replace('_', ' ')} |" for m in CommandReply]
+    lines += ["", f"`error_code` values of the PLC interface itself ({PLC_ERROR_CODE_RANGE.start}-"
+              f"{PLC_ERROR_CODE_RANGE.stop - 1}); every other nonzero value is the cell's alarm / stop-reason "
+              "id: the first-out alarm that failed or stopped the cycle, e.g. "
+              f"{int(AlarmCode.PLC_HEARTBEAT_LOST)} PLC heartbeat lost or {int(AlarmCode.ROBOT_FAULT)} robot fault "
+              "(all of them: [alarm reactions](alarm_reactions.md)). \"Stored\": the code is that id's result, and repeating "
+              "the id republishes it with `replayed` = 1.",
+              "", "| Value | Name | Stored | Meaning |", "|---|---|---|---|"]
+    lines += [f"| {m.value} | `{m.name.lower()}` | {'yes' if m in STORED_REFUSALS else 'no'} | {PLC_ERROR_TEXT[m]} |"
+              for m in PlcErrorCode]
+    return lines
+
+
+def _code_list(codes: list[PlcErrorCode]) -> str:
+    return ", ".join(str(int(c)) for c in sorted(codes))
+
+
+def render_markdown() -> str:
+    """The register map as the Markdown page committed at ``docs/plc_register_map.md``."""
+    packml = PackMLConfig()
+    initial = PackMLState[packml.initial_state.upper()]
+    path = [PackMLState.ABORTED, PackMLState.CLEARING, PackMLState.STOPPED, PackMLState.RESETTING,
+            PackMLState.IDLE, PackMLState.STARTING, PackMLState.EXECUTE]
+    if initial is not PackMLState.ABORTED:
+        path = path[path.index(initial):]
+    mode_states = sorted(PackMLState[s.upper()] for s in packml.mode_change_states)
+    text = _INTRO.format(
+        major=MAP_VERSION[0], minor=MAP_VERSION[1],
+        p_start=PLC_BLOCK.start, p_last=PLC_BLOCK.end - 1,
+        c_start=CELL_BLOCK.start, c_last=CELL_BLOCK.end - 1,
+        unit_exc=UNIT_ID_EXCEPTION,
+        initial_state=initial.name.title(), initial_state_id=int(initial), initial_state_cfg=packml.initial_state,
+        start_path=" -> ".join(f"{s.name.title()} ({int(s)})" for s in path),
+        not_ready=int(PlcErrorCode.NOT_READY), unknown_recipe=int(PlcErrorCode.UNKNOWN_RECIPE),
+        mode_states=", ".join(f"{s.name.title()} ({int(s)})" for s in mode_states),
+        stored_codes=_code_list(sorted(STORED_REFUSALS)),
+        unstored_codes=_code_list([c for c in PlcErrorCode if c not in STORED_REFUSALS]),
+        recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
+        hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST),
+        recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
+    )
+    parts = [text]
+    for block in BLOCKS:
+        parts.append("\n".join(_table(block)) + "\n")
+    parts.append("\n".join(_codes()) + "\n")
+    return "\n".join(parts)

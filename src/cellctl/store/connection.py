@@ -1,0 +1,171 @@
+"""The store's one SQLite connection: opening it, write transactions, and the value conversions.
+
+:class:`Database` owns the connection, the database path and the clock. Every repository of the
+store (:mod:`~cellctl.store.cycles`, :mod:`~cellctl.store.alarms`, :mod:`~cellctl.store.audit`,
+:mod:`~cellctl.store.jobs`, :mod:`~cellctl.store.retention`) is a subclass of it, and
+:class:`cellctl.store.db.CellStore` inherits them all, so they share this one connection.
+
+The connection belongs to the thread that opened it (sqlite3's default check). Every method that
+changes something runs in one :meth:`Database._tx` and commits before it returns.
+
+Conversions: timestamps are timezone-aware UTC datetimes, stored as ISO 8601 text with
+microseconds (:func:`ts`); figures, requests and responses are stored as canonical JSON
+(:func:`to_json`: sorted keys, numpy arrays as lists, NaN and infinity refused).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from enum import Enum
+from pathlib import Path
+from typing import Any, Literal, Self
+
+import numpy as np
+
+from cellctl.store.records import StoreError
+from cellctl.store.schema import migrate, schema_version
+
+Synchronous = Literal["FULL", "NORMAL"]
+
+
+def utcnow() -> datetime:
+    """The default clock: now, UTC."""
+    return datetime.now(timezone.utc)
+
+
+def ts(t: datetime) -> str:
+    """A timezone-aware datetime as stored: ISO 8601 in UTC, with microseconds."""
+    if t.tzinfo is None:
+        raise ValueError("timestamps must be timezone-aware (UTC)")
+    return t.astimezone(timezone.utc).isoformat(timespec="microseconds")
+
+
+def dt(s: str | None) -> datetime | None:
+    """A stored timestamp back (None stays None)."""
+    return None if s is None else datetime.fromisoformat(s)
+
+
+def need(name: str, value: str) -> None:
+    """Refuse an empty or blank text field, naming it."""
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError(f"{name} must be a non-empty string")
+
+
+def _json_default(obj: object) -> object:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Enum):
+        return obj.value
+    if isinstance(obj, datetime):
+        return ts(obj)
+    if isinstance(obj, (set, frozenset)):
+        return sorted(obj)  # type: ignore[type-var]
+    raise TypeError(f"cannot store a {type(obj).__name__} as JSON")
+
+
+def to_json(what: str, obj: object) -> str:
+    """Canonical JSON (sorted keys); NaN and infinity are refused naming ``what``."""
+    try:
+        return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False, default=_json_default)
+    except ValueError as err:
+        raise ValueError(f"{what} contains NaN or infinity, which is never a valid figure: {err}") from None
+    except TypeError as err:
+        raise ValueError(f"{what} cannot be stored as JSON: {err}") from None
+
+
+def from_json(s: str | None) -> Any:
+    """Stored JSON back (None stays None)."""
+    return None if s is None else json.loads(s)
+
+
+@dataclass(frozen=True)
+class StoreInfo:
+    """What :meth:`Database.info` reports: the file, its schema version, journal mode and sync level."""
+
+    path: Path
+    schema_version: int
+    journal_mode: str
+    synchronous: str
+
+
+class Database:
+    """One open database: its connection, its path and the clock that stamps its rows.
+
+    Open with :meth:`open`; close with :meth:`close` (or use as a context manager).
+    """
+
+    def __init__(self, conn: sqlite3.Connection, path: Path, clock: Callable[[], datetime]) -> None:
+        self._conn = conn
+        self._path = path
+        self._clock = clock
+
+    @classmethod
+    def open(
+        cls,
+        path: str | Path,
+        *,
+        synchronous: Synchronous = "FULL",
+        busy_timeout_s: float = 5.0,
+        clock: Callable[[], datetime] = utcnow,
+    ) -> Self:
+        """Open (creating if needed) the database at ``path``, switch it to WAL and migrate it.
+
+        ``busy_timeout_s`` (seconds) is how long a write waits for another connection's lock.
+        """
+        p = Path(path)
+        if str(path) == ":memory:" or not str(path):
+            raise ValueError("the store needs a file path (WAL mode and crash recovery need a file), not ':memory:'")
+        if synchronous not in ("FULL", "NORMAL"):
+            raise ValueError(f"synchronous must be 'FULL' or 'NORMAL', got {synchronous!r}")
+        if not p.parent.is_dir():
+            raise StoreError(f"store directory {p.parent} does not exist: create it or change [store] path")
+        conn = sqlite3.connect(p, isolation_level=None, timeout=busy_timeout_s)
+        try:
+            mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+            if str(mode).lower() != "wal":
+                raise StoreError(f"{p}: SQLite refused WAL mode (journal_mode is {mode}); use a local file system")
+            conn.execute(f"PRAGMA synchronous = {synchronous}")
+            conn.execute("PRAGMA foreign_keys = ON")
+            conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_s * 1000)}")
+            migrate(conn)
+        except BaseException:
+            conn.close()
+            raise
+        return cls(conn, p, clock)
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def info(self) -> StoreInfo:
+        """Where the database is, its schema version, journal mode and sync level."""
+        sync = {0: "OFF", 1: "NORMAL", 2: "FULL", 3: "EXTRA"}[self._conn.execute("PRAGMA synchronous").fetchone()[0]]
+        return StoreInfo(
+            self._path,
+            schema_version(self._conn),
+            self._conn.execute("PRAGMA journal_mode").fetchone()[0],
+            sync,
+        )
+
+    @contextmanager
+    def _tx(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction, taken at once (no lock upgrade deadlocks), committed on exit."""
+        self._conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._conn
+        except BaseException:
+            self._conn.execute("ROLLBACK")
+            raise
+        self._conn.execute("COMMIT")
