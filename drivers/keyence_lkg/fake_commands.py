@@ -40,6 +40,8 @@ DistanceSource = Callable[[], "float | None | LaserStatus"]
 Mode = Literal["general", "communication"]
 MAX_COMMAND_CHARS: Final = 64
 Reply = tuple[str, tuple[float | None, ...]]
+# The mode each mode command (Q0, R0) leaves the controller in.
+_MODE_AFTER: Final[dict[str, Mode]] = {"Q0": "communication", "R0": "general"}
 
 
 class _Refuse(Exception):
@@ -130,8 +132,8 @@ class LkgCommandSet:
 
     def _handlers(self) -> dict[str, tuple[str, Callable[[str, list[str]], tuple[str, tuple[float | None, ...]]]]]:
         common = {
-            "Q0": ("any", self._q0),
-            "R0": ("any", self._r0),
+            "Q0": ("any", self._switch_mode),
+            "R0": ("any", self._switch_mode),
             "SW": ("communication", self._sw),
             "SR": ("communication", self._sr),
         }
@@ -143,21 +145,15 @@ class LkgCommandSet:
         if params:
             raise _Refuse(PARAMETER_COUNT_ERROR[self.dialect])
 
-    def _q0(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
+    def _switch_mode(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
+        """Q0 enters communication mode, R0 returns to general mode; refused when already there."""
         self._no_params(params)
+        target = _MODE_AFTER[main]
         with self._lock:
-            if self.mode == "communication":
+            if self.mode == target:
                 raise _Refuse(STATUS_ERROR[self.dialect])
-            self.mode = "communication"
-        return "Q0", ()
-
-    def _r0(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        self._no_params(params)
-        with self._lock:
-            if self.mode == "general":
-                raise _Refuse(STATUS_ERROR[self.dialect])
-            self.mode = "general"
-        return "R0", ()
+            self.mode = target
+        return main, ()
 
     def _values(self, main_echo: str, outs: Sequence[int]) -> tuple[str, tuple[float | None, ...]]:
         tokens, shown = [], []

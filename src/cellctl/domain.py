@@ -219,3 +219,15 @@ class Alarm:
 
     def summary(self) -> str:
         return f"alarm {self.code.value} ({self.message}) from {self.source}"
+
+
+@dataclass(frozen=True)
+class InstallDeviation:
+    """The paper's six figures of one install in the workpiece frame T: offsets in mm, rotations in deg."""
+
+    dx_mm: float
+    dy_mm: float
+    dz_mm: float
+    drx_deg: float
+    dry_deg: float
+    drz_deg: float

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, Field
 
+from cellctl.domain import InstallDeviation
+
 
 class Tolerance(BaseModel):
     """The recipe tolerance the trend charts draw as bands."""
@@ -24,15 +26,8 @@ class DashboardConfig(BaseModel):
     stale_after_s: float = Field(description="the page marks its data stale after this long without an event")
 
 
-class Deviation(BaseModel):
-    """Six figures of an install: offsets in mm, rotations in degrees."""
-
-    dx_mm: float
-    dy_mm: float
-    dz_mm: float
-    drx_deg: float
-    dry_deg: float
-    drz_deg: float
+Deviation = InstallDeviation
+"""Six figures of an install: offsets in mm, rotations in degrees (one definition, cellctl.domain)."""
 
 
 class Residual(BaseModel):

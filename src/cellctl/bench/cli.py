@@ -26,6 +26,24 @@ def _write_json(path: Path | None, data: dict[str, Any]) -> None:
     print(f"figures written to {path}")
 
 
+def _report(args: argparse.Namespace, text: str, figures: dict[str, Any], met: bool = True) -> int:
+    """Print the report, write its figures to --json; the exit status says whether the targets were met."""
+    print(text)
+    _write_json(args.json, figures)
+    return 0 if met else 1
+
+
+def _failed(what: str, err: Exception, status: int) -> int:
+    """Say on stderr why ``what`` stopped; return ``status`` (2 usage or settings, 3 the run could not finish)."""
+    print(f"{what}: {err}", file=sys.stderr)
+    return status
+
+
+def _seed_range(args: argparse.Namespace) -> range:
+    """The seeds of ``--seed`` and ``--seeds``: one twin each."""
+    return range(args.seed, args.seed + args.seeds)
+
+
 def _cmd_accuracy(args: argparse.Namespace) -> int:
     from cellctl.bench.accuracy import BenchRunError, RunSettings, run_accuracy
     from cellctl.bench.budget import run_budget
@@ -58,11 +76,9 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
         )
         run = run_accuracy(config, settings, progress=not args.quiet, workdir=args.workdir)
     except (BenchSettingsError, PlotsUnavailable) as err:
-        print(f"bench accuracy: {err}", file=sys.stderr)
-        return 2
+        return _failed("bench accuracy", err, 2)
     except BenchRunError as err:
-        print(f"bench accuracy could not finish: {err}", file=sys.stderr)
-        return 3
+        return _failed("bench accuracy could not finish", err, 3)
     print(format_accuracy(run))
     _write_json(args.json, run.as_dict())
     if args.plots is not None:
@@ -88,11 +104,8 @@ def _cmd_speed(args: argparse.Namespace) -> int:
         )  # fmt: skip
         report = run_speed(config, settings, progress=not args.quiet)
     except BenchSettingsError as err:
-        print(f"bench speed: {err}", file=sys.stderr)
-        return 2
-    print(format_speed(report))
-    _write_json(args.json, report.as_dict())
-    return 0 if report.targets_met() else 1
+        return _failed("bench speed", err, 2)
+    return _report(args, format_speed(report), report.as_dict(), report.targets_met())
 
 
 def _cmd_calibration(args: argparse.Namespace) -> int:
@@ -101,22 +114,17 @@ def _cmd_calibration(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
         parts = [p.strip() for p in args.parts.split(",") if p.strip()]
-        bench = run_calibration_bench(config, range(args.seed, args.seed + args.seeds), parts, progress=not args.quiet)
+        bench = run_calibration_bench(config, _seed_range(args), parts, progress=not args.quiet)
     except ValueError as err:
-        print(f"bench calibration: {err}", file=sys.stderr)
-        return 2
-    print(format_calibration_bench(bench))
-    _write_json(args.json, bench.as_dict())
-    return 0 if bench.bars_met() else 1
+        return _failed("bench calibration", err, 2)
+    return _report(args, format_calibration_bench(bench), bench.as_dict(), bench.bars_met())
 
 
 def _cmd_responsiveness(args: argparse.Namespace) -> int:
     from cellctl.bench.responsiveness import format_responsiveness, run_responsiveness
 
     figures = run_responsiveness(load_config(args.config), cycles=args.cycles, period_s=args.period)
-    print(format_responsiveness(figures))
-    _write_json(args.json, figures)
-    return 0
+    return _report(args, format_responsiveness(figures), figures)
 
 
 def _cmd_soak(args: argparse.Namespace) -> int:
@@ -132,24 +140,18 @@ def _cmd_soak(args: argparse.Namespace) -> int:
         )  # fmt: skip
         report = run_soak(config, settings, progress=not args.quiet, workdir=args.workdir)
     except BenchSettingsError as err:
-        print(f"bench soak: {err}", file=sys.stderr)
-        return 2
+        return _failed("bench soak", err, 2)
     except BenchRunError as err:
-        print(f"bench soak could not finish: {err}", file=sys.stderr)
-        return 3
-    print(format_soak(report))
-    _write_json(args.json, report.as_dict())
-    return 0 if report.disk_held else 1
+        return _failed("bench soak could not finish", err, 3)
+    return _report(args, format_soak(report), report.as_dict(), report.disk_held)
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
     from cellctl.bench.verify import format_verify_bench, run_verify_bench
 
     config = load_config(args.config)
-    bench = run_verify_bench(config, range(args.seed, args.seed + args.seeds), progress=not args.quiet)
-    print(format_verify_bench(bench, config))
-    _write_json(args.json, bench.as_dict())
-    return 0 if bench.passed() else 1
+    bench = run_verify_bench(config, _seed_range(args), progress=not args.quiet)
+    return _report(args, format_verify_bench(bench, config), bench.as_dict(), bench.passed())
 
 
 def _cmd_vision(args: argparse.Namespace) -> int:
@@ -167,9 +169,18 @@ def _report_options(p: argparse.ArgumentParser, json_help: str = "write the figu
     p.add_argument("--quiet", action="store_true", help="no progress display")
 
 
+def _seed_option(p: argparse.ArgumentParser, help_text: str | None = None) -> None:
+    p.add_argument("--seed", type=_seed, default=1, help=help_text)
+
+
 def _seeds_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", type=_positive_int, default=20, help="how many twins (default 20)")
-    p.add_argument("--seed", type=_seed, default=1, help="the first seed (default 1)")
+    _seed_option(p, "the first seed (default 1)")
+
+
+def _calibration_option(p: argparse.ArgumentParser, help_text: str) -> None:
+    """``--calibration data|oracle``: computed from simulated data (the default) or the twin's truth."""
+    p.add_argument("--calibration", choices=["data", "oracle"], default="data", help=help_text)
 
 
 def _run_options(p: argparse.ArgumentParser) -> None:
@@ -189,17 +200,16 @@ def register(subparsers: Any) -> None:
         "prints per axis max |error|, mean, std and p99 beside the paper's figures and the tolerance.",
     )
     p.add_argument("--trials", type=_positive_int, default=20, help="install cycles (default 20, as the paper)")
-    p.add_argument("--seed", type=_seed, default=1, help="the twin's seed: postures and every error source (default 1)")
+    _seed_option(p, "the twin's seed: postures and every error source (default 1)")
     _report_options(p, "write every trial and figure to this JSON file")
     p.add_argument("--plots", type=Path, default=None, help="write PNG plots (paper Figs. 5 and 6) into this folder")
     p.add_argument(
         "--off", default=None,
         help=f"error sources to switch off, comma-separated: {', '.join(ERROR_SOURCES)} (or all)",
     )  # fmt: skip
-    p.add_argument(
-        "--calibration", choices=["data", "oracle"], default="data",
-        help="data: the calibration set computed from simulated data (default); oracle: the twin's true mountings",
-    )  # fmt: skip
+    _calibration_option(
+        p, "data: the calibration set computed from simulated data (default); oracle: the twin's true mountings"
+    )
     p.add_argument(
         "--budget", nargs="?", const="alone-on", choices=["alone-on", "alone-off"], default=None,
         help="error budget: run the same trials with each source alone on (default) or alone off, and show which "
@@ -228,7 +238,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="time bound of each /status phase (default 20 s)")
     p.add_argument("--abb-seconds", type=float, default=5.0, help="python -m abb_robot.bench --seconds (default 5)")
     p.add_argument("--no-drivers", action="store_true", help="leave out the driver packages' benchmarks")
-    p.add_argument("--seed", type=_seed, default=1)
+    _seed_option(p)
     _report_options(p)
     p.set_defaults(func=_cmd_speed)
 
@@ -273,11 +283,10 @@ def register(subparsers: Any) -> None:
         "and whether the images stayed under the bound (exit 1 if not).",
     )
     p.add_argument("--cycles", type=_positive_int, default=1000, help="install cycles (default 1000)")
-    p.add_argument("--seed", type=_seed, default=1, help="the twin's seed (default 1)")
-    p.add_argument(
-        "--calibration", choices=["data", "oracle"], default="data",
-        help="data: the calibration set the cell computes from simulated data at start (default); oracle: the twin's truth",
-    )  # fmt: skip
+    _seed_option(p, "the twin's seed (default 1)")
+    _calibration_option(
+        p, "data: the calibration set the cell computes from simulated data at start (default); oracle: the twin's truth"
+    )
     p.add_argument("--image-bound-mb", type=float, default=50.0, help="the retention's image bound for the run (default 50 MB)")
     p.add_argument("--status-requests", type=_positive_int, default=300, help="GET /status requests at start and end (default 300)")
     _run_options(p)

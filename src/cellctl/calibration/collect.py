@@ -51,6 +51,20 @@ async def move_and_report(robot: Robot, target: Pose, motion: MotionSettings) ->
     return reported.to_matrix()
 
 
+async def move_or_skip(
+    robot: Robot, target: Pose, motion: MotionSettings, skipped: list[str], label: str,
+    step: tuple[int, int] | None, progress: Progress = _quiet, refused: str = "the robot refused the pose",
+) -> Pose | None:  # fmt: skip
+    """``move_and_report``, or None when the robot refuses: ``skipped`` gets why (and ``progress``, at ``step``)."""
+    try:
+        return await move_and_report(robot, target, motion)
+    except DeviceRejected as err:
+        skipped.append(f"{label}: {refused} ({err})")
+        if step is not None:
+            progress(*step, f"{label}: refused by the robot")
+        return None
+
+
 @dataclass
 class ImageSamples:
     """Frames with the flange pose reported at each, and the targets the robot refused."""
@@ -76,11 +90,8 @@ async def collect_images(
     n = len(targets)
     for k, X in enumerate(targets):
         name = f"{prefix}_{k:03d}"
-        try:
-            reported = await move_and_report(robot, X, motion)
-        except DeviceRejected as err:
-            out.skipped.append(f"{name}: the robot refused the pose ({err})")
-            progress(k + 1, n, f"{name}: refused by the robot")
+        reported = await move_or_skip(robot, X, motion, out.skipped, name, (k + 1, n), progress)
+        if reported is None:
             continue
         frame = await camera.grab(timeout_s=motion.grab_timeout_s)
         out.names.append(name)
@@ -115,11 +126,10 @@ async def collect_distances(
     out = LaserSamples()
     n = len(targets)
     for k, (X, g) in enumerate(zip(targets, groups)):
-        try:
-            reported = await move_and_report(robot, X, motion)
-        except DeviceRejected as err:
-            out.skipped.append(f"pose {k}: the robot refused it ({err})")
-            progress(k + 1, n, f"pose {k}: refused by the robot")
+        reported = await move_or_skip(
+            robot, X, motion, out.skipped, f"pose {k}", (k + 1, n), progress, refused="the robot refused it"
+        )
+        if reported is None:
             continue
         reading = await laser.read(timeout_s=motion.read_timeout_s)
         out.T_B_H.append(reported)

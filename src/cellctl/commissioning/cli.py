@@ -160,40 +160,45 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.set_defaults(method_override=None, views=None, poses=None)
 
 
+def _job_parser(
+    parent: argparse._SubParsersAction, word: str, help_text: str, procedure: str | None = None  # type: ignore[type-arg]
+) -> argparse.ArgumentParser:
+    """The sub-command ``word`` that runs ``procedure`` (by default the one COMMAND_PROCEDURES names) as a job."""
+    p: argparse.ArgumentParser = parent.add_parser(word, help=help_text)
+    _common(p)
+    p.set_defaults(func=_job_command(procedure or COMMAND_PROCEDURES[word]))
+    return p
+
+
+def _count_option(p: argparse.ArgumentParser, positive: Callable[[str], int], what: str, setting: str) -> None:
+    """``--views`` or ``--poses``: how many to collect, by default the configuration's ``setting``."""
+    p.add_argument(f"--{what}", type=positive, default=None, help=f"number of {what} (default: {setting})")
+
+
 def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], int]) -> None:  # type: ignore[type-arg]
     """Add ``calibrate`` and ``teach`` to cellctl's parser; ``positive`` parses a whole number >= 1."""
     cal = subparsers.add_parser("calibrate", help="calibrate the camera, hand-eye, laser or pixel map on the running cell")
     sub = cal.add_subparsers(dest="part", required=True)
 
-    p = sub.add_parser("camera", help="camera intrinsics by Zhang's method from checkerboard views")
-    _common(p)
-    p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
-    p.set_defaults(func=_job_command("camera"))
+    p = _job_parser(sub, "camera", "camera intrinsics by Zhang's method from checkerboard views")
+    _count_option(p, positive, "views", "calibration.procedure.camera.n_views")
 
-    p = sub.add_parser("hand-eye", help="hand-eye T_H_C (Tsai; Park, Horaud, Andreff, Daniilidis compared)")
-    _common(p)
-    p.add_argument("--views", type=positive, default=None, help="number of views (default: calibration.procedure.camera.n_views)")
+    p = _job_parser(sub, "hand-eye", "hand-eye T_H_C (Tsai; Park, Horaud, Andreff, Daniilidis compared)")
+    _count_option(p, positive, "views", "calibration.procedure.camera.n_views")
     p.add_argument("--method", dest="method_override", choices=HAND_EYE_METHODS, default=None, help="the method whose result is stored")
-    p.set_defaults(func=_job_command("hand_eye"))
 
-    p = sub.add_parser("laser", help="laser origin r and direction l from a plane seen from many poses")
-    _common(p)
-    p.add_argument("--poses", type=positive, default=None, help="number of poses (default: calibration.procedure.laser.n_poses)")
-    p.set_defaults(func=_job_command("laser"))
+    p = _job_parser(sub, "laser", "laser origin r and direction l from a plane seen from many poses")
+    _count_option(p, positive, "poses", "calibration.procedure.laser.n_poses")
 
-    p = sub.add_parser("nine-point", help="pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
-    _common(p)
-    p.set_defaults(func=_job_command("pixel_map"))
-
-    p = sub.add_parser("verify", help="a few minutes' check of how far hand-eye and laser have drifted since they were calibrated")
-    _common(p)
-    p.set_defaults(func=_job_command("verify"))
+    _job_parser(sub, "nine-point", "pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
+    _job_parser(sub, "verify", "a few minutes' check of how far hand-eye and laser have drifted since they were calibrated")
 
     p = sub.add_parser("status", help="the current calibration set, its history and whether production may start")
     _store_options(p)
     p.add_argument("--history", action="store_true", help="list every version")
     p.set_defaults(func=_cmd_status)
 
-    t = subparsers.add_parser("teach", help="teach T0, C_Pos_0, the corner template and g_Pos_0 (paper 4.3 step 1) on the running cell")
-    _common(t)
-    t.set_defaults(func=_job_command("teaching"))
+    _job_parser(
+        subparsers, "teach", "teach T0, C_Pos_0, the corner template and g_Pos_0 (paper 4.3 step 1) on the running cell",
+        procedure="teaching",
+    )  # fmt: skip

@@ -20,6 +20,7 @@ import numpy as np
 from cellctl.align import AlignmentError, compute_alignment
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.collect import move_and_report
+from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
     Outcome,
     compute_camera,
@@ -31,7 +32,7 @@ from cellctl.calibration.compute import (
 )
 from cellctl.calibration.dataset import Dataset, pose_list
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.commissioning.context import JobContext
+from cellctl.commissioning.context import DatasetDraft, JobContext
 from cellctl.commissioning.plans import (
     MotionPlan,
     board_place,
@@ -58,6 +59,15 @@ async def move_to(ctx: JobContext, target: Pose) -> Pose:
         return await move_and_report(ctx.devices.robot, target, ctx.motion)
     except DeviceRejected as err:
         raise PoseRefused(str(err)) from None
+
+
+async def move_or_skip(
+    ctx: JobContext, draft: DatasetDraft, target: Pose, label: str, step: tuple[int, int] | None,
+    refused: str = "the robot refused the pose",
+) -> Pose | None:  # fmt: skip
+    """``move_to``, or None when the robot refuses: the draft's ``skipped`` says why (and the progress, at ``step``)."""
+    skipped = draft.manifest["skipped"]
+    return await collect_move_or_skip(ctx.devices.robot, target, ctx.motion, skipped, label, step, ctx.progress, refused)
 
 
 async def grab(ctx: JobContext) -> Frame:
@@ -144,11 +154,8 @@ async def collect_board_views(ctx: JobContext, *, views: int | None = None, proc
     await confirm_start(ctx, plan, "the board views")
     n = len(plan.poses)
     for k, (X, name) in enumerate(zip(plan.poses, plan.labels)):
-        try:
-            reported = await move_to(ctx, X)
-        except PoseRefused as err:
-            draft.manifest["skipped"].append(f"{name}: the robot refused the pose ({err})")
-            ctx.progress(k + 1, n, f"{name}: refused by the robot")
+        reported = await move_or_skip(ctx, draft, X, name, (k + 1, n))
+        if reported is None:
             continue
         frame = await grab(ctx)
         draft.images[f"{name}.png"] = frame.image
@@ -184,11 +191,8 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
     groups = plan.details["groups"]
     n = len(plan.poses)
     for k, (X, g) in enumerate(zip(plan.poses, groups)):
-        try:
-            reported = await move_to(ctx, X)
-        except PoseRefused as err:
-            draft.manifest["skipped"].append(f"pose {k}: the robot refused it ({err})")
-            ctx.progress(k + 1, n, f"pose {k}: refused by the robot")
+        reported = await move_or_skip(ctx, draft, X, f"pose {k}", (k + 1, n), refused="the robot refused it")
+        if reported is None:
             continue
         reading = await ctx.devices.laser.read(timeout_s=ctx.motion.read_timeout_s)
         draft.manifest["readings"].append({

@@ -27,12 +27,11 @@ from cellctl.calibration.hand_eye import board_pose
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
 from cellctl.commissioning.procedures import (
-    PoseRefused,
     car_body_in_place,
     confirm_start,
     current_pose,
     grab,
-    move_to,
+    move_or_skip,
     place_board,
     remove_board,
 )
@@ -146,10 +145,8 @@ async def collect_verify(ctx: JobContext) -> Dataset:
     for k, (X, label) in enumerate(zip(plan.poses, plan.labels)):
         if k == n_views:
             await remove_board(ctx, "checkerboard")
-        try:
-            reported = await move_to(ctx, X)
-        except PoseRefused as err:
-            draft.manifest["skipped"].append(f"{label}: the robot refused it ({err})")
+        reported = await move_or_skip(ctx, draft, X, label, None, refused="the robot refused it")
+        if reported is None:
             continue
         if k < n_views:
             view = plan.details["views_planned"][k]

@@ -72,6 +72,23 @@ class OpeningLayout(StrictModel):
         return x > m or y < -m or x < -self.width_mm - m or y > self.height_mm + m
 
 
+def check_reach_order(min_reach_mm: float, reach_mm: float) -> None:
+    """A robot's working range needs ``min_reach_mm`` below ``reach_mm`` (ValueError if not)."""
+    if min_reach_mm >= reach_mm:
+        raise ValueError(f"min_reach_mm ({min_reach_mm:g}) must be below reach_mm ({reach_mm:g})")
+
+
+def wrist_centre_of(T_B_H: ArrayLike, wrist_to_flange_mm: float) -> np.ndarray:
+    """The wrist centre (mm, base frame) of flange pose T_B_H: its origin moved back along its z axis."""
+    M = np.asarray(T_B_H, dtype=float)
+    return M[:3, 3] - wrist_to_flange_mm * M[:3, 2]
+
+
+def wrist_reach_mm(T_B_H: ArrayLike, wrist_to_flange_mm: float, reach_centre_mm: Vec3) -> float:
+    """The distance (mm) of flange pose T_B_H's wrist centre from ``reach_centre_mm``."""
+    return float(np.linalg.norm(wrist_centre_of(T_B_H, wrist_to_flange_mm) - as_array(reach_centre_mm)))
+
+
 class RobotEnvelope(StrictModel):
     """The robot's working range and motion limits as its data sheet gives them (IRB 7600-325).
 
@@ -95,18 +112,16 @@ class RobotEnvelope(StrictModel):
 
     @model_validator(mode="after")
     def _order(self) -> "RobotEnvelope":
-        if self.min_reach_mm >= self.reach_mm:
-            raise ValueError(f"min_reach_mm ({self.min_reach_mm:g}) must be below reach_mm ({self.reach_mm:g})")
+        check_reach_order(self.min_reach_mm, self.reach_mm)
         return self
 
     def wrist_centre(self, T_B_H: ArrayLike) -> np.ndarray:
         """The wrist centre of flange pose T_B_H (mm, base frame)."""
-        M = np.asarray(T_B_H, dtype=float)
-        return M[:3, 3] - self.wrist_to_flange_mm * M[:3, 2]
+        return wrist_centre_of(T_B_H, self.wrist_to_flange_mm)
 
     def reach_distance(self, T_B_H: ArrayLike) -> float:
         """The wrist centre's distance (mm) from the reach centre."""
-        return float(np.linalg.norm(self.wrist_centre(T_B_H) - as_array(self.reach_centre_mm)))
+        return wrist_reach_mm(T_B_H, self.wrist_to_flange_mm, self.reach_centre_mm)
 
     def reach_problem(self, T_B_H: ArrayLike, what: str = "target") -> str | None:
         """Why flange pose T_B_H is outside the working range, or None if it is inside."""

@@ -7,7 +7,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from cellctl.config.layout import opening_problem, workpiece_frame
+from cellctl.config.layout import check_reach_order, opening_problem, workpiece_frame, wrist_reach_mm
 from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
 from cellctl.config.render import RenderConfig
 from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
@@ -86,11 +86,8 @@ class RobotSimConfig(StrictModel):
 
     @model_validator(mode="after")
     def _reach(self) -> "RobotSimConfig":
-        if self.min_reach_mm >= self.reach_mm:
-            raise ValueError(f"min_reach_mm ({self.min_reach_mm:g}) must be below reach_mm ({self.reach_mm:g})")
-        home = self.T_B_H_home()
-        wrist = home[:3, 3] - self.wrist_to_flange_mm * home[:3, 2]
-        dist = float(np.linalg.norm(wrist - as_array(self.reach_centre_mm)))
+        check_reach_order(self.min_reach_mm, self.reach_mm)
+        dist = wrist_reach_mm(self.T_B_H_home(), self.wrist_to_flange_mm, self.reach_centre_mm)
         if not (self.min_reach_mm <= dist <= self.reach_mm):
             raise ValueError(
                 f"home_position_mm puts the wrist centre {dist:.0f} mm from reach_centre_mm, outside the "

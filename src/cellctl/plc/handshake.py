@@ -55,12 +55,18 @@ class HandshakeTiming:
     """Longest wait for an accepted cycle's result."""
 
 
-class _NoAnswer(Exception):
-    pass
+class _CellFailed(Exception):
+    """The cell gave no usable answer; ``code`` is what the PLC is told."""
+
+    code = PlcErrorCode.CELL_BAD_ANSWER
 
 
-class _BadAnswer(Exception):
-    pass
+class _NoAnswer(_CellFailed):
+    code = PlcErrorCode.CELL_NO_ANSWER
+
+
+class _BadAnswer(_CellFailed):
+    code = PlcErrorCode.CELL_BAD_ANSWER
 
 
 async def _ask(coro: Coroutine[Any, Any, Any], timeout_s: float, what: str, expect: type[T],
@@ -127,11 +133,8 @@ class CycleHandshake:
         try:
             stored = await _ask(self._cell.result_of(req_id), t.facade_timeout_s, f"result_of({req_id})",
                                 CycleOutcome, optional=True)
-        except _NoAnswer:
-            await self._publish_error(request, PlcErrorCode.CELL_NO_ANSWER)
-            return
-        except _BadAnswer:
-            await self._publish_error(request, PlcErrorCode.CELL_BAD_ANSWER)
+        except _CellFailed as failed:
+            await self._publish_error(request, failed.code)
             return
         if stored is not None and stored.req_id != req_id:
             log.error("the cell answered result_of(%d) with the result of cycle %d", req_id, stored.req_id)
@@ -148,11 +151,8 @@ class CycleHandshake:
             acceptance = await _ask(
                 self._cell.start_cycle(req_id, request.recipe_id, request.part_id),
                 t.facade_timeout_s, f"start_cycle({req_id})", CycleAcceptance)
-        except _NoAnswer:
-            await self._publish_error(request, PlcErrorCode.CELL_NO_ANSWER)
-            return
-        except _BadAnswer:
-            await self._publish_error(request, PlcErrorCode.CELL_BAD_ANSWER)
+        except _CellFailed as failed:
+            await self._publish_error(request, failed.code)
             return
         if not acceptance.accepted:
             log.warning("PLC cycle request %d (recipe_id %d, part_id %d) refused by the cell with error_code "
@@ -285,7 +285,7 @@ class LatchedRequest(Generic[E]):
             return CommandReply.BAD_PARAMETER
         try:
             reply = await _ask(self._send(value), self._timeout_s, f"{self._name} {value.name}", CommandReply)
-        except (_NoAnswer, _BadAnswer):
+        except _CellFailed:
             return CommandReply.NO_ANSWER
         log.info("PLC %s %s: %s", self._name, value.name, reply.name)
         return reply

@@ -39,7 +39,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -78,15 +78,10 @@ class PassReport:
     alarms_deleted: int = 0
     seconds: float = 0.0
 
-
-@dataclass
-class _Totals:
-    images: int = 0
-    missing: int = 0
-    orphans: int = 0
-    cycles: int = 0
-    alarms: int = 0
-    passes: int = 0
+    def add(self, other: PassReport) -> None:
+        """Count ``other`` in as well (the totals since start are one report summed over the passes)."""
+        for f in fields(self):
+            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
 
 
 def _utcnow() -> datetime:
@@ -152,7 +147,7 @@ class StorageRetention:
         self._clock = clock
         self._disk_usage = disk_usage
         self._fig = _Figures()
-        self._totals = _Totals()
+        self._totals = PassReport()  # every pass since start, summed
         self._task: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
         self._lock = asyncio.Lock()
@@ -203,8 +198,8 @@ class StorageRetention:
             "last_pass_utc": _iso(f.last_pass),
             "last_error": f.last_error,
             "pruned_since_start": {
-                "images": self._totals.images, "orphan_files": self._totals.orphans,
-                "cycles": self._totals.cycles, "alarms": self._totals.alarms,
+                "images": self._totals.images_pruned, "orphan_files": self._totals.orphans_deleted,
+                "cycles": self._totals.cycles_deleted, "alarms": self._totals.alarms_deleted,
             },  # fmt: skip
             "retention": {
                 "enabled": c.enabled, "images_days": c.images_days, "images_max_gb": c.images_max_gb,
@@ -304,14 +299,8 @@ class StorageRetention:
             self._fig.oldest_image, self._fig.images_checked = plan.oldest_kept, now
             self._fig.last_pass = now
             self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
-            t = self._totals
-            t.images += report.images_pruned
-            t.missing += report.images_missing
-            t.orphans += report.orphans_deleted
-            t.cycles += report.cycles_deleted
-            t.alarms += report.alarms_deleted
-            t.passes += 1
             report.seconds = time.monotonic() - t0
+            self._totals.add(report)
             if report.images_pruned or report.cycles_deleted or report.alarms_deleted or report.orphans_deleted:
                 # Images go after almost every cycle once the bound is reached: that is debug; records are news.
                 log.log(

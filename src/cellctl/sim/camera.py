@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Sequence, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -43,6 +43,7 @@ from cellctl.sim.world import World
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
+_G = TypeVar("_G", bound=np.generic)
 
 # Below this many expected electrons a pixel's shot noise is drawn from the exact Poisson law.
 POISSON_EXACT_BELOW_E = 100.0
@@ -132,9 +133,7 @@ class CameraRenderer:
         """
         signal, applied = self._signal(T_B_C, world, targets, rng, noise)
         image = self.expose(signal, rng, noise=noise)
-        return RenderedFrame(
-            np.ascontiguousarray(image[: self.intrinsics.height_px, : self.intrinsics.width_px]), applied
-        )
+        return RenderedFrame(self._sensor_crop(image), applied)
 
     def render_signal(
         self,
@@ -146,7 +145,11 @@ class CameraRenderer:
     ) -> tuple[F32, AppliedDisturbances]:
         """The noise-free, unquantised image (DN above the black level, float32) and the disturbances."""
         signal, applied = self._signal(T_B_C, world, targets, rng, False)
-        return np.ascontiguousarray(signal[: self.intrinsics.height_px, : self.intrinsics.width_px]), applied
+        return self._sensor_crop(signal), applied
+
+    def _sensor_crop(self, image: NDArray[_G]) -> NDArray[_G]:
+        """The sensor's pixels of a rendered array (rendering runs on whole blocks, a little larger)."""
+        return np.ascontiguousarray(image[: self.intrinsics.height_px, : self.intrinsics.width_px])
 
     def project(self, points_B: ArrayLike, T_B_C: ArrayLike) -> F64:
         """Pixel coordinates (N, 2), with distortion, of points in the base frame (cv2.projectPoints' model)."""

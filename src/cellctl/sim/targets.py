@@ -76,6 +76,14 @@ def _grey(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a grey level in [0, 255], got {value!r}")
 
 
+def _dark_on_white(dark_name: str, dark_dn: float, white_dn: float) -> None:
+    """``white_dn`` and the dark level are grey levels, the dark one below the white."""
+    _grey("white_dn", white_dn)
+    _grey(dark_name, dark_dn)
+    if dark_dn >= white_dn:
+        raise ValueError(f"{dark_name} ({dark_dn}) must be darker than white_dn ({white_dn})")
+
+
 def _axis_coverage(dist_mm: F64, jac: Jacobian, axis: int, sigma_px: float) -> F64:
     """Coverage of the half-plane {coordinate > line} for pixels ``dist_mm`` past the line."""
     one = np.ones_like(dist_mm)
@@ -124,10 +132,7 @@ class Checkerboard:
         _positive("square_mm", self.square_mm)
         if not np.isfinite(self.border_mm) or self.border_mm < 0:
             raise ValueError(f"border_mm must be a finite number >= 0, got {self.border_mm!r}")
-        _grey("white_dn", self.white_dn)
-        _grey("black_dn", self.black_dn)
-        if self.black_dn >= self.white_dn:
-            raise ValueError(f"black_dn ({self.black_dn}) must be darker than white_dn ({self.white_dn})")
+        _dark_on_white("black_dn", self.black_dn, self.white_dn)
 
     @property
     def name(self) -> str:
@@ -210,10 +215,7 @@ class NinePointTarget:
             )
         if not np.isfinite(self.border_mm) or self.border_mm < self.dot_diameter_mm / 2:
             raise ValueError(f"border_mm must be at least the dot radius, got {self.border_mm!r}")
-        _grey("white_dn", self.white_dn)
-        _grey("dot_dn", self.dot_dn)
-        if self.dot_dn >= self.white_dn:
-            raise ValueError(f"dot_dn ({self.dot_dn}) must be darker than white_dn ({self.white_dn})")
+        _dark_on_white("dot_dn", self.dot_dn, self.white_dn)
 
     @property
     def name(self) -> str:

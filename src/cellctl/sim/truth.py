@@ -19,21 +19,14 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cellctl.domain import InstallDeviation
 from cellctl.geometry.pose import Pose, check_pose, invert_pose
 from cellctl.geometry.rotation import matrix_to_xyz_fixed
 from cellctl.sim.world import World
 
 
-@dataclass(frozen=True)
-class InstallError:
-    """The paper's six figures of one install, in the workpiece frame T."""
-
-    dx_mm: float
-    dy_mm: float
-    dz_mm: float
-    drx_deg: float
-    dry_deg: float
-    drz_deg: float
+class InstallError(InstallDeviation):
+    """The twin's true six figures of one install, in the workpiece frame T."""
 
     @property
     def position_mm(self) -> NDArray[np.float64]:

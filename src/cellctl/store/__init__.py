@@ -8,52 +8,17 @@ imports the cell (an import contract in pyproject.toml holds it to that).
 from cellctl.store.aio import AsyncCellStore
 from cellctl.store.db import CellStore, StoreInfo
 from cellctl.store.jobs import JobRecord, UnknownJob
-from cellctl.store.records import (
-    AuditChainBroken,
-    AuditEntry,
-    CycleRecord,
-    CycleRequest,
-    CycleState,
-    CycleStateError,
-    IdempotencyConflict,
-    IdempotencyInFlight,
-    ImageRef,
-    InstallAlreadyStarted,
-    InterruptedCycle,
-    RecoveryReport,
-    SchemaTooNew,
-    StepRecord,
-    StoredResponse,
-    StoreError,
-    SubmitResult,
-    UnknownCycle,
-)
+from cellctl.store import records
+from cellctl.store.records import *  # noqa: F403 - the records are the package's vocabulary
 from cellctl.store.retention import DatabaseSize, KeptImage
 
 __all__ = [
     "AsyncCellStore",
-    "AuditChainBroken",
-    "AuditEntry",
     "CellStore",
-    "CycleRecord",
-    "CycleRequest",
-    "CycleState",
-    "CycleStateError",
     "DatabaseSize",
-    "IdempotencyConflict",
-    "IdempotencyInFlight",
-    "ImageRef",
-    "InstallAlreadyStarted",
-    "InterruptedCycle",
     "JobRecord",
     "KeptImage",
-    "RecoveryReport",
-    "SchemaTooNew",
-    "StepRecord",
-    "StoreError",
     "StoreInfo",
-    "StoredResponse",
-    "SubmitResult",
-    "UnknownCycle",
     "UnknownJob",
+    *records.__all__,
 ]

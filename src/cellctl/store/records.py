@@ -245,3 +245,10 @@ class AuditChainBroken(StoreError):
     def __init__(self, seq: int, why: str) -> None:
         super().__init__(f"audit log entry {seq}: {why}")
         self.seq = seq
+
+__all__ = [
+    "AuditChainBroken", "AuditEntry", "CycleRecord", "CycleRequest", "CycleState", "CycleStateError",
+    "IdempotencyConflict", "IdempotencyInFlight", "ImageRef", "InstallAlreadyStarted", "InterruptedCycle",
+    "RecoveryReport", "SchemaTooNew", "StepRecord", "StoredResponse", "StoreError", "SubmitResult",
+    "UnknownCycle",
+]

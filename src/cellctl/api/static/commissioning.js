@@ -71,24 +71,33 @@ async function sync() {
 }
 // -- start and dry run ----------------------------------------------------------------------------
 
-async function startJob(proc) {
-  let options;
+// The options typed in the procedure's row, or null once it has said what is wrong with them.
+function optionsOf(proc, verb) {
   try {
-    options = gatherOptions(proc);
+    return gatherOptions(proc);
   } catch (err) {
-    showMessage(`Start ${proc.name}: ${err.message}.`, true);
-    return;
+    showMessage(`${verb} ${proc.name}: ${err.message}.`, true);
+    return null;
   }
-  const mark = eventMark();
-  page.starting = true;
+}
+
+// Run `request` with page[flag] ("starting" or "planning") set: the buttons it gates wait meanwhile.
+async function whileFlagged(flag, request) {
+  page[flag] = true;
   renderGate();
-  let created;
   try {
-    created = await post("/jobs", `Start ${proc.name}`, { procedure: proc.name, options });
+    return await request();
   } finally {
-    page.starting = false;
+    page[flag] = false;
     renderGate();
   }
+}
+
+async function startJob(proc) {
+  const options = optionsOf(proc, "Start");
+  if (options === null) return;
+  const mark = eventMark();
+  const created = await whileFlagged("starting", () => post("/jobs", `Start ${proc.name}`, { procedure: proc.name, options }));
   if (!created) return;
   const view = fresh(created, mark);
   showMessage(`Job ${view.id} (${proc.name}) started; it shows its plan and waits for your confirmation before the first move.`);
@@ -103,22 +112,12 @@ async function startJob(proc) {
 }
 
 async function planJob(proc) {
-  let options;
-  try {
-    options = gatherOptions(proc);
-  } catch (err) {
-    showMessage(`Plan ${proc.name}: ${err.message}.`, true);
-    return;
-  }
-  page.planning = true;
-  renderGate();
-  try {
+  const options = optionsOf(proc, "Plan");
+  if (options === null) return;
+  await whileFlagged("planning", async () => {
     const plan = await post("/jobs/plan", `Plan ${proc.name}`, { procedure: proc.name, options }, { open: true });
     if (plan) renderPlan(plan);
-  } finally {
-    page.planning = false;
-    renderGate();
-  }
+  });
 }
 
 // -- the job --------------------------------------------------------------------------------------
