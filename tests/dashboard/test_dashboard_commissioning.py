@@ -188,14 +188,20 @@ def test_commissioning_page_walks_a_laser_job_through_its_prompt(
     assert log.errors == [], log.errors
 
 
+def _open_stopped(cell: LiveCell, client: httpx.Client, pg: Page) -> tuple[list[dict[str, Any]], int | None]:
+    """The cell in Stopped, the commissioning page open with the operator's token; the set's versions before."""
+    _to_stopped(client)
+    versions = _versions(client)
+    _open_commissioning(pg, cell)
+    _use_token(pg)
+    return versions
+
+
 def test_commissioning_page_cancels_a_job_waiting_at_its_prompt(
     cell: LiveCell, client: httpx.Client, page: tuple[Page, PageLog]
 ) -> None:
     pg, log = page
-    _to_stopped(client)
-    before, current_before = _versions(client)
-    _open_commissioning(pg, cell)
-    _use_token(pg)
+    before, current_before = _open_stopped(cell, client, pg)
     job_id = _start_laser_from_page(pg, client)
     pg.click("#comm-cancel")
     job = _wait_job(client, job_id)
@@ -224,10 +230,7 @@ def test_commissioning_page_shows_the_live_frame_and_cancels_a_moving_job(
     cell: LiveCell, client: httpx.Client, page: tuple[Page, PageLog]
 ) -> None:
     pg, log = page
-    _to_stopped(client)
-    before, current_before = _versions(client)
-    _open_commissioning(pg, cell)
-    _use_token(pg)
+    before, current_before = _open_stopped(cell, client, pg)
     pg.fill("#comm-opt-camera-views", "8")
     pg.click("#comm-proc-table [data-start=camera]")
     # The simulated operator sticks the board on the wall and gives its square size; the page shows
