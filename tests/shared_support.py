@@ -6,7 +6,9 @@ import os
 import socket
 from typing import NoReturn
 
+import numpy as np
 import pytest
+from scipy.interpolate import CubicSpline
 
 LOOPBACK = "127.0.0.1"
 
@@ -42,3 +44,14 @@ def tlsimu_path() -> str:
     if not os.path.isfile(path):
         skip_or_fail(f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it)", fix)
     return path
+
+
+def edge_crossing(profile: np.ndarray, centre: float, half: int = 7) -> float:
+    """The 50 % crossing (cubic spline) between the plateaus either side of ``centre`` in a rendered profile."""
+    k0 = int(np.floor(centre))
+    pos = np.arange(k0 - half, k0 + half + 2)
+    vals = profile[pos].astype(float)
+    spline = CubicSpline(pos, vals - 0.5 * (vals[:3].mean() + vals[-3:].mean()))
+    roots = [r for r in spline.roots(extrapolate=False) if pos[3] <= r <= pos[-4]]
+    assert len(roots) == 1, f"expected one crossing near {centre:.2f}, got {roots}"
+    return float(roots[0])

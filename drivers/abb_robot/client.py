@@ -149,6 +149,11 @@ class AbbRobot:
         """Stop whatever motion runs (harmless when none does)."""
         await self._verbs.stop(timeout_s=timeout_s)
 
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        """Vacuum on (``hold``) or off (release); refused while the robot moves (see
+        :meth:`RobotVerbs.set_gripper`)."""
+        await self._verbs.set_gripper(hold, timeout_s=timeout_s)
+
     async def ping(self, *, timeout_s: float) -> float:
         """A PING round trip; returns its duration in seconds."""
         return await self._verbs.ping(timeout_s=timeout_s)

@@ -65,6 +65,7 @@ class ErrorCode(enum.IntEnum):
     EGM_COMM = 150
     EGM_SETUP = 151
     EGM_STATE = 152
+    GRIPPER = 160
     INTERNAL = 199
 
 
@@ -86,6 +87,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.EGM_COMM: "EGM session ended: no data from the sensor within CommTimeout (ERR_UDPUC_COMM, elog 41822)",
     ErrorCode.EGM_SETUP: "EGM could not be set up (UdpUc device or ExtMotionData profile)",
     ErrorCode.EGM_STATE: "EGM session ended on an EGM error (reference out of bounds, supervision)",
+    ErrorCode.GRIPPER: "the gripper output could not be set (no signal of the configured name, or an I/O error)",
     ErrorCode.INTERNAL: "unexpected error in the server module",
 }
 
@@ -105,7 +107,7 @@ TERMINAL = frozenset({Status.OK, Status.DONE, Status.ERR, Status.PONG})
 """A line with one of these ends the answer to a request (ACK is followed by DONE or ERR)."""
 
 ArgKind = Literal["int", "num", "name"]
-VerbKind = Literal["session", "setting", "staging", "motion", "query"]
+VerbKind = Literal["session", "setting", "staging", "motion", "query", "io"]
 
 
 @dataclass(frozen=True)
@@ -123,7 +125,7 @@ class Verb:
     Attributes:
         name: the verb as it appears on the wire.
         args: its arguments in order.
-        kind: session, setting, staging, motion or query.
+        kind: session, setting, staging, motion, query or io (switches an output of the cell).
         reply: the reply lines, in the README's notation.
         doc: what it does.
         while_moving: whether it is accepted while a motion or EGM session runs.
@@ -171,8 +173,14 @@ VERBS: dict[str, Verb] = {
         Verb("GETJ", (), "query", "OK j1 j2 j3 j4 j5 j6", "current joint angles in degrees", True),
         Verb("STATE", (), "query", "OK motors moving",
              "motors: 1 on, 0 off, -1 unknown (signal not configured); moving: 1 while a motion runs", True),
+        Verb("GRIP", (Arg("hold", "int"),), "io", "OK hold",
+             "gripper vacuum: 1 on (hold the glass), 0 off (release it); sets the gripper output, waits its "
+             "settle time, then answers; refused while moving, so the glass is never released mid-motion", False),
     )
 }
+
+GRIP_VALUES = (0, 1)
+"""``GRIP`` takes 1 (vacuum on, hold) or 0 (vacuum off, release); other integers are ``ERR 122``."""
 
 
 class ProtocolError(ValueError):
@@ -336,7 +344,7 @@ def parse_request(line: str) -> Request:
             raise ProtocolError(f"argument {i} is not a decimal number", ErrorCode.SYNTAX, req_id)
         if arg.kind == "int":
             if not re.fullmatch(r"[+-]?\d+", token):
-                raise ProtocolError("version is not an integer", ErrorCode.SYNTAX, req_id)
+                raise ProtocolError(f"{arg.name} is not an integer", ErrorCode.SYNTAX, req_id)
             values.append(int(token))
         else:
             values.append(float(token))

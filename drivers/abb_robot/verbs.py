@@ -4,7 +4,7 @@
 set them and sends them again after every (re)connection (:meth:`RobotVerbs.resync`, the link's
 ``on_connect`` hook), so a controller that restarted or lost its settings is put back into the
 state the cell expects. Moves stage POS and ORI, then run MOVEL or MOVEJ to a fine point and
-read the pose back.
+read the pose back. GRIP switches the gripper's vacuum (never while the robot moves).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from cellctl.ports import (
     CartesianPose,
     DeviceProtocolError,
     DeviceRejected,
+    DeviceTimeout,
     MotionRequest,
     RobotState,
 )
@@ -149,6 +150,37 @@ class RobotVerbs:
     async def stop(self, *, timeout_s: float) -> None:
         """Stop whatever motion runs (harmless when none does)."""
         await self.link.request("STOP", deadline=deadline_in(timeout_s))
+
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        """GRIP 1 (vacuum on, hold the glass) or GRIP 0 (off, release it); returns once the
+        controller has switched its output and waited the vacuum's settle time.
+
+        Raises DeviceRejected while a motion or EGM session runs (code 110 BUSY: the glass is
+        never released mid-motion, the output keeps its value) or when the controller cannot
+        switch the output (code 160 GRIPPER); DeviceTimeout when the answer does not come within
+        ``timeout_s`` (which must cover the controller's settle time, ``grip_settle``).
+        """
+        if not isinstance(hold, bool):
+            raise TypeError(f"{self.name}: set_gripper needs hold True or False, got {hold!r}")
+        what = "hold" if hold else "release"
+        value = 1 if hold else 0
+        try:
+            lines = await self.link.request("GRIP", value, deadline=deadline_in(timeout_s))
+        except DeviceRejected as exc:
+            if exc.code == f"{int(P.ErrorCode.BUSY)} BUSY":
+                raise DeviceRejected(
+                    self.name, f"gripper {what} refused: the robot is moving; the gripper keeps its state "
+                    "(switch it only at a standstill)", exc.code,
+                ) from None
+            raise
+        except DeviceTimeout as exc:
+            raise DeviceTimeout(
+                self.name, f"gripper {what} (GRIP {value}) not confirmed within {timeout_s:g} s ({exc.message}); "
+                "the output may or may not have switched, GRIP can be sent again",
+            ) from None
+        fields = lines[-1].fields
+        if fields != (str(value),):
+            raise DeviceProtocolError(self.name, f"bad GRIP answer: {' '.join(fields)!r} (expected {value})")
 
     async def ping(self, *, timeout_s: float) -> float:
         """A PING round trip; returns its duration in seconds."""

@@ -103,6 +103,9 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
         else:
             line += f"  reason: {rec['error']}"
         print(line)
+        if rec.get("measured_deviation"):
+            verdict = "OK" if rec.get("part_ok") else "NOT OK"
+            print(f"    measured (gaps, flush): {_fmt_six(rec['measured_deviation'])}  part {verdict}")
         if rec.get("true_error"):
             print(f"    true install error: {_fmt_six(rec['true_error'])}")
     return 1 if failed else 0

@@ -80,6 +80,7 @@ class CycleStep(enum.IntEnum):
     SHOOT = 3
     COMPENSATE = 4
     INSTALL = 5
+    INSPECT = 6
 
 
 # --- Machine events ------------------------------------------------------------------------------
@@ -164,6 +165,9 @@ class AlarmCode(enum.IntEnum):
     CALIBRATION_CHECK_DUE = 1308
     CYCLE_STOPPED = 1309
     NOT_IN_EXECUTE = 1310
+    INSTALL_OUT_OF_TOLERANCE = 1311
+    INSPECTION_FAILED = 1312
+    SPC_DRIFT = 1313
     ROBOT_FAULT = 1401
     TASK_FAILED = 1501
     DEVICE_SLOW = 1601

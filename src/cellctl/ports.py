@@ -263,6 +263,17 @@ class Robot(Protocol):
         """Request the current motion to stop (a normal stop, not a safety function)."""
         ...
 
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        """Switch the gripper's vacuum on (``hold``: hold the glass) or off (release it).
+
+        Returns once the gripper has switched and its vacuum has settled, so the glass is held, or
+        free of the gripper, when it returns. Refused while the robot moves (DeviceRejected; the
+        gripper keeps its state): a glass is never released mid-motion. Raises DeviceTimeout if it
+        is not confirmed within ``timeout_s`` (the gripper may or may not have switched; switching
+        again to the same state is harmless), DeviceError if the gripper cannot be switched.
+        """
+        ...
+
     async def ping(self, *, timeout_s: float) -> float:
         """A harmless round trip for the watchdog; returns its duration in seconds."""
         ...

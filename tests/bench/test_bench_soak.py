@@ -23,7 +23,7 @@ def test_five_soak_cycles_report_memory_disk_status_latency_and_a_held_bound(
 ) -> None:
     out_json, work = tmp_path / "soak.json", tmp_path / "run"
     code = main([
-        "--config", str(CONFIG), "bench", "soak", "--cycles", "5", "--calibration", "oracle", "--image-bound-mb", "2.5",
+        "--config", str(CONFIG), "bench", "soak", "--cycles", "5", "--calibration", "oracle", "--image-bound-mb", "4",
         "--status-requests", "40", "--json", str(out_json), "--workdir", str(work), "--quiet",
     ])  # fmt: skip
     text = capsys.readouterr().out
@@ -40,10 +40,10 @@ def test_five_soak_cycles_report_memory_disk_status_latency_and_a_held_bound(
     per = report["per_cycle"]
     assert per["images_kb"] > 100 and per["database_kb"] > 0
     ret = report["retention"]
-    assert ret["bound_mb"] == 2.5 and ret["held"] is True and ret["pruned_images"] >= 2
-    assert ret["peak_images_mb"] <= 2.5 and ret["final_images_mb"] <= 2.5  # reached during the run, never passed
+    assert ret["bound_mb"] == 4 and ret["held"] is True and ret["pruned_images"] >= 2
+    assert ret["peak_images_mb"] <= 4 and ret["final_images_mb"] <= 4  # reached during the run, never passed
     assert isinstance(report["rss_growth_mb_per_100_cycles"], float)
-    for phrase in ("RSS", "GET /status at start", "GET /status at end", "disk per cycle", "retention: images bound 2.5 MB", "held"):
+    for phrase in ("RSS", "GET /status at start", "GET /status at end", "disk per cycle", "retention: images bound 4 MB", "held"):
         assert phrase in text
 
     # The figures are the run's own: its store holds the five cycles, the pruned images say so.
@@ -51,7 +51,7 @@ def test_five_soak_cycles_report_memory_disk_status_latency_and_a_held_bound(
         records = [store.cycle(c.id) for c in store.cycles(limit=10)]
     assert len(records) == 5 and all(r.state is CycleState.DONE for r in records)
     pruned = [i for r in records for i in r.images if i.pruned]
-    assert len(pruned) == ret["pruned_images"] and all("bound of 2.5 MB" in (i.pruned_reason or "") for i in pruned)
+    assert len(pruned) == ret["pruned_images"] and all("bound of 4 MB" in (i.pruned_reason or "") for i in pruned)
     on_disk = sum(p.stat().st_size for p in (work / "var" / "images").iterdir())
     assert on_disk / 1024**2 == pytest.approx(report["end"]["images_mb"])
 

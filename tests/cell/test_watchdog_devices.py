@@ -89,6 +89,9 @@ class FakeRobot:
     async def stop(self, *, timeout_s: float) -> None:
         return None
 
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        return None
+
     async def ping(self, *, timeout_s: float) -> float:
         return await self.link.ping("robot", timeout_s)
 

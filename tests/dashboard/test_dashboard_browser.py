@@ -160,9 +160,14 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     expect(pg.locator(f"#filmstrip [data-cycle='{cid}']")).to_contain_text("P-LIVE-1")
     expect(pg.locator("#last-image")).to_have_attribute("data-cycle", str(cid))
     expect(pg.locator("#part")).to_have_text("last: P-LIVE-1 / CAR-7")
-    te = rec["true_error"]
+    # The trends show what the cell measured after the install (the truth is in the cycle's detail).
+    md = rec["measured_deviation"]
+    expect(pg.locator("#h-trends")).to_have_text("Install deviation: measured after the install")
     for key, axis in (("dx_mm", "dx_mm"), ("dy_mm", "dy_mm"), ("dz_mm", "dz_mm"), ("drx_deg", "drx_deg")):
-        expect(pg.locator(f"#trend-charts [data-axis={axis}] .chart-value")).to_have_text(_signed(te[key]))
+        expect(pg.locator(f"#trend-charts [data-axis={axis}] .chart-value")).to_have_text(_signed(md[key]))
+    # The closed loop's panel: one result counted, no offset yet (it needs min_samples).
+    expect(pg.locator("#spc")).to_contain_text("1 result counted")
+    expect(pg.locator("#spc [data-spc=table] tbody tr")).to_have_count(2)
     expect(pg.locator("#cycle-time-chart .chart-value")).to_have_text(f"{rec['result']['cycle_time_s']:.2f}")
     # The simulated cell lands within the paper's tolerance: nothing outside the bands, no colour.
     for axis in ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"):
@@ -176,6 +181,9 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     expect(detail.locator("h2")).to_have_text(f"Cycle {cid}: done")
     expect(detail.locator("table.steps")).to_contain_text("compensate")
     expect(detail.locator("table.steps")).to_contain_text("fit_rms_mm")
+    expect(detail).to_contain_text("Measured after the install")
+    expect(detail).to_contain_text("True (simulation)")
+    expect(detail.locator("table.steps")).to_contain_text("inspect")
     thumb = detail.locator(".thumbs img").first
     thumb.scroll_into_view_if_needed()
     pg.wait_for_function("img => img.complete && img.naturalWidth === 320", arg=thumb.element_handle())

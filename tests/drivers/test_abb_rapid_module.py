@@ -5,6 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
 from abb_robot import protocol as P
 
 RAPID = Path(__file__).resolve().parents[2] / "drivers" / "abb_robot" / "rapid"
@@ -80,3 +82,22 @@ def test_every_reply_the_server_builds_fits_a_line() -> None:
         assert len("99999 ") + len(literal) <= 79, literal
     assert "StrPart(text,1,room)" in SERVER  # ReplyErr cuts its text to fit
     assert '\\0A' in SERVER  # lines end with a newline
+
+
+def test_grip_sets_the_configured_output_waits_and_answers_as_the_fake_does() -> None:
+    start = SERVER.index("PROC DoGrip")
+    proc = _code(SERVER[start : SERVER.index("ENDPROC", start)])
+    # The output is looked up by the configured name, switched, then the settle time is waited.
+    steps = ["AliasIO grip_signal,grip_sig;", "SetDO grip_sig,arg{1};", "WaitTime grip_settle;", 'Reply id,""+NumToStr(arg{1},0);']
+    positions = [proc.index(step) for step in steps]
+    assert positions == sorted(positions)
+    assert "CELLCTL_E_GRIPPER" in proc and "RAISE;" in proc  # I/O errors answered, socket errors passed on
+    # Its settings are this task's own persistents, with values (not shared with the motion task).
+    assert re.search(r'^\s*TASK PERS string grip_signal:="\w+";', SERVER, re.M)
+    assert re.search(r"^\s*TASK PERS num grip_settle:=[\d.]+;", SERVER, re.M)
+    assert re.search(r"^\s*VAR signaldo grip_sig;", SERVER, re.M)
+    # The texts the fake answers with (tests/drivers/test_abb_gripper.py) are the module's.
+    assert '"GRIP needs 0 (release) or 1 (hold)"' in SERVER
+    assert '"hold is not an integer"' in SERVER
+    with pytest.raises(P.ProtocolError, match="^hold is not an integer$"):
+        P.parse_request("7 GRIP 1.0")

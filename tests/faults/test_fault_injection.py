@@ -114,7 +114,7 @@ async def _installs_once(client: httpx.AsyncClient) -> None:
     """A cycle after the recovery installs; no cycle's install ever started twice."""
     cid = await _submit(client, f"after-{time.monotonic_ns()}")
     rec = await _finished(client, cid)
-    assert rec["state"] == "done", rec
+    assert rec["state"] == "done", (rec["error"], rec["true_error"])
     items = (await client.get("/cycles?limit=50")).json()
     started = [c["id"] for c in items if c.get("install_started_at")]
     assert len(started) == len(set(started))

@@ -19,7 +19,14 @@ from pymodbus.client import AsyncModbusTcpClient
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
 from cellctl.config.plc import PlcConfig
 from cellctl.plc import PlcServer
-from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
+from cellctl.plc.facade import (
+    CellStatus,
+    CommandReply,
+    CycleAcceptance,
+    CycleOutcome,
+    PlcErrorCode,
+)
+from cellctl.plc.handshake import MEASURED_REGISTERS
 from cellctl.plc.register_map import CELL_BLOCK, PLC_BLOCK, RegType, register
 
 ERR_NOT_READY = int(PlcErrorCode.NOT_READY)
@@ -93,21 +100,23 @@ class MemoryCell:
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         for step in (CycleStep.CALIBRATE, CycleStep.ALIGN, CycleStep.SHOOT, CycleStep.COMPENSATE,
-                     CycleStep.INSTALL):
+                     CycleStep.INSTALL, CycleStep.INSPECT):
             self.step = step
-            await asyncio.sleep(self.cycle_s / 5)
+            await asyncio.sleep(self.cycle_s / 6)
         if self.gate is not None:
             await self.gate.wait()
         rng = np.random.default_rng([self.seed, req_id])
         d_mm = rng.uniform(-8.0, 8.0, 3)
         d_rad = rng.uniform(-0.03, 0.03, 3)
         ok = req_id not in self.failing_ids
+        measured = tuple(float(v) for v in rng.uniform(-0.4, 0.4, 6)) if ok else None
         self.outcomes[req_id] = CycleOutcome(
             req_id=req_id, recipe_id=recipe_id, part_id=part_id, ok=ok,
             error_code=0 if ok else ERR_INSTALL_FAILED,
             dx_mm=float(d_mm[0]), dy_mm=float(d_mm[1]), dz_mm=float(d_mm[2]),
             drx_rad=float(d_rad[0]), dry_rad=float(d_rad[1]), drz_rad=float(d_rad[2]),
             cycle_time_s=loop.time() - t0 + 12.0,
+            measured=measured, measured_ok=None if measured is None else True,  # type: ignore[arg-type]
         )
         self.step = CycleStep.NONE
         self.state = PackMLState.IDLE
@@ -276,4 +285,6 @@ def expected_wire(o: CycleOutcome) -> dict[str, float | int]:
         "drx_deg": float32(math.degrees(o.drx_rad)), "dry_deg": float32(math.degrees(o.dry_rad)),
         "drz_deg": float32(math.degrees(o.drz_rad)), "cycle_time_ms": round(o.cycle_time_s * 1000),
         "result_part_id": o.part_id, "result_recipe_id": o.recipe_id, "error_code": o.error_code,
+        "inspection_status": o.inspection_status,
+        **{name: float32(v) for name, v in zip(MEASURED_REGISTERS, o.measured or (0.0,) * 6)},
     }

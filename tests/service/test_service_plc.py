@@ -67,6 +67,13 @@ async def test_a_plc_runs_twenty_cycles_and_every_install_is_within_tolerance(tm
         for req_id, done in results.items():
             corr = by_key[req_id].result["correction_mm"]
             assert abs(done["dx_mm"] - corr[0]) < 1e-3 and abs(done["dz_mm"] - corr[2]) < 1e-3
+            # The measured result: status 1 (within the tolerance) and the inspection's six figures,
+            # which stand within 0.06 mm / 0.02 deg of the twin's truth of that install.
+            m, truth = by_key[req_id].result["measured_deviation"], by_key[req_id].true_error
+            assert done["inspection_status"] == 1
+            for k in ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"):
+                assert abs(done[f"meas_{k}"] - m[k]) < 1e-5, k
+                assert abs(done[f"meas_{k}"] - truth[k]) < (0.06 if k.endswith("mm") else 0.02), (k, done[f"meas_{k}"], truth[k])
         await asyncio.sleep(0)
 
 

@@ -26,7 +26,7 @@ async def test_the_same_idempotency_key_twice_gives_one_cycle(tmp_path: Path) ->
         # The record holds every step, the images and the true error.
         rec = (await client.get(f"/cycles/{first.json()['id']}")).json()
         steps = [s["step"] for s in rec["steps"]]
-        assert steps[:3] == ["calibrate", "align", "shoot"] and steps[-1] == "install"
+        assert steps[:3] == ["calibrate", "align", "shoot"] and steps[-2:] == ["install", "inspect"]
         assert all(s["ok"] for s in rec["steps"])
         assert set(rec["true_error"]) == {"dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"}
         png = await client.get(rec["images"][0]["url"])

@@ -5,18 +5,28 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from pydantic import ValidationError
-from scipy.interpolate import CubicSpline
+from shared_support import edge_crossing
 
 from cellctl.config.mounting import CameraIntrinsics
 from cellctl.config.render import DisturbanceConfig, OcclusionConfig, RenderConfig
 from cellctl.config.sim import WorldConfig
-from cellctl.config.surface import CLEAN_SURFACE, BandConfig, DirtConfig, MarksConfig, SurfaceConfig
+from cellctl.config.surface import (
+    CLEAN_SURFACE,
+    BandConfig,
+    DirtConfig,
+    MarksConfig,
+    SurfaceConfig,
+)
 from cellctl.geometry.pose import apply_pose
 from cellctl.geometry.rotation import rot_x, rot_y, rot_z
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.camera_blocks import PlaneView
 from cellctl.sim.edge_coverage import coverage_from_sdf, rounded_rect_sdf
-from cellctl.sim.image_truth import camera_pose_seeing_corner, corner_truth, edge_curve_px
+from cellctl.sim.image_truth import (
+    camera_pose_seeing_corner,
+    corner_truth,
+    edge_curve_px,
+)
 from cellctl.sim.surface import DrawnSurface, draw_surface
 from cellctl.sim.world import World, nominal_world, sample_world
 
@@ -34,14 +44,7 @@ def _project(renderer: CameraRenderer, T_B_C: np.ndarray, world: World, xy_T: tu
 
 
 def _crossing(profile: np.ndarray, centre: float, half: int = 7) -> float:
-    """The 50 % crossing (cubic spline) between the plateaus either side of ``centre``."""
-    k0 = int(np.floor(centre))
-    pos = np.arange(k0 - half, k0 + half + 2)
-    vals = profile[pos].astype(float)
-    spline = CubicSpline(pos, vals - 0.5 * (vals[:3].mean() + vals[-3:].mean()))
-    roots = [r for r in spline.roots(extrapolate=False) if pos[3] <= r <= pos[-4]]
-    assert len(roots) == 1, f"expected one crossing near {centre:.2f}, got {roots}"
-    return float(roots[0])
+    return edge_crossing(profile, centre, half)
 
 
 @pytest.fixture(scope="module")

@@ -33,6 +33,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeatability-mm", type=float, default=0.03, help="one-sigma position noise per axis")
     p.add_argument("--idle-timeout-s", type=float, default=10.0, help="drop a client silent this long")
     p.add_argument("--time-scale", type=float, default=1.0, help="multiply motion durations (default 1)")
+    p.add_argument("--gripper-settle-s", type=float, default=0.5,
+                   help="GRIP waits this long after switching the vacuum (default 0.5 s, times --time-scale)")
     p.add_argument("--stats-file", default=None, help="write each EGM session's statistics there as JSON")
     p.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the EGM thread (1..99)")
     p.add_argument("-v", "--verbose", action="store_true")
@@ -51,6 +53,7 @@ async def _main(args: argparse.Namespace) -> None:
         seed=args.seed,
         idle_timeout_s=args.idle_timeout_s,
         time_scale=args.time_scale,
+        gripper_settle_s=args.gripper_settle_s,
         stats_file=args.stats_file,
         egm_rt_priority=args.rt_priority,
     )

@@ -8,6 +8,7 @@ never shares timing with the code under test.
 from __future__ import annotations
 
 import asyncio
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -44,6 +45,12 @@ class FakeControllerConfig:
         identity: what HELLO reports.
         stats_file: where each EGM session's statistics are written as JSON.
         egm_rt_priority: SCHED_FIFO priority of the EGM thread (None: normal scheduling).
+        gripper_hold: the gripper's vacuum output at start (True: on, holding a glass).
+        gripper_settle_s: what GRIP waits after switching the output before it answers (the
+            module's ``grip_settle``), multiplied by ``time_scale`` as motions are.
+        on_gripper: physics called with the new output (True: hold, False: release) whenever
+            GRIP switches it, from the controller's thread under the robot's lock (as the
+            model's ``execute`` is), so a twin can let go of its glass. None: nothing reacts.
     """
 
     rapid_host: str = "127.0.0.1"
@@ -62,6 +69,9 @@ class FakeControllerConfig:
     identity: ServerIdentity = field(default_factory=ServerIdentity)
     stats_file: str | None = None
     egm_rt_priority: int | None = None
+    gripper_hold: bool = False
+    gripper_settle_s: float = 0.5
+    on_gripper: Callable[[bool], None] | None = None
 
 
 class FakeController:
@@ -70,8 +80,11 @@ class FakeController:
     def __init__(self, config: FakeControllerConfig, model: RobotModel | None = None) -> None:
         self.config = config
         self.model = model if model is not None else SimpleArmModel(seed=config.seed)
+        if not (math.isfinite(config.gripper_settle_s) and config.gripper_settle_s >= 0):
+            raise ValueError(f"gripper_settle_s must be a finite number >= 0, got {config.gripper_settle_s}")
         self.robot = FakeRobot(
-            self.model, config.home, tools=config.tools, wobjs=config.wobjs, time_scale=config.time_scale
+            self.model, config.home, tools=config.tools, wobjs=config.wobjs, time_scale=config.time_scale,
+            gripper_hold=config.gripper_hold, on_gripper=config.on_gripper,
         )
         self.egm: EgmRobotSide | None = None
         self.server: RapidLineServer | None = None
@@ -94,7 +107,10 @@ class FakeController:
                 stats_file=cfg.stats_file,
                 rt_priority=cfg.egm_rt_priority,
             )
-        self.server = RapidLineServer(self.robot, self.egm, identity=cfg.identity, idle_timeout_s=cfg.idle_timeout_s)
+        self.server = RapidLineServer(
+            self.robot, self.egm, identity=cfg.identity, idle_timeout_s=cfg.idle_timeout_s,
+            gripper_settle_s=cfg.gripper_settle_s,
+        )
         self.rapid_port = await self.server.start(cfg.rapid_host, cfg.rapid_port)
         self._loop = asyncio.get_running_loop()
         return self.rapid_port
@@ -178,6 +194,11 @@ class FakeController:
         """Switch the motors on or off (thread-safe)."""
         with self.robot.lock:
             self.robot.motors_on = on
+
+    @property
+    def gripper_hold(self) -> bool:
+        """The gripper's vacuum output as GRIP last set it (True: on, holding; thread-safe)."""
+        return self.robot.gripper_hold
 
     @property
     def last_egm_stats(self) -> EgmSessionStats | None:

@@ -5,8 +5,10 @@ It behaves as the RAPID module does, verb for verb and error for error:
 - one client at a time (a second connection waits, unanswered, until the first one ends);
 - HELLO first on every connection; staged POS/ORI are cleared by HELLO and consumed by a move;
 - motions and EGM sessions run in the background: ``ACK`` at once, ``DONE`` or ``ERR`` later,
-  while PING, GETC, GETJ, STATE, STOP, POS and ORI are still answered; settings and new motions
-  get ``ERR 110`` (BUSY) meanwhile;
+  while PING, GETC, GETJ, STATE, STOP, POS and ORI are still answered; settings, GRIP and new
+  motions get ``ERR 110`` (BUSY) meanwhile;
+- GRIP switches the robot's gripper output, then waits the gripper's settle time before it
+  answers, reading nothing meanwhile (the module's ``WaitTime``);
 - a line longer than 80 bytes gets ``0 ERR 101`` and is dropped up to its newline;
 - a client that sends nothing for ``idle_timeout_s`` is dropped; when the client goes away
   during a motion, the motion is stopped (the module does the same: no motion without its client).
@@ -63,11 +65,14 @@ class RapidLineServer:
         *,
         identity: ServerIdentity = ServerIdentity(),
         idle_timeout_s: float = 10.0,
+        gripper_settle_s: float = 0.0,
     ) -> None:
         self.robot = robot
         self.egm = egm
         self.identity = identity
         self.idle_timeout_s = idle_timeout_s
+        self.gripper_settle_s = gripper_settle_s
+        """Seconds GRIP waits after switching the output (the module's ``grip_settle``), times the robot's time_scale."""
         self.silent = False
         self.lines_received: list[str] = []
         self._server: asyncio.base_events.Server | None = None
@@ -365,3 +370,19 @@ class RapidLineServer:
 
     async def _do_state(self, s: _Session, rid: int) -> None:
         await self._ok(s, rid, "1" if self.robot.motors_on else "0", "1" if self.busy else "0")
+
+    async def _do_grip(self, s: _Session, rid: int, hold: int) -> None:
+        # _line has refused GRIP while a motion runs (BUSY), as the module's HandleLine does.
+        if hold not in P.GRIP_VALUES:
+            await self._err(s, rid, P.ErrorCode.RANGE, "GRIP needs 0 (release) or 1 (hold)")
+            return
+        try:
+            self.robot.set_gripper(hold == 1)
+        except Exception as exc:  # noqa: BLE001 - the physics failed: answered as the module's I/O error
+            log.warning("gripper physics failed: %s", exc)
+            await self._err(s, rid, P.ErrorCode.GRIPPER, f"gripper output error {type(exc).__name__}")
+            return
+        settle_s = self.gripper_settle_s * self.robot.time_scale
+        if settle_s > 0:
+            await asyncio.sleep(settle_s)
+        await self._ok(s, rid, str(hold))

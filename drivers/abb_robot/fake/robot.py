@@ -1,4 +1,4 @@
-"""The fake controller's robot: current pose, tool and work object frames, a running motion.
+"""The fake controller's robot: current pose, tool and work object frames, a running motion, the gripper.
 
 Shared between the RAPID line server (asyncio) and the EGM thread, so every access takes the
 lock. Frames: the model works on flange poses in the base frame; RAPID speaks TCP poses in the
@@ -75,6 +75,9 @@ class FakeRobot:
         wobjs: work object name -> work object frame in the base frame. "wobj0" is always present.
         time_scale: motion durations are multiplied by this (tests may speed moves up).
         clock: monotonic clock in seconds.
+        gripper_hold: the gripper's vacuum output at start (True: on, holding).
+        on_gripper: physics called with the new output whenever GRIP switches it (under the
+            robot's lock, in the thread that serves the line protocol, as the model's calls are).
     """
 
     def __init__(
@@ -86,6 +89,8 @@ class FakeRobot:
         wobjs: dict[str, CartesianPose] | None = None,
         time_scale: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
+        gripper_hold: bool = False,
+        on_gripper: Callable[[bool], None] | None = None,
     ) -> None:
         refusal = model.reachable(home)
         if refusal is not None:
@@ -105,6 +110,8 @@ class FakeRobot:
         self.clock = clock
         self._flange = home
         self._motion: Motion | None = None
+        self._gripper_hold = bool(gripper_hold)
+        self._on_gripper = on_gripper
 
     # -- frames -------------------------------------------------------------------------------
 
@@ -170,6 +177,25 @@ class FakeRobot:
     def moving(self) -> bool:
         with self.lock:
             return self._motion is not None
+
+    # -- gripper ------------------------------------------------------------------------------
+
+    @property
+    def gripper_hold(self) -> bool:
+        """The gripper's vacuum output: True on (holding), False off (released)."""
+        with self.lock:
+            return self._gripper_hold
+
+    def set_gripper(self, hold: bool) -> None:
+        """Switch the gripper's vacuum output (what the module's SetDO does).
+
+        The physics callback is told first; if it raises, the output keeps its old value and
+        the error propagates (the line server answers it as an I/O error).
+        """
+        with self.lock:
+            if self._on_gripper is not None:
+                self._on_gripper(hold)
+            self._gripper_hold = hold
 
     # -- motions ------------------------------------------------------------------------------
 

@@ -7,7 +7,8 @@ MODULE CellctlServer
     ! client at a time: ASCII lines of at most 80 characters including the newline,
     ! "<id> <VERB> [args]" in, "<id> <STATUS> [data]" out, every reply carrying the id of
     ! its request. Motions are handed to the motion task; this task stays free meanwhile,
-    ! so PING, GETC, GETJ, STATE and STOP are answered while the robot moves.
+    ! so PING, GETC, GETJ, STATE and STOP are answered while the robot moves. GRIP switches
+    ! the gripper's vacuum output here, and only while the robot stands still.
     !
     ! The verbs, replies and error codes are listed in drivers/abb_robot/README.md, which
     ! is generated from drivers/abb_robot/protocol.py; keep the numbers in step (a test
@@ -27,6 +28,12 @@ MODULE CellctlServer
     CONST num CELLCTL_POLL:=0.05;
     ! A client that sends nothing for this long (s) is dropped (cellctl pings every second).
     CONST num CELLCTL_IDLE_TIMEOUT:=10;
+    ! The gripper (GRIP 1 = vacuum on, hold; GRIP 0 = off, release): the digital output that
+    ! switches the vacuum, and the time (s) the vacuum needs to build up or fall off after
+    ! switching, waited before GRIP answers. TASK PERS (this task's own, not shared): edit
+    ! them here, or in the program data window while commissioning the vacuum.
+    TASK PERS string grip_signal:="doCellctlVacuum";
+    TASK PERS num grip_settle:=0.5;
 
     ! ---- error codes (abb_robot.protocol.ErrorCode) ----
     CONST num CELLCTL_E_SYNTAX:=100;
@@ -46,6 +53,7 @@ MODULE CellctlServer
     CONST num CELLCTL_E_EGM_COMM:=150;
     CONST num CELLCTL_E_EGM_SETUP:=151;
     CONST num CELLCTL_E_EGM_STATE:=152;
+    CONST num CELLCTL_E_GRIPPER:=160;
     CONST num CELLCTL_E_INTERNAL:=199;
 
     ! ---- command kinds (same numbers in CellctlMotion.mod) ----
@@ -85,6 +93,7 @@ MODULE CellctlServer
     VAR clock idle_clock;
     VAR signaldo motors_sig;
     VAR bool motors_known:=FALSE;
+    VAR signaldo grip_sig;
     ! the request being handled: its fields and numeric arguments
     VAR string tok{8};
     VAR num ntok:=0;
@@ -325,7 +334,7 @@ MODULE CellctlServer
     FUNC num Arity(string verb)
         ! Number of arguments of a verb; -1 if the verb is unknown.
         TEST verb
-        CASE "HELLO","TOOL","WOBJ","ZONE":
+        CASE "HELLO","TOOL","WOBJ","ZONE","GRIP":
             RETURN 1;
         CASE "PING","BYE","MOVEL","MOVEJ","STOP","GETC","GETJ","STATE":
             RETURN 0;
@@ -400,6 +409,10 @@ MODULE CellctlServer
                 ReplyErr id,CELLCTL_E_SYNTAX,"version is not an integer";
                 RETURN FALSE;
             ENDIF
+            IF verb="GRIP" AND StrFind(tok{3},1,STR_DIGIT+"+-"\NotInSet)<=StrLen(tok{3}) THEN
+                ReplyErr id,CELLCTL_E_SYNTAX,"hold is not an integer";
+                RETURN FALSE;
+            ENDIF
         ENDIF
         IF NOT hello_done AND verb<>"HELLO" AND verb<>"BYE" THEN
             ReplyErr id,CELLCTL_E_NO_HELLO,"send HELLO first";
@@ -445,6 +458,8 @@ MODULE CellctlServer
             DoGetj id;
         CASE "STATE":
             DoState id;
+        CASE "GRIP":
+            DoGrip id;
         ENDTEST
         RETURN FALSE;
     ENDFUNC
@@ -589,5 +604,35 @@ MODULE CellctlServer
         ENDIF
         IF Busy() moving:="1";
         Reply id,"OK "+motors+" "+moving;
+    ENDPROC
+
+    PROC DoGrip(num id)
+        ! Switch the gripper's vacuum, wait for it to settle, answer. HandleLine has refused
+        ! GRIP while a motion runs (BUSY): the glass is never released mid-motion. No motion
+        ! can start meanwhile either: this task reads no request until it has answered.
+        VAR num step:=0;
+
+        IF arg{1}<>0 AND arg{1}<>1 THEN
+            ReplyErr id,CELLCTL_E_RANGE,"GRIP needs 0 (release) or 1 (hold)";
+            RETURN;
+        ENDIF
+        ! Aliased on every GRIP, so a signal name changed in grip_signal takes effect.
+        AliasIO grip_signal,grip_sig;
+        step:=1;
+        SetDO grip_sig,arg{1};
+        step:=2;
+        IF grip_settle>0 WaitTime grip_settle;
+        Reply id,"OK "+NumToStr(arg{1},0);
+    ERROR
+        IF ERRNO=ERR_SOCK_CLOSED OR ERRNO=ERR_SOCK_TIMEOUT THEN
+            ! the client went away while the vacuum settled: ServeClient handles it
+            RAISE;
+        ENDIF
+        IF step=0 THEN
+            ReplyErr id,CELLCTL_E_GRIPPER,"no gripper output "+grip_signal;
+        ELSE
+            ReplyErr id,CELLCTL_E_GRIPPER,"gripper output error "+NumToStr(ERRNO,0);
+        ENDIF
+        RETURN;
     ENDPROC
 ENDMODULE

@@ -13,7 +13,13 @@ from fastapi.staticfiles import StaticFiles
 from swagger_ui_bundle import swagger_ui_path
 
 import cellctl
-from cellctl.api import dashboard, routes_cell, routes_cycles, routes_jobs
+from cellctl.api import (
+    dashboard,
+    routes_cell,
+    routes_cycles,
+    routes_jobs,
+    routes_quality,
+)
 from cellctl.api.auth import TokenBeforeBody, TokenGuard
 from cellctl.api.limits import BodySizeLimit
 from cellctl.api.schemas import ErrorBody
@@ -81,6 +87,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
     routers: list[APIRouter] = [
         routes_cycles.build_router(orch, guard, config.cycle_wait_max_s),
         routes_cell.build_router(orch, guard),
+        routes_quality.build_router(orch, guard),
     ]
     if jobs is not None:
         routers.append(routes_jobs.build_router(jobs, guard))

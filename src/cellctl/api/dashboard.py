@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import OrderedDict
+from dataclasses import asdict
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from cellctl.api.routes_cycles import image_file
 from cellctl.api.schemas import CycleId
 from cellctl.api.schemas_dashboard import CycleDigest, DashboardConfig, Tolerance
 from cellctl.cell.orchestrator import CellOrchestrator
+from cellctl.cell.outcome import measured_of
 from cellctl.cell.tags import CycleStep
 from cellctl.store import CycleRecord, UnknownCycle
 
@@ -46,6 +48,7 @@ THUMB_CACHE_SIZE = 256
 def deviation_digest(record: CycleRecord) -> dict[str, Any]:
     """One cycle as the trend charts and the filmstrip need it.
 
+    ``measured``: the six figures the inspection measured against the opening, None when not measured.
     ``true_error``: the twin's six install errors (simulation only), None elsewhere.
     ``correction``: the workpiece correction the cycle applied (mm, deg), None if it got no result.
     ``residual``: the last verification shot's in-plane offset (dx, dy mm; drz deg) from the
@@ -90,6 +93,8 @@ def deviation_digest(record: CycleRecord) -> dict[str, Any]:
         "current_step": record.current_step.name.lower(),
         "error": record.error,
         "cycle_time_s": float(cycle_time) if isinstance(cycle_time, int | float) else None,
+        "measured": None if (m := measured_of(res)) is None else asdict(m),
+        "part_ok": res.get("part_ok"),
         "true_error": true_error,
         "correction": correction,
         "residual": residual,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from cellctl.api.schemas_cycles import (
     StepView,
 )
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
+from cellctl.cell.outcome import measured_of
 from cellctl.store import (
     CycleRecord,
     CycleRequest,
@@ -54,6 +56,11 @@ def cycle_view(record: CycleRecord) -> CycleView:
     return CycleView(**_brief_fields(record), steps=steps, images=images)
 
 
+def _measured(record: CycleRecord) -> dict[str, float] | None:
+    m = measured_of(dict(record.result or {}))
+    return None if m is None else asdict(m)
+
+
 def _brief_fields(record: CycleRecord) -> dict[str, Any]:
     def iso(t: datetime | None) -> str | None:
         return t.isoformat() if t else None
@@ -71,6 +78,8 @@ def _brief_fields(record: CycleRecord) -> dict[str, Any]:
         "result": None if record.result is None else dict(record.result),
         "error": record.error,
         "true_error": None if record.true_error is None else dict(record.true_error),
+        "measured_deviation": _measured(record),
+        "part_ok": None if record.result is None else record.result.get("part_ok"),
         "created_at": record.created_at.isoformat(),
         "started_at": iso(record.started_at),
         "finished_at": iso(record.finished_at),

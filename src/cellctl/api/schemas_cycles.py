@@ -9,6 +9,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from cellctl.domain import InstallDeviation
+
 
 class CycleRequestBody(BaseModel):
     """Start one installation cycle."""
@@ -66,6 +68,11 @@ class CycleBrief(BaseModel):
     result: dict[str, Any] | None = Field(description="ok, error_code, correction_mm, correction_deg, shots, cycle_time_s")
     error: str | None = Field(description="why it failed")
     true_error: dict[str, Any] | None = Field(description="the simulated cell's known install error (None on hardware)")
+    measured_deviation: InstallDeviation | None = Field(
+        description="the install deviation the cell measured after the install: gaps in the image (dx, dy, drz) and "
+        "the laser's flush (dz, drx, dry), against the opening; None when not measured"
+    )
+    part_ok: bool | None = Field(description="the measured deviation within the tolerance; None when not measured")
     created_at: str
     started_at: str | None
     finished_at: str | None

@@ -63,6 +63,8 @@ class CycleDigest(BaseModel):
     current_step: str
     error: str | None
     cycle_time_s: float | None
+    measured: Deviation | None = Field(description="the install deviation the cell measured (gaps and flush)")
+    part_ok: bool | None = Field(None, description="the measured deviation within the tolerance")
     true_error: Deviation | None = Field(description="the twin's six install errors (simulation only)")
     correction: Deviation | None = Field(description="the workpiece correction the cycle applied")
     residual: Residual | None = Field(description="the last verification shot's offset from the template")

@@ -69,6 +69,10 @@ class Trial:
     cycle_time_s: float | None
     shots: int | None
     correction_mm: list[float] | None
+    # The cell's own inspection of the installed glass (absent: the inspection did not run) and the
+    # closed loop's state after the cycle (estimate, applied offset, drifting axes, samples).
+    measured_deviation: dict[str, float] | None = None
+    spc: dict[str, Any] | None = None
 
     @property
     def installed(self) -> bool:
@@ -182,7 +186,38 @@ def trial_from_record(index: int, record: CycleRecord) -> Trial:
         cycle_time_s=None if res.get("cycle_time_s") is None else float(res["cycle_time_s"]),
         shots=None if res.get("shots") is None else int(res["shots"]),
         correction_mm=None if res.get("correction_mm") is None else [float(v) for v in res["correction_mm"]],
+        measured_deviation=_six(res.get("measured_deviation")),
+        spc=_jsonable(res["spc"]) if isinstance(res.get("spc"), dict) else None,
     )
+
+
+def _six(value: Any) -> dict[str, float] | None:
+    """The six figures of a measured deviation, or None when the record has none (or not all six)."""
+    if not isinstance(value, dict) or any(a.field not in value or value[a.field] is None for a in AXES):
+        return None
+    return {a.field: float(value[a.field]) for a in AXES}
+
+
+class RunHooks:
+    """What a caller adds to a run (the multi-cell bench: its calibration, a drift, per-trial probes).
+
+    Every method does nothing here; a subclass overrides what it needs.
+    """
+
+    calibration_what: str | None = None  # how the progress line names the run's calibration (None: by its mode)
+
+    def configure(self, config: CellConfig, workdir: Path) -> CellConfig:
+        """The run's configuration (already made by run_config), before the service is built."""
+        return config
+
+    def attach(self, service: Service) -> None:
+        """The service is built and not started yet (e.g. replace its calibration source, subscribe to alarms)."""
+
+    def before_cycle(self, k: int, service: Service) -> None:
+        """Trial ``k`` (1-based) is about to be submitted."""
+
+    def after_cycle(self, k: int, service: Service, trial: Trial) -> None:
+        """Trial ``k`` finished (or was refused) with ``trial``."""
 
 
 async def settle(orch: CellOrchestrator, timeout_s: float = SETTLE_TIMEOUT_S) -> PackMLState:
@@ -245,18 +280,22 @@ async def _run_async(
     progress: Progress,
     cycle_timeout_s: float,
     calibrate_timeout_s: float,
+    hooks: RunHooks,
 ) -> AccuracyRun:
     from cellctl.service import build_service
 
     t_start = time.monotonic()
     service = await build_service(config, workdir=workdir)
+    hooks.attach(service)
     await service.start()
     trials: list[Trial] = []
     recoveries = 0
     notes: list[str] = []
     try:
         orch = service.orchestrator
-        what = "from simulated data" if settings.calibration == "data" else "from the twin's truth (oracle)"
+        what = hooks.calibration_what or (
+            "from simulated data" if settings.calibration == "data" else "from the twin's truth (oracle)"
+        )
         progress.message(f"{settings.label or 'run'}: preparing the calibration {what} ...")
         cal_s = await prepare_calibration(service, calibrate_timeout_s)
         summary = dict(orch.calibration.summary())
@@ -271,15 +310,18 @@ async def _run_async(
                     notes.append(f"the run stopped before trial {k}: {err}")
                     break
             request = CycleRequest(recipe, f"bench-{k}", car_id=f"seed{settings.seed}-{k}", source=ACTOR)
+            hooks.before_cycle(k, service)
             try:
                 sub = await orch.submit_cycle(request, scope=ACTOR, key=f"bench-{settings.seed}-{k}", actor=ACTOR)
             except CycleRefused as err:
                 trials.append(Trial(k, None, "refused", err.reason, None, None, None, None))
+                hooks.after_cycle(k, service, trials[-1])
                 progress.advance("refused")
                 continue
             record = await orch.wait_cycle(sub.cycle.id, cycle_timeout_s)
             trial = trial_from_record(k, record)
             trials.append(trial)
+            hooks.after_cycle(k, service, trial)
             if trial.outcome == "timeout":
                 notes.append(f"trial {k}: no result within {cycle_timeout_s:g} s; the run stopped there")
                 progress.advance("timeout")
@@ -328,12 +370,14 @@ def run_accuracy(
     workdir: Path | None = None,
     cycle_timeout_s: float = 300.0,
     calibrate_timeout_s: float = 3600.0,
+    hooks: RunHooks | None = None,
 ) -> AccuracyRun:
     """Run ``settings.trials`` install cycles of the simulated cell and score them against its truth.
 
     ``workdir`` keeps the run's store, images and calibration set there (default: a temporary
-    folder, removed afterwards).
+    folder, removed afterwards). ``hooks`` adds to the run what a caller needs (:class:`RunHooks`).
     """
+    hooks = hooks if hooks is not None else RunHooks()
     if settings.calibration == "data" and not data_calibration_available():
         raise BenchSettingsError(
             "--calibration data needs the calibration set computed from simulated data "
@@ -345,6 +389,7 @@ def run_accuracy(
             base, workdir=wd, seed=settings.seed, off=settings.off, calibration=settings.calibration,
             time_scale=settings.time_scale, devices=settings.devices,
         )  # fmt: skip
-        run = asyncio.run(_run_async(config, settings, wd, bar, cycle_timeout_s, calibrate_timeout_s))
+        config = hooks.configure(config, wd)
+        run = asyncio.run(_run_async(config, settings, wd, bar, cycle_timeout_s, calibrate_timeout_s, hooks))
         run.workdir = str(wd) if workdir is not None else None
     return run

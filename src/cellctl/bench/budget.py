@@ -6,7 +6,9 @@ with each source, and the source that adds the most.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 from cellctl.bench.accuracy import AccuracyRun, RunSettings, run_accuracy
@@ -19,6 +21,7 @@ from cellctl.bench.sources import (
     data_calibration_available,
 )
 from cellctl.bench.stats import AXES
+from cellctl.cell.cycle import CycleCalibration
 from cellctl.config import CellConfig
 
 BudgetMode = Literal["alone-on", "alone-off"]
@@ -170,3 +173,174 @@ def run_budget(
         rows.append(BudgetRow(label, source, off, cal, run))
     # alone-on: the floor (everything off); alone-off: everything on. Both are the plan's first row.
     return Budget(mode, trials, seed, rows, rows[0], notes)
+
+
+# -- the budget by calibration part, across cells --------------------------------------------------
+
+
+@dataclass
+class PartBudgetCell:
+    """One cell's rows of the budget by part: the same trials with each part swapped for the truth."""
+
+    seed: int
+    rows: dict[str, Any]  # row key -> CellRun
+
+    def mean(self, key: str) -> dict[str, float]:
+        from cellctl.bench.stats import mean_per_axis
+
+        return mean_per_axis(self.rows[key].errors())
+
+    def effect(self, key: str) -> dict[str, float] | None:
+        """Axis -> how much the row's swap moves the cell's mean error (None: the row or its reference did not run)."""
+        from cellctl.bench.parts import PART_ROWS
+
+        row = next(r for r in PART_ROWS if r.key == key)
+        if row.against is None or key not in self.rows or row.against not in self.rows:
+            return None
+        a, b = self.mean(key), self.mean(row.against)
+        return {x: a[x] - b[x] for x in a}
+
+
+@dataclass
+class PartBudget:
+    """The budget by calibration part: per cell, each part's effect on the mean error; RMS over cells; dominant part."""
+
+    trials: int
+    seeds: list[int]
+    keys: list[str]
+    cells: list[PartBudgetCell]
+    notes: list[str] = field(default_factory=list)
+
+    def effects(self) -> dict[str, dict[str, list[float]]]:
+        """Row key -> axis -> the effect in each cell (rows with a reference only)."""
+        out: dict[str, dict[str, list[float]]] = {}
+        for key in self.keys:
+            per = [c.effect(key) for c in self.cells]
+            if any(e is None for e in per):
+                continue
+            out[key] = {a.label: [e[a.label] for e in per if e is not None] for a in AXES}
+        return out
+
+    def rms_effects(self) -> dict[str, dict[str, float]]:
+        from cellctl.bench.stats import rms
+
+        return {k: {a: rms(v) for a, v in per.items()} for k, per in self.effects().items()}
+
+    def bias_rms(self) -> dict[str, float]:
+        """Axis -> RMS over cells of the as-commissioned mean error (the per-cell bias to explain)."""
+        from cellctl.bench.stats import rms
+
+        means = [c.mean("as-commissioned") for c in self.cells]
+        return {a.label: rms([m[a.label] for m in means]) for a in AXES}
+
+    def dominant(self) -> dict[str, str | None]:
+        """Axis -> the part whose swap moves the mean error most (RMS over cells); the oracle row is not a part."""
+        from cellctl.bench.parts import PART_ROWS
+
+        parts = {r.key: r.part for r in PART_ROWS if r.part is not None}
+        rms_e = {k: v for k, v in self.rms_effects().items() if k in parts}
+        out: dict[str, str | None] = {}
+        for a in AXES:
+            best = max(rms_e, key=lambda k: rms_e[k][a.label] if rms_e[k][a.label] == rms_e[k][a.label] else -1.0, default=None)
+            out[a.label] = None if best is None else parts[best]
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        from cellctl.bench.parts import PART_ROWS
+
+        rows = [r for r in PART_ROWS if r.key in self.keys]
+        return {
+            "benchmark": "accuracy-budget-parts",
+            "trials": self.trials,
+            "seeds": self.seeds,
+            "rows": [{"key": r.key, "part": r.part, "label": r.label, "against": r.against, "chain": r.chain} for r in rows],
+            "bias_rms": self.bias_rms(),
+            "effect_rms": self.rms_effects(),
+            "dominant": self.dominant(),
+            "cells": [
+                {
+                    "seed": c.seed,
+                    "mean": {k: c.mean(k) for k in c.rows},
+                    "effect": {k: c.effect(k) for k in c.rows if c.effect(k) is not None},
+                    "runs": {k: r.as_dict(0) for k, r in c.rows.items()},
+                }
+                for c in self.cells
+            ],
+            "notes": self.notes,
+        }
+
+
+def run_part_budget(
+    base: CellConfig,
+    *,
+    seeds: range,
+    trials: int,
+    time_scale: float | None = None,
+    config_source: str = "config/sim.toml",
+    devices: DevicesMode = "twin",
+    progress: bool = True,
+    calibration_cache: Path | None = None,
+    keys: tuple[str, ...] | None = None,
+    cell_calibration: Callable[[CellConfig, int], CycleCalibration] | None = None,
+    cycle_timeout_s: float = 300.0,
+) -> PartBudget:
+    """Per cell (seed): its calibration from its own data, then the same trials once per row of
+    :data:`cellctl.bench.parts.PART_ROWS` (each part swapped for the twin's truth), the loop off.
+
+    ``cell_calibration(config, seed)`` gives a cell's calibration instead of commissioning it (tests).
+    """
+    from cellctl.bench.cells import AS_CONFIGURED, run_cell, spc_available
+    from cellctl.bench.commissioned import commission_cell
+    from cellctl.bench.parts import PART_ROWS, FixedCalibrationSource, swapped_calibrations
+    from cellctl.bench.progress import Progress
+    from cellctl.bench.sources import run_config, run_workdir
+
+    keys = tuple(r.key for r in PART_ROWS) if keys is None else keys
+    unknown = sorted(set(keys) - {r.key for r in PART_ROWS})
+    if unknown or "as-commissioned" not in keys:
+        raise BenchSettingsError(f"budget rows must include as-commissioned and be among {', '.join(r.key for r in PART_ROWS)}; got {keys}")
+    if cell_calibration is None and not data_calibration_available():
+        raise BenchSettingsError("the budget by part needs the calibration set computed from simulated data (cellctl.calibration.source)")
+    loop = "off" if spc_available(base) else AS_CONFIGURED
+    notes = [
+        "each row runs the same trials (same seed: the same car-body postures) in a fresh service, with the closed loop "
+        + ("off" if loop == "off" else "absent from this build"),
+        "camera, hand-eye and laser cannot be swapped alone: teaching measured C_Pos_0 and the template through them, "
+        "so each is swapped with C_Pos_0, the template and the nine-point map re-taught, and read against the same "
+        "re-teaching with the cell's own parts ('re-taught'); see cellctl.bench.parts",
+    ]
+    say = Progress("budget", 1, enabled=progress)
+    cells: list[PartBudgetCell] = []
+    with run_workdir(None, "cellctl-bench-parts-") as tmp:
+        cache = calibration_cache if calibration_cache is not None else tmp / "calibration-cache"
+        for n, seed in enumerate(seeds, 1):
+            head = f"cell {n}/{len(seeds)} (seed {seed})"
+            config = run_config(base, workdir=tmp / f"cfg-{seed}", seed=seed, calibration="data", time_scale=time_scale, devices=devices)
+            if cell_calibration is not None:
+                own = cell_calibration(config, seed)
+            else:
+                say.message(f"{head}: commissioning from its own simulated data ...")
+                own = _commissioned_calibration(commission_cell(base, seed, cache, time_scale=time_scale, devices=devices).directory, config)
+            say.message(f"{head}: building the swapped calibrations ({', '.join(k for k in keys if k != 'as-commissioned')}) ...")
+            cals = swapped_calibrations(own, config, seed, keys)
+            rows = {}
+            for m, key in enumerate(keys, 1):
+                cal = cals[key]
+                rows[key] = run_cell(
+                    base, seed, trials, loop=loop, calibration="data", calibration_dir=None,
+                    source=lambda cal=cal, key=key: FixedCalibrationSource(cal, key), time_scale=time_scale,
+                    config_source=config_source, devices=devices, label=f"{head} [{m}/{len(keys)}] {key}",
+                    progress=progress, cycle_timeout_s=cycle_timeout_s,
+                )  # fmt: skip
+            cells.append(PartBudgetCell(seed, rows))
+    return PartBudget(trials, list(seeds), list(keys), cells, notes)
+
+
+def _commissioned_calibration(directory: Path, config: CellConfig) -> CycleCalibration:
+    from cellctl.calibration.calibration_set import CalibrationStore
+    from cellctl.calibration.source import cycle_calibration_from_set
+
+    cal = CalibrationStore(directory).current()
+    if cal is None:
+        raise BenchSettingsError(f"no calibration set in {directory}")
+    return cycle_calibration_from_set(cal, config.process.align.laser_range_mm)

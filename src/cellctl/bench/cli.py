@@ -54,6 +54,8 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
         off = tuple(sorted(parse_off(args.off)))
+        if args.budget == "parts" or _cells_mode(args):
+            return _cmd_cells(args, config, off)
         if args.plots is not None:
             check_plots_available()  # refuse before the run rather than after it
         if args.budget:
@@ -89,6 +91,59 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     if run.workdir:
         print(f"the run's store, images and calibration set are in {run.workdir}")
     return 0 if all(a.p99_met for a in run.axes) else 1
+
+
+def _cells_mode(args: argparse.Namespace) -> bool:
+    """``--cells``, ``--loop`` or a drift option: the multi-cell bench (one cell when only the others are given)."""
+    return args.cells is not None or args.loop is not None or args.drift_camera_deg is not None or args.drift_at is not None
+
+
+def _cmd_cells(args: argparse.Namespace, config: Any, off: tuple[str, ...]) -> int:
+    """``bench accuracy --cells N`` (and ``--budget parts``): many cells, each commissioned from its own data."""
+    from cellctl.bench.accuracy import BenchRunError
+    from cellctl.bench.sources import BenchSettingsError
+
+    try:
+        for opt, given in (("--plots", args.plots), ("--workdir", args.workdir)):
+            if given is not None:
+                raise BenchSettingsError(f"{opt} does not go with --cells, --loop, the drift options or --budget parts")
+        if args.budget == "parts":
+            from cellctl.bench.budget import run_part_budget
+            from cellctl.bench.report import format_part_budget
+
+            if args.calibration != "data" or off or args.loop is not None or args.drift_camera_deg is not None:
+                raise BenchSettingsError(
+                    "--budget parts compares each cell's calibration from its own data with the twin's true parts: "
+                    "it takes --calibration data, runs with every source on and the loop off, and no drift"
+                )
+            budget = run_part_budget(
+                config, seeds=range(args.seed, args.seed + (args.cells or 1)), trials=args.trials,
+                time_scale=args.time_scale, config_source=str(args.config), devices=args.devices,
+                progress=not args.quiet, calibration_cache=args.calibration_cache,
+            )  # fmt: skip
+            return _report(args, format_part_budget(budget), budget.as_dict())
+        if args.budget:
+            raise BenchSettingsError(f"--budget {args.budget} runs one cell; for many cells use --budget parts")
+        from cellctl.bench.cells import CellsSettings, run_cells
+        from cellctl.bench.drift import DriftSpec
+        from cellctl.bench.report import format_cells
+
+        drift = None
+        if args.drift_camera_deg is not None or args.drift_at is not None:
+            if args.drift_camera_deg is None or args.drift_at is None:
+                raise BenchSettingsError("a drift needs both --drift-camera-deg A and --drift-at K")
+            drift = DriftSpec(args.drift_camera_deg, args.drift_at, args.drift_over, args.drift_axis)
+        settings = CellsSettings(
+            cells=args.cells or 1, trials=args.trials, seed=args.seed, loop=args.loop or "on", settle=args.settle,
+            calibration=args.calibration, off=off, time_scale=args.time_scale, config_source=str(args.config),
+            devices=args.devices, drift=drift,
+        )  # fmt: skip
+        run = run_cells(config, settings, progress=not args.quiet, calibration_cache=args.calibration_cache)
+    except BenchSettingsError as err:
+        return _failed("bench accuracy", err, 2)
+    except BenchRunError as err:
+        return _failed("bench accuracy could not finish", err, 3)
+    return _report(args, format_cells(run), run.as_dict(), run.met())
 
 
 def _cmd_speed(args: argparse.Namespace) -> int:
@@ -211,9 +266,34 @@ def register(subparsers: Any) -> None:
         p, "data: the calibration set computed from simulated data (default); oracle: the twin's true mountings"
     )
     p.add_argument(
-        "--budget", nargs="?", const="alone-on", choices=["alone-on", "alone-off"], default=None,
+        "--budget", nargs="?", const="alone-on", choices=["alone-on", "alone-off", "parts"], default=None,
         help="error budget: run the same trials with each source alone on (default) or alone off, and show which "
-        "source dominates each axis",
+        "source dominates each axis; parts: per cell (--cells), each calibration part swapped for the twin's truth, "
+        "and the part behind each axis's bias",
+    )  # fmt: skip
+    p.add_argument(
+        "--cells", type=_positive_int, default=None,
+        help="run this many simulated cells (seeds --seed, --seed+1, ...), each commissioned from its own simulated "
+        "data, --trials cycles each; pooled and per-cell figures",
+    )  # fmt: skip
+    p.add_argument(
+        "--loop", choices=["on", "off", "both"], default=None,
+        help="with --cells: the closed loop (process.spc) on (default), off, or both side by side on the same cells",
+    )
+    p.add_argument("--settle", type=_seed, default=20, help="with --cells: cycles before a cell's settled mean (default 20)")
+    p.add_argument(
+        "--drift-camera-deg", type=float, default=None,
+        help="with --cells: turn the twin's camera mount by this angle (deg) from cycle --drift-at",
+    )  # fmt: skip
+    p.add_argument("--drift-at", type=_positive_int, default=None, help="the cycle the drift starts at (1-based)")
+    p.add_argument("--drift-over", type=_positive_int, default=1, help="spread the drift linearly over this many cycles")
+    p.add_argument(
+        "--drift-axis", choices=["x", "y", "z"], default="x",
+        help="the camera's own axis the mount turns about (default x: the optical axis tilts along the image's v)",
+    )  # fmt: skip
+    p.add_argument(
+        "--calibration-cache", type=Path, default=None,
+        help="with --cells or --budget parts: keep each cell's commissioned calibration set here and reuse it",
     )  # fmt: skip
     p.add_argument(
         "--devices", choices=["twin", "config"], default="twin",

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from cellctl.bench.accuracy import AccuracyRun
-from cellctl.bench.budget import Budget
+from cellctl.bench.budget import Budget, PartBudget
+from cellctl.bench.cells import CellsRun
 from cellctl.bench.sources import CALIBRATION_SOURCE, ERROR_SOURCES
-from cellctl.bench.stats import AXES, PAPER_TRIALS, TARGET_P99
+from cellctl.bench.stats import AXES, CELLS_TARGET_P99, MEASUREMENT_TARGET_P99, PAPER_TRIALS, SETTLED_MEAN_BAR, TARGET_P99
 
 # What reduces each source's share of the error, for the budget's closing note.
 REMEDIES: dict[str, str] = {
@@ -25,10 +26,10 @@ REMEDIES: dict[str, str] = {
 }
 
 
-def _f(v: float | None, width: int = 8, digits: int = 4) -> str:
+def _f(v: float | None, width: int = 8, digits: int = 4, sign: bool = False) -> str:
     if v is None or v != v:
         return "-".rjust(width)
-    return f"{v:{width}.{digits}f}"
+    return f"{v:{'+' if sign else ''}{width}.{digits}f}"
 
 
 def _sources_line(off: tuple[str, ...]) -> str:
@@ -126,4 +127,179 @@ def format_budget(budget: Budget) -> str:
             lines.append(f"  {src}: {REMEDIES.get(src, '-')}")
     for n in budget.notes:
         lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+# -- many cells ------------------------------------------------------------------------------------
+
+
+def _seeds(seeds: list[int]) -> str:
+    return f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]}"
+
+
+def _loop_word(loop: str) -> str:
+    return loop if loop == "as configured" else f"loop {loop}"
+
+
+def format_cells(run: CellsRun) -> str:
+    """Pooled figures (loops side by side), per-cell rows, the settled means, the inspection's error, the drift."""
+    s = run.settings
+    seeds = _seeds(list(s.seeds))
+    cal = "each cell's own calibration set, commissioned from its own simulated data" if s.calibration == "data" else "the twin's true mountings (oracle)"
+    lines = [
+        f"accuracy over {s.cells} simulated cell(s) ({seeds}) x {s.trials} install cycles each ({s.config_source}); "
+        f"{' and '.join(_loop_word(x) for x in run.loops)}",
+        f"  calibration: {cal}; error sources: {_sources_line(s.off)}; run took {run.wall_s:.0f} s",
+        f"  tolerance +-{run.tolerance_mm:g} mm, +-{run.tolerance_deg:g} deg; bars: pooled p99 <= {CELLS_TARGET_P99['mm']:g} mm "
+        f"and <= {CELLS_TARGET_P99['deg']:g} deg; each cell's mean error after its first {s.settle} cycles within "
+        f"+-{SETTLED_MEAN_BAR['mm']:g} mm (X, Y, Z); inspection p99 <= {MEASUREMENT_TARGET_P99['mm']:g} mm, "
+        f"<= {MEASUREMENT_TARGET_P99['deg']:g} deg",
+    ]
+    lines += [f"  note: {n}" for n in run.notes]
+    # Pooled, loops side by side.
+    heads = "   ".join(f"{_loop_word(x) + ': max|e|    mean     std  p99|e|':>38s}" for x in run.loops)
+    lines += ["", "pooled over the cells (every install of every cell):", f"  axis unit {heads}   bar p99"]
+    pooled = {x: run.pooled(x) for x in run.loops}
+    for j, a in enumerate(AXES):
+        cols = []
+        for x in run.loops:
+            st = pooled[x][j]
+            verdict = "" if st.n == 0 else (" ok" if st.p99_met else " NO")
+            cols.append(f"{_f(st.max_abs)}{_f(st.mean)}{_f(st.std)}{_f(st.p99_abs)}{verdict:3s}".rjust(38))
+        lines.append(f"  {a.label:4s} {a.unit:4s} {'   '.join(cols)}   <= {pooled[run.loops[0]][j].target_p99:g}")
+    counts = "; ".join(
+        f"{_loop_word(x)}: installed {sum(len(r.errors()) for r in run.runs(x))}/{s.cells * s.trials}" for x in run.loops
+    )
+    lines.append(f"  {counts}")
+    # Per cell.
+    lines += ["", "per cell: mean / std / p99 |e| per axis (mm; deg):"]
+    lines.append(f"  {'seed':>5s} {'loop':13s} {'inst.':>5s}  " + "  ".join(f"{a.label + ' mean   std   p99':>22s}" for a in AXES))
+    for c in run.cells:
+        for x, r in c.items():
+            cols = "  ".join(f"{st.mean:+8.4f}{st.std:7.4f}{st.p99_abs:7.4f}" if st.n else f"{'-':>22s}" for st in r.axes())
+            lines.append(f"  {r.seed:5d} {_loop_word(x):13s} {len(r.errors()):5d}  {cols}")
+    lines += _settled_lines(run) + _inspection_lines(run) + _loop_lines(run) + _drift_lines(run)
+    return "\n".join(lines)
+
+
+def _loop_lines(run: CellsRun) -> list[str]:
+    states = [(r, r.loop_state()) for c in run.cells for r in c.values()]
+    if not any(st for _, st in states):
+        return ["", "the closed loop: no cycle record carries result['spc'] (no loop in this build, or it never ran)"]
+    fields = [a.field for a in AXES]
+    lines = [
+        "",
+        "the closed loop after each cell's last cycle: applied offset (estimate) per axis, samples, drifting axes:",
+        f"  {'seed':>5s} {'loop':13s} " + " ".join(f"{a.label + ' ' + a.unit:>17s}" for a in AXES) + "  samples  drifting",
+    ]
+    for r, st in states:
+        if not st:
+            lines.append(f"  {r.seed:5d} {_loop_word(r.loop):13s} no loop state recorded")
+            continue
+        applied, est = st.get("applied_offset") or {}, st.get("estimate") or {}
+        cols = " ".join(f"{_f(applied.get(f), 7, sign=True)} ({_f(est.get(f), 7, sign=True)})" for f in fields)
+        drifting = ", ".join(st.get("drifting_axes") or []) or "none"
+        lines.append(f"  {r.seed:5d} {_loop_word(r.loop):13s} {cols} {st.get('samples', '-')!s:>8s}  {drifting}")
+    return lines
+
+
+def _settled_lines(run: CellsRun) -> list[str]:
+    s = run.settings
+    bar = SETTLED_MEAN_BAR["mm"]
+    lines = [
+        "",
+        f"mean error after each cell's first {s.settle} cycles (the bar: within +-{bar:g} mm on X, Y, Z):",
+        f"  {'seed':>5s} {'loop':13s} {'n':>4s} " + " ".join(f"{a.label + ' ' + a.unit:>9s}" for a in AXES) + "  bar",
+    ]
+    held = {x: 0 for x in run.loops}
+    for c in run.cells:
+        for x, r in c.items():
+            m = r.settled_mean(s.settle)
+            n = sum(1 for t in r.run.installed if t.index > s.settle)
+            miss = [a.label for a in AXES if a.unit == "mm" and not abs(m[a.label]) <= bar]
+            held[x] += n > 0 and not miss
+            verdict = "- (no cycles after the settling)" if n == 0 else ("met" if not miss else f"NOT met ({', '.join(miss)})")
+            lines.append(f"  {r.seed:5d} {_loop_word(x):13s} {n:4d} " + " ".join(_f(m[a.label], 9, sign=True) for a in AXES) + f"  {verdict}")
+    lines.append("  cells within the bar: " + "; ".join(f"{_loop_word(x)} {held[x]}/{len(run.runs(x))}" for x in run.loops))
+    return lines
+
+
+def _inspection_lines(run: CellsRun) -> list[str]:
+    lines = ["", "the cell's own inspection: measured minus true deviation, p99 |.| over every inspected install:"]
+    for x in run.loops:
+        n, p99 = run.measurement(x)
+        installed = sum(len(r.errors()) for r in run.runs(x))
+        if p99 is None:
+            lines.append(
+                f"  {_loop_word(x)}: no inspection: no cycle record carries result['measured_deviation'] "
+                "(the inspection did not run: process.inspect.enabled, or this build has none)"
+            )
+            continue
+        miss = [a.label for a in AXES if not p99[a.label] <= MEASUREMENT_TARGET_P99[a.unit]]
+        vals = "  ".join(f"{a.label} {p99[a.label]:.4f}" for a in AXES)
+        lines.append(f"  {_loop_word(x)}: inspected {n}/{installed}: {vals}  " + ("met" if not miss else f"NOT met ({', '.join(miss)})"))
+    return lines
+
+
+def _drift_lines(run: CellsRun) -> list[str]:
+    from cellctl.bench.cells import DRIFT_ALARM, drift_alarm_code
+
+    s = run.settings
+    if s.drift is None and not any(r.drift_alarm() for x in run.loops for r in run.runs(x)):
+        return []
+    lines = ["", f"drift: {s.drift.describe()}" if s.drift is not None else "drift alarms (no drift injected):"]
+    if drift_alarm_code() is None:
+        lines.append(f"  this build has no drift alarm (AlarmCode.{DRIFT_ALARM} is missing): only the tolerance is reported")
+    lines.append(f"  {'seed':>5s} {'loop':13s} {'drift alarm at cycle':>21s}  {'first true error out of tolerance':34s} alarm first?")
+    for c in run.cells:
+        for x, r in c.items():
+            alarm = r.drift_alarm()
+            out = r.first_out_of_tolerance()
+            a_txt = "none" if alarm is None else str(alarm["cycle"])
+            o_txt = "none" if out is None else f"cycle {out[0]} ({', '.join(out[1])})"
+            if out is None:
+                first = "yes (no part left it)" if alarm is not None else "no part left it"
+            else:
+                first = "yes" if alarm is not None and alarm["cycle"] < out[0] else "NO"
+            lines.append(f"  {r.seed:5d} {_loop_word(x):13s} {a_txt:>21s}  {o_txt:34s} {first}")
+            if alarm is not None:
+                lines.append(f"        alarm: {alarm['message'][:150]}")
+    return lines
+
+
+# -- the budget by calibration part ------------------------------------------------------------------
+
+
+def format_part_budget(budget: PartBudget) -> str:
+    """Per axis: the cells' bias, how much each part's swap moves the mean error (RMS over cells), the dominant part."""
+    from cellctl.bench.parts import PART_NAMES_FOR_REPORT, PART_ROWS
+
+    rows = [r for r in PART_ROWS if r.key in budget.keys]
+    axes_head = "  ".join(f"{a.label + ' ' + a.unit:>9s}" for a in AXES)
+    lines = [
+        f"budget by calibration part: {len(budget.seeds)} cell(s) ({_seeds(budget.seeds)}), "
+        f"{budget.trials} trials per row, the same trials in every row",
+        "",
+        "rows (each part swapped for the twin's true value):",
+    ]
+    for r in rows:
+        lines.append(f"  {r.key:16s} {r.label}" + (f"; {r.chain}; effect read against '{r.against}'" if r.against else ""))
+    lines += ["", "mean error per cell and row:", f"  {'seed':>5s} {'row':16s} {axes_head}"]
+    for c in budget.cells:
+        for r in rows:
+            if r.key in c.rows:
+                m = c.mean(r.key)
+                lines.append(f"  {c.seed:5d} {r.key:16s} " + "  ".join(f"{m[a.label]:+9.4f}" for a in AXES))
+    bias = budget.bias_rms()
+    lines += ["", "how much each swap moves a cell's mean error (RMS over cells):", f"  {'':38s} {axes_head}"]
+    lines.append(f"  {'the cells bias (as commissioned)':38s} " + "  ".join(_f(bias[a.label], 9) for a in AXES))
+    for key, per in budget.rms_effects().items():
+        row = next(r for r in rows if r.key == key)
+        name = PART_NAMES_FOR_REPORT.get(row.part or "", row.label)
+        lines.append(f"  {name[:38]:38s} " + "  ".join(_f(per[a.label], 9) for a in AXES))
+    dom = budget.dominant()
+    lines += ["", "dominant calibration part per axis (the largest RMS effect):"]
+    for a in AXES:
+        lines.append(f"  {a.label:3s} {PART_NAMES_FOR_REPORT.get(dom[a.label] or '', 'none')}")
+    lines += [f"note: {n}" for n in budget.notes]
     return "\n".join(lines)

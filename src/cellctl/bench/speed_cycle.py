@@ -28,7 +28,7 @@ OVERHEAD_TARGET_S = 0.150  # issue 10: the cycle's compute overhead, median
 class _DeviceTimer:
     """Wraps a device port and adds the wall time of each call a cycle makes to a shared account."""
 
-    TIMED = ("move", "read", "grab", "read_pose", "state", "stop")
+    TIMED = ("move", "read", "grab", "read_pose", "state", "stop", "set_gripper")
 
     def __init__(self, inner: Any, account: dict[str, float], frames: list[np.ndarray] | None = None) -> None:
         self._inner = inner

@@ -102,6 +102,17 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         AlarmCode.CALIBRATION_DRIFT: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION, "Calibration check: camera or laser moved beyond the limit, recalibrate", False
         ),
+        AlarmCode.INSTALL_OUT_OF_TOLERANCE: AlarmSpec(
+            FaultClass.MEASUREMENT_NOK, "Installed glass measured outside the tolerance: inspect and rework the part", False
+        ),
+        AlarmCode.INSPECTION_FAILED: AlarmSpec(
+            FaultClass.MEASUREMENT_NOK, "The installed glass could not be measured: inspect the part by hand", False
+        ),
+        AlarmCode.SPC_DRIFT: AlarmSpec(
+            FaultClass.OPERATOR_INTERVENTION,
+            "Install offset drifting beyond its limit: run `cellctl calibrate verify`, then recalibrate",
+            False,
+        ),
         AlarmCode.CYCLE_STOPPED: AlarmSpec(
             FaultClass.WARNING, "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised)", False
         ),

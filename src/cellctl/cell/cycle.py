@@ -6,7 +6,8 @@
 2. shoot: one image at the aligned pose;
 3. compensate: the corner, eq. 16, T' and T2 = T1 @ T'; then verification shots at the corrected
    shooting pose until the residual offset is under the threshold;
-4. install: approach, then the install pose ``T2 @ inv(T0) @ g_Pos_0``.
+4. install: approach, then the install pose ``T2 @ inv(T0) @ g_Pos_0``;
+5. inspect: release, back off, measure the installed glass's gaps and flush (:mod:`cellctl.cell.inspect_step`).
 
 Every figure goes to the :class:`CycleRecorder`; the install is announced to it (and must be
 persisted) before the robot is commanded there, so a restart never repeats it. A failure raises
@@ -21,9 +22,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from cellctl.align import AlignmentError, AlignmentResult, compute_alignment, plan_spot_poses
-from cellctl.cell.alarms import AlarmCode
-from cellctl.cell.tags import CycleStep
+from cellctl.align import (
+    AlignmentError,
+    AlignmentResult,
+    compute_alignment,
+    plan_spot_poses,
+)
+from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.inspect_step import inspect_install
 from cellctl.compensate import (
     CorrectionLimitError,
     TaughtPoses,
@@ -36,8 +42,10 @@ from cellctl.compensate import (
 )
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.vision import VisionConfig
+from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.planar import PlanarOffset
 from cellctl.geometry.pose import Pose, invert_pose, make_pose, mean_pose
+from cellctl.inspection import MeasuredDeviation
 from cellctl.ports import (
     Camera,
     CartesianPose,
@@ -49,7 +57,15 @@ from cellctl.ports import (
     Robot,
     UnreachableTarget,
 )
-from cellctl.vision import AffineMap, CornerFeatures, CornerMeasurement, Lens, annotate, detect_corner, offset_from_map
+from cellctl.vision import (
+    AffineMap,
+    CornerFeatures,
+    CornerMeasurement,
+    Lens,
+    annotate,
+    detect_corner,
+    offset_from_map,
+)
 
 
 @dataclass(frozen=True)
@@ -73,16 +89,6 @@ class CycleCalibration:
     nine_point: AffineMap
     taught: TaughtPoses
     template: CornerFeatures
-
-
-class CycleFailed(Exception):
-    """A cycle stopped in ``step`` for ``reason``; ``code`` is the alarm to raise."""
-
-    def __init__(self, step: CycleStep, code: AlarmCode, reason: str) -> None:
-        super().__init__(f"{step.name.lower()}: {reason}")
-        self.step = step
-        self.code = code
-        self.reason = reason
 
 
 class CycleRecorder(Protocol):
@@ -129,6 +135,8 @@ class CycleResult:
         install_reached: the flange pose read back after the move.
         alignment: the laser alignment's result.
         shots: the compensate loop's shots, first to last.
+        measured: the inspection's six figures of the installed glass (None: inspection off).
+        install_offset: the closed loop's offset the install target took out (None: none applied).
     """
 
     workpiece_correction_mm: np.ndarray
@@ -137,13 +145,15 @@ class CycleResult:
     install_reached: Pose
     alignment: AlignmentResult
     shots: tuple[ShotRecord, ...] = field(default=())
+    measured: MeasuredDeviation | None = None
+    install_offset: Pose | None = None
 
 
 def _offset_size(offset: PlanarOffset) -> tuple[float, float]:
     return float(np.hypot(offset.dx_mm, offset.dy_mm)), abs(offset.dtheta_rad)
 
 
-class _CycleRun:
+class CycleRun:
     """The state of one cycle while it runs (kept off the module level: no globals)."""
 
     def __init__(
@@ -162,6 +172,7 @@ class _CycleRun:
         self.motion = process.motion
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
         self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
+        self.inspection_image: tuple[np.ndarray, Any] | None = None
 
     async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
         speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s
@@ -351,12 +362,14 @@ class _CycleRun:
         except DeviceError as err:
             raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"cannot read the robot pose: {err}") from err
 
-    async def install(self, T2: Pose) -> tuple[Pose, Pose]:
+    async def install(self, T2: Pose, offset: Pose | None = None) -> tuple[Pose, Pose]:
+        """Approach, then the install pose; ``offset`` (the glass's systematic deviation in T) is taken out."""
         step = CycleStep.INSTALL
         taught = self.cal.taught
-        target = install_pose(taught, T2)
+        T_target = T2 if offset is None else T2 @ invert_pose(offset)
+        target = install_pose(taught, T_target)
         self.limit(step, taught.g_Pos_0, target, "install pose")
-        approach = T2 @ make_pose(np.eye(3), [0.0, 0.0, -self.motion.approach_mm]) @ taught.T_T0_gpos0
+        approach = T_target @ make_pose(np.eye(3), [0.0, 0.0, -self.motion.approach_mm]) @ taught.T_T0_gpos0
         await self.rec.install_started(CartesianPose.from_matrix(target))
         await self.move(step, approach, kind="joint")
         reached = await self.move(step, target, fine=True)
@@ -369,12 +382,18 @@ async def run_cycle(
     process: ProcessConfig,
     vision: VisionConfig,
     recorder: CycleRecorder,
+    *,
+    install_offset: Pose | None = None,
 ) -> CycleResult:
-    """Run one cycle through align, shoot, compensate (with verification) and install."""
-    run = _CycleRun(devices, cal, process, vision, recorder)
+    """Run one cycle through align, shoot, compensate (with verification), install and inspect.
+
+    ``install_offset`` is the closed loop's estimate of the glass's systematic deviation in T
+    (a small pose); the install target takes it out.
+    """
+    run = CycleRun(devices, cal, process, vision, recorder)
     alignment, C_Pos_1 = await run.align()
     T2, shots = await run.shoot_and_compensate(C_Pos_1)
-    target, reached = await run.install(T2)
+    target, reached = await run.install(T2, install_offset)
     dt, dr = deviation_in_frame(cal.taught.T0, T2)
     await recorder.step_figures(
         CycleStep.INSTALL,
@@ -386,7 +405,8 @@ async def run_cycle(
             "target_vs_reached_mm": float(np.linalg.norm((invert_pose(target) @ reached)[:3, 3])),
         },
     )
-    return CycleResult(dt, dr, target, reached, alignment, shots)
+    measured = await inspect_install(run, T2, reached) if process.inspect.enabled else None
+    return CycleResult(dt, dr, target, reached, alignment, shots, measured, install_offset)
 
 
 def _pose_fields(T: Pose) -> dict[str, list[float]]:

@@ -12,7 +12,6 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Protocol
@@ -21,9 +20,17 @@ import numpy as np
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmCode, AlarmManager
-from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleFailed, CycleResult, run_cycle
+from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleResult, run_cycle
+from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import CycleStepNotAllowed, EventKind, MachineEvent, PackMLMachine
+from cellctl.cell.outcome import part_verdict, result_fields
+from cellctl.cell.packml import (
+    CycleStepNotAllowed,
+    EventKind,
+    MachineEvent,
+    PackMLMachine,
+)
+from cellctl.cell.quality_loop import InstallQualityLoop
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.tags import TO_EXECUTE, CycleStep, PackMLCommand, PackMLState
@@ -33,7 +40,13 @@ from cellctl.memory import release_free_memory
 from cellctl.ports import (
     DeviceError,
 )
-from cellctl.store import AsyncCellStore, CycleRecord, CycleRequest, CycleState, SubmitResult
+from cellctl.store import (
+    AsyncCellStore,
+    CycleRecord,
+    CycleRequest,
+    CycleState,
+    SubmitResult,
+)
 
 log = logging.getLogger(__name__)
 
@@ -99,19 +112,6 @@ class SimTruth(Protocol):
         ...
 
 
-@dataclass(frozen=True)
-class CycleSummary:
-    """The outcome of a finished cycle in the units the PLC and the API publish."""
-
-    cycle_id: int
-    ok: bool
-    error_code: int
-    error: str | None
-    correction_mm: tuple[float, float, float]
-    correction_rad: tuple[float, float, float]
-    cycle_time_s: float
-
-
 class CellOrchestrator:
     """Runs the cell: PackML state actions, one cycle at a time in Execute, all of it recorded."""
 
@@ -149,6 +149,9 @@ class CellOrchestrator:
         self._finishing = False
         self._links: dict[str, dict[str, Any]] = {}
         self._status_parts: dict[str, Callable[[], Any]] = {}
+        self.quality = InstallQualityLoop(config, store, alarms, events)
+        self._calibration_version: Any = None
+        self._applied_offset: dict[str, float] = {}
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
@@ -170,6 +173,7 @@ class CellOrchestrator:
     async def start(self) -> None:
         """Recover from the last run, then start the state actor, persistence and the cycle worker."""
         report = await self.store.recover()
+        await self.quality.load()
         for ic in report.interrupted:
             detail = f"cycle {ic.cycle_id} was interrupted in {ic.step.name.lower()}"
             if ic.install_started:
@@ -307,6 +311,8 @@ class CellOrchestrator:
                     task = asyncio.current_task()
                     if task is not None and task.cancelling():  # the worker itself is being stopped
                         raise
+                except Exception:  # noqa: BLE001 - a bug around one cycle must not stop the cell taking the next
+                    log.exception("cycle %d: the worker caught a fault outside the cycle's own handling", nxt)
                 finally:
                     self._cycle_task = None
 
@@ -317,6 +323,7 @@ class CellOrchestrator:
         started = time.monotonic()
         await self.store.start_cycle(cycle_id)
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
+        self._calibration_version, self._applied_offset = None, self.quality.no_offset()
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
@@ -353,14 +360,32 @@ class CellOrchestrator:
         problems = self.calibration.problems()
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
-        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": self.calibration.reference()})
+        reference = self.calibration.reference()
+        self._calibration_version = reference.get("version")
+        self._applied_offset = self.quality.offset_for_next(self._calibration_version)
+        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
         if self.truth is not None:
             self.truth.new_car_body()
         try:
             cal = await asyncio.to_thread(self.calibration.cycle_calibration)  # file reads (and the oracle's teaching) off the loop
         except CalibrationRefused as err:  # the set changed (or was damaged) since problems() was asked
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, str(err)) from err
-        return await run_cycle(self.devices, cal, self.config.process, self.config.vision, rec)
+        offset = self.quality.offset_as_pose(self._applied_offset)
+        return await run_cycle(self.devices, cal, self.config.process, self.config.vision, rec, install_offset=offset)
+
+    async def _feed_quality_loop(self, cycle_id: int, result: CycleResult | None) -> tuple[dict[str, Any], Any]:
+        """The cycle's measured result into the closed loop (a failed cycle counts as not installed).
+
+        A fault of the loop must not cost the cycle its record: it is logged and the record says so.
+        """
+        measured = None if result is None or result.measured is None else result.measured.deviation
+        try:
+            return await self.quality.after_cycle(
+                cycle_id, measured, calibration_version=self._calibration_version, applied=self._applied_offset
+            )
+        except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
+            log.exception("cycle %d: the closed loop could not take its result", cycle_id)
+            return {"error": f"{type(err).__name__}: {err}"}, None
 
     async def _record(
         self,
@@ -373,9 +398,18 @@ class CellOrchestrator:
         try:
             elapsed = time.monotonic() - started
             if failure is None and result is not None:
+                not_ok = part_verdict(result, self.config.process.tolerance)
+                if not_ok is not None:  # first, so the part's alarm is the first-out cause the PLC reads
+                    await self.alarms.raise_alarm(
+                        AlarmCode.INSTALL_OUT_OF_TOLERANCE, source="inspection", detail=not_ok, cycle_id=cycle_id
+                    )
                 await rec.close_step(ok=True)
-                await self.store.complete_cycle(cycle_id, result=_result_fields(result, elapsed), true_error=self._true_error())
-                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done"})
+                fields = result_fields(result, elapsed, not_ok=not_ok)
+                fields["spc"], update = await self._feed_quality_loop(cycle_id, result)
+                await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
+                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
+                if update is not None:
+                    await self.quality.raise_drift(cycle_id, update)
             elif failure is not None:
                 reason, code, alarm = failure
                 if alarm is not None:
@@ -385,8 +419,10 @@ class CellOrchestrator:
                     stop = self.alarms.stop_reason
                     code = int(stop.code) if stop is not None else code
                 await rec.close_step(ok=False, error=reason)
+                spc, _ = await self._feed_quality_loop(cycle_id, None)
                 await self.store.fail_cycle(
-                    cycle_id, error=reason, result={"error_code": code, "cycle_time_s": elapsed}, true_error=self._true_error()
+                    cycle_id, error=reason, result={"error_code": code, "cycle_time_s": elapsed, "spc": spc},
+                    true_error=self._true_error(),
                 )
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
         finally:
@@ -435,36 +471,6 @@ class CellOrchestrator:
             },
             "links": {name: dict(report) for name, report in self._links.items()},
             "calibration": {"problems": self.calibration.problems()},
+            "spc": self.quality.snapshot(),
             **{name: part() for name, part in self._status_parts.items()},
         }
-
-
-def _result_fields(result: CycleResult, cycle_time_s: float) -> dict[str, Any]:
-    return {
-        "ok": True,
-        "error_code": 0,
-        "correction_mm": [float(v) for v in result.workpiece_correction_mm],
-        "correction_deg": [float(np.degrees(v)) for v in result.workpiece_correction_rad],
-        "shots": len(result.shots),
-        "cycle_time_s": cycle_time_s,
-    }
-
-
-def summarize(record: CycleRecord) -> CycleSummary | None:
-    """The PLC/API outcome of a finished cycle record (None while it has not finished)."""
-    if record.state not in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
-        return None
-    res = dict(record.result or {})
-    ok = record.state is CycleState.DONE
-    code = 0 if ok else int(res.get("error_code") or AlarmCode.CYCLE_INTERRUPTED)
-    mm = res.get("correction_mm") or [0.0, 0.0, 0.0]
-    deg = res.get("correction_deg") or [0.0, 0.0, 0.0]
-    return CycleSummary(
-        record.id,
-        ok,
-        code,
-        record.error,
-        (float(mm[0]), float(mm[1]), float(mm[2])),
-        tuple(float(np.radians(d)) for d in deg),  # type: ignore[arg-type]
-        float(res.get("cycle_time_s") or 0.0),
-    )

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from cellctl.ports import CartesianPose, Identified, MotionRequest, Robot, RobotState
+from cellctl.ports import (
+    CartesianPose,
+    DeviceRejected,
+    Identified,
+    MotionRequest,
+    Robot,
+    RobotState,
+)
 
 
 class RobotProxy:
@@ -22,6 +29,9 @@ class RobotProxy:
 
     async def stop(self, *, timeout_s: float) -> None:
         await self._robot.stop(timeout_s=timeout_s)
+
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        await self._robot.set_gripper(hold, timeout_s=timeout_s)
 
     async def ping(self, *, timeout_s: float) -> float:
         return await self._robot.ping(timeout_s=timeout_s)
@@ -65,6 +75,10 @@ class ReducedSpeedRobot(RobotProxy):
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
         capped = MotionRequest(request.target, request.kind, min(request.speed_mm_s, self.max_mm_s), min(request.speed_deg_s, self.max_deg_s))
         return await self._robot.move(capped, timeout_s=timeout_s)
+
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        """Refused: commissioning (calibration, teaching) keeps the glass on the gripper throughout."""
+        raise DeviceRejected("robot", "the gripper is not switched during commissioning: the glass stays on the gripper")
 
     async def close(self) -> None:
         return None  # the service owns the robot

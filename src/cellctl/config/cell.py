@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field, model_validator
 
+from cellctl.config.inspection import InspectionConfig
+from cellctl.config.spc import SpcConfig
 from cellctl.config.types import Finite, StrictModel, Vec2
 
 
@@ -119,6 +121,8 @@ class ProcessConfig(StrictModel):
     motion: MotionConfig = MotionConfig()
     verify: VerifyConfig = VerifyConfig()
     limits: LimitsConfig = LimitsConfig()
+    inspect: InspectionConfig = InspectionConfig()
+    spc: SpcConfig = SpcConfig()
     recipes: tuple[Recipe, ...] = (Recipe(id=1, name="side-window", description="2000 x 1500 mm side-window glass"),)
 
     @model_validator(mode="after")

@@ -11,7 +11,6 @@ from pydantic import ValidationError
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.schema import CellConfig
 
-
 MAX_CONFIG_BYTES = 4 * 1024**2  # a cell's configuration is a few kB
 
 

@@ -7,7 +7,14 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from cellctl.config.types import Finite, Matrix3Rows, StrictModel, UnitVec3, Vec3, as_array
+from cellctl.config.types import (
+    Finite,
+    Matrix3Rows,
+    StrictModel,
+    UnitVec3,
+    Vec3,
+    as_array,
+)
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.geometry.rotation import nearest_rotation, rot_x, rot_y
 

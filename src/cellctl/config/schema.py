@@ -13,10 +13,10 @@ from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
 from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig
 from cellctl.config.plc import PlcConfig
-from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
-from cellctl.config.vision import VisionConfig
 from cellctl.config.sim import SimConfig
+from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
 from cellctl.config.types import StrictModel
+from cellctl.config.vision import VisionConfig
 
 # The corner detector needs this much straight edge on each side of the rounded corner (mm).
 MIN_STRAIGHT_EDGE_MM = 20.0

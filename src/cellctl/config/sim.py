@@ -5,11 +5,17 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from cellctl.config.layout import check_reach_order, opening_problem, workpiece_frame, wrist_reach_mm
+from cellctl.config.layout import (
+    check_reach_order,
+    opening_problem,
+    workpiece_frame,
+    wrist_reach_mm,
+)
 from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
 from cellctl.config.render import RenderConfig
+from cellctl.config.surface import Range
 from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.geometry.rotation import xyz_fixed_to_matrix
@@ -126,19 +132,65 @@ class CameraSimConfig(StrictModel):
 
 
 class GlassConfig(StrictModel):
-    """The glass on the gripper: its upper-right corner frame G in the flange frame H.
+    """The glass on the gripper: its upper-right corner frame G in the flange frame H, and how it looks.
 
     G is defined like T (x right, y down, z into the wall when installed); a correct install puts
-    G onto T. The default holds the glass with its plane parallel to the flange plane (paper 2.1:
-    the fixture plane is parallel to the flange plane) and its centre on the flange axis;
-    ``rotation_xyz_fixed_deg`` (rx, ry, rz, eq. 13 order) tilts it, as a gripper that holds it
-    slightly askew would.
+    G onto T, G's x-y plane being the glass's outer surface. The default holds the glass with its
+    plane parallel to the flange plane (paper 2.1: the fixture plane is parallel to the flange
+    plane) and its centre on the flange axis; ``rotation_xyz_fixed_deg`` (rx, ry, rz, eq. 13
+    order) tilts it, as a gripper that holds it slightly askew would.
+
+    Outline: the opening's rounded rectangle (``width_mm`` x ``height_mm`` at G, as the opening's
+    at T) inset by ``edge_gap_mm``, concentric, its corner radius the opening's minus the gap: the
+    glass's right edge lies at x_G = -gap, its top edge at y_G = +gap. Along its edge runs the dark
+    ceramic frit band, ``frit_width_mm`` wide; beyond it the clear glass shows the car interior.
+    Greys (DN like ``wall_dn``) are drawn per car body within their ranges. ``gap_dn`` is the grey
+    of what the camera sees between the glass's and the opening's edges; unset, the flange the
+    glass is bonded to (the first band inside the opening's edge of the drawn surface) runs on
+    under the glass. The laser reads the outer surface's front reflection: a weaker signal than the
+    painted wall's, so ``laser_noise_mm`` (one sigma) replaces the wall's noise there, and a reading
+    comes back without a value with ``laser_dropout_probability``.
     """
 
     width_mm: Finite = Field(2000.0, gt=0)
     height_mm: Finite = Field(1500.0, gt=0)
     corner_in_flange_mm: Vec3 = (1000.0, -750.0, 120.0)
     rotation_xyz_fixed_deg: Vec3 = (0.0, 0.0, 0.0)
+    edge_gap_mm: Finite = Field(5.0, gt=0, le=50)
+    thickness_mm: Finite = Field(6.0, gt=0, le=40)
+    frit_width_mm: Finite = Field(25.0, gt=0, le=300)
+    frit_dn: Range = (9.0, 14.0)
+    clear_dn: Range = (24.0, 32.0)
+    gap_dn: Range | None = None
+    laser_noise_mm: Finite = Field(0.004, ge=0, le=10.0)
+    laser_dropout_probability: Finite = Field(0.02, ge=0, lt=1)
+
+    @field_validator("frit_dn", "clear_dn", "gap_dn")
+    @classmethod
+    def _grey(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        if v is not None and v[1] > 255:
+            raise ValueError(f"must lie in [0, 255] DN, got [{v[0]:g}, {v[1]:g}]")
+        return v
+
+    @field_validator("gap_dn", mode="before")
+    @classmethod
+    def _gap_off(cls, v: object) -> object:
+        return None if v is False else v
+
+    @model_validator(mode="after")
+    def _outline(self) -> "GlassConfig":
+        inner = min(self.width_mm, self.height_mm) / 2.0 - self.edge_gap_mm
+        if inner <= 0:
+            raise ValueError(
+                f"edge_gap_mm ({self.edge_gap_mm:g}) leaves no glass in the {self.width_mm:g} x {self.height_mm:g} mm "
+                "outline; it is the gap between the glass's and the opening's edges, a few mm"
+            )
+        if self.frit_width_mm >= inner:
+            raise ValueError(
+                f"frit_width_mm ({self.frit_width_mm:g}) must stay within the glass: the frit bands of opposite edges "
+                f"would meet ({inner:g} mm from the edge to the centre); narrow it"
+            )
+        return self
 
     def T_H_G(self) -> Pose:
         """The glass corner frame in the flange frame."""
@@ -180,3 +232,13 @@ class SimConfig(StrictModel):
     camera: CameraSimConfig = CameraSimConfig()
     glass: GlassConfig = GlassConfig()
     operator: SimOperatorConfig = SimOperatorConfig()
+
+    @model_validator(mode="after")
+    def _glass_fits_the_opening(self) -> "SimConfig":
+        radius = self.world.corner_radius_mm
+        if self.glass.edge_gap_mm >= radius:
+            raise ValueError(
+                f"sim.glass.edge_gap_mm ({self.glass.edge_gap_mm:g}) must be smaller than the opening's corner radius "
+                f"({radius:g} mm): the glass's corners are the opening's, inset by the gap (radius {radius:g} - gap)"
+            )
+        return self

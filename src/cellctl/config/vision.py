@@ -133,6 +133,39 @@ class FeatureConfig(StrictModel):
     cross_sections: int = Field(24, ge=8, le=400)
 
 
+class GapVisionConfig(StrictModel):
+    """The post-install inspection image: the opening's and the glass's edges at the corner (cellctl.vision.gap).
+
+    At the shooting pose the opening's corner lies within a few pixels of the template. Along the
+    straight part of the top and the right edge (from ``start_px`` beyond the corner, leaving the
+    arc out, for ``length_px``), the median profile across each edge gives the opening's edge (the
+    recipe's feature, ``[vision.feature]``, within ``opening_search_px`` of the template's line)
+    and the glass's edge (the strongest step within ``glass_search_px`` of where the nominal gap
+    puts it); with ``frit_edge`` the glass must show its frit's inner border beyond it (a step back
+    towards the clear glass: an empty opening has none). Each edge is then measured to sub-pixel
+    on every pixel column or row and fitted with a robust line; a fit is refused below
+    ``min_points`` inliers, above ``max_rms_px`` or ``max_bow_px``, or under ``min_contrast_dn``.
+    """
+
+    start_px: Finite = Field(440.0, ge=0)  # from the virtual corner along each edge: past the arc
+    length_px: Finite = Field(560.0, ge=50)  # the window measured along each edge (cut at the image border)
+    border_margin_px: int = Field(12, ge=4, le=200)
+    opening_search_px: Finite = Field(25.0, gt=0, le=300)  # opening's edge from the template's line
+    glass_search_px: Finite = Field(20.0, gt=0, le=300)  # glass's edge from the nominal gap
+    min_step_fraction: Finite = Field(0.06, gt=0, lt=1)  # the glass's and the frit's steps, of the profile's range
+    frit_edge: bool = True  # require the frit's inner border beyond the glass's edge (no glass: refused)
+    frit_search_px: Finite = Field(700.0, gt=0, le=2000)  # how far beyond the glass's edge it may lie
+    cross_sections: int = Field(24, ge=8, le=400)  # cross-sections whose median is each edge's profile
+    max_blur_sigma_px: Finite = Field(2.5, gt=0, le=10)  # sizes the sub-pixel windows (they must not reach the other edge)
+    min_points: int = Field(150, ge=10)  # sub-pixel inliers per edge
+    max_rms_px: Finite = Field(0.6, gt=0)  # scatter about the line (noise: 0.35 px on a 30 DN glass edge)
+    max_bow_px: Finite = Field(0.25, gt=0)
+    min_contrast_dn: Finite = Field(10.0, gt=0)  # across each edge, median over its profiles
+    ransac_band_px: Finite = Field(0.5, gt=0, le=10)
+    robust_k: Finite = Field(3.5, gt=1, le=10)
+    seed: int = Field(0, ge=0)  # RANSAC's random stream: the measurement is deterministic
+
+
 class VisionConfig(StrictModel):
     """Corner detection of paper section 4.2: ROI, coarse search, fits and refusal limits.
 
@@ -146,3 +179,4 @@ class VisionConfig(StrictModel):
     limits: LimitsConfig = LimitsConfig()
     opening_polarity: Literal["darker", "brighter", "auto"] = "darker"
     feature: FeatureConfig = FeatureConfig()
+    gap: GapVisionConfig = GapVisionConfig()  # the post-install inspection image (issue 16)

@@ -92,6 +92,8 @@ class CycleOutcome:
     dry_rad: float
     drz_rad: float
     cycle_time_s: float
+    measured: tuple[float, float, float, float, float, float] | None = None
+    measured_ok: bool | None = None
 
     def __post_init__(self) -> None:
         _check_uint("req_id", self.req_id, UINT32_MAX, nonzero=True)
@@ -107,6 +109,15 @@ class CycleOutcome:
                 raise ValueError(f"cycle {self.req_id}: {name} must be a finite number, got {v!r}")
         if self.cycle_time_s < 0:
             raise ValueError(f"cycle {self.req_id}: cycle_time_s must be >= 0, got {self.cycle_time_s}")
+        if (self.measured is None) != (self.measured_ok is None):
+            raise ValueError(f"cycle {self.req_id}: give measured and measured_ok together (or neither)")
+        if self.measured is not None and (len(self.measured) != 6 or not all(math.isfinite(v) for v in self.measured)):
+            raise ValueError(f"cycle {self.req_id}: measured must be six finite numbers (dx, dy, dz mm; drx, dry, drz deg)")
+
+    @property
+    def inspection_status(self) -> int:
+        """The ``inspection_status`` register: 0 not measured, 1 within the tolerance, 2 outside it."""
+        return 0 if self.measured_ok is None else (1 if self.measured_ok else 2)
 
 
 @runtime_checkable

@@ -220,6 +220,8 @@ class CycleHandshake:
             cycle_time_ms=min(round(o.cycle_time_s * 1000.0), UINT32_MAX),
             cycle_flags={"ready": False, "busy": False, "done": True, "ok": o.ok, "nok": not o.ok,
                          "replayed": replayed, "request_mismatch": mismatch},
+            inspection_status=o.inspection_status,
+            **dict(zip(MEASURED_REGISTERS, o.measured or (0.0,) * 6)),
         )
 
     async def _publish_error(self, request: PlcInputs, error_code: int) -> None:
@@ -233,7 +235,12 @@ class CycleHandshake:
             error_code=int(error_code), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0,
             drx_deg=0.0, dry_deg=0.0, drz_deg=0.0, cycle_time_ms=0,
             cycle_flags={**_CLEARED, "ready": False, "done": True, "nok": True},
+            inspection_status=0, **dict.fromkeys(MEASURED_REGISTERS, 0.0),
         )
+
+
+MEASURED_REGISTERS = ("meas_dx_mm", "meas_dy_mm", "meas_dz_mm", "meas_drx_deg", "meas_dry_deg", "meas_drz_deg")
+"""The registers of :attr:`CycleOutcome.measured`, in its order."""
 
 
 def _refusal(request: PlcInputs, error_code: int) -> CycleOutcome:

@@ -19,10 +19,11 @@ from dataclasses import dataclass
 
 from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
 
-MAP_VERSION: tuple[int, int] = (1, 1)
+MAP_VERSION: tuple[int, int] = (1, 2)
 """(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
 1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
-stored under their cycle_req_id, exception 11 for another unit id; no register moved."""
+stored under their cycle_req_id, exception 11 for another unit id; no register moved.
+1.2: the inspection's measured result (inspection_status, meas_* at 137-149); no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -280,6 +281,20 @@ CELL_BLOCK = Block(
         Register("unit_mode_result", 135, _U16, _C, "code", "Same codes as cmd_result."),
         Register("refused_write_count", 136, _U16, _C, "count",
                  "PLC writes into the cell block that were refused (exception 2), wrapping at 65535."),
+        Register("inspection_status", 137, _U16, _C, "code",
+                 "The installed glass as the cell measured it: 0 not measured (inspection off, or the "
+                 "cycle failed before it), 1 within the tolerance, 2 outside it (the part is nok, "
+                 "error_code 1311)."),
+        Register("meas_dx_mm", 138, _F32, _C, "mm",
+                 "Measured install deviation along X of the opening's frame (the glass's corner "
+                 "against the opening's, from the gaps in the image); 0 when not measured."),
+        Register("meas_dy_mm", 140, _F32, _C, "mm", "Measured install deviation along Y (from the gaps)."),
+        Register("meas_dz_mm", 142, _F32, _C, "mm",
+                 "Measured install deviation along Z: the glass's surface against the wall at the "
+                 "corner (+ = recessed), from the laser's flush readings."),
+        Register("meas_drx_deg", 144, _F32, _C, "deg", "Measured rotation about X (flush; XYZ fixed angles, eq. 13)."),
+        Register("meas_dry_deg", 146, _F32, _C, "deg", "Measured rotation about Y (flush)."),
+        Register("meas_drz_deg", 148, _F32, _C, "deg", "Measured rotation about Z (the gaps' angle)."),
     ),
 )
 

@@ -39,7 +39,7 @@ async def run_demo(service: Service, cycles: int, out: TextIO) -> int:
     recipe = service.config.process.recipes[0].name
     tol = service.config.process.tolerance
     print(f"demo: {cycles} cycles of recipe '{recipe}', tolerance +-{tol.position_mm} mm / +-{tol.orientation_deg} deg", file=out)
-    print(f"{'cycle':>5} {'state':8} {'time s':>6}  {'true install error: dX dY dZ mm':33}  dRx dRy dRz deg", file=out)
+    print(f"{'cycle':>5} {'state':8} {'time s':>6}  {'':9}{'dX dY dZ mm':33}  dRx dRy dRz deg", file=out)
     failed = 0
     for k in range(cycles):
         try:
@@ -54,9 +54,16 @@ async def run_demo(service: Service, cycles: int, out: TextIO) -> int:
         e = rec.true_error or {}
         ok = rec.state.value == "done"
         failed += not ok
-        if ok and e:
-            err = f"{e['dx_mm']:+.3f} {e['dy_mm']:+.3f} {e['dz_mm']:+.3f}".ljust(33)
-            err += f"  {e['drx_deg']:+.4f} {e['dry_deg']:+.4f} {e['drz_deg']:+.4f}"
+        m = res.get("measured_deviation") or {}
+        if ok and (e or m):
+            rows = [("measured", m), ("true", e)]
+            err = "\n".join(
+                f"{'' if i == 0 else ' ' * 23}{name:9}" + f"{d['dx_mm']:+.3f} {d['dy_mm']:+.3f} {d['dz_mm']:+.3f}".ljust(33)
+                + f"  {d['drx_deg']:+.4f} {d['dry_deg']:+.4f} {d['drz_deg']:+.4f}"
+                for i, (name, d) in enumerate(r for r in rows if r[1])
+            )
+            if res.get("part_ok") is False:
+                err += f"\n{' ' * 23}part NOT OK: {res.get('not_ok_reason')}"
         else:
             err = rec.error or "-"
         print(f"{rec.id:>5} {rec.state.value:8} {res.get('cycle_time_s', 0.0):6.2f}  {err}", file=out)

@@ -11,12 +11,20 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from dataclasses import astuple
 
 from cellctl.cell.alarms import AlarmCode
-from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused, summarize
+from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
+from cellctl.cell.outcome import summarize
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
 from cellctl.cell.tags import PackMLCommand, UnitMode
-from cellctl.plc.facade import CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
+from cellctl.plc.facade import (
+    CellStatus,
+    CommandReply,
+    CycleAcceptance,
+    CycleOutcome,
+    PlcErrorCode,
+)
 from cellctl.store import CycleRequest, IdempotencyConflict, IdempotencyInFlight
 
 log = logging.getLogger(__name__)
@@ -124,6 +132,8 @@ class PlcCellLink:
             dry_rad=s.correction_rad[1],
             drz_rad=s.correction_rad[2],
             cycle_time_s=s.cycle_time_s,
+            measured=None if s.measured is None else tuple(astuple(s.measured)),  # type: ignore[arg-type]
+            measured_ok=None if s.measured is None else s.ok,
         )
 
     async def command(self, command: PackMLCommand) -> CommandReply:

@@ -3,7 +3,8 @@
 Part of the simulated cell's composition root (it imports drivers and the twin). The fakes keep their own wire format and time;
 the twin (:class:`cellctl.sim.cell.SimCell`) supplies what a real sensor and arm would do:
 the laser's status and distance where the flange truly stands, and the true pose an arm reaches
-for a commanded (belief) target. The controller reports the belief back, as a real one does.
+for a commanded (belief) target, and the glass let go where it truly stands when the gripper
+releases it. The controller reports the belief back, as a real one does.
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice, fakes: dict[str, object
 def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeController:
     """The ABB fake controller (RAPID line server on a free loopback port, no EGM) moving the twin's arm.
 
-    Not started: :meth:`FakeController.start` (in a loop) or :meth:`FakeController.start_in_thread`.
+    Its GRIP switches the twin's gripper (``SimCell.set_gripper``), called from the fake's thread
+    under its robot's lock as the model's ``execute`` is. Not started: :meth:`FakeController.start` (in a loop) or :meth:`FakeController.start_in_thread`.
     ``time_scale`` overrides the twin's (real seconds per simulated second).
     """
     scale = cell.time_scale if time_scale is None else time_scale
@@ -118,6 +120,8 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeControlle
             time_scale=max(scale, 1e-6),
             home=CartesianPose.from_matrix(cell.belief_flange_pose()),
             seed=cell.seed,
+            gripper_hold=cell.glass_on_gripper,
+            on_gripper=cell.set_gripper,
         ),
         TwinArmModel(cell),
     )

@@ -17,6 +17,10 @@ through the opening (``opening_dn``), the drawn surface of a real opening around
 
 Disturbances are drawn from the frame's rng (camera_disturbances) and reported in
 :class:`AppliedDisturbances` with the drawn surface.
+
+An installed glass (cellctl.sim.glass) lies over the wall: its plane is met by every ray on its
+own, its edge and the frit's inner border are shaded like the wall's edges, and inside the
+opening's edge only the gap's bottom shows. Frames without a glass take none of these steps.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from cellctl.sim.camera_blocks import BLOCK_PX, WALL_BLOCK_PX, Blocks, PlaneView
 from cellctl.sim.camera_disturbances import Occluder, add_glare, plan_occlusion
 from cellctl.sim.camera_model import CameraModel, ray_map
 from cellctl.sim.edge_coverage import coverage_from_sdf, kernel_reach_px, rounded_rect_sdf
+from cellctl.sim.glass import InstalledGlass
 from cellctl.sim.image_truth import EdgeName
 from cellctl.sim.surface import DrawnSurface, draw_surface
 from cellctl.sim.targets import PlacedTarget
@@ -63,6 +68,7 @@ class AppliedDisturbances:
         occluder_dn: the occluder's level.
         surface: the car body's surface as drawn in the frame (levels after the contrast factor);
             None when no car body is rendered.
+        glass: the installed glass as drawn (levels after the contrast factor), if any.
     """
 
     blur_sigma_px: float
@@ -76,6 +82,7 @@ class AppliedDisturbances:
     occluded_span_mm: tuple[float, float] | None = None
     occluder_dn: float | None = None
     surface: DrawnSurface | None = None
+    glass: InstalledGlass | None = None
 
 
 @dataclass(frozen=True)
@@ -124,14 +131,16 @@ class CameraRenderer:
         targets: Sequence[PlacedTarget] = (),
         rng: np.random.Generator | None = None,
         noise: bool = True,
+        glass: InstalledGlass | None = None,
     ) -> RenderedFrame:
         """One 8-bit frame seen from camera pose ``T_B_C``.
 
         ``world`` None renders no car body (a dark background), e.g. for calibration targets.
         ``rng`` drives the sensor noise and the placement of disturbances; it is required when
         either is in play. ``noise=False`` leaves out shot and read noise (rounding stays).
+        ``glass`` is a glass installed in the car body's opening (it needs ``world``).
         """
-        signal, applied = self._signal(T_B_C, world, targets, rng, noise)
+        signal, applied = self._signal(T_B_C, world, targets, rng, noise, glass)
         image = self.expose(signal, rng, noise=noise)
         return RenderedFrame(self._sensor_crop(image), applied)
 
@@ -142,9 +151,10 @@ class CameraRenderer:
         *,
         targets: Sequence[PlacedTarget] = (),
         rng: np.random.Generator | None = None,
+        glass: InstalledGlass | None = None,
     ) -> tuple[F32, AppliedDisturbances]:
         """The noise-free, unquantised image (DN above the black level, float32) and the disturbances."""
-        signal, applied = self._signal(T_B_C, world, targets, rng, False)
+        signal, applied = self._signal(T_B_C, world, targets, rng, False, glass)
         return self._sensor_crop(signal), applied
 
     def _sensor_crop(self, image: NDArray[_G]) -> NDArray[_G]:
@@ -164,10 +174,13 @@ class CameraRenderer:
         targets: Sequence[PlacedTarget],
         rng: np.random.Generator | None,
         noise: bool,
+        glass: InstalledGlass | None = None,
     ) -> tuple[F32, AppliedDisturbances]:
         T = check_pose(T_B_C, "T_B_C")
         if world is not None and not isinstance(world, World):
             raise TypeError(f"world must be a cellctl.sim.world.World or None, got {type(world).__name__}")
+        if glass is not None and (world is None or not isinstance(glass, InstalledGlass)):
+            raise ValueError("a glass is drawn in its car body's opening: pass the world with an InstalledGlass")
         cfg = self.config
         dist = cfg.disturbances
         needs_rng = noise and (cfg.read_noise_dn > 0 or cfg.shot_noise)
@@ -196,7 +209,10 @@ class CameraRenderer:
                 occluder = plan_occlusion(dist.occlusion, self.camera, T, world, rng, wall, opening, applied)
             surface = self.surface_of(world)
             applied["surface"] = surface
-            self._shade_wall(albedo, T, surface, world, sigma, occluder)
+            if glass is not None:
+                glass = glass.with_contrast(dist.contrast_factor, mean)
+                applied["glass"] = glass
+            self._shade_wall(albedo, T, surface, world, sigma, occluder, glass)
         for placed in targets:
             self._shade_target(albedo, T, placed, sigma)
 
@@ -229,18 +245,28 @@ class CameraRenderer:
         world: World,
         sigma: float,
         occluder: Occluder | None,
+        glass: InstalledGlass | None = None,
     ) -> None:
         blocks = self._wall_blocks
         plane = PlaneView.of(world.T_B_T, T_B_C)
         bx, by, radius, scale, valid = blocks.footprint(plane, spectral=True)
         reach_px = kernel_reach_px(sigma)
         margin = radius + reach_px * scale
+        if glass is not None:
+            surface = glass.glaze(surface)
         plan = surface.plan_blocks(bx, by, margin)
         level, edgy, near = plan.level, plan.edgy, list(plan.near)
         # Without band rendering, and in blocks whose footprint is unknown, every edge is shaded in
         # every pixel.
         everywhere = ~valid if self.band_rendering else np.ones_like(valid)
         edgy = edgy | everywhere
+        if glass is not None:
+            gplane = PlaneView.of(glass.T_B_G, T_B_C)
+            gx, gy, g_radius, g_scale, g_valid = blocks.footprint(gplane, spectral=True)
+            gplan = glass.plan_blocks(gx, gy, g_radius + reach_px * g_scale, g_valid)
+            level = np.where(gplan.covered, gplan.level, level)
+            # A block wholly on the glass needs per-pixel shading only where the frit's border crosses it.
+            edgy = np.where(gplan.covered & ~everywhere, gplan.frit_edge, edgy | gplan.touch)
         if occluder is not None:
             sd_occ, _, _ = rounded_rect_sdf(bx, by, occluder[0], occluder[1], 0.0)
             level = np.where(sd_occ < 0.0, occluder[2], level)
@@ -257,6 +283,14 @@ class CameraRenderer:
         # Per pixel, a step's coverage is 0 or 1 beyond the kernel's reach; scale bounds mm per px.
         reach_mm = np.where(everywhere[bi, bj], np.inf, reach_px * scale[bi, bj])[:, None]
         shade = surface.shade(X, Y, jac_at, sigma, reach_mm=reach_mm, near=rows[: len(surface.overlays)])
+        if glass is not None:
+            g_rows = np.flatnonzero(gplan.touch[bi, bj] | gplan.covered[bi, bj] | everywhere[bi, bj])
+            if g_rows.size:
+                Xg, Yg, g_jac_at, g_ok = blocks.block_hits(gplane, bi[g_rows], bj[g_rows])
+                g_reach = np.where(everywhere[bi, bj], np.inf, reach_px * g_scale[bi, bj])[g_rows, None]
+                part = np.ascontiguousarray(shade[g_rows])
+                glass.composite(part, Xg, Yg, g_jac_at, g_ok, sigma, g_reach)
+                shade[g_rows] = part
         if occluder is not None:
             idx = (np.flatnonzero(rows[-1])[:, None] * (B * B) + np.arange(B * B)[None, :]).ravel()
             sd, gx, gy = rounded_rect_sdf(X.reshape(-1)[idx], Y.reshape(-1)[idx], occluder[0], occluder[1], 0.0)

@@ -1,7 +1,8 @@
 """The twin's camera behind the Camera port: renders a frame of the simulated cell on each grab.
 
 The scene comes from callbacks (the simulated cell supplies them): the camera's true pose and the
-car body's placement at the moment of the trigger, and optionally the calibration targets in view.
+car body's placement at the moment of the trigger, and optionally the calibration targets in view
+and the glass installed in the opening.
 Rendering is CPU-bound (about 0.1 s for 2048 x 2048), so it runs in a worker thread; ``timeout_s``
 bounds the whole grab. A grab that times out raises DeviceTimeout; its render finishes in the
 background and is discarded (a thread cannot be interrupted), and the next grab starts afresh.
@@ -23,6 +24,7 @@ from cellctl.geometry.pose import Pose
 from cellctl.ports import DeviceDisconnected, DeviceTimeout, Frame
 from cellctl.sim.camera import AppliedDisturbances, CameraRenderer
 from cellctl.sim.devices import check_timeout
+from cellctl.sim.glass import InstalledGlass
 from cellctl.sim.targets import PlacedTarget
 from cellctl.sim.world import World
 
@@ -36,6 +38,7 @@ class SimCamera:
         world: the car body's true placement now (None: no car body in view).
         rng: seeded generator; each frame spawns its own child from it.
         targets: the calibration targets in view now (default: none).
+        glass: the glass installed in the car body's opening now, or None (default: never one).
         name: the device's name in messages.
     """
 
@@ -47,6 +50,7 @@ class SimCamera:
         rng: np.random.Generator,
         *,
         targets: Callable[[], Sequence[PlacedTarget]] | None = None,
+        glass: Callable[[], InstalledGlass | None] | None = None,
         name: str = "camera",
     ) -> None:
         if not isinstance(rng, np.random.Generator):
@@ -55,6 +59,7 @@ class SimCamera:
         self._pose = true_camera_pose
         self._world = world
         self._targets = targets
+        self._glass = glass
         self._rng = rng
         self.name = name
         self._frame_id = 0
@@ -83,10 +88,11 @@ class SimCamera:
         pose = np.array(self._pose(), dtype=float)
         world = self._world()
         targets = tuple(self._targets()) if self._targets is not None else ()
+        glass = self._glass() if self._glass is not None and world is not None else None
         frame_rng = self._rng.spawn(1)[0]
         self._frame_id += 1
         frame_id = self._frame_id
-        work = asyncio.to_thread(self._renderer.render, pose, world, targets=targets, rng=frame_rng)
+        work = asyncio.to_thread(self._renderer.render, pose, world, targets=targets, rng=frame_rng, glass=glass)
         try:
             rendered = await asyncio.wait_for(work, timeout_s)
         except asyncio.TimeoutError:

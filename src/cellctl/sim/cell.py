@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 from cellctl.config.sim import SimConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import LaserStatus
+from cellctl.sim.glass import InstalledGlass, glass_scene
 from cellctl.sim.laser import LaserModel
 from cellctl.sim.robot import RobotArm, RobotModel
 from cellctl.sim.streams import WORLD_POSTURE, rng_stream
@@ -50,6 +51,9 @@ class SimCell:
         self.T_H_G: Pose = config.glass.T_H_G()
         self._posture_rng = rng_stream(self.seed, WORLD_POSTURE)
         self._world = sample_world(config.world, self._posture_rng)
+        self._glass_on_gripper = True
+        self._installed_T_B_G: Pose | None = None
+        self._installed_scene: InstalledGlass | None = None
 
     # -- the car body ---------------------------------------------------------------------------
 
@@ -60,6 +64,7 @@ class SimCell:
     def new_car_body(self) -> World:
         """The next car body arrives at a new random posture (the next cycle)."""
         self._world = sample_world(self.config.world, self._posture_rng)
+        self._next_glass()
         return self._world
 
     def place_car_body(self, world: World) -> None:
@@ -67,6 +72,40 @@ class SimCell:
         if not isinstance(world, World):
             raise TypeError(f"place_car_body needs a World, got {type(world).__name__}")
         self._world = world
+        self._next_glass()
+
+    # -- the glass ------------------------------------------------------------------------------
+
+    def _next_glass(self) -> None:
+        """With a new car body comes a new glass on the gripper; nothing is installed in it yet."""
+        self._glass_on_gripper = True
+        self._installed_T_B_G = None
+        self._installed_scene = None
+
+    @property
+    def glass_on_gripper(self) -> bool:
+        """Whether the gripper holds a glass (from a new car body until it releases it)."""
+        return self._glass_on_gripper
+
+    def set_gripper(self, hold: bool) -> None:
+        """The gripper's vacuum on (``hold``) or off.
+
+        Off while it holds a glass: the glass stays where it truly stands (it is now installed, its
+        pose T_B_G fixed in the car body) and the robot can back off. On picks nothing up: the next
+        glass comes with the next car body.
+        """
+        if not hold and self._glass_on_gripper:
+            self._installed_T_B_G = self.arm.true_pose() @ self.T_H_G
+            self._installed_scene = glass_scene(self.config.glass, self._world, self._installed_T_B_G)
+            self._glass_on_gripper = False
+
+    def installed_glass(self) -> Pose | None:
+        """The true pose T_B_G of the glass released in the opening, or None (not released yet)."""
+        return None if self._installed_T_B_G is None else self._installed_T_B_G.copy()
+
+    def installed_glass_scene(self) -> InstalledGlass | None:
+        """The released glass as the camera and the laser see it (cellctl.sim.glass), or None."""
+        return self._installed_scene
 
     # -- truth ----------------------------------------------------------------------------------
 
@@ -89,7 +128,9 @@ class SimCell:
         return self.arm.true_pose() @ self.T_H_C
 
     def install_error(self) -> InstallError:
-        """The paper's six figures for the flange where it really stands now."""
+        """The paper's six figures of the glass: where it was released, else as the flange holds it now."""
+        if self._installed_T_B_G is not None:
+            return self.truth().score_glass(self._installed_T_B_G)
         return self.truth().score(self.arm.true_pose())
 
     def install_command(self) -> Pose:
@@ -105,7 +146,7 @@ class SimCell:
     def laser_reading(self, T_B_H_true: ArrayLike | None = None) -> tuple[LaserStatus, float | None]:
         """One laser reading: at ``T_B_H_true`` if given, else where the flange really is now."""
         T = self.arm.true_pose() if T_B_H_true is None else np.asarray(T_B_H_true, dtype=float)
-        return self.laser_model.reading(T, self._world)
+        return self.laser_model.reading(T, self._world, self.installed_glass_scene())
 
     def execute(self, X: ArrayLike) -> Pose:
         """Move to belief target X at once; returns the true flange pose (raises ReachError if unreachable)."""

@@ -3,8 +3,8 @@
 They behave as the real devices do at the port: every call takes ``timeout_s`` and raises
 DeviceTimeout when the (scaled) simulated time does not fit in it; a move the robot cannot reach
 is refused with UnreachableTarget before anything moves; a stop ends a move early with
-MotionInterrupted; the robot reports its belief, never the truth; a laser reading without a valid
-distance comes back as a status. Simulated durations are multiplied by the cell's ``time_scale``.
+MotionInterrupted; the gripper is not switched while the robot moves (DeviceRejected); the robot
+reports its belief, never the truth; a laser reading without a valid distance comes back as a status. Simulated durations are multiplied by the cell's ``time_scale``.
 """
 
 from __future__ import annotations
@@ -149,6 +149,21 @@ class SimRobot(_TwinDevice):
             self._outcome.set_result("stopped")
         if self._waiter is not None:
             self._waiter.cancel()
+
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        """Vacuum on (``hold``) or off: off lets the cell's glass go where it truly stands (installed).
+
+        Refused while the arm moves, as the controller refuses it (DeviceRejected).
+        """
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        if not isinstance(hold, bool):
+            raise TypeError(f"{self.name}: set_gripper needs hold True or False, got {hold!r}")
+        await self._round_trip(timeout_s)
+        if self._arm.moving():
+            what = "hold" if hold else "release"
+            raise DeviceRejected(self.name, f"gripper {what} refused: the robot is moving; the gripper keeps its state")
+        self._cell.set_gripper(hold)
 
     async def close(self) -> None:
         """Close the connection (the arm finishes any motion on its own). Safe to call twice."""

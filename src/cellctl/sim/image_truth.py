@@ -9,6 +9,9 @@ the edges are straight; ``*_tangent_px`` are the raw edges' tangents at the corn
 Edges are parametrised by the distance ``a`` (mm) from the virtual corner: the top edge is
 (x, y) = (-a, 0) in T, the right edge (0, a). A feature edge ``inset_mm`` into the opening
 (negative: onto the wall) has lines y = inset and x = -inset and its corner at (-inset, inset, 0).
+
+An installed glass (cellctl.sim.glass) has its truth in :func:`glass_truth`: the gaps, the
+in-plane deviation and its corner in the image.
 """
 
 from __future__ import annotations
@@ -20,7 +23,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry.pose import apply_pose, check_pose, invert_pose
+from cellctl.geometry.rotation import matrix_to_xyz_fixed
 from cellctl.sim.camera_model import CameraModel
+from cellctl.sim.glass import InstalledGlass
 from cellctl.sim.world import World
 
 EdgeName = Literal["top", "right"]
@@ -215,4 +220,81 @@ def corner_truth(camera: CameraModel, T_B_C: ArrayLike, world: World, inset_mm: 
         corner_angle_rad=float(np.arccos(np.clip(top_dir @ right_dir, -1.0, 1.0))),
         corner_in_image=inside,
         depth_mm=float(P_C[0, 2]),
+    )
+
+
+@dataclass(frozen=True)
+class GlassTruth:
+    """What an installed glass truly is against the opening, and where it appears in one image.
+
+    In-plane figures are in T's x-y plane with the glass's edges projected onto it along T's z (as
+    a camera square to the wall, its parallax corrected, measures them).
+
+    Attributes:
+        E: the glass corner frame G in T (inv(T_B_T) @ T_B_G), as the twin scores the install.
+        dx_mm, dy_mm, dz_mm: E's translation; drz_rad: its rotation about z (eq. 13's alpha).
+        top_gap_mm, right_gap_mm: from the point ``reference_along_mm`` along the opening's top
+            (right) edge from its virtual corner, the perpendicular distance to the glass's top
+            (right) edge line, positive into the opening.
+        top_angle_rad, right_angle_rad: the glass's edge against the opening's, positive turning
+            from T's x towards y.
+        glass_corner_T: the glass's tangent corner (where its edges' lines meet; (-gap, gap, 0)
+            in G) in T, its z the glass's depth there (+ into the wall).
+        glass_corner_px, glass_corner_undistorted_px: that corner in the raw and the ideal image.
+    """
+
+    E: NDArray[np.float64]
+    dx_mm: float
+    dy_mm: float
+    dz_mm: float
+    drz_rad: float
+    top_gap_mm: float
+    right_gap_mm: float
+    reference_along_mm: float
+    top_angle_rad: float
+    right_angle_rad: float
+    glass_corner_T: F64
+    glass_corner_px: F64
+    glass_corner_undistorted_px: F64
+
+
+def _gap_to(E: NDArray[np.float64], a: F64, b: F64, point: F64, inward: F64) -> float:
+    """Perpendicular distance (T's plane) from ``point`` to the line through G points a, b projected, along ``inward``."""
+    qa, qb = apply_pose(E, np.vstack([a, b]))[:, :2]
+    d = _unit(qb - qa)
+    n = np.array([-d[1], d[0]])
+    if float(n @ inward) < 0.0:
+        n = -n
+    return float((qa - point) @ n)
+
+
+def glass_truth(
+    camera: CameraModel, T_B_C: ArrayLike, world: World, glass: InstalledGlass, *, reference_along_mm: float
+) -> GlassTruth:
+    """The true figures of an installed glass against the opening, and its corner in the image at ``T_B_C``."""
+    T = check_pose(T_B_C, "T_B_C")
+    E = invert_pose(world.T_B_T) @ glass.T_B_G
+    g = glass.edge_gap_mm
+    a = float(reference_along_mm)
+    top_gap = _gap_to(E, np.array([-a, g, 0.0]), np.array([-a - 100.0, g, 0.0]), np.array([-a, 0.0]), np.array([0.0, 1.0]))
+    right_gap = _gap_to(E, np.array([-g, a, 0.0]), np.array([-g, a + 100.0, 0.0]), np.array([0.0, a]), np.array([-1.0, 0.0]))
+    corner_T = apply_pose(E, np.array([-g, g, 0.0]))
+    P_C = apply_pose(invert_pose(T) @ world.T_B_T, corner_T[None, :])
+    if P_C[0, 2] <= 0.0:
+        raise ValueError("the glass's corner lies behind the camera at this pose")
+    ideal = np.array([camera.fx * P_C[0, 0] / P_C[0, 2] + camera.cx, camera.fy * P_C[0, 1] / P_C[0, 2] + camera.cy])
+    return GlassTruth(
+        E=E,
+        dx_mm=float(E[0, 3]),
+        dy_mm=float(E[1, 3]),
+        dz_mm=float(E[2, 3]),
+        drz_rad=float(matrix_to_xyz_fixed(E[:3, :3])[0]),
+        top_gap_mm=top_gap,
+        right_gap_mm=right_gap,
+        reference_along_mm=a,
+        top_angle_rad=float(np.arctan2(E[1, 0], E[0, 0])),
+        right_angle_rad=float(np.arctan2(-E[0, 1], E[1, 1])),
+        glass_corner_T=corner_T,
+        glass_corner_px=camera.project_camera(P_C)[0],
+        glass_corner_undistorted_px=ideal,
     )

@@ -12,27 +12,34 @@ belief that truly seats the glass); T0 the true workpiece frame.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from cellctl.align import compute_alignment, plan_spot_poses
+from cellctl.align import AlignmentResult, compute_alignment, plan_spot_poses
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.compensate import TaughtPoses
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose, make_pose, mean_pose
 from cellctl.sim.rig import SimRig
-from cellctl.sim.world import nominal_world
+from cellctl.sim.world import World, nominal_world
 from cellctl.vision import CornerFeatures, Lens, detect_corner, fit_affine_map
 
 # The nine-point target's dots, in the workpiece plane around the corner (mm).
 NINE_POINTS_MM = np.array([(x, y) for y in (-50.0, 0.0, 50.0) for x in (-50.0, 0.0, 50.0)])
 
 
-def _aligned_shooting_pose(rig: SimRig, config: CellConfig, T0: Pose, C_guess: Pose) -> Pose:
-    """One laser alignment (paper section 3) around the guessed shooting pose, as the cycle does it."""
-    cell, laser, align = rig.cell, config.sim.laser, config.process.align
-    planned = plan_spot_poses(T0, align.spots_mm, C_guess[:3, :3], laser.r, laser.l, align.laser_standoff_mm)
+def teaching_alignment(
+    rig: SimRig, config: CellConfig, T0: Pose, C_guess: Pose, *, laser_r: NDArray[np.float64],
+    laser_l: NDArray[np.float64], T_H_C: Pose, range_mm: tuple[float, float],
+) -> AlignmentResult:
+    """One laser alignment (paper section 3) around the guessed shooting pose, as the cycle does it,
+    through the given laser ray and hand-eye (the truth for the oracle, a calibration's for the budget):
+    its aligned shooting pose and wall plane."""
+    cell, align = rig.cell, config.process.align
+    planned = plan_spot_poses(T0, align.spots_mm, C_guess[:3, :3], laser_r, laser_l, align.laser_standoff_mm)
     distances = []
     for k, X in enumerate(planned):
         cell.execute(X)
@@ -41,11 +48,24 @@ def _aligned_shooting_pose(rig: SimRig, config: CellConfig, T0: Pose, C_guess: P
             raise RuntimeError(f"teaching: laser spot {k} gave no distance ({status.value})")
         distances.append(d)
     result = compute_alignment(
-        planned, np.array(distances), laser.r, laser.l, config.sim.camera.hand_eye.T_H_C(),
-        config.process.working_distance_mm, T_B_H_current=C_guess,
-        range_mm=(laser.range_min_mm, laser.range_max_mm),
+        planned, np.array(distances), laser_r, laser_l, T_H_C, config.process.working_distance_mm,
+        T_B_H_current=C_guess, range_mm=range_mm,
     )  # fmt: skip
-    return result.T_B_H_aligned
+    return result
+
+
+def template_at(rig: SimRig, config: CellConfig, C_Pos_0: Pose, world: World, lens: Lens, repeats: int) -> CornerFeatures:
+    """The mean corner of ``repeats`` shots, each after a fresh move to C_Pos_0, through ``lens``."""
+    features = []
+    for _ in range(repeats):
+        T_true = rig.cell.execute(C_Pos_0)
+        frame = rig.renderer.render(T_true @ rig.cell.T_H_C, world, rng=rig.teach_rng)
+        measured = detect_corner(frame.image, lens, config.vision)
+        if not measured.ok:
+            raise RuntimeError(f"teaching: the template shot was refused: {measured.message}")
+        features.append(measured.features)
+    a = np.array([[f.u_px, f.v_px, f.theta_rad, f.top_angle_rad, f.right_angle_rad] for f in features]).mean(axis=0)
+    return CornerFeatures(*(float(v) for v in a))
 
 
 def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> CycleCalibration:
@@ -60,17 +80,12 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
     # The guess: the camera's axes on T's, its optical centre 400 mm in front of the corner.
     T_B_C0 = T0 @ make_pose(np.eye(3), [0.0, 0.0, -config.process.working_distance_mm])
     C_guess = cell.robot_model.command_for(T_B_C0 @ invert_pose(T_H_C))
-    features = []
+    laser = sim.laser
+    ray = {"laser_r": laser.r, "laser_l": laser.l, "T_H_C": T_H_C, "range_mm": (laser.range_min_mm, laser.range_max_mm)}
     try:
         cell.place_car_body(world)
-        C_Pos_0 = mean_pose(np.stack([_aligned_shooting_pose(rig, config, T0, C_guess) for _ in range(repeats)]))
-        for _ in range(repeats):
-            T_true = cell.execute(C_Pos_0)
-            frame = rig.renderer.render(T_true @ T_H_C, world, rng=rig.teach_rng)
-            measured = detect_corner(frame.image, lens, config.vision)
-            if not measured.ok:
-                raise RuntimeError(f"teaching: the template shot was refused: {measured.message}")
-            features.append(measured.features)
+        C_Pos_0 = mean_pose(np.stack([teaching_alignment(rig, config, T0, C_guess, **ray).T_B_H_aligned for _ in range(repeats)]))
+        template = template_at(rig, config, C_Pos_0, world, lens, repeats)
         g_Pos_0 = cell.install_command()
         # The nine-point map: the camera model maps the wall plane at the taught pose.
         T_B_C = cell.robot_model.deform(C_Pos_0) @ T_H_C
@@ -80,7 +95,6 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
     wall_B = apply_pose(T0, np.column_stack([NINE_POINTS_MM, np.zeros(len(NINE_POINTS_MM))]))
     in_C = apply_pose(invert_pose(T_B_C), wall_B)
     ideal_px = (in_C[:, :2] / in_C[:, 2:3]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
-    laser = sim.laser
     return CycleCalibration(
         lens=lens,
         T_H_C=T_H_C,
@@ -89,13 +103,8 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
         laser_range_mm=config.process.align.laser_range_mm,
         nine_point=fit_affine_map(ideal_px, NINE_POINTS_MM),
         taught=TaughtPoses(T0, C_Pos_0, g_Pos_0),
-        template=_mean_features(features),
+        template=template,
     )
-
-
-def _mean_features(features: list[CornerFeatures]) -> CornerFeatures:
-    a = np.array([[f.u_px, f.v_px, f.theta_rad, f.top_angle_rad, f.right_angle_rad] for f in features]).mean(axis=0)
-    return CornerFeatures(*(float(v) for v in a))
 
 
 class OracleCalibrationSource:
@@ -105,14 +114,20 @@ class OracleCalibrationSource:
         self._rig = rig
         self._config = config
         self._cal: CycleCalibration | None = None
+        self._lock = threading.Lock()
 
     def problems(self) -> list[str]:
         return []
 
     def cycle_calibration(self) -> CycleCalibration:
-        if self._cal is None:
-            self._cal = oracle_calibration(self._rig, self._config)
-        return self._cal
+        """Taught once, on a twin of its own with the cell's seed (the same robot, mountings and car
+        body): teaching never moves the cell's arm under a running cycle or a stop, nor draws from
+        the cell's noise streams."""
+        with self._lock:
+            if self._cal is None:
+                cell = self._rig.cell
+                self._cal = oracle_calibration(SimRig(cell.config, seed=cell.seed), self._config)
+            return self._cal
 
     def summary(self) -> dict[str, Any]:
         return {"source": "twin truth (oracle)", "template_px": None if self._cal is None else [self._cal.template.u_px, self._cal.template.v_px]}

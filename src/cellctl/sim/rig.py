@@ -44,7 +44,7 @@ class SimRig:
         self.robot = SimRobot(self.cell)
         self.camera = SimCamera(
             self.renderer, self.cell.true_camera_pose, self.cell.world, rng_stream(self.cell.seed, CAMERA_NOISE),
-            targets=lambda: tuple(self.targets),
+            targets=lambda: tuple(self.targets), glass=self.cell.installed_glass_scene,
         )
         self.teach_rng = rng_stream(self.cell.seed, TEACH_CAMERA_NOISE)
         self.operator: SimulatedOperator | None = None

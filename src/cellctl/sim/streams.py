@@ -18,6 +18,7 @@ ROBOT_ACCURACY = "robot.accuracy"
 ROBOT_REPEATABILITY = "robot.repeatability"
 LASER_LINEARITY = "laser.linearity"
 LASER_NOISE = "laser.noise"
+LASER_GLASS = "laser.glass"  # noise and dropout of readings on an installed glass
 
 
 def rng_stream(seed: int, source: str) -> np.random.Generator:

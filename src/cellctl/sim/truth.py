@@ -49,18 +49,11 @@ class InstallError(InstallDeviation):
         return asdict(self)
 
 
-def score_install(T_B_H_true: ArrayLike, T_B_T_true: ArrayLike, T_H_G: ArrayLike) -> InstallError:
-    """The six figures of an install whose flange really stands at ``T_B_H_true``.
-
-    Args:
-        T_B_H_true: the true flange pose the robot reached (not what the controller reports).
-        T_B_T_true: the true workpiece frame at the opening's upper-right corner.
-        T_H_G: the glass corner frame in the flange frame.
-    """
-    H = check_pose(T_B_H_true, "true flange pose")
+def score_glass(T_B_G_true: ArrayLike, T_B_T_true: ArrayLike) -> InstallError:
+    """The six figures of a glass whose corner frame truly stands at ``T_B_G_true`` (E = inv(T_B_T) @ T_B_G)."""
+    G = check_pose(T_B_G_true, "true glass pose T_B_G")
     T = check_pose(T_B_T_true, "true workpiece frame T_B_T")
-    G = check_pose(T_H_G, "glass frame T_H_G")
-    E = invert_pose(T) @ H @ G
+    E = invert_pose(T) @ G
     alpha, beta, gamma = matrix_to_xyz_fixed(E[:3, :3])
     return InstallError(
         dx_mm=float(E[0, 3]),
@@ -70,6 +63,19 @@ def score_install(T_B_H_true: ArrayLike, T_B_T_true: ArrayLike, T_H_G: ArrayLike
         dry_deg=float(np.degrees(beta)),
         drz_deg=float(np.degrees(alpha)),
     )
+
+
+def score_install(T_B_H_true: ArrayLike, T_B_T_true: ArrayLike, T_H_G: ArrayLike) -> InstallError:
+    """The six figures of an install whose flange really stands at ``T_B_H_true``.
+
+    Args:
+        T_B_H_true: the true flange pose the robot reached (not what the controller reports).
+        T_B_T_true: the true workpiece frame at the opening's upper-right corner.
+        T_H_G: the glass corner frame in the flange frame.
+    """
+    H = check_pose(T_B_H_true, "true flange pose")
+    G = check_pose(T_H_G, "glass frame T_H_G")
+    return score_glass(H @ G, T_B_T_true)
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,10 @@ class CellTruth:
     def camera_pose(self, T_B_H_true: ArrayLike) -> Pose:
         """The true camera pose T_B_C for a true flange pose."""
         return check_pose(T_B_H_true, "true flange pose") @ self.T_H_C
+
+    def score_glass(self, T_B_G_true: ArrayLike) -> InstallError:
+        """The six figures of a released glass truly standing at ``T_B_G_true``."""
+        return score_glass(T_B_G_true, self.world.T_B_T)
 
     def score(self, T_B_H_true: ArrayLike) -> InstallError:
         """The six figures of an install with the flange truly at ``T_B_H_true``."""

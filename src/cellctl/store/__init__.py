@@ -1,4 +1,5 @@
-"""SQLite persistence of the cell: cycles, alarms, audit log, idempotency keys, commissioning jobs.
+"""SQLite persistence of the cell: cycles, alarms, audit log, idempotency keys, commissioning jobs,
+the closed-loop offset's state and history.
 
 Open :class:`CellStore` (synchronous, one thread) or, from asyncio, :class:`AsyncCellStore` (every
 call on the store's own thread). The store keeps the values of :mod:`cellctl.domain` and never
@@ -11,6 +12,7 @@ from cellctl.store.jobs import JobRecord, UnknownJob
 from cellctl.store import records
 from cellctl.store.records import *  # noqa: F403 - the records are the package's vocabulary
 from cellctl.store.retention import DatabaseSize, KeptImage
+from cellctl.store.spc import SpcDuplicateCycle, SpcHistoryRow
 
 __all__ = [
     "AsyncCellStore",
@@ -18,6 +20,8 @@ __all__ = [
     "DatabaseSize",
     "JobRecord",
     "KeptImage",
+    "SpcDuplicateCycle",
+    "SpcHistoryRow",
     "StoreInfo",
     "UnknownJob",
     *records.__all__,

@@ -137,6 +137,12 @@ class AsyncCellStore:
     jobs = _on_store_thread(CellStore.jobs)
     recover_jobs = _on_store_thread(CellStore.recover_jobs)
 
+    # the closed-loop offset (SpcRows)
+    save_spc = _on_store_thread(CellStore.save_spc)
+    spc_state = _on_store_thread(CellStore.spc_state)
+    spc_history = _on_store_thread(CellStore.spc_history)
+    prune_spc_history = _on_store_thread(CellStore.prune_spc_history)
+
     # retention (RetentionRows)
     kept_images = _on_store_thread(CellStore.kept_images)
     mark_images_pruned = _on_store_thread(CellStore.mark_images_pruned)

@@ -1,4 +1,5 @@
-"""The cell's SQLite store (WAL mode): cycles, alarms, audit log, idempotency keys, commissioning jobs.
+"""The cell's SQLite store (WAL mode): cycles, alarms, audit log, idempotency keys, commissioning jobs,
+the closed-loop offset.
 
 :class:`CellStore` is the one object the rest of the code opens. It is made of one repository per
 aggregate, each in its own module, all sharing one connection
@@ -9,6 +10,7 @@ aggregate, each in its own module, all sharing one connection
 :class:`~cellctl.store.alarms.AlarmRows`        alarm records
 :class:`~cellctl.store.audit.AuditRows`         the hash-chained audit log
 :class:`~cellctl.store.jobs.JobRows`            commissioning jobs
+:class:`~cellctl.store.spc.SpcRows`             the closed-loop offset: its state and history
 :class:`~cellctl.store.retention.RetentionRows` pruning and the database's size
 ==============================================  ===========================================================
 
@@ -34,9 +36,10 @@ from cellctl.store.cycles import CycleRows
 from cellctl.store.jobs import JobRows
 from cellctl.store.records import CycleState, InterruptedCycle, RecoveryReport
 from cellctl.store.retention import RetentionRows
+from cellctl.store.spc import SpcRows
 
 
-class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, RetentionRows):
+class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
 
     def recover(self) -> RecoveryReport:

@@ -7,8 +7,9 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
 - images: the references still kept (with whether their cycle is still queued or running, whose
   images are never pruned), marking references pruned, and which files belong only to pruned
   references (left on disk by a crash between the mark and the unlink);
-- cycle records older than a cutoff, deleted with their steps, image references and
-  idempotency keys, in batches so no single transaction holds the write lock for long;
+- cycle records older than a cutoff, deleted with their steps, image references, idempotency
+  keys and closed-loop history rows, in batches so no single transaction holds the write lock for long
+  (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`);
 - alarm records older than a cutoff (inactive ones only);
 - the database's size (pages used, free pages, per-table bytes where SQLite has ``dbstat``).
 
@@ -110,7 +111,7 @@ class RetentionRows(Database):
 
     def prune_cycles(self, *, created_before: datetime, batch: int = 500) -> tuple[list[int], list[str]]:
         """Delete up to ``batch`` finished cycles created before the cutoff, oldest first, with their
-        steps, image references and idempotency keys. Returns (the ids deleted, the image files
+        steps, image references, idempotency keys and closed-loop history rows. Returns (the ids deleted, the image files
         they still referenced: delete those too). Call again until it returns no ids."""
         cutoff = ts(created_before)
         with self._tx() as c:
@@ -130,7 +131,7 @@ class RetentionRows(Database):
                     f"SELECT DISTINCT uri FROM cycle_images WHERE pruned_at IS NULL AND cycle_id IN ({marks})", ids
                 )
             ]
-            for table in ("idempotency_keys", "cycle_images", "cycle_steps"):
+            for table in ("idempotency_keys", "cycle_images", "cycle_steps", "spc_history"):
                 c.execute(f"DELETE FROM {table} WHERE cycle_id IN ({marks})", ids)
             c.execute(f"DELETE FROM cycles WHERE id IN ({marks})", ids)
             # A file that a kept reference of another cycle still names stays.

@@ -167,7 +167,34 @@ CREATE INDEX cycles_by_created ON cycles (created_at);
 """
 """An image reference says when and why its file was pruned (:mod:`cellctl.store.retention`)."""
 
-MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION)
+V4_SPC = """
+CREATE TABLE spc_state (
+    id          INTEGER PRIMARY KEY CHECK (id = 1),
+    state_json  TEXT NOT NULL,
+    updated_at  TEXT NOT NULL,
+    history_id  INTEGER
+);
+
+CREATE TABLE spc_history (
+    id                   INTEGER PRIMARY KEY AUTOINCREMENT,
+    recorded_at          TEXT NOT NULL,
+    cycle_id             INTEGER,
+    calibration_version  TEXT,
+    events_json          TEXT NOT NULL DEFAULT '[]',
+    excluded             TEXT,
+    u_json               TEXT,
+    estimate_json        TEXT NOT NULL,
+    offset_json          TEXT NOT NULL,
+    drifting_json        TEXT NOT NULL DEFAULT '[]'
+);
+CREATE UNIQUE INDEX spc_history_one_per_cycle ON spc_history (cycle_id) WHERE cycle_id IS NOT NULL;
+CREATE INDEX spc_history_by_time ON spc_history (recorded_at);
+"""
+"""The closed-loop offset (:mod:`cellctl.store.spc`): its latest state (one row) and a history row
+per update. A cycle feeds the loop once (the unique index); ``cycle_id`` has no foreign key, the
+history's rows go with their cycles in :meth:`cellctl.store.retention.RetentionRows.prune_cycles`."""
+
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 

@@ -38,7 +38,7 @@ def _cross(img: NDArray[np.uint8], p: NDArray[np.float64], k: float, colour: tup
     cv2.line(img, (c[0], c[1] - size), (c[0], c[1] + size), colour, 2, cv2.LINE_AA)
 
 
-def _draw_edge(img: NDArray[np.uint8], edge: EdgeMeasurement, lens: Lens, k: float, corner: NDArray[np.float64] | None) -> None:
+def draw_edge(img: NDArray[np.uint8], edge: EdgeMeasurement, lens: Lens, k: float, corner: NDArray[np.float64] | None) -> None:
     # The fitted line from the corner (or its points' start) across the image, through the distortion.
     t0 = float(edge.line.along(corner[None, :])[0]) if corner is not None else float(edge.line.along(edge.points_ideal).min())
     t = np.linspace(t0, t0 + 3000.0, 600)
@@ -70,13 +70,7 @@ def annotate(
     width_px: int = 1024,
 ) -> bytes:
     """The annotated picture of ``measurement`` on ``image`` as PNG bytes, ``width_px`` wide."""
-    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
-        raise ValueError("image must be a 2-D uint8 grey image")
-    if width_px < 64:
-        raise ValueError(f"width_px must be at least 64, got {width_px}")
-    k = width_px / image.shape[1]
-    small = cv2.resize(image, (width_px, max(1, int(round(image.shape[0] * k)))), interpolation=cv2.INTER_AREA)
-    img = cv2.cvtColor(small, cv2.COLOR_GRAY2BGR)
+    img, k = shrunk_bgr(image, width_px)
     m = measurement
     roi = m.roi
     cv2.rectangle(
@@ -90,7 +84,7 @@ def annotate(
         cv2.circle(img, _pt(m.corner_raw_px, k), int(round(m.arc_exclusion_px * k)), _GREY, 1, cv2.LINE_AA)
     for edge in (m.top, m.right):
         if edge is not None:
-            _draw_edge(img, edge, lens, k, m.corner_px)
+            draw_edge(img, edge, lens, k, m.corner_px)
     if m.arc is not None:
         arc = m.arc
         ang = np.linspace(0.0, 2.0 * np.pi, 720)
@@ -137,11 +131,27 @@ def annotate(
         )
     scale = max(0.4, width_px / 2048.0)
     y = int(22 * scale / 0.5)
+    return caption_png(img, lines, ok=m.ok, scale=scale, y=y)
+
+
+def shrunk_bgr(image: NDArray[np.uint8], width_px: int) -> tuple[NDArray[np.uint8], float]:
+    """The grey image shrunk to ``width_px`` wide as BGR for drawing, and the scale factor."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError("image must be a 2-D uint8 grey image")
+    if width_px < 64:
+        raise ValueError(f"width_px must be at least 64, got {width_px}")
+    k = width_px / image.shape[1]
+    small = cv2.resize(image, (width_px, max(1, int(round(image.shape[0] * k)))), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(small, cv2.COLOR_GRAY2BGR), k
+
+
+def caption_png(img: NDArray[np.uint8], lines: list[str], *, ok: bool, scale: float, y: int) -> bytes:
+    """Write the caption lines (white, red when refused) and encode the picture as PNG."""
     for text in lines:
         cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, scale, _WHITE if m.ok else _RED, 1, cv2.LINE_AA)
+        cv2.putText(img, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, scale, _WHITE if ok else _RED, 1, cv2.LINE_AA)
         y += int(20 * scale / 0.5)
-    ok, png = cv2.imencode(".png", img)
-    if not ok:
+    encoded, png = cv2.imencode(".png", img)
+    if not encoded:
         raise RuntimeError("OpenCV could not encode the annotated image as PNG")
     return png.tobytes()

@@ -80,23 +80,30 @@ function renderDetail(rec) {
       ].map(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]),
     ),
   ];
-  if (rec.true_error) {
-    parts.push(el("h3", { text: "True install error (simulation)" }));
-    const te = rec.true_error;
+  const deviations = [
+    ["Measured after the install", rec.measured_deviation],
+    ["True (simulation)", rec.true_error],
+  ].filter(([, d]) => d);
+  if (deviations.length) {
+    const verdict = rec.part_ok === false ? " (part not OK)" : rec.part_ok === true ? " (part OK)" : "";
+    parts.push(el("h3", { text: `Install deviation${verdict}` }));
     const tol = model.config.tolerance;
-    const cells = AXES.map((ax) => {
-      const v = te[ax.key];
-      const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
-      const td = el("td", { class: "num", text: signed(v, 4) });
-      setClass(td, "is-alarm", isNum(v) && Math.abs(v) > band);
-      return td;
-    });
+    const row = ([label, d]) => {
+      const cells = AXES.map((ax) => {
+        const v = d[ax.key];
+        const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
+        const td = el("td", { class: "num", text: signed(v, 4) });
+        setClass(td, "is-alarm", isNum(v) && Math.abs(v) > band);
+        return td;
+      });
+      return el("tr", {}, el("th", { scope: "row", text: label }), ...cells);
+    };
     parts.push(
       el(
         "table",
         { class: "data" },
-        el("thead", {}, el("tr", {}, AXES.map((ax) => el("th", { scope: "col", text: `${ax.label} ${ax.unit}` })))),
-        el("tbody", {}, el("tr", {}, cells)),
+        el("thead", {}, el("tr", {}, el("th", { scope: "col", text: "" }), AXES.map((ax) => el("th", { scope: "col", text: `${ax.label} ${ax.unit}` })))),
+        el("tbody", {}, deviations.map(row)),
       ),
     );
   }

@@ -27,19 +27,27 @@ export function renderTrends() {
   const tol = model.config.tolerance;
   const sixWidth = chartWidth($("trend-charts"), 3);
   const chronological = model.digest.slice().reverse();
-  const useTruth = model.config.simulation || chronological.some((c) => c.true_error);
   const installed = chronological.filter((c) => c.state === "done").slice(-TREND_CYCLES);
-  const source = useTruth ? "true_error" : "residual";
-  $("h-trends").textContent = useTruth ? "Install deviation: true error (simulated cell)" : "Install deviation: verification shot residual";
+  const useMeasured = installed.some((c) => c.measured);
+  const useTruth = !useMeasured && (model.config.simulation || chronological.some((c) => c.true_error));
+  const source = useMeasured ? "measured" : useTruth ? "true_error" : "residual";
+  $("h-trends").textContent = useMeasured
+    ? "Install deviation: measured after the install"
+    : useTruth
+      ? "Install deviation: true error (simulated cell)"
+      : "Install deviation: verification shot residual";
   $("trend-note").textContent =
-    (useTruth
-      ? "The twin's truth of the installed glass against the template, "
-      : "The last verification shot's offset; dZ, dRx and dRy are set by the laser alignment and not measured by the shot. ") +
+    (useMeasured
+      ? "The glass against the opening as the cell measured it (gaps in the image, flush by the laser); red: part not OK; " +
+        (installed.some((c) => c.true_error) ? "the twin's truth is in each cycle's record; " : "")
+      : useTruth
+        ? "The twin's truth of the installed glass against the template, "
+        : "The last verification shot's offset; dZ, dRx and dRy are set by the laser alignment and not measured by the shot. ") +
     (installed.length ? `last ${installed.length} installed cycle${installed.length === 1 ? "" : "s"}` : "no installed cycle yet") +
     `; grey band: tolerance \u00b1${tol.position_mm} mm, \u00b1${tol.orientation_deg} deg.`;
   const charts = AXES.map((ax) => {
     const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
-    const points = installed.map((c) => ({ id: c.id, y: c[source] ? c[source][ax.key] : null, nok: false }));
+    const points = installed.map((c) => ({ id: c.id, y: c[source] ? c[source][ax.key] : null, nok: c.part_ok === false }));
     const c = chart({
       title: ax.label,
       unit: ax.unit,
@@ -48,7 +56,7 @@ export function renderTrends() {
       digits: 3,
       width: sixWidth,
       height: 130,
-      emptyText: useTruth || installed.length === 0 ? "no installed cycle yet" : "not measured by the verification shot",
+      emptyText: useMeasured || useTruth || installed.length === 0 ? "no installed cycle yet" : "not measured by the verification shot",
     });
     c.dataset.axis = ax.key;
     return c;

@@ -5,6 +5,7 @@
 import { forgetToken, getJSON, post, saveToken, token } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
 import { clock, isNum } from "./format.js";
+import { renderSpc } from "./spc.js";
 import { emit, model, schedule } from "./state.js";
 
 const ALARM_STATES = new Set(["ABORTING", "ABORTED"]);
@@ -47,6 +48,7 @@ export function renderStatus() {
   renderDevices();
   renderCalibrationTile();
   renderCommands();
+  renderSpc();
 }
 
 export function renderPart() {

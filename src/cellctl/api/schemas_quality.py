@@ -1,0 +1,47 @@
+"""Response models of the closed loop over measured install results (``/spc``)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, Field
+
+
+class SpcDrift(BaseModel):
+    axis: str
+    kind: str = Field(description="trend (the estimate passed the limit) or step (results jumped past the gate)")
+    value: float
+    limit: float
+
+
+class SpcView(BaseModel):
+    """The loop now: whether it applies its offset, the estimate per axis, the offset the next install takes out."""
+
+    enabled: bool = Field(description="false: the loop estimates and watches for drift but applies no offset")
+    calibration_version: str | None
+    samples: int = Field(description="results counted since the last reset")
+    min_samples: int = Field(description="results needed before an offset is applied")
+    estimate: dict[str, float | None] = Field(description="per axis (dx_mm ... drz_deg): the deviation without the loop")
+    offset: dict[str, float] | None = Field(description="what the next install takes out (None when disabled)")
+    excluded: dict[str, int] = Field(description="results not counted, by reason")
+    drifting: list[SpcDrift]
+    limits: dict[str, float]
+    updated_at: str | None
+
+
+class SpcHistoryEntry(BaseModel):
+    id: int
+    recorded_at: str
+    cycle_id: int | None
+    calibration_version: str | None
+    events: list[str]
+    excluded: str | None
+    u: dict[str, float] | None = Field(description="the cycle's deviation without the loop (measured + applied offset)")
+    estimate: dict[str, float | None]
+    offset: dict[str, float]
+    drifting: list[str]
+
+
+class SpcPage(BaseModel):
+    """``GET /spc``: the loop and its latest updates, oldest first."""
+
+    now: SpcView
+    history: list[SpcHistoryEntry]

@@ -1,0 +1,100 @@
+"""What a finished cycle reports: the record's result fields, and the outcome the PLC and the API publish.
+
+A cycle that installed and measured its glass is done; whether the part is OK is the measured
+deviation against ``[process.tolerance]``. A part measured outside it is done but not OK, with
+alarm 1311 as its error code and the figures outside named in the reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cellctl.cell.cycle import CycleResult
+from cellctl.config.cell import ToleranceConfig
+from cellctl.domain import AlarmCode, InstallDeviation
+from cellctl.store import CycleRecord, CycleState
+
+DEVIATION_KEYS = ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg")
+
+
+@dataclass(frozen=True)
+class CycleSummary:
+    """The outcome of a finished cycle in the units the PLC and the API publish.
+
+    ``ok`` is False for a failed cycle and for a part measured outside the tolerance;
+    ``measured`` is the inspection's six figures (None when the cycle did not measure its glass).
+    """
+
+    cycle_id: int
+    ok: bool
+    error_code: int
+    error: str | None
+    correction_mm: tuple[float, float, float]
+    correction_rad: tuple[float, float, float]
+    cycle_time_s: float
+    measured: InstallDeviation | None = None
+
+
+def part_verdict(result: CycleResult, tolerance: ToleranceConfig) -> str | None:
+    """Why the installed part is not OK (the figures outside the tolerance), or None when it is or was not measured."""
+    if result.measured is None:
+        return None
+    outside = result.measured.outside(tolerance.position_mm, tolerance.orientation_deg)
+    if not outside:
+        return None
+    return (
+        f"installed glass measured outside the tolerance (+-{tolerance.position_mm:g} mm, +-{tolerance.orientation_deg:g} deg): "
+        + ", ".join(outside)
+    )
+
+
+def result_fields(result: CycleResult, cycle_time_s: float, *, not_ok: str | None = None) -> dict[str, Any]:
+    """The ``result`` of a done cycle's record (JSON-ready)."""
+    fields: dict[str, Any] = {
+        "ok": not_ok is None,
+        "error_code": 0 if not_ok is None else int(AlarmCode.INSTALL_OUT_OF_TOLERANCE),
+        "correction_mm": [float(v) for v in result.workpiece_correction_mm],
+        "correction_deg": [float(np.degrees(v)) for v in result.workpiece_correction_rad],
+        "shots": len(result.shots),
+        "cycle_time_s": cycle_time_s,
+        "measured_deviation": None if result.measured is None else result.measured.as_dict(),
+    }
+    if result.measured is not None:
+        fields["part_ok"] = not_ok is None
+        fields["gaps_mm"] = {"top": result.measured.top_gap_mm, "right": result.measured.right_gap_mm}
+    if not_ok is not None:
+        fields["not_ok_reason"] = not_ok
+    return fields
+
+
+def measured_of(result: dict[str, Any]) -> InstallDeviation | None:
+    """The measured six figures in a record's result, if it has them."""
+    m = result.get("measured_deviation")
+    if not isinstance(m, dict) or any(k not in m for k in DEVIATION_KEYS):
+        return None
+    return InstallDeviation(**{k: float(m[k]) for k in DEVIATION_KEYS})
+
+
+def summarize(record: CycleRecord) -> CycleSummary | None:
+    """The PLC/API outcome of a finished cycle record (None while it has not finished)."""
+    if record.state not in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
+        return None
+    res = dict(record.result or {})
+    done = record.state is CycleState.DONE
+    ok = done and res.get("part_ok", True) is not False
+    code = 0 if ok else int(res.get("error_code") or AlarmCode.CYCLE_INTERRUPTED)
+    mm = res.get("correction_mm") or [0.0, 0.0, 0.0]
+    deg = res.get("correction_deg") or [0.0, 0.0, 0.0]
+    return CycleSummary(
+        record.id,
+        ok,
+        code,
+        record.error if not done else res.get("not_ok_reason"),
+        (float(mm[0]), float(mm[1]), float(mm[2])),
+        (float(np.radians(deg[0])), float(np.radians(deg[1])), float(np.radians(deg[2]))),
+        float(res.get("cycle_time_s") or 0.0),
+        measured_of(res),
+    )

@@ -1,0 +1,163 @@
+"""The closed loop over measured install results, as the cell runs it (issue 16).
+
+:class:`cellctl.quality.SpcLoop` is the math; this keeps its state in the store (a restart never
+loses the offset nor applies it twice), gives each cycle the offset its install takes out,
+feeds it the cycle's measured deviation afterwards, writes every change of the offset, every
+reset and the start of a drift to the audit trail, raises alarm 1313 when a drift starts, and
+publishes the loop's state for /status and the dashboard.
+"""
+
+from __future__ import annotations
+
+import logging
+from datetime import datetime, timezone
+from typing import Any
+
+from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.events import EventHub
+from cellctl.config.schema import CellConfig
+from cellctl.domain import AlarmCode, InstallDeviation
+from cellctl.geometry.pose import Pose
+from cellctl.quality import (
+    AXES,
+    SpcLoop,
+    SpcState,
+    SpcUpdate,
+    offset_pose,
+    state_from_dict,
+    state_to_dict,
+)
+from cellctl.store import AsyncCellStore
+
+log = logging.getLogger(__name__)
+
+ACTOR = "spc"
+
+
+class InstallQualityLoop:
+    """The SPC loop of one cell with its persisted state.
+
+    Args:
+        config: the cell's configuration (``[process.spc]``, ``[process.tolerance]``).
+        store, alarms, events: where the state, the alarm and the live updates go.
+    """
+
+    def __init__(self, config: CellConfig, store: AsyncCellStore, alarms: AlarmManager, events: EventHub) -> None:
+        p = config.process
+        self.config = p.spc
+        self.loop = SpcLoop(p.spc, tolerance_mm=p.tolerance.position_mm, tolerance_deg=p.tolerance.orientation_deg)
+        self.store = store
+        self.alarms = alarms
+        self.events = events
+        self.state = SpcState()
+
+    async def load(self) -> None:
+        """Take up the state the store kept (the offset survives a restart)."""
+        saved = await self.store.spc_state()
+        if saved is not None:
+            self.state = state_from_dict(saved)
+
+    @staticmethod
+    def no_offset() -> dict[str, float]:
+        """The offset of an install the loop does not correct: zeros on every axis."""
+        return dict.fromkeys(AXES, 0.0)
+
+    def offset_for_next(self, calibration_version: Any) -> dict[str, float]:
+        """The offset (six figures, mm and deg) the next install takes out; zeros when none applies."""
+        return self.loop.offset(self.state, _version(calibration_version))
+
+    @staticmethod
+    def offset_as_pose(offset: dict[str, float]) -> Pose | None:
+        """The offset as a pose in T, or None when it is zero (the install then is exactly as before)."""
+        if all(v == 0.0 for v in offset.values()):
+            return None
+        return offset_pose(offset)
+
+    async def after_cycle(
+        self,
+        cycle_id: int,
+        measured: InstallDeviation | None,
+        *,
+        calibration_version: Any,
+        applied: dict[str, float],
+    ) -> tuple[dict[str, Any], SpcUpdate]:
+        """Feed one cycle's result; persist, audit and publish. Returns the record's ``spc`` fields.
+
+        Raise the drift alarm with :meth:`raise_drift` once the cycle's record is written.
+        """
+        now = datetime.now(timezone.utc)
+        up = self.loop.update(
+            self.state, measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
+            applied=applied, at=now,
+        )  # fmt: skip
+        if up.record is not None:
+            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now)
+        self.state = up.state
+        if up.offset_changed or up.reset is not None or up.drift_started:
+            await self.store.append_audit(
+                actor=ACTOR, source="cell", action="spc.update", cycle_id=cycle_id,
+                params={
+                    "events": [e.value for e in up.events],
+                    "offset_before": dict(up.previous_offset),
+                    "offset_after": dict(up.state.offset),
+                    "estimate": dict(up.state.estimate),
+                    "drifting": list(up.state.drifting_axes),
+                },
+            )  # fmt: skip
+        fields = {
+            "applied_offset": dict(applied),
+            "estimate": dict(up.state.estimate),
+            "next_offset": dict(up.state.offset) if self.config.enabled else {k: 0.0 for k in applied},
+            "drifting_axes": list(up.state.drifting_axes),
+            "samples": up.state.n_samples,
+            "excluded": None if up.excluded is None else up.excluded.value,
+        }
+        self.events.publish("spc", self.snapshot())
+        return fields, up
+
+    async def raise_drift(self, cycle_id: int, up: SpcUpdate) -> None:
+        """Alarm 1313 for a drift that started with this cycle (the loop holds its offset at the bound)."""
+        if not up.drift_started:
+            return
+        what = ", ".join(f"{d.axis} {d.kind.value} {d.value:+.3f} (limit {d.limit:g})" for d in up.drift_started)
+        await self.alarms.raise_alarm(
+            AlarmCode.SPC_DRIFT, source="spc", cycle_id=cycle_id,
+            detail=f"the install offset drifts: {what}; the loop stops following it. Run `cellctl calibrate verify`, "
+            "recalibrate what it names, then the new calibration set resets the loop",
+        )  # fmt: skip
+
+    async def reset(self, *, actor: str, source: str) -> None:
+        """An operator's reset: forget the estimate and any drift (after a repair that needs no recalibration)."""
+        up = self.loop.reset(self.state, at=datetime.now(timezone.utc))
+        if up.record is not None:
+            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry())
+        self.state = up.state
+        await self.store.append_audit(
+            actor=actor, source=source, action="spc.reset", params={"offset_before": dict(up.previous_offset)}
+        )
+        self.events.publish("spc", self.snapshot())
+
+    def snapshot(self) -> dict[str, Any]:
+        """The loop for /status and the dashboard: on or off, estimate, offset, samples, drift."""
+        s = self.state
+        return {
+            "enabled": self.config.enabled,
+            "calibration_version": s.calibration_version,
+            "samples": s.n_samples,
+            "min_samples": self.config.min_samples,
+            "estimate": {k: (None if v is None else float(v)) for k, v in s.estimate.items()},
+            "offset": {k: float(v) for k, v in s.offset.items()} if self.config.enabled else None,
+            "excluded": dict(s.excluded),
+            "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit} for d in s.drifting],
+            "limits": {
+                "max_offset_mm": self.config.max_offset_mm, "max_offset_deg": self.config.max_offset_deg,
+                "drift_limit_mm": self.config.drift_limit_mm, "drift_limit_deg": self.config.drift_limit_deg,
+            },
+            "updated_at": None if s.updated_at is None else s.updated_at.isoformat(),
+        }
+
+
+def _version(v: Any) -> str:
+    """The calibration set's version as the loop keys it (the oracle has none: one fixed name)."""
+    return "none" if v is None else str(v)
+

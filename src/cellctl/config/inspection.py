@@ -1,0 +1,95 @@
+"""The post-install inspection: the gaps in the image, flush by the laser (``[process.inspect]``)."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from cellctl.config.types import Finite, StrictModel, Vec2
+
+# A glass spot and its wall spot further apart than this no longer share the robot's accuracy error.
+MAX_SPOT_PAIR_MM = 100.0
+
+
+class FlushSpot(StrictModel):
+    """One flush location: a laser spot on the glass and one on the wall beside it.
+
+    Both are (x, y) in the workpiece frame T (x right, y down from the opening's upper-right
+    corner; the opening is x < 0, 0 < y). Put the glass spot on the glass (inside the glass edge,
+    which lies ``nominal_gap_mm`` inside the opening's edge) and the wall spot on the wall just
+    outside the opening, a few tens of mm apart, so that the robot's slowly varying accuracy error
+    and the laser's mounting cancel in their difference.
+    """
+
+    glass_mm: Vec2
+    wall_mm: Vec2
+
+    @model_validator(mode="after")
+    def _sides(self) -> "FlushSpot":
+        gx, gy = self.glass_mm
+        if not (gx < 0.0 and gy > 0.0):
+            raise ValueError(
+                f"glass_mm {list(self.glass_mm)} is not inside the opening (x < 0 and y > 0 in T); "
+                "put the glass spot inside the glass edge"
+            )
+        apart = float(np.hypot(gx - self.wall_mm[0], gy - self.wall_mm[1]))
+        if not 5.0 <= apart <= MAX_SPOT_PAIR_MM:
+            raise ValueError(
+                f"wall_mm {list(self.wall_mm)} is {apart:.0f} mm from glass_mm {list(self.glass_mm)}; put the wall spot "
+                f"just across the opening's edge, 5 to {MAX_SPOT_PAIR_MM:g} mm away, so the robot's and the laser's "
+                "slowly varying errors cancel in the difference"
+            )
+        return self
+
+
+# Along the top and the right edge from the corner: ten pairs near it average the robot's
+# repeatability (one draw per stop) down to what dZ needs; the two far ones fix the tilt.
+NEAR_ALONG_MM = (-60.0, -110.0, -160.0, -210.0, -260.0)
+
+
+def _default_spots() -> tuple[FlushSpot, ...]:
+    near_top = tuple(FlushSpot(glass_mm=(x, 20.0), wall_mm=(x, -15.0)) for x in NEAR_ALONG_MM)
+    near_right = tuple(FlushSpot(glass_mm=(-20.0, -x), wall_mm=(15.0, -x)) for x in NEAR_ALONG_MM)
+    far = (
+        FlushSpot(glass_mm=(-1700.0, 20.0), wall_mm=(-1700.0, -15.0)),
+        FlushSpot(glass_mm=(-20.0, 1200.0), wall_mm=(15.0, 1200.0)),
+    )
+    return near_top + near_right + far
+
+
+class InspectionConfig(StrictModel):
+    """How the cell measures the glass it installed, relative to the opening (issue 16).
+
+    After the install the gripper releases the glass and the robot backs off to the shooting
+    pose. The camera measures the gaps between the glass's edges and the opening's edges at the
+    corner (in-plane X, Y, Rz); the laser reads the glass and the wall at each flush spot (Z, Rx,
+    Ry). A measured deviation outside ``[process.tolerance]`` marks the part not OK.
+
+    Attributes:
+        enabled: run the inspection after every install (off: the record has no measured result).
+        nominal_gap_mm: the drawing's gap between the glass's edge and the opening's edge.
+        flush_spots: the flush locations; the near ones give Z at the corner, the far ones the tilt.
+        min_flush_spots: fewer locations with both readings refuse the measurement.
+        reads_per_spot: readings tried at a standing pose before a spot counts as missing (a glass
+            returns less light: a reading may come back without a value).
+        max_flush_rms_mm: the glass's and the wall's plane fits must leave no larger residual.
+        back_off_mm: the glass is released, then the flange backs away along the wall normal
+            this far before it goes to the shooting pose.
+    """
+
+    enabled: bool = True
+    nominal_gap_mm: Finite = Field(5.0, gt=0, le=30)
+    flush_spots: tuple[FlushSpot, ...] = Field(default_factory=_default_spots)
+    min_flush_spots: int = Field(8, ge=3)
+    reads_per_spot: int = Field(3, ge=1, le=10)
+    max_flush_rms_mm: Finite = Field(0.15, gt=0)
+    back_off_mm: Finite = Field(100.0, ge=0)
+
+    @model_validator(mode="after")
+    def _enough(self) -> "InspectionConfig":
+        if len(self.flush_spots) < self.min_flush_spots:
+            raise ValueError(
+                f"flush_spots has {len(self.flush_spots)} locations but min_flush_spots is {self.min_flush_spots}; "
+                "add spots or lower min_flush_spots (at least 3: the glass's plane)"
+            )
+        return self

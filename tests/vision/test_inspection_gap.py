@@ -1,0 +1,224 @@
+"""The inspection image against the twin's truth: gaps and the glass's in-plane offset, parallax, refusals.
+
+The 200-render statistics are printed by ``python -m cellctl.bench.inspection_vision``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from cellctl.bench.inspection_vision import glass_at, measure_inspection, taught_view
+from cellctl.config.sim import SimConfig
+from cellctl.config.vision import FeatureConfig, GapVisionConfig, VisionConfig
+from cellctl.sim.camera import CameraRenderer
+from cellctl.sim.image_truth import camera_pose_seeing_corner, glass_truth
+from cellctl.sim.world import nominal_world
+from cellctl.vision import Lens
+from cellctl.vision.corner import CornerFeatures
+from cellctl.vision.gap import GapLines, GapRefusal, in_plane_from_gaps, measure_gaps
+from cellctl.vision.lines import Line2D
+from cellctl.vision.ninepoint import AffineMap
+
+SIM = SimConfig()
+LENS = Lens.from_intrinsics(SIM.camera.intrinsics)
+CONFIG = VisionConfig().gap
+GAP = SIM.glass.edge_gap_mm
+D = 400.0
+
+
+@pytest.fixture(scope="module")
+def renderer() -> CameraRenderer:
+    return CameraRenderer(SIM.camera.intrinsics, SIM.camera.render)
+
+
+def _measure(renderer: CameraRenderer, corner_px: tuple[float, float], deviation: list[float], seed: int, *, dz_known: bool = True):  # type: ignore[no-untyped-def]
+    """Render the glass at ``deviation`` (dX, dY, dZ mm, dRx, dRy, dRz deg) seen with the corner at ``corner_px``."""
+    world = nominal_world(SIM.world)
+    glass = glass_at(SIM, world, np.concatenate([deviation[:3], np.radians(deviation[3:])]))
+    template, nine_point = taught_view(renderer, world, corner_px, D)
+    pose = camera_pose_seeing_corner(renderer.camera, world, corner_px, distance_mm=D)
+    image = renderer.render(pose, world, rng=np.random.default_rng(seed), glass=glass).image
+    m = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=GAP / nine_point.mm_per_px)
+    assert m.ok, m.message
+    truth = glass_truth(renderer.camera, pose, world, glass, reference_along_mm=m.start_px * nine_point.mm_per_px)
+    fig = in_plane_from_gaps(
+        m, nine_point, nominal_gap_mm=GAP, dz_mm=truth.dz_mm if dz_known else 0.0, working_distance_mm=D,
+        principal_point_px=(LENS.cx, LENS.cy),
+    )
+    return m, fig, truth
+
+
+def _errors(fig, truth) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    return {
+        "dx_mm": fig.dx_mm - truth.dx_mm,
+        "dy_mm": fig.dy_mm - truth.dy_mm,
+        "top_gap_mm": fig.top_gap_mm - truth.top_gap_mm,
+        "right_gap_mm": fig.right_gap_mm - truth.right_gap_mm,
+        "drz_deg": math.degrees(fig.drz_rad - truth.drz_rad),
+        "top_angle_deg": math.degrees(fig.top_angle_rad - truth.top_angle_rad),
+        "right_angle_deg": math.degrees(fig.right_angle_rad - truth.right_angle_rad),
+    }
+
+
+def _within_bars(err: dict[str, float]) -> bool:
+    return all(abs(v) <= (0.01 if k.endswith("deg") else 0.02) for k, v in err.items())
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_known_install_is_measured_within_the_bars(renderer: CameraRenderer, seed: int) -> None:
+    m, fig, truth = _measure(renderer, (LENS.cx, LENS.cy), [0.3, -0.2, 0.4, 0.0, 0.0, 0.1], seed)
+    assert (truth.dx_mm, truth.dy_mm, truth.dz_mm) == pytest.approx((0.3, -0.2, 0.4))
+    err = _errors(fig, truth)
+    assert _within_bars(err), err
+    assert all(n >= CONFIG.min_points for n in m.points.values()), m.points
+    # The gaps are the nominal 5 mm moved by the offset: the truth is not the nominal one.
+    assert truth.top_gap_mm == pytest.approx(GAP - 0.2 + 0.0, abs=0.1) and abs(truth.top_gap_mm - GAP) > 0.1
+    # The figures ride on the twin's truth of the glass's corner in the image too.
+    assert np.linalg.norm(m.glass_corner_px - truth.glass_corner_undistorted_px) < 0.3
+
+
+def test_random_installs_on_random_car_bodies(renderer: CameraRenderer) -> None:
+    acc = measure_inspection(renderer, SIM, LENS, CONFIG, 6, np.random.default_rng(11))
+    assert acc.accepted == 6, acc.refusals
+    assert acc.meets(), acc.figures()
+
+
+def test_the_parallax_of_a_recessed_glass_off_axis_needs_its_correction(renderer: CameraRenderer) -> None:
+    corner = (1550.0, 550.0)  # about 40 mm right of and 35 mm above the optical axis
+    deviation = [0.2, 0.1, 0.5, 0.0, 0.0, -0.1]  # the glass 0.5 mm behind the wall
+    _, corrected, truth = _measure(renderer, corner, deviation, 3)
+    _, plain, _ = _measure(renderer, corner, deviation, 3, dz_known=False)
+    assert _within_bars(_errors(corrected, truth)), _errors(corrected, truth)
+    err = _errors(plain, truth)
+    assert max(abs(err["dx_mm"]), abs(err["dy_mm"])) > 0.03, err  # scaled about the axis by 0.5 / 400 over ~35 mm
+    assert corrected.parallax_scale == pytest.approx((D + 0.5) / D, abs=1e-4)
+
+
+def test_no_glass_is_refused(renderer: CameraRenderer) -> None:
+    world = nominal_world(SIM.world)
+    template, nine_point = taught_view(renderer, world, (LENS.cx, LENS.cy), D)
+    pose = camera_pose_seeing_corner(renderer.camera, world, (LENS.cx, LENS.cy))
+    image = renderer.render(pose, world, rng=np.random.default_rng(4)).image
+    m = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=GAP / nine_point.mm_per_px)
+    assert m.refusal is GapRefusal.NO_GLASS and "no glass" in m.message, m.message
+    # Its flange's border into the seal lies near the expected gap: without the frit rule it passes for a glass.
+    loose = CONFIG.model_copy(update={"frit_edge": False})
+    m = measure_gaps(image, LENS, template, loose, gap_px_expected=GAP / nine_point.mm_per_px)
+    assert m.refusal is not GapRefusal.NO_GLASS
+    with pytest.raises(ValueError, match="refused"):
+        in_plane_from_gaps(
+            measure_gaps(image, LENS, template, CONFIG, gap_px_expected=66.0), nine_point, nominal_gap_mm=GAP, dz_mm=0.0,
+            working_distance_mm=D, principal_point_px=(LENS.cx, LENS.cy),
+        )
+
+
+def test_a_glass_far_off_its_gap_and_a_camera_off_its_pose_are_refused(renderer: CameraRenderer) -> None:
+    world = nominal_world(SIM.world)
+    template, nine_point = taught_view(renderer, world, (LENS.cx, LENS.cy), D)
+    pose = camera_pose_seeing_corner(renderer.camera, world, (LENS.cx, LENS.cy))
+    glass = glass_at(SIM, world, np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0]))  # the right gap 2 mm, not 5
+    image = renderer.render(pose, world, rng=np.random.default_rng(5), glass=glass).image
+    gap_px = GAP / nine_point.mm_per_px
+    m = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=gap_px)
+    assert m.refusal is GapRefusal.GLASS_EDGE_NOT_FOUND and "right edge" in m.message, m.message
+    # The same image measured with the gap it has.
+    wide = CONFIG.model_copy(update={"glass_search_px": 50.0})
+    assert measure_gaps(image, LENS, template, wide, gap_px_expected=gap_px).ok
+    moved = CornerFeatures(template.u_px - 45.0, template.v_px - 45.0, 0.0, 0.0, 0.0)
+    m = measure_gaps(image, LENS, moved, CONFIG, gap_px_expected=gap_px)
+    assert m.refusal is GapRefusal.OPENING_EDGE_NOT_FOUND and "template" in m.message, m.message
+    # A recipe whose feature (the seal's inner edge) is hidden under the glass is refused, not mistaken.
+    seal = FeatureConfig(count_from="opening", index=0, min_step_fraction=0.08)
+    inset_px = -renderer.surface_of(world).steps[-1][0] / nine_point.mm_per_px  # its template sits on the seal's edge
+    taught_on_seal = CornerFeatures(template.u_px - inset_px, template.v_px + inset_px, 0.0, 0.0, 0.0)
+    glass = glass_at(SIM, world, np.zeros(6))
+    image = renderer.render(pose, world, rng=np.random.default_rng(6), glass=glass).image
+    m = measure_gaps(image, LENS, taught_on_seal, CONFIG, gap_px_expected=gap_px, feature=seal)
+    assert m.refusal is GapRefusal.OPENING_EDGE_NOT_FOUND, m.message
+
+
+def test_auto_polarity_finds_the_same_edges(renderer: CameraRenderer) -> None:
+    world = nominal_world(SIM.world)
+    template, nine_point = taught_view(renderer, world, (LENS.cx, LENS.cy), D)
+    pose = camera_pose_seeing_corner(renderer.camera, world, (LENS.cx, LENS.cy))
+    glass = glass_at(SIM, world, np.array([-0.2, 0.3, 0.1, 0.0, 0.0, 0.0]))
+    image = renderer.render(pose, world, rng=np.random.default_rng(8), glass=glass).image
+    gap_px = GAP / nine_point.mm_per_px
+    darker = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=gap_px)
+    auto = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=gap_px, opening_polarity="auto")
+    assert darker.ok and auto.ok
+    for which in ("opening_top", "opening_right", "glass_top", "glass_right"):
+        a, b = getattr(darker.lines, which), getattr(auto.lines, which)
+        assert np.array_equal(a.point, b.point) and np.array_equal(a.direction, b.direction)
+    assert set(darker.rms_px) == {"opening_top", "opening_right", "glass_top", "glass_right"}
+    assert max(darker.rms_px.values()) < CONFIG.max_rms_px
+
+
+def _rot(a: float) -> np.ndarray:
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def test_in_plane_figures_from_exact_lines() -> None:
+    """Lines built from a known glass in mm, seen through a map and a recess: the figures come back exact."""
+    L = 0.0762 * _rot(0.01) @ np.array([[1.0, 0.002], [0.0, 1.001]])
+    c = np.array([-77.0, -78.0])
+    nine = AffineMap(np.column_stack([L, c]), np.zeros(9), 0.0, 0.0)
+    principal = (1014.7, 1012.0)
+    foot = nine.apply(np.array([principal]))[0]
+    O, phi_o = np.array([0.4, -0.3]), 0.003
+    dx, dy, drz, dz, g = 0.25, -0.15, math.radians(0.12), 0.6, 5.0
+    k = (D + dz) / D
+    R_o = _rot(phi_o)
+    C = O + R_o @ (np.array([dx, dy]) + _rot(drz) @ np.array([-g, g]))  # the glass's tangent corner (true, mm)
+    x_o, y_o = R_o @ [1.0, 0.0], R_o @ [0.0, 1.0]
+    x_g, y_g = R_o @ _rot(drz) @ [1.0, 0.0], R_o @ _rot(drz) @ [0.0, 1.0]
+    to_px = np.linalg.inv(L)
+
+    def line_px(point_mm: np.ndarray, direction_mm: np.ndarray, seen_scale: float = 1.0) -> Line2D:
+        ends = np.array([point_mm, point_mm + 50.0 * direction_mm])
+        ends = foot + (ends - foot) / seen_scale  # where a recessed glass is seen on the wall's plane
+        px = (ends - c) @ to_px.T
+        d = px[1] - px[0]
+        return Line2D(px[0], d / np.linalg.norm(d))
+
+    lines = GapLines(line_px(O, -x_o), line_px(O, y_o), line_px(C, -x_g, k), line_px(C, y_g, k))
+    a = 33.0
+    fig = in_plane_from_gaps(
+        lines, nine, nominal_gap_mm=g, dz_mm=dz, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
+    )
+    assert (fig.dx_mm, fig.dy_mm, fig.drz_rad) == pytest.approx((dx, dy, drz), abs=1e-9)
+    assert fig.opening_corner_mm == pytest.approx(O, abs=1e-9) and fig.opening_angle_rad == pytest.approx(phi_o, abs=1e-12)
+    # Gaps in the opening's frame: the glass's top line at x = -a, its right line at y = a, perpendicular distances.
+    q = np.array([dx, dy]) + _rot(drz) @ np.array([-g, g])
+    assert fig.top_gap_mm == pytest.approx((q[1] + (-a - q[0]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
+    assert fig.right_gap_mm == pytest.approx(-(q[0] - (a - q[1]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
+    assert (fig.top_angle_rad, fig.right_angle_rad) == pytest.approx((drz, drz), abs=1e-12)
+    # Without the recess, the glass's corner moves away from the foot point by dz / D of its distance.
+    flat = in_plane_from_gaps(
+        lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
+    )
+    assert flat.glass_corner_mm == pytest.approx(foot + (C - foot) / k, abs=1e-9)
+    with pytest.raises(ValueError, match="reference_along_mm"):
+        in_plane_from_gaps(lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal)
+
+
+def test_gap_config_is_checked_and_sits_in_the_vision_section() -> None:
+    assert VisionConfig().gap == GapVisionConfig()
+    with pytest.raises(ValidationError, match="glass_search_px"):
+        GapVisionConfig(glass_search_px=0.0)
+    with pytest.raises(ValidationError, match="min_step_fraction"):
+        GapVisionConfig(min_step_fraction=1.0)
+    with pytest.raises(ValueError, match="gap_px_expected"):
+        measure_gaps(np.zeros((2048, 2048), np.uint8), LENS, CornerFeatures(1000.0, 1000.0, 0.0, 0.0, 0.0), CONFIG, gap_px_expected=0.0)
+
+
+def test_the_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    from cellctl.bench.inspection_vision import main
+
+    assert main(["--renders", "2", "--seed", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "2/2 accepted" in out and "|position error|: median" in out and "met" in out
