@@ -129,6 +129,12 @@ async def test_the_loop_takes_out_a_systematic_offset_and_audits_it(tmp_path: Pa
         assert recs[-1]["result"]["spc"]["applied_offset"]["dx_mm"] < -0.1
         audit = await service.store.audit_entries(limit=500)
         assert any(e.action == "spc.update" and e.params["offset_after"]["dx_mm"] < -0.1 for e in audit)
+        # The operator's reset needs the token, forgets the estimate and is in the audit log.
+        assert (await client.post("/spc/reset")).status_code == 401
+        reset = await client.post("/spc/reset", headers=AUTH)
+        assert reset.status_code == 200 and reset.json()["samples"] == 0 and reset.json()["offset"]["dx_mm"] == 0.0
+        audit = await service.store.audit_entries(limit=500)
+        assert audit[-1].action == "spc.reset" and audit[-1].params["offset_before"]["dx_mm"] < -0.1
 
 
 async def test_a_drift_beyond_the_limit_raises_the_alarm_and_holds_the_cell(tmp_path: Path) -> None:
@@ -146,3 +152,22 @@ async def test_a_drift_beyond_the_limit_raises_the_alarm_and_holds_the_cell(tmp_
         status = (await client.get("/status", headers=AUTH)).json()
         assert status["spc"]["drifting"][0]["axis"] == "dx_mm"
         assert abs(status["spc"]["offset"]["dx_mm"]) <= cfg.process.spc.max_offset_mm + 1e-12
+
+
+async def test_the_loop_keeps_its_offset_across_a_restart(tmp_path: Path) -> None:
+    cfg = sim_config(**{"process.spc": {"min_samples": 3, "ewma_lambda": 0.5}})
+    async with running_service(tmp_path, cfg) as service, api_client(service) as client:
+        jolt_before_release(service, 0.15)
+        await to_execute(client)
+        for i in range(4):
+            await _cycle(client, f"r{i}")
+        before = (await client.get("/status", headers=AUTH)).json()["spc"]
+    assert before["offset"]["dx_mm"] < -0.05
+    async with running_service(tmp_path, cfg) as service, api_client(service) as client:
+        after = (await client.get("/status", headers=AUTH)).json()["spc"]
+        assert after["offset"] == before["offset"] and after["samples"] == before["samples"] == 4
+        jolt_before_release(service, 0.15)
+        await to_execute(client)
+        rec = await _cycle(client, "r4")
+        assert rec["result"]["spc"]["applied_offset"] == before["offset"]  # applied once, as it was
+        assert rec["result"]["spc"]["samples"] == 5
