@@ -12,7 +12,7 @@ from cellctl.config.spc import SpcConfig
 
 def test_the_defaults() -> None:
     c = SpcConfig()
-    assert (c.enabled, c.ewma_lambda, c.min_samples) == (True, 0.2, 5)
+    assert (c.enabled, c.ewma_lambda, c.min_samples) == (True, 0.1, 5)
     assert (c.dead_band_mm, c.max_offset_mm, c.drift_limit_mm) == (0.02, 0.2, 0.25)
     assert (c.dead_band_deg, c.max_offset_deg, c.drift_limit_deg) == (0.005, 0.05, 0.08)
     assert (c.outlier_k, c.outlier_run) == (4.0, 3)

@@ -19,7 +19,7 @@ class SpcConfig(StrictModel):
     """
 
     enabled: bool = True
-    ewma_lambda: Finite = Field(0.2, gt=0, le=1)  # weight of the newest result; 1 = the last result alone
+    ewma_lambda: Finite = Field(0.1, gt=0, le=1)  # weight of the newest result; 1 = the last result alone
     min_samples: int = Field(5, ge=3, le=1000)  # results since the last reset before any offset is applied
     dead_band_mm: Finite = Field(0.02, ge=0)  # an estimate within +-this applies no offset
     dead_band_deg: Finite = Field(0.005, ge=0)
