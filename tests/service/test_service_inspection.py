@@ -171,3 +171,25 @@ async def test_the_loop_keeps_its_offset_across_a_restart(tmp_path: Path) -> Non
         rec = await _cycle(client, "r4")
         assert rec["result"]["spc"]["applied_offset"] == before["offset"]  # applied once, as it was
         assert rec["result"]["spc"]["samples"] == 5
+
+
+async def test_a_cycle_refused_before_the_calibration_is_read_leaves_the_loop_alone(tmp_path: Path) -> None:
+    cfg = sim_config(**{"process.spc": {"min_samples": 3}})
+    async with running_service(tmp_path, cfg) as service, api_client(service) as client:
+        service.orchestrator.calibration.reference = lambda: {"source": "test", "version": 7}  # type: ignore[method-assign]
+        await to_execute(client)
+        for i in range(3):
+            await _cycle(client, f"c{i}")
+        before = (await client.get("/status", headers=AUTH)).json()["spc"]
+        orch = service.orchestrator
+        problems = orch.calibration.problems
+        orch.calibration.problems = lambda: ["test: the set is damaged"]  # type: ignore[method-assign]
+        rec = await _cycle(client, "refused")
+        assert rec["state"] == "failed" and rec["result"]["error_code"] == int(AlarmCode.CALIBRATION_INVALID)
+        assert "skipped" in rec["result"]["spc"]
+        orch.calibration.problems = problems  # type: ignore[method-assign]
+        after = (await client.get("/status", headers=AUTH)).json()["spc"]
+        assert after["samples"] == before["samples"] == 3 and after["estimate"] == before["estimate"]
+        assert after["calibration_version"] == "7"
+        events = [e for h in (await client.get("/spc", headers=AUTH)).json()["history"] for e in h["events"]]
+        assert not any(e.startswith("reset") for e in events), events

@@ -151,6 +151,7 @@ class CellOrchestrator:
         self._status_parts: dict[str, Callable[[], Any]] = {}
         self.quality = InstallQualityLoop(config, store, alarms, events)
         self._calibration_version: Any = None
+        self._calibration_read: dict[str, Any] = {}
         self._applied_offset: dict[str, float] = {}
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
@@ -324,6 +325,7 @@ class CellOrchestrator:
         await self.store.start_cycle(cycle_id)
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
         self._calibration_version, self._applied_offset = None, self.quality.no_offset()
+        self._calibration_read = {}
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
@@ -361,6 +363,7 @@ class CellOrchestrator:
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
         reference = self.calibration.reference()
+        self._calibration_read = reference
         self._calibration_version = reference.get("version")
         self._applied_offset = self.quality.offset_for_next(self._calibration_version)
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
@@ -379,6 +382,10 @@ class CellOrchestrator:
         A fault of the loop must not cost the cycle its record: it is logged and the record says so.
         """
         measured = None if result is None or result.measured is None else result.measured.deviation
+        if result is None and "version" not in self._calibration_read:
+            # Failed before it read the calibration set: no version to file it under (feeding it
+            # under none would read as a new set and reset the loop).
+            return {"skipped": "the cycle ended before it read the calibration set"}, None
         try:
             return await self.quality.after_cycle(
                 cycle_id, measured, calibration_version=self._calibration_version, applied=self._applied_offset
