@@ -13,7 +13,7 @@ table and catalogue in :mod:`cellctl.cell.alarm_table`, the alarm manager in
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from datetime import datetime
 
 # --- PackML enumerations -------------------------------------------------------------------------
@@ -235,3 +235,7 @@ class InstallDeviation:
     drx_deg: float
     dry_deg: float
     drz_deg: float
+
+
+DEVIATION_KEYS: tuple[str, ...] = tuple(f.name for f in fields(InstallDeviation))
+"""The six figures' names in order: ``dx_mm, dy_mm, dz_mm, drx_deg, dry_deg, drz_deg``."""

@@ -35,13 +35,13 @@ from cellctl.api.schemas_dashboard import CycleDigest, DashboardConfig, Toleranc
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.outcome import measured_of
 from cellctl.cell.tags import CycleStep
+from cellctl.domain import DEVIATION_KEYS
 from cellctl.store import CycleRecord, UnknownCycle
 
 STATIC_DIR = Path(str(resources.files("cellctl.api") / "static"))
 STALE_AFTER_S = 2.5 * SSE_STATUS_PERIOD_S
 """The page marks its data stale when nothing (event or periodic status) arrived for this long."""
 
-TRUE_ERROR_KEYS = ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg")
 THUMB_CACHE_SIZE = 256
 
 
@@ -59,12 +59,12 @@ def deviation_digest(record: CycleRecord) -> dict[str, Any]:
     true_error = None
     if record.true_error:
         te = dict(record.true_error)
-        if all(isinstance(te.get(k), int | float) for k in TRUE_ERROR_KEYS):
-            true_error = {k: float(te[k]) for k in TRUE_ERROR_KEYS}
+        if all(isinstance(te.get(k), int | float) for k in DEVIATION_KEYS):
+            true_error = {k: float(te[k]) for k in DEVIATION_KEYS}
     correction = None
     mm, deg = res.get("correction_mm"), res.get("correction_deg")
     if isinstance(mm, list | tuple) and isinstance(deg, list | tuple) and len(mm) == 3 and len(deg) == 3:
-        correction = dict(zip(TRUE_ERROR_KEYS, [float(v) for v in (*mm, *deg)], strict=True))
+        correction = dict(zip(DEVIATION_KEYS, [float(v) for v in (*mm, *deg)], strict=True))
     residual = None
     for step in reversed(record.steps):
         fig = step.figures

@@ -172,7 +172,6 @@ class CycleRun:
         self.motion = process.motion
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
         self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
-        self.inspection_image: tuple[np.ndarray, Any] | None = None
 
     async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
         speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s

@@ -56,8 +56,8 @@ async def release_and_back_off(run: CycleRun, T2: Pose, reached: Pose) -> None:
     await run.move(STEP, out, fine=True)
 
 
-async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> GapMeasurement:
-    """Go to the shooting pose of T2, grab, and find the opening's and the glass's edges."""
+async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> tuple[np.ndarray, GapMeasurement]:
+    """Go to the shooting pose of T2, grab, and find the opening's and the glass's edges: the image and them."""
     cal = run.cal
     await run.move(STEP, shooting_pose_in(cal.taught, T2), kind="joint")
     try:
@@ -69,19 +69,16 @@ async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> GapMeasureme
         measure_gaps, frame.image, cal.lens, cal.template, run.vision.gap, gap_px_expected=gap_px, feature=run.vision.feature,
         opening_polarity=run.vision.opening_polarity,
     )
-    run.inspection_image = (frame.image, m)
     if not m.ok:
-        await record_inspection_image(run, None)
+        await record_inspection_image(run, frame.image, m, None)
         raise _failed(f"the gaps could not be measured: {m.message}")
-    return m
+    return frame.image, m
 
 
-async def record_inspection_image(run: CycleRun, figures: dict[str, float] | None) -> None:
+async def record_inspection_image(
+    run: CycleRun, image: np.ndarray, m: GapMeasurement, figures: dict[str, float] | None
+) -> None:
     """The inspection image with its edges (and the figures, or the refusal) as the cycle's ``inspect`` image."""
-    if run.inspection_image is None:
-        return
-    image, m = run.inspection_image
-    run.inspection_image = None
     png = await asyncio.to_thread(annotate_gaps, image, m, run.cal.lens, figures=figures)
     await run.rec.image("inspect", png)
 
@@ -146,11 +143,11 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
     """Release, back off, measure the gaps and the flush: the installed glass's six figures."""
     await run.rec.step_started(STEP)
     await release_and_back_off(run, T2, reached)
-    gaps = await measure_gaps_at_shooting_pose(run, T2)
+    image, gaps = await measure_gaps_at_shooting_pose(run, T2)
     try:
         flush, rows = await measure_flush(run, T2)
     except CycleFailed:
-        await record_inspection_image(run, None)  # the edges were found; show them beside the flush's failure
+        await record_inspection_image(run, image, gaps, None)  # the edges were found; show them beside the flush's failure
         raise
     cal = run.cal
     plane = in_plane_from_gaps(
@@ -162,7 +159,7 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
         principal_point_px=(cal.lens.cx, cal.lens.cy),
     )
     await record_inspection_image(
-        run, {"top_gap_mm": plane.top_gap_mm, "right_gap_mm": plane.right_gap_mm, "dx_mm": plane.dx_mm,
+        run, image, gaps, {"top_gap_mm": plane.top_gap_mm, "right_gap_mm": plane.right_gap_mm, "dx_mm": plane.dx_mm,
               "dy_mm": plane.dy_mm, "drz_rad": plane.drz_rad},
     )  # fmt: skip
     measured = measured_deviation(

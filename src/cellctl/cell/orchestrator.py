@@ -16,8 +16,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Protocol
 
-import numpy as np
-
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmCode, AlarmManager
 from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleResult, run_cycle
@@ -44,7 +42,6 @@ from cellctl.store import (
     AsyncCellStore,
     CycleRecord,
     CycleRequest,
-    CycleState,
     SubmitResult,
 )
 
@@ -150,8 +147,7 @@ class CellOrchestrator:
         self._links: dict[str, dict[str, Any]] = {}
         self._status_parts: dict[str, Callable[[], Any]] = {}
         self.quality = InstallQualityLoop(config, store, alarms, events)
-        self._calibration_version: Any = None
-        self._calibration_read: dict[str, Any] = {}
+        self._calibration_read: dict[str, Any] = {}  # the running cycle's calibration reference, once read
         self._applied_offset: dict[str, float] = {}
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
@@ -324,8 +320,7 @@ class CellOrchestrator:
         started = time.monotonic()
         await self.store.start_cycle(cycle_id)
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
-        self._calibration_version, self._applied_offset = None, self.quality.no_offset()
-        self._calibration_read = {}
+        self._calibration_read, self._applied_offset = {}, self.quality.no_offset()
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
@@ -362,10 +357,8 @@ class CellOrchestrator:
         problems = self.calibration.problems()
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
-        reference = self.calibration.reference()
-        self._calibration_read = reference
-        self._calibration_version = reference.get("version")
-        self._applied_offset = self.quality.offset_for_next(self._calibration_version)
+        reference = self._calibration_read = self.calibration.reference()
+        self._applied_offset = self.quality.offset_for_next(reference.get("version"))
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
         if self.truth is not None:
             self.truth.new_car_body()
@@ -388,7 +381,7 @@ class CellOrchestrator:
             return {"skipped": "the cycle ended before it read the calibration set"}, None
         try:
             return await self.quality.after_cycle(
-                cycle_id, measured, calibration_version=self._calibration_version, applied=self._applied_offset
+                cycle_id, measured, calibration_version=self._calibration_read.get("version"), applied=self._applied_offset
             )
         except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
             log.exception("cycle %d: the closed loop could not take its result", cycle_id)

@@ -14,10 +14,8 @@ import numpy as np
 
 from cellctl.cell.cycle import CycleResult
 from cellctl.config.cell import ToleranceConfig
-from cellctl.domain import AlarmCode, InstallDeviation
+from cellctl.domain import DEVIATION_KEYS, AlarmCode, InstallDeviation
 from cellctl.store import CycleRecord, CycleState
-
-DEVIATION_KEYS = ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg")
 
 
 @dataclass(frozen=True)

@@ -34,14 +34,6 @@ class MeasuredDeviation:
         """The six figures by name (as the twin's truth is recorded)."""
         return asdict(self.deviation)
 
-    def within(self, position_mm: float, orientation_deg: float) -> bool:
-        """Whether every figure is within +-tolerance (per axis, as the paper reports)."""
-        d = self.deviation
-        return bool(
-            max(abs(d.dx_mm), abs(d.dy_mm), abs(d.dz_mm)) <= position_mm
-            and max(abs(d.drx_deg), abs(d.dry_deg), abs(d.drz_deg)) <= orientation_deg
-        )
-
     def outside(self, position_mm: float, orientation_deg: float) -> list[str]:
         """The figures outside +-tolerance, as readable ``name=value`` items (empty when the part is OK)."""
         d = self.deviation

@@ -10,13 +10,13 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal
 
-from cellctl.domain import InstallDeviation
+from cellctl.domain import DEVIATION_KEYS
 
-AXES: tuple[str, ...] = tuple(f.name for f in fields(InstallDeviation))
+AXES: tuple[str, ...] = DEVIATION_KEYS
 """``dx_mm, dy_mm, dz_mm, drx_deg, dry_deg, drz_deg``."""
 
 STATE_FORMAT = 1

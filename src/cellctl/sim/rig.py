@@ -75,7 +75,7 @@ class SimRig:
         self.cell.new_car_body()
 
     def install_error(self) -> Mapping[str, float]:
-        """The paper's six figures of the glass where the flange really stands now."""
+        """The paper's six figures of the glass: where it was released, else as the flange holds it now."""
         return self.cell.install_error().as_dict()
 
     async def close(self) -> None:
