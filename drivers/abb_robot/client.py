@@ -83,16 +83,14 @@ class AbbRobot:
         }
 
     async def connect(self, *, timeout_s: float | None = None) -> None:
-        """Connect, shake hands, send the settings, start the heartbeat, and bind EGM.
+        """Connect, shake hands, send the settings and start the heartbeat.
 
-        ``timeout_s`` bounds the link and the handshake; starting the EGM process gets what is
-        left of it, but at least 5 s (a fresh interpreter takes about half a second).
+        ``timeout_s`` bounds the link and the handshake. EGM is not started here: its peer binds
+        its port when the first EGM session needs it (nothing runs that no step uses).
         """
         deadline = time.monotonic() + (timeout_s if timeout_s is not None else self.settings.connect_timeout_s
                                        + self.settings.request_timeout_s)
         await self._link.ensure_connected(deadline)
-        if self._peer is not None:
-            await self._peer.start(timeout_s=max(deadline - time.monotonic(), 5.0))
         self._link.start_heartbeat()
 
     async def close(self) -> None:

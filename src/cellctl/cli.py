@@ -1,6 +1,6 @@
 """``cellctl``: the command line of the cell controller.
 
-``serve`` runs the service; ``status``, ``command`` and ``cycle`` talk to a running service;
+``serve`` runs the service; ``status``, ``command``, ``cycle`` and ``parts`` talk to a running service;
 ``align`` and the calibration commands compute in-process on the simulated cell or saved data.
 """
 
@@ -10,28 +10,71 @@ import argparse
 import asyncio
 import json
 import logging
+import os
 import signal
 import sys
+import tempfile
 import time
+from collections.abc import Iterable
+from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
-from cellctl.cli_args import positive_int
+from cellctl.cli_args import (
+    WORKDIR_ENV,
+    CliParser,
+    add_remote_options,
+    default_workdir,
+    non_negative_int,
+    port_number,
+    positive_int,
+    positive_number,
+)
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
+from cellctl.logsetup import FORMATS, LEVELS, configure_logging
 from cellctl.service.compose import ServiceError as BuildError
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
+CONFIG_ENV = "CELLCTL_CONFIG"
+_CHECKOUT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"  # a source checkout's one copy
+_PACKAGED_CONFIG = Path(__file__).resolve().parent / "data" / "sim.toml"  # the same file, installed with the package
+
+
+def default_config() -> Path:
+    """``$CELLCTL_CONFIG``, else the simulated cell's configuration: config/sim.toml of a source checkout, or the
+    copy installed with the package (``pip install .`` puts it in cellctl/data)."""
+    if os.environ.get(CONFIG_ENV):
+        return Path(os.environ[CONFIG_ENV])
+    return _CHECKOUT_CONFIG if _CHECKOUT_CONFIG.is_file() else _PACKAGED_CONFIG
+
+
+def cellctl_version() -> str:
+    """The installed distribution's version (pyproject.toml is its one source)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("cellctl")
+    except PackageNotFoundError:  # run from a tree that was never installed
+        return "unknown (not installed)"
+
+
+DEFAULT_CONFIG = default_config()
+
+
+class UsageError(ValueError):
+    """A bad option value found after parsing; ``main`` prints it on one line and exits 2 (as argparse does)."""
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
     from cellctl.service import build_service  # the composition root: imports the drivers
 
-    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config = load_config(args.config, read_tokens=True)  # a token it cannot read refuses the start, before anything runs
+    if args.host is not None or args.port is not None:
+        api = config.api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
+        config = config.model_copy(update={"api": api})
 
     async def run() -> int | None:
         service = await build_service(config, workdir=Path(args.workdir))
@@ -111,6 +154,101 @@ def _cmd_cycle(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+TIME_HELP = "ISO 8601 with a timezone, e.g. 2025-03-01T06:00:00+01:00 or 2025-03-01T05:00:00Z"
+
+
+def _moment(option: str, text: str | None) -> datetime | None:
+    """An option's date and time; a bad or naive one raises UsageError naming the option and the format."""
+    if text is None:
+        return None
+    try:
+        t = datetime.fromisoformat(text)
+    except ValueError:
+        raise UsageError(f"{option}: {text!r} is not a date and time; give {TIME_HELP}") from None
+    if t.tzinfo is None:
+        raise UsageError(f"{option}: {text!r} has no timezone; give {TIME_HELP}")
+    return t
+
+
+def write_json_lines(out: TextIO, items: Iterable[dict[str, Any]]) -> int:
+    """One compact JSON object per line; returns how many."""
+    n = 0
+    for item in items:
+        out.write(json.dumps(item, ensure_ascii=False, separators=(",", ":")) + "\n")
+        n += 1
+    return n
+
+
+def write_json_lines_atomically(path: Path, items: Iterable[dict[str, Any]]) -> int:
+    """:func:`write_json_lines` to a temporary file beside ``path``, renamed over it once complete (a reader never
+    sees half an export; a failure leaves ``path`` as it was)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            n = write_json_lines(f, items)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return n
+
+
+def _cmd_parts_export(args: argparse.Namespace) -> int:
+    since = _moment("--since", args.since)
+    until = _moment("--until", args.until) or datetime.now(timezone.utc)
+    if since is not None and until <= since:
+        raise UsageError(f"--until ({until.isoformat()}) must be later than --since ({since.isoformat()})")
+    installs = _client(args).parts(car_id=args.car_id, since=since, until=until)
+    if args.output == "-":
+        try:
+            n = write_json_lines(sys.stdout, installs)
+            sys.stdout.flush()
+        except BrokenPipeError:  # the reader stopped (e.g. `| head`): no traceback, no count
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
+        where = "standard output"
+    else:
+        out = Path(args.output)
+        try:
+            n = write_json_lines_atomically(out, installs)
+        except OSError as err:
+            print(f"error: cannot write {out}: {err.strerror or err}", file=sys.stderr)
+            return 1
+        where = str(out)
+    print(f"wrote {n} part install{'s' if n != 1 else ''} (ended {args.since} to {until.isoformat()}) to {where}", file=sys.stderr)
+    return 0
+
+
+def _cmd_parts_show(args: argparse.Namespace) -> int:
+    history = _client(args).part(args.part_id)
+    installs = history["installs"]
+    print(f"glass {history['part_id']}: {len(installs)} install{'s' if len(installs) != 1 else ''}")
+    for i in installs:
+        verdict = "running" if i["ok"] is None else "OK" if i["ok"] else f"NOT OK ({i['error_code']}: {i['reason']})"
+        took = "" if i["cycle_time_s"] is None else f" in {i['cycle_time_s']:.1f} s"
+        print(f"cycle {i['cycle_id']}: {i['state']} {verdict}{took}; car {i['car_id'] or '-'}, recipe {i['recipe']}, "
+              f"calibration set {i['calibration_version'] or '-'}, ended {i['finished_at'] or i['interrupted_at'] or '-'}")  # fmt: skip
+        print(f"    measured (gaps, flush): {_fmt_six(i['measured_deviation'])}")
+        steps = ", ".join(
+            f"{s['step']} {'ok' if s['ok'] else 'open' if s['ok'] is None else 'FAILED'}"
+            + ("" if s["duration_s"] is None else f" {s['duration_s']:.2f} s")
+            for s in i["steps"]
+        )
+        print(f"    steps: {steps or '-'}")
+        for im in i["images"]:
+            digest = (im["sha256"] or "-")[:16]
+            print(f"    image {im['name']} ({im['step']}): {im['status']}, sha256 {digest}..., {im['size_bytes'] or '-'} bytes")
+        for a in i["actions"]:
+            print(f"    {a['at']} {a['actor']} ({a['source']}): {a['action']}"
+                  + (f" {a['state_before']} -> {a['state_after']}" if a["state_before"] != a["state_after"] else ""))  # fmt: skip
+        for al in i["alarms"]:
+            ack = f"acknowledged by {al['ack_by']} at {al['ack_at']}" if al["ack_by"] else "not acknowledged"
+            print(f"    alarm {al['code']} {al['message']} raised {al['raised_at']}, {ack}")
+    return 0
+
+
 def _cmd_align(args: argparse.Namespace) -> int:
     from cellctl.sim.alignment_run import simulate_alignment
 
@@ -135,63 +273,119 @@ def _cmd_align(args: argparse.Namespace) -> int:
     return 0
 
 
+def _global_options(p: argparse.ArgumentParser, top: bool) -> None:
+    """``--config``, ``--log-level`` and ``--log-format``: before the command, or after it (``cellctl status --config F``)."""
+    keep = argparse.SUPPRESS  # given after the command it overrides; absent it leaves the value before the command
+    p.add_argument("--config", type=Path, default=default_config() if top else keep,
+                   help=f"TOML configuration (default: ${CONFIG_ENV}, else the simulated cell's, {default_config()})")  # fmt: skip
+    p.add_argument("--log-level", choices=LEVELS, type=str.lower, default=None if top else keep,
+                   help="least severe log messages shown on stderr (default: $CELLCTL_LOG_LEVEL, else warning)")  # fmt: skip
+    p.add_argument("--log-format", choices=FORMATS, default=None if top else keep,
+                   help="text, or json: one JSON object per line (ts, level, logger, message, exc_info) "
+                        "(default: $CELLCTL_LOG_FORMAT, else text)")  # fmt: skip
+
+
+def _leaf_parsers(parser: argparse.ArgumentParser) -> Iterable[argparse.ArgumentParser]:
+    """Every parser below ``parser`` that has no sub-commands of its own."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):  # aliases share a parser
+                subs = [a for a in child._actions if isinstance(a, argparse._SubParsersAction)]
+                yield from _leaf_parsers(child) if subs else (child,)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``cellctl``."""
-    parser = argparse.ArgumentParser(prog="cellctl", description="Cell controller for robotic glass installation.")
-    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="TOML configuration (default: %(default)s)")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = CliParser(prog="cellctl", description="Cell controller for robotic glass installation.")
+    parser.add_argument("--version", action="version", version=f"cellctl {cellctl_version()}")
+    _global_options(parser, top=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("serve", help="run the cell service (REST API, dashboard, PLC Modbus server)")
-    p.add_argument("--workdir", default=".", help="where var/ (database, images, calibration) lives")
-    p.add_argument("--demo-cycles", type=int, default=0, help="simulated cell: run this many cycles at start and print them")
+    p.add_argument("--workdir", type=Path, default=default_workdir(),
+                   help=f"where var/ (database, images, calibration) lives (default: ${WORKDIR_ENV}, else the current folder)")  # fmt: skip
+    p.add_argument("--host", default=None, help="address the REST API listens on (default: the configuration's [api] host)")
+    p.add_argument("--port", type=port_number, default=None, help="the REST API's TCP port (default: the configuration's [api] port)")
+    p.add_argument("--demo-cycles", type=non_negative_int, default=0, metavar="N",
+                   help="simulated cell: run this many cycles at start and print them")  # fmt: skip
     p.set_defaults(func=_cmd_serve)
 
-    def remote(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--url", default=None, help="the running service (default: $CELLCTL_URL, else the configuration's [api])")
-        p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
-
     p = sub.add_parser("status", help="the running cell's state, devices and calibration")
-    remote(p)
-    p.add_argument("--json", action="store_true")
+    add_remote_options(p)
+    p.add_argument("--json", action="store_true", help="print the service's status document as JSON")
     p.set_defaults(func=_cmd_status)
 
     p = sub.add_parser("command", help="send a PackML command (reset, start, stop, hold, unhold, ...)")
-    remote(p)
-    p.add_argument("name", choices=["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"])
+    add_remote_options(p)
+    p.add_argument("name", choices=["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"],
+                   help="the PackML command")  # fmt: skip
     p.set_defaults(func=_cmd_command)
 
     p = sub.add_parser("cycle", help="run installation cycles on the running cell and print their results")
-    remote(p)
-    p.add_argument("--recipe", default="side-window")
-    p.add_argument("--part", default="part")
-    p.add_argument("--count", type=int, default=1)
+    add_remote_options(p)
+    p.add_argument("--recipe", default="side-window", help="the recipe each cycle installs (default: %(default)s)")
+    p.add_argument("--part", default="part", help="the glass's part id; with --count N, -1 ... -N are appended (default: %(default)s)")
+    p.add_argument("--count", type=positive_int, default=1, metavar="N", help="how many cycles to run one after the other (default: 1)")
     p.add_argument("--key", default=None, help="Idempotency-Key (default: a new one per cycle)")
     p.add_argument("--start", action="store_true", help="first bring the cell to Execute (clear/reset/start)")
-    p.add_argument("--timeout", type=float, default=300.0)
+    p.add_argument("--timeout", type=positive_number, default=300.0, metavar="SECONDS",
+                   help="longest wait for one cycle's result (default: %(default)g s)")  # fmt: skip
     p.set_defaults(func=_cmd_cycle)
 
+    p = sub.add_parser("parts", help="part traceability: every install of a glass or car body, for the MES")
+    parts = p.add_subparsers(dest="parts_command", required=True, metavar="SUBCOMMAND")
+    p = parts.add_parser("export", help="write the installs that ended in a window as JSON lines (GET /parts documents)")
+    add_remote_options(p)
+    p.add_argument("--since", required=True, metavar="ISO", help=f"installs that ended at or after this time ({TIME_HELP})")
+    p.add_argument("--until", default=None, metavar="ISO", help="installs that ended before this time (default: now; the next export's --since)")
+    p.add_argument("--car-id", default=None, metavar="CAR_ID", help="only this car body's installs")
+    p.add_argument("--output", default="-", metavar="FILE", help="file to write (replaced atomically), or - for standard output (default)")
+    p.set_defaults(func=_cmd_parts_export)
+    p = parts.add_parser("show", help="a readable summary of every install of one glass")
+    add_remote_options(p)
+    p.add_argument("part_id", help="the glass's part id")
+    p.set_defaults(func=_cmd_parts_show)
+
     p = sub.add_parser("align", help="run the laser alignment on the simulated cell in-process and score it")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--seed", type=int, default=1, help="random seed of the simulated cell (default: %(default)s)")
+    p.add_argument("--runs", type=positive_int, default=3, metavar="N", help="how many alignments (default: %(default)s)")
     p.set_defaults(func=_cmd_align)
 
+    from cellctl.cli_config import register as register_config
+
+    register_config(sub)
     from cellctl.commissioning.cli import register as register_commissioning
 
     register_commissioning(sub, positive_int)
     from cellctl.bench.cli import register as register_bench
+
     register_bench(sub)
+    for leaf in _leaf_parsers(parser):
+        _global_options(leaf, top=False)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``cellctl`` console script."""
+    """Entry point of the ``cellctl`` console script (and ``python -m cellctl``)."""
     args = build_parser().parse_args(argv)
+    try:
+        configure_logging(args.log_level, args.log_format)
+    except ValueError as err:  # $CELLCTL_LOG_LEVEL or $CELLCTL_LOG_FORMAT
+        print(f"cellctl: error: {err}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args))
     except (ConfigError, TokenUnavailable) as err:
         print(f"configuration refused:\n{err}", file=sys.stderr)
         return 2
     except (ServiceError, BuildError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    except UsageError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # a file or socket the command needs: one line, no traceback
+        logging.getLogger("cellctl").debug("command failed", exc_info=True)
         print(f"error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

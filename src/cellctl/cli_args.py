@@ -1,25 +1,80 @@
-"""Argument types shared by the ``cellctl`` subcommands."""
+"""Argument parsing shared by the ``cellctl`` subcommands: the parser class and the argument types."""
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
+import sys
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NoReturn
+
+WORKDIR_ENV = "CELLCTL_WORKDIR"
 
 
-def whole_number(minimum: int, rule: str) -> Callable[[str], int]:
-    """An argparse type: a whole number not below ``minimum`` (``rule`` says so when it is)."""
+def default_workdir() -> Path:
+    """``$CELLCTL_WORKDIR``, else the current folder; absolute, so messages say where var/ is looked for."""
+    return Path(os.environ.get(WORKDIR_ENV) or ".").resolve()
+
+
+class CliParser(argparse.ArgumentParser):
+    """An argparse parser that takes no abbreviated options (``--view`` is not ``--views``) and reports a
+    bad argument on one line, ``cellctl calibrate camera: error: --views must be ≥ 1 (got 0)``, exit 2.
+
+    Sub-parsers made with ``add_subparsers().add_parser`` are of this class too.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> NoReturn:
+        message = re.sub(r"^argument ([^:]+): (must|expected)", r"\1 \2", message)
+        sys.stderr.write(f"{self.prog}: error: {message}\n(`{self.prog} --help` lists the options)\n")
+        sys.exit(2)
+
+
+def add_remote_options(p: argparse.ArgumentParser) -> None:
+    """``--url`` and ``--token`` of a command that talks to the running service."""
+    p.add_argument("--url", default=None,
+                   help="the running service (default: $CELLCTL_URL, else the host and port of the configuration's [api])")  # fmt: skip
+    p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
+
+
+def whole_number(minimum: int) -> Callable[[str], int]:
+    """An argparse type: a whole number not below ``minimum``."""
 
     def parse(text: str) -> int:
         try:
             v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected a whole number (got {text!r})") from None
         if v < minimum:
-            raise argparse.ArgumentTypeError(f"{rule}, got {v}")
+            raise argparse.ArgumentTypeError(f"must be ≥ {minimum} (got {v})")
         return v
 
     return parse
 
 
-positive_int = whole_number(1, "must be at least 1")
-non_negative_int = whole_number(0, "must not be negative")
+def positive_number(text: str) -> float:
+    """An argparse type: a finite number above 0 (seconds, for instance)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number (got {text!r})") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be > 0 (got {text})")
+    return v
+
+
+def port_number(text: str) -> int:
+    """An argparse type: a TCP port, 0 (any free one) to 65535."""
+    v = whole_number(0)(text)
+    if v > 65535:
+        raise argparse.ArgumentTypeError(f"must be a TCP port, 0 to 65535 (got {v})")
+    return v
+
+
+positive_int = whole_number(1)
+non_negative_int = whole_number(0)

@@ -7,7 +7,9 @@ import os
 import time
 import uuid
 from collections.abc import Iterator
+from datetime import datetime
 from typing import Any
+from urllib.parse import quote
 
 import httpx
 
@@ -80,6 +82,36 @@ class CellClient:
 
     def cycle(self, cycle_id: int) -> dict[str, Any]:
         return self._call("GET", f"/cycles/{cycle_id}")
+
+    # part traceability
+    def parts(
+        self,
+        *,
+        car_id: str | None = None,
+        part_id: str | None = None,
+        since: datetime | None = None,
+        until: datetime | None = None,
+        page_size: int = 100,
+    ) -> Iterator[dict[str, Any]]:
+        """Every install matching the filters (``GET /parts``), oldest first, fetched a page at a time as it is iterated.
+
+        ``since``/``until`` must be timezone-aware (the window is on when the install ended: since
+        inclusive, until exclusive).
+        """
+        params: dict[str, Any] = {"limit": page_size}
+        for name, value in (("car_id", car_id), ("part_id", part_id), ("since", since), ("until", until)):
+            if value is not None:
+                params[name] = value.isoformat() if isinstance(value, datetime) else value
+        while True:
+            page = self._call("GET", "/parts", params=params, headers=self._headers())
+            yield from page["installs"]
+            if page["next"] is None:
+                return
+            params["after"] = page["next"]
+
+    def part(self, part_id: str) -> dict[str, Any]:
+        """Every install of one glass (``GET /parts/{part_id}``)."""
+        return self._call("GET", f"/parts/{quote(part_id, safe='')}", headers=self._headers())
 
     # commissioning jobs
     def plan_job(self, procedure: str, options: dict[str, Any], *, poses: bool = False) -> dict[str, Any]:

@@ -70,6 +70,19 @@ class MotionInterrupted(DeviceError):
     """A motion was stopped before it reached its target (stop request, fault, lost link)."""
 
 
+@runtime_checkable
+class Device(Protocol):
+    """What every device port has: a harmless call for the watchdog, and a close."""
+
+    async def ping(self, *, timeout_s: float) -> float:
+        """A harmless round trip for the watchdog; returns its duration in seconds."""
+        ...
+
+    async def close(self) -> None:
+        """Release the device (port, socket or camera). Safe to call twice."""
+        ...
+
+
 # ---------------------------------------------------------------------------------------------
 # Displacement sensor (the LK-G laser)
 
@@ -106,19 +119,38 @@ class DistanceReading:
 
 
 @runtime_checkable
-class DisplacementSensor(Protocol):
+class DisplacementSensor(Device, Protocol):
     """A laser displacement sensor measuring along a fixed ray of the flange frame."""
 
     async def read(self, *, timeout_s: float) -> DistanceReading:
         """One reading. Over range and no value come back as a status, not as an exception."""
         ...
 
-    async def ping(self, *, timeout_s: float) -> float:
-        """A harmless round trip for the watchdog; returns its duration in seconds."""
+
+@dataclass(frozen=True)
+class StoredReadings:
+    """Readings a sensor stored on its own at a fixed cycle while the robot moved (LK-G data storage).
+
+    The k-th reading stands for the instant ``started_s + k * cycle_s`` on the cell's clock (the
+    clock of :class:`cellctl.cell.cycle.CellDevices`); the sensor's own delay on top of that is the
+    latency the cell estimates. ``distances_mm`` is None where a reading had no valid distance.
+    """
+
+    started_s: float
+    cycle_s: float
+    distances_mm: tuple[float | None, ...]
+
+
+@runtime_checkable
+class StoringSensor(Protocol):
+    """A displacement sensor that stores readings at a fixed cycle by itself (LK-G: AQ, AS, AP, AO)."""
+
+    async def start_storage(self, *, cycle_s: float, count: int, timeout_s: float) -> float:
+        """Clear the storage and store a reading every ``cycle_s`` (at most ``count``); returns ``started_s``."""
         ...
 
-    async def close(self) -> None:
-        """Release the port. Safe to call twice."""
+    async def stop_storage(self, *, timeout_s: float) -> StoredReadings:
+        """Stop storing and read out what was stored."""
         ...
 
 
@@ -152,19 +184,11 @@ class Frame:
 
 
 @runtime_checkable
-class Camera(Protocol):
+class Camera(Device, Protocol):
     """A monochrome industrial camera on the robot's fixture."""
 
     async def grab(self, *, timeout_s: float) -> Frame:
         """Trigger (if in trigger mode) and return one new frame."""
-        ...
-
-    async def ping(self, *, timeout_s: float) -> float:
-        """A harmless round trip for the watchdog; returns its duration in seconds."""
-        ...
-
-    async def close(self) -> None:
-        """Release the device. Safe to call twice."""
         ...
 
 
@@ -240,7 +264,7 @@ class RobotState:
 
 
 @runtime_checkable
-class Robot(Protocol):
+class Robot(Device, Protocol):
     """A six-axis robot moving its flange (tool0) in its base frame (wobj0)."""
 
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
@@ -274,12 +298,29 @@ class Robot(Protocol):
         """
         ...
 
-    async def ping(self, *, timeout_s: float) -> float:
-        """A harmless round trip for the watchdog; returns its duration in seconds."""
+
+@dataclass(frozen=True)
+class PoseSample:
+    """One sample of the robot's position feedback: the flange pose and its instant on the cell's clock (s)."""
+
+    t_s: float
+    pose: CartesianPose
+
+
+@runtime_checkable
+class PoseStream(Protocol):
+    """The robot's position feedback while it moves (ABB: the EGM feedback stream, every 4 ms)."""
+
+    async def start_stream(self, *, timeout_s: float) -> None:
+        """Start collecting feedback samples (the previous collection is dropped)."""
         ...
 
-    async def close(self) -> None:
-        """Close the connection. Safe to call twice."""
+    async def stop_stream(self, *, timeout_s: float) -> tuple[PoseSample, ...]:
+        """Stop collecting; the samples since :meth:`start_stream`, in time order."""
+        ...
+
+    def latest(self) -> PoseSample | None:
+        """The newest sample received since :meth:`start_stream` (None before the first): how fresh the stream is."""
         ...
 
 

@@ -25,8 +25,8 @@ NOT_JSON = {
 }
 """The routes whose answer is not JSON, and what it is."""
 
-OPEN_ROUTES = {("get", "/health")}
-"""In the OpenAPI document, the only route that answers an anonymous caller when reads are closed (the page at / is not in it)."""
+OPEN_ROUTES = {("get", "/health"), ("get", "/health/live")}
+"""In the OpenAPI document, the only routes that answer an anonymous caller when reads are closed (the page at / is not in it)."""
 
 
 def _document() -> dict[str, Any]:
@@ -90,11 +90,16 @@ async def test_metrics_parse_as_prometheus_text_at_full_precision(tmp_path: Path
         after = time.time()
     assert r.status_code == 200 and r.headers["content-type"] == CONTENT_TYPE_LATEST
     families = {f.name: f for f in text_string_to_metric_families(r.text)}
-    assert set(families) == {
+    cell_gauges = {
         "cellctl_packml_state", "cellctl_unit_mode", "cellctl_cycles", "cellctl_alarms_active",
         "cellctl_device_up", "cellctl_device_heartbeat_age_seconds", "cellctl_scrape_timestamp_seconds",
+        "cellctl_build_info",
     }  # fmt: skip
-    assert all(f.type == "gauge" for f in families.values())
+    histogram = {"cellctl_cycle_time_seconds", "cellctl_cycle_time_seconds_created"}  # the text format's _created as a gauge
+    assert {n for n in families if n.startswith("cellctl_")} == cell_gauges | histogram
+    assert all(families[n].type == "gauge" for n in cell_gauges)
+    assert families["cellctl_cycle_time_seconds"].type == "histogram"
+    assert {n.split("_")[0] for n in families} == {"cellctl", "process", "python"}  # the process collectors, nothing else
     assert [s.value for s in families["cellctl_packml_state"].samples] == [9.0]  # Aborted: the service starts there
     assert {s.labels["state"]: s.value for s in families["cellctl_cycles"].samples} == {s.value: 0.0 for s in CycleState}
     assert {s.labels["device"] for s in families["cellctl_device_up"].samples} == {"laser", "camera", "robot"}

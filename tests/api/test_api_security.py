@@ -41,7 +41,7 @@ async def test_closed_reads_leave_health_ok_open_and_the_rest_behind_the_token(t
             assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer", path
             assert "Bearer" in r.json()["detail"]
         details = await client.get("/health", headers=AUTH)
-        assert details.json() == {"ok": True, "devices_lost": [], "store": {"journal_mode": "wal"}}
+        assert details.json() == {"ok": True, "devices_lost": [], "problems": [], "store": {"journal_mode": "wal"}}
         metrics = await client.get("/metrics", headers=AUTH)
         assert metrics.status_code == 200 and "cellctl_packml_state" in metrics.text
         assert metrics.headers["content-type"].startswith("text/plain")

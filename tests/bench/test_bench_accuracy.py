@@ -136,3 +136,49 @@ async def test_data_calibration_runs_use_a_fresh_calibration_set_in_the_workdir(
         assert source.problems()  # nothing calibrated yet: the bench calibrates from simulated data first
     finally:
         await service.stop()
+
+
+@pytest.mark.timeout(180)
+def test_a_mix_of_recipes_reports_each_recipes_figures_from_its_own_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out_json, work = tmp_path / "mix.json", tmp_path / "run"
+    code = main([
+        "--config", str(CONFIG), "bench", "accuracy", "--trials", "8", "--seed", "2", "--calibration", "oracle",
+        "--recipes", "mix", "--json", str(out_json), "--workdir", str(work), "--quiet",
+    ])  # fmt: skip
+    text = capsys.readouterr().out
+    report = json.loads(out_json.read_text())
+    assert code in (0, 1) and report["settings"]["recipes"] == "mix"
+    with CellStore.open(work / "var" / "bench.db") as store:
+        records = sorted(store.cycles(limit=20), key=lambda r: r.id)
+    by_recipe: dict[str, list] = {}
+    for r in records:
+        by_recipe.setdefault(r.request.recipe, []).append(r)
+    assert set(by_recipe) == {"side-window", "door-window"}  # config/sim.toml's two, both drawn in 8 trials of seed 2
+    assert [t["recipe"] for t in report["trials"]] == [r.request.recipe for r in records]
+    for name, recs in by_recipe.items():
+        done = [r for r in recs if r.state is CycleState.DONE]
+        E = np.array([[r.true_error[f] for f in FIELDS] for r in done])
+        axes = report["recipes"][name]
+        assert [a["n"] for a in axes] == [len(done)] * 6 and len(done) >= 1
+        for j, axis in enumerate(axes):
+            assert axis["p99_abs"] == pytest.approx(np.percentile(np.abs(E[:, j]), 99))
+        assert np.all(np.abs(E[:, :3]) < 0.5) and np.all(np.abs(E[:, 3:]) < 1.0), (name, E)
+    assert "per recipe" in text and "door-window" in text and "x)" in text  # each recipe's p99 and its ratio to the first's
+
+
+@pytest.mark.timeout(180)
+def test_the_mix_requested_by_a_line_plc_over_modbus_runs_each_recipe_it_asks_for(tmp_path: Path) -> None:
+    from cellctl.bench.accuracy import RunSettings, run_accuracy
+
+    config = load_config(CONFIG)
+    settings = RunSettings(6, 4, calibration="oracle", recipes="mix", via="plc")
+    run = run_accuracy(config, settings, progress=False, workdir=tmp_path / "run")
+    with CellStore.open(tmp_path / "run" / "var" / "bench.db") as store:
+        records = sorted(store.cycles(limit=20), key=lambda r: r.id)
+    # every cycle came through the cell's Modbus server, keyed by the PLC's cycle_req_id, of the recipe its
+    # recipe_id named, and installed within the tolerance
+    assert [(r.request.source, r.idempotency_key) for r in records] == [("plc", str(k)) for k in range(1, 7)]
+    assert [t.recipe for t in run.trials] == [r.request.recipe for r in records]
+    assert {r.request.recipe for r in records} == {"side-window", "door-window"}
+    assert all(r.state is CycleState.DONE for r in records) and run.within_tolerance == 6
+    assert "requested by a line PLC over Modbus TCP" in format_accuracy(run)

@@ -7,8 +7,9 @@ import pytest
 from calib_test_support import board_views, camera_outcome, config
 
 from cellctl.calibration.board import BoardSpec, find_board
-from cellctl.calibration.camera import CameraLimits, ViewCorners, calibrate_camera
+from cellctl.calibration.camera import ViewCorners, calibrate_camera
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.config.calibration_procedure import CameraCalibrationConfig
 from cellctl.geometry.pose import apply_pose
 from cellctl.sim.camera_model import CameraModel
 
@@ -76,7 +77,7 @@ def test_too_few_views_are_refused() -> None:
     _, dets = board_views()
     views = [ViewCorners(n, d.corners_px, d.reason) for n, d in dets[:4]]
     with pytest.raises(CalibrationRefused) as err:
-        calibrate_camera(views, SPEC.object_points(), (2048, 2048), limits=CameraLimits(min_views=8))
+        calibrate_camera(views, SPEC.object_points(), (2048, 2048), limits=CameraCalibrationConfig(min_views=8))
     assert err.value.reason == "too_few_views"
     assert "4 usable view" in str(err.value)
 

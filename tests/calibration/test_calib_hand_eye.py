@@ -10,7 +10,6 @@ from calib_test_support import board_views, config, store_with_camera
 from cellctl.calibration.compute import compute_hand_eye
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import (
-    HandEyeLimits,
     motion_diversity,
     motion_pairs,
     opencv_hand_eye,
@@ -18,6 +17,7 @@ from cellctl.calibration.hand_eye import (
     tsai_lenz,
 )
 from cellctl.calibration.poses import plan_board_views
+from cellctl.config.calibration_procedure import HandEyeCalibrationConfig
 from cellctl.geometry.pose import invert_pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix, rotation_angle_between
 from cellctl.sim.cell import SimCell
@@ -95,7 +95,7 @@ def test_too_few_views_are_refused() -> None:
     X = make_pose(axis_angle_to_matrix([0.2, 0.1, 0.3]), [10.0, 20.0, 30.0])
     H, C = _synthetic(X, 4, rng)
     with pytest.raises(CalibrationRefused) as err:
-        solve_hand_eye(H, C, limits=HandEyeLimits(min_views=6))
+        solve_hand_eye(H, C, limits=HandEyeCalibrationConfig(min_views=6))
     assert err.value.reason == "too_few_views"
 
 

@@ -11,9 +11,10 @@ from calib_test_support import config, scratch, with_robot
 from cellctl.calibration.compute import compute_laser
 from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.laser import LaserLimits, calibrate_laser
+from cellctl.calibration.laser import calibrate_laser
 from cellctl.calibration.poses import plan_laser_poses
 from cellctl.sim.commissioning import TwinCommissioning
+from cellctl.config.calibration_procedure import LaserCalibrationConfig
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.rotation import angle_between_vectors, axis_angle_to_matrix
 from cellctl.ports import LaserStatus
@@ -166,5 +167,5 @@ def test_a_plane_seen_from_too_few_directions_is_refused() -> None:
 
 def test_too_few_readings_are_refused() -> None:
     with pytest.raises(CalibrationRefused) as err:
-        calibrate_laser(np.tile(np.eye(4), (5, 1, 1)), np.full(5, 350.0), [40, -40, 90], [1, 0, 0], limits=LaserLimits(min_poses=12))
+        calibrate_laser(np.tile(np.eye(4), (5, 1, 1)), np.full(5, 350.0), [40, -40, 90], [1, 0, 0], limits=LaserCalibrationConfig(min_poses=12))
     assert err.value.reason == "too_few_poses"

@@ -15,16 +15,15 @@ import threading
 import time
 from collections.abc import Coroutine
 from pathlib import Path
-from urllib.parse import urlsplit
 from typing import Any, TypeVar
+from urllib.parse import urlsplit
 
 import httpx
-from shared_support import on_ci
 import uvicorn
+from service_test_support import sim_config as service_sim_config
+from shared_support import on_ci
 
 from cellctl.api.app import create_app
-from service_test_support import sim_config as service_sim_config
-
 from cellctl.config import CellConfig
 from cellctl.service import build_service
 from cellctl.service.compose import Service
@@ -64,6 +63,14 @@ def chromium_missing_reason() -> str | None:
     return reason
 
 
+def browser_marks(timeout_s: float = 120) -> list[Any]:
+    """A browser test module's marks: skipped without Chromium (off CI), and a time limit."""
+    import pytest
+
+    missing = chromium_missing_reason()
+    return [pytest.mark.skipif(missing is not None, reason=missing or ""), pytest.mark.timeout(timeout_s)]
+
+
 class LiveCell:
     """The simulated cell served over HTTP on 127.0.0.1 from a background thread."""
 
@@ -94,7 +101,7 @@ class LiveCell:
         self.thread.start()
         self.run(self._start(), timeout_s=90.0)
 
-    def __enter__(self) -> "LiveCell":
+    def __enter__(self) -> LiveCell:
         self.start()
         return self
 
@@ -186,6 +193,23 @@ def to_aborted(client: httpx.Client) -> None:
     if settle(client) != "ABORTED":
         assert client.post("/commands/abort", headers=AUTH).status_code == 200
     assert settle(client) == "ABORTED"
+
+
+def install_cycles(client: httpx.Client, key: str, parts: list[tuple[str, str | None]]) -> list[dict[str, Any]]:
+    """Run one cycle per (part id, car id) to its end (``wait=true``); each must install. Their records."""
+    to_execute(client)
+    out = []
+    for i, (part_id, car_id) in enumerate(parts):
+        body: dict[str, Any] = {"recipe": "side-window", "part_id": part_id}
+        if car_id is not None:
+            body["car_id"] = car_id
+        r = client.post(
+            "/cycle", params={"wait": "true", "timeout_s": 60}, json=body, headers={**AUTH, "Idempotency-Key": f"{key}-{i}"}
+        )
+        assert r.status_code == 200, r.text
+        assert r.json()["state"] == "done", r.json()
+        out.append(dict(r.json()))
+    return out
 
 
 def wait_cycle(client: httpx.Client, cycle_id: int, deadline_s: float = 30.0) -> dict[str, Any]:

@@ -68,6 +68,7 @@ _SET_CALIBRATION = {
                          "quality": {}, "failure": "rotation spread 3 deg is below 30 deg"},
             "teaching": None,
         },
+        "recipes": {"side-window": {"taught": True, "ready": False}, "door-window": {"taught": False, "ready": False}},
     },
     "problems": ["hand_eye: failed (rotation spread 3 deg is below 30 deg): run `cellctl calibrate hand-eye`"],
     "versions": [  # oldest first, as GET /calibration lists them
@@ -120,6 +121,7 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("#page-calibration")).to_be_visible()
     expect(pg.locator("#cal-problems")).to_contain_text("Ready for production")
     expect(pg.locator("#cal-current")).to_contain_text("source")
+    expect(pg.locator("#cal-recipes [data-recipe=side-window]")).to_contain_text("ready")
     shot(pg, "07-calibration.png")
     # A versioned calibration set (as calibration.source = "set" reports it) shows one row per part,
     # a failed part in alarm colour and a missing one in warning colour.
@@ -130,6 +132,10 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("#cal-parts [data-part=camera]")).to_contain_text("rms_px")
     expect(pg.locator("#cal-parts [data-part=hand_eye] td").first).to_have_class("is-alarm")
     expect(pg.locator("#cal-parts [data-part=teaching] td").first).to_have_class("is-warn")
+    # each recipe: its own teaching, and whether its cycles may run
+    expect(pg.locator("#cal-recipes [data-recipe=side-window]")).to_contain_text("taught")
+    expect(pg.locator("#cal-recipes [data-recipe=door-window] td").first).to_have_text("not taught")
+    expect(pg.locator("#cal-recipes [data-recipe=door-window] td").first).to_have_class("is-warn")
     # The set's versions, newest first; the one in use is marked, its failed part in alarm colour.
     versions = pg.locator("#cal-history tbody tr")
     expect(versions).to_have_count(2)

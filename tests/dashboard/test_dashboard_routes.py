@@ -7,16 +7,23 @@ from __future__ import annotations
 import re
 import time
 from collections.abc import Iterator
-from datetime import datetime, timezone
+from datetime import UTC, datetime, timezone
 from pathlib import Path
 
 import cv2
 import httpx
 import numpy as np
 import pytest
-from dashboard_test_support import AUTH, LiveCell, sim_config, to_execute
+from dashboard_test_support import LiveCell, install_cycles, sim_config
 
-from cellctl.api.dashboard import STALE_AFTER_S, STATIC_DIR, deviation_digest, scale_png
+from cellctl.api.dashboard import (
+    STALE_AFTER_S,
+    STATIC_DIR,
+    count_shift,
+    deviation_digest,
+    scale_png,
+    shift_windows,
+)
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
 from cellctl.cell.tags import CycleStep
 from cellctl.store import CycleRecord, CycleRequest, CycleState
@@ -42,19 +49,7 @@ def client(cell: LiveCell) -> Iterator[httpx.Client]:
 
 @pytest.fixture(scope="module")
 def two_cycles(client: httpx.Client) -> list[dict]:
-    to_execute(client)
-    out = []
-    for i in range(2):
-        r = client.post(
-            "/cycle",
-            params={"wait": "true", "timeout_s": 60},
-            json={"recipe": "side-window", "part_id": f"P-R{i}", "car_id": f"C-{i}"},
-            headers={**AUTH, "Idempotency-Key": f"routes-{i}"},
-        )
-        assert r.status_code == 200, r.text
-        assert r.json()["state"] == "done", r.json()
-        out.append(r.json())
-    return out
+    return install_cycles(client, "routes", [(f"P-R{i}", f"C-{i}") for i in range(2)])
 
 
 def test_the_page_and_its_files_come_from_the_package(client: httpx.Client) -> None:
@@ -180,3 +175,33 @@ def test_scale_png_refuses_what_is_not_an_image(tmp_path: Path) -> None:
     assert ok
     same = cv2.imdecode(np.frombuffer(scale_png(png.tobytes(), 64), np.uint8), cv2.IMREAD_UNCHANGED)
     assert same.shape == (10, 20)  # never enlarged
+
+
+def test_shifts_begin_at_the_local_boundaries_and_count_good_and_not_ok_parts() -> None:
+    utc = UTC
+    now = datetime(2026, 1, 5, 4, 30, tzinfo=utc)  # 05:30 at UTC+1: the night shift since 22:00 yesterday
+    (start, end, local), (prev_start, _, _) = shift_windows(now, ["06:00", "14:00", "22:00"], 60, 2)
+    assert (start, end) == (datetime(2026, 1, 4, 21, 0, tzinfo=utc), datetime(2026, 1, 5, 5, 0, tzinfo=utc))
+    assert local == datetime(2026, 1, 4, 22, 0) and prev_start == datetime(2026, 1, 4, 13, 0, tzinfo=utc)
+    # Two shifts a day, given in any order.
+    assert [w[2].hour for w in shift_windows(now, ["18:00", "06:00"], 0, 3)] == [18, 6, 18]
+    t = datetime(2026, 1, 4, 22, 30, tzinfo=utc)
+    records = [
+        _record(id=1, state=CycleState.DONE, error=None, result={"part_ok": True, "cycle_time_s": 40.0}, finished_at=t),
+        _record(id=2, state=CycleState.DONE, error=None, result={"part_ok": True, "cycle_time_s": 44.0}, finished_at=t),
+        _record(id=3, state=CycleState.DONE, error=None, result={"part_ok": False, "cycle_time_s": 90.0}, finished_at=t),
+        _record(id=4, state=CycleState.FAILED, finished_at=t),
+        _record(id=5, state=CycleState.DONE, error=None, result={"cycle_time_s": 41.0}, finished_at=datetime(2026, 1, 4, 20, 0, tzinfo=utc)),
+    ]
+    assert count_shift(records, start, end) == (2, 2, 42.0)
+
+
+def test_the_shift_route_checks_its_boundaries(client: httpx.Client) -> None:
+    r = client.get("/dashboard/shifts", params={"starts": "06:00,18:00", "tz_offset_min": 120, "count": 4})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["shift_starts"] == ["06:00", "18:00"] and len(body["shifts"]) == 4
+    assert [s["current"] for s in body["shifts"]] == [True, False, False, False]
+    assert client.get("/dashboard/config").json()["shift_starts"] == ["06:00", "14:00", "22:00"]
+    for bad in ({"starts": "25:00"}, {"starts": "6:00"}, {"tz_offset_min": 900}, {"count": 0}):
+        assert client.get("/dashboard/shifts", params=bad).status_code == 422, bad

@@ -11,7 +11,12 @@ from urllib.parse import urlsplit
 
 import httpx
 import pytest
-from dashboard_test_support import AUTH, LiveCell, PageLog, chromium_missing_reason, to_execute
+from dashboard_test_support import (
+    LiveCell,
+    PageLog,
+    chromium_missing_reason,
+    install_cycles,
+)
 
 from cellctl.api.dashboard import STATIC_DIR
 
@@ -35,16 +40,7 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveCell]:
 @pytest.fixture(scope="module")
 def cycle_id(client: httpx.Client) -> int:
     """One installed cycle, so the trends, the filmstrip, the history and a detail have something to show."""
-    to_execute(client)
-    r = client.post(
-        "/cycle",
-        params={"wait": "true", "timeout_s": 60},
-        json={"recipe": "side-window", "part_id": "P-VIEWS", "car_id": "C-VIEWS"},
-        headers={**AUTH, "Idempotency-Key": "views-1"},
-    )
-    assert r.status_code == 200, r.text
-    assert r.json()["state"] == "done", r.json()
-    return int(r.json()["id"])
+    return int(install_cycles(client, "views", [("P-VIEWS", "C-VIEWS")])[0]["id"])
 
 
 def test_the_page_names_every_module_and_each_is_served_as_javascript(client: httpx.Client) -> None:

@@ -139,6 +139,7 @@ def _hardware_config(tmp: Path, ready: dict[str, Any], tlsimu: str, api_port: in
     # No PLC connects in this test: without heartbeat_alarm = false its never-started heartbeat
     # would raise the PLC alarm after heartbeat_timeout_s.
     data["plc"].update(host=LOOPBACK, port=0, heartbeat_alarm=False)
+    data["opcua"].update(enabled=False, host=LOOPBACK)  # tests/opcua runs the OPC UA server with the hardware security settings
     data["api"].update(host=LOOPBACK, port=api_port)
     return data
 
@@ -384,6 +385,9 @@ def test_rest_job_cancelled_mid_move_stops_the_robot(cell: Cell) -> None:
 def test_sigterm_stops_the_service_cleanly(cell: Cell) -> None:
     """Last in this file: it ends the module's service. systemd stops a service with SIGTERM."""
     _stopped_or_idle(cell)
+    # The fake's moves take their real time (0.47 s or more each) for this whole job: the SIGTERM lands
+    # in it however slowly a loaded machine polls (at the suite's time scale one run finished first).
+    assert cell.fake_robot("time_scale 1.0")["time_scale"] == 1.0
     r = httpx.post(f"{cell.url}/jobs", json={"procedure": "laser", "options": {"poses": CANCEL_POSES}}, headers=cell.auth, timeout=10.0)
     assert r.status_code == 201, f"the job did not start: {r.status_code} {r.text}"
     job_id = int(r.json()["id"])
@@ -395,8 +399,11 @@ def test_sigterm_stops_the_service_cleanly(cell: Cell) -> None:
                        headers=cell.auth, timeout=5.0)  # fmt: skip
         return (job.get("progress") or {}).get("done", 0) >= 3
 
-    _wait("the job under way", under_way, 20.0, cell.serve.logs, period_s=0.02)
-    code = cell.serve.stop()
+    try:
+        _wait("the job under way", under_way, 60.0, cell.serve.logs, period_s=0.02)
+        code = cell.serve.stop()
+    finally:
+        cell.fake_robot(f"time_scale {TIME_SCALE}")
     with contextlib.closing(sqlite3.connect(cell.db_path)) as db:
         state, dataset = db.execute("SELECT state, dataset FROM jobs WHERE id = ?", (job_id,)).fetchone()
     assert code == 0, f"cellctl serve exit {code} on SIGTERM (job {job_id} left {state})"

@@ -102,9 +102,9 @@ class MemoryCell:
         for step in (CycleStep.CALIBRATE, CycleStep.ALIGN, CycleStep.SHOOT, CycleStep.COMPENSATE,
                      CycleStep.INSTALL, CycleStep.INSPECT):
             self.step = step
+            if step is CycleStep.INSTALL and self.gate is not None:
+                await self.gate.wait()  # held at INSTALL, where a test can see it however slowly it polls
             await asyncio.sleep(self.cycle_s / 6)
-        if self.gate is not None:
-            await self.gate.wait()
         rng = np.random.default_rng([self.seed, req_id])
         d_mm = rng.uniform(-8.0, 8.0, 3)
         d_rad = rng.uniform(-0.03, 0.03, 3)
@@ -145,8 +145,15 @@ class MemoryCell:
     def plc_link_restored(self) -> None:
         self.link_events.append(("restored", 0.0))
 
-    async def drain(self) -> None:
-        await asyncio.gather(*self.running.values(), return_exceptions=True)
+    async def drain(self, timeout_s: float = 5.0) -> None:
+        """Let running cycles finish; cancel those still held (a failed test never set its gate)."""
+        tasks = list(self.running.values())
+        if not tasks:
+            return
+        _, pending = await asyncio.wait(tasks, timeout=timeout_s)
+        for task in pending:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
 
 
 def plc_config(**overrides: Any) -> PlcConfig:
@@ -166,6 +173,7 @@ class PlcClient:
     unit_id: int = 1
     heartbeat: int = 0
     _beat_task: asyncio.Task[None] | None = field(default=None, repr=False)
+    _beat_stop: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
 
     def _convert(self, reg_type: RegType) -> Any:
         dt = self.client.DATATYPE
@@ -239,20 +247,25 @@ class PlcClient:
         await self.wait_cell(lambda c: PackMLState(c["state_current"]) not in acting, "a settled state", settle_timeout_s)
         return ack
 
-    async def _beat(self, period_s: float) -> None:
-        while True:
+    async def _beat(self, period_s: float, stop: asyncio.Event) -> None:
+        while not stop.is_set():
             self.heartbeat = (self.heartbeat + 1) & 0xFFFF
             await self.write(plc_heartbeat=self.heartbeat)
             await asyncio.sleep(period_s)
 
     def start_heartbeat(self, period_s: float) -> None:
-        self._beat_task = asyncio.create_task(self._beat(period_s))
+        self._beat_stop = asyncio.Event()
+        self._beat_task = asyncio.create_task(self._beat(period_s, self._beat_stop))
 
     async def stop_heartbeat(self) -> None:
+        """Stop beating. The flag ends the loop even when the cancel is lost: Python 3.11's
+        asyncio.wait_for (inside pymodbus's request) can swallow a cancel that meets its answer,
+        which once left this waiting for ever."""
         if self._beat_task is not None:
+            self._beat_stop.set()
             self._beat_task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
-                await self._beat_task
+                await asyncio.wait_for(asyncio.shield(self._beat_task), 10.0)
             self._beat_task = None
 
 

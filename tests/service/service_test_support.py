@@ -28,6 +28,7 @@ def sim_config(**sections: dict[str, Any]) -> CellConfig:
     """
     data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
     sections.setdefault("calibration", {"source": "oracle"})
+    sections.setdefault("opcua", {"enabled": False})  # the OPC UA tests turn it on (its start costs about a second)
     for name, fields in sections.items():
         node = data
         for part in name.split("."):
@@ -83,6 +84,8 @@ def sim_toml(port: int, *, oracle: bool = True, auto_calibrate: bool = True, tim
     if time_scale is not None:
         text = re.sub(r"(?m)^time_scale = .*$", f"time_scale = {time_scale}", text, count=1)
     text = re.sub(r"(?m)^port = 8080$", f"port = {port}", text, count=1)
+    text = text.replace("[opcua]                                # OPC UA server for the plant (OPC 30050 PackML; docs/opcua_nodeset.md)\nenabled = true",
+                        "[opcua]\nenabled = false")
     return text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
 
 

@@ -176,14 +176,14 @@ async def test_the_loop_keeps_its_offset_across_a_restart(tmp_path: Path) -> Non
 async def test_a_cycle_refused_before_the_calibration_is_read_leaves_the_loop_alone(tmp_path: Path) -> None:
     cfg = sim_config(**{"process.spc": {"min_samples": 3}})
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
-        service.orchestrator.calibration.reference = lambda: {"source": "test", "version": 7}  # type: ignore[method-assign]
+        service.orchestrator.calibration.reference = lambda recipe=None: {"source": "test", "version": 7}  # type: ignore[method-assign]
         await to_execute(client)
         for i in range(3):
             await _cycle(client, f"c{i}")
         before = (await client.get("/status", headers=AUTH)).json()["spc"]
         orch = service.orchestrator
         problems = orch.calibration.problems
-        orch.calibration.problems = lambda: ["test: the set is damaged"]  # type: ignore[method-assign]
+        orch.calibration.problems = lambda recipe=None: ["test: the set is damaged"]  # type: ignore[method-assign]
         rec = await _cycle(client, "refused")
         assert rec["state"] == "failed" and rec["result"]["error_code"] == int(AlarmCode.CALIBRATION_INVALID)
         assert "skipped" in rec["result"]["spc"]

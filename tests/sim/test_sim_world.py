@@ -30,7 +30,7 @@ def test_rounded_corner_of_the_opening() -> None:
 def test_posture_stays_within_the_configured_ranges(pivot: str) -> None:
     cfg = WorldConfig(posture_pivot=pivot)
     nominal = cfg.T_B_T_nominal()
-    centre_T = np.zeros(3) if pivot == "corner" else np.array([-cfg.opening_width_mm / 2, cfg.opening_height_mm / 2, 0.0])
+    centre_T = np.zeros(3) if pivot == "corner" else np.array([-cfg.width_mm / 2, cfg.height_mm / 2, 0.0])
     rng = np.random.default_rng(5)
     shifts, angles = [], []
     for _ in range(400):

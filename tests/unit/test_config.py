@@ -41,7 +41,9 @@ def test_hand_eye_is_reorthonormalised_and_faces_the_wall_with_the_laser() -> No
 
 
 # Where config/sim.toml departs from the code defaults on purpose (the defaults suit a real cell).
-SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("devices", "laser"), ("devices", "robot")}
+SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("devices", "laser"), ("devices", "robot"),
+                 ("opcua", "security_policies"), ("opcua", "allow_anonymous"),  # the demo also offers None and anonymous
+                 ("process", "recipes")}  # the simulated line installs two window types; the default is one
 
 
 def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() -> None:
@@ -192,8 +194,10 @@ def test_serving_reads_every_token_first_and_names_what_is_missing(tmp_path: Pat
     text = str(info.value)
     assert "environment variable CELLCTL_TOKEN is not set" in text and "deploy/cellctl.env.example" in text
     assert "CELLCTL_TOKEN_INTEGRATOR is refused: it is a shipped default or a placeholder" in text
+    assert "opcua.users 'mes': password_env: environment variable CELLCTL_OPCUA_MES_PASSWORD is not set" in text
     monkeypatch.setenv("CELLCTL_TOKEN", STRONG)
     monkeypatch.setenv("CELLCTL_TOKEN_INTEGRATOR", STRONG[::-1])
+    monkeypatch.setenv("CELLCTL_OPCUA_MES_PASSWORD", STRONG[1:] + "Q")
     cfg = load_config(path, read_tokens=True)
     assert cfg.api.secrets() == (("operator", STRONG), ("line-integrator", STRONG[::-1]))
 

@@ -97,20 +97,8 @@ class FakeController:
         """Start serving in the running loop; returns the RAPID port."""
         cfg = self.config
         if cfg.egm_sensor_port is not None:
-            self.egm = EgmRobotSide(
-                self.robot,
-                (cfg.egm_sensor_host, cfg.egm_sensor_port),
-                dynamics=cfg.egm,
-                loss_out=cfg.egm_loss_out,
-                loss_in=cfg.egm_loss_in,
-                seed=cfg.seed,
-                stats_file=cfg.stats_file,
-                rt_priority=cfg.egm_rt_priority,
-            )
-        self.server = RapidLineServer(
-            self.robot, self.egm, identity=cfg.identity, idle_timeout_s=cfg.idle_timeout_s,
-            gripper_settle_s=cfg.gripper_settle_s,
-        )
+            self.egm = EgmRobotSide(self.robot, cfg)
+        self.server = RapidLineServer(self.robot, self.egm, cfg)
         self.rapid_port = await self.server.start(cfg.rapid_host, cfg.rapid_port)
         self._loop = asyncio.get_running_loop()
         return self.rapid_port

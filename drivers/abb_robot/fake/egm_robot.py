@@ -29,7 +29,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -39,6 +39,9 @@ from abb_robot.egm.peer_core import set_realtime_priority
 from abb_robot.fake.model import rot_x, rot_y, rot_z
 from abb_robot.fake.robot import FakeRobot, interpolate
 from cellctl.ports import CartesianPose
+
+if TYPE_CHECKING:
+    from abb_robot.fake.controller import FakeControllerConfig
 
 
 log = logging.getLogger(__name__)
@@ -119,40 +122,21 @@ class EgmRobotSide:
 
     Args:
         robot: the shared fake robot.
-        sensor_address: (host, port) the EgmRobot datagrams go to.
-        dynamics: timing and following behaviour.
-        loss_out: probability that an outgoing EgmRobot is dropped.
-        loss_in: probability that an incoming EgmSensor is dropped.
-        seed: seed of the loss generator.
-        stats_file: if set, each session's summary is written there as JSON when it ends.
-        rt_priority: if set, the EGM thread asks for SCHED_FIFO at this priority.
+        config: the controller's configuration; this side reads its ``egm_*`` fields (the sensor
+            address, dynamics, loss rates and thread priority), ``seed`` and ``stats_file``.
     """
 
-    def __init__(
-        self,
-        robot: FakeRobot,
-        sensor_address: tuple[str, int],
-        *,
-        dynamics: EgmDynamics = EgmDynamics(),
-        loss_out: float = 0.0,
-        loss_in: float = 0.0,
-        seed: int = 0,
-        stats_file: str | None = None,
-        rt_priority: int | None = None,
-    ) -> None:
-        for name, p in (("loss_out", loss_out), ("loss_in", loss_in)):
+    def __init__(self, robot: FakeRobot, config: FakeControllerConfig) -> None:
+        for name, p in (("loss_out", config.egm_loss_out), ("loss_in", config.egm_loss_in)):
             if not (0.0 <= p < 1.0):
                 raise ValueError(f"{name} must be in [0, 1), got {p}")
+        assert config.egm_sensor_port is not None
         self.robot = robot
-        self.sensor_address = sensor_address
-        self.dynamics = dynamics
-        self.loss_out = loss_out
-        self.loss_in = loss_in
-        self.stats_file = stats_file
-        self.rt_priority = rt_priority
-        self._rng = np.random.default_rng(seed)
+        self.config = config
+        self.sensor_address = (config.egm_sensor_host, config.egm_sensor_port)
+        self._rng = np.random.default_rng(config.seed)
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind(("0.0.0.0" if sensor_address[0] not in ("127.0.0.1", "localhost") else "127.0.0.1", 0))
+        self._sock.bind(("0.0.0.0" if config.egm_sensor_host not in ("127.0.0.1", "localhost") else "127.0.0.1", 0))
         self._sock.setblocking(False)
         self._wake = threading.Event()
         self._stop_request = threading.Event()
@@ -195,8 +179,8 @@ class EgmRobotSide:
     # -- thread -------------------------------------------------------------------------------
 
     def _run(self) -> None:
-        if self.rt_priority is not None:
-            refused = set_realtime_priority(self.rt_priority)
+        if self.config.egm_rt_priority is not None:
+            refused = set_realtime_priority(self.config.egm_rt_priority)
             if refused:
                 log.warning("fake EGM thread: %s", refused)
         while not self._closed:
@@ -215,8 +199,8 @@ class EgmRobotSide:
                 with self._lock:
                     self._active = False
             self.last_stats = outcome.stats
-            if self.stats_file:
-                with open(self.stats_file, "w", encoding="utf-8") as fh:
+            if self.config.stats_file:
+                with open(self.config.stats_file, "w", encoding="utf-8") as fh:
                     json.dump(outcome.stats.summary(), fh)
             on_end(outcome)
 
@@ -232,7 +216,7 @@ class EgmRobotSide:
             out.append((data, time.perf_counter()))
 
     def _session(self, params: EgmSessionParams) -> EgmOutcome:
-        dyn = self.dynamics
+        dyn = self.config.egm
         robot = self.robot
         stats = EgmSessionStats()
         self._drain()  # stale replies of an earlier session
@@ -313,7 +297,7 @@ class EgmRobotSide:
                 active_ref or tcp, robot.motors_on, mci, converged, min(100.0, 100.0 * speed / dyn.max_speed_mm_s),
             )
             data = msg.SerializeToString()
-            if self.loss_out > 0 and self._rng.random() < self.loss_out:
+            if self.config.egm_loss_out > 0 and self._rng.random() < self.config.egm_loss_out:
                 stats.dropped_out += 1
                 stats.dropped_seqnos.append(seq)
                 awaiting = False
@@ -346,7 +330,7 @@ class EgmRobotSide:
                 if not ready:
                     break
                 for raw, t_rx in self._drain():
-                    if self.loss_in > 0 and self._rng.random() < self.loss_in:
+                    if self.config.egm_loss_in > 0 and self._rng.random() < self.config.egm_loss_in:
                         stats.dropped_in += 1
                         continue
                     ref = _parse_sensor(raw)

@@ -19,14 +19,19 @@ For tests it can also go silent (read and answer nothing) and drop its client on
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from abb_robot import protocol as P
 from abb_robot.fake.egm_robot import EgmEnd, EgmOutcome, EgmRobotSide, EgmSessionParams
 from abb_robot.fake.robot import FakeRobot
 from cellctl.ports import CartesianPose
+
+if TYPE_CHECKING:
+    from abb_robot.fake.controller import FakeControllerConfig
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +41,7 @@ _EGM_ERRORS = {
     EgmEnd.MOTORS_OFF: P.ErrorCode.EGM_STATE,
     EgmEnd.UNREACHABLE: P.ErrorCode.EGM_STATE,
 }
+_UNKNOWN_FRAME = {"tool": P.ErrorCode.UNKNOWN_TOOL, "wobj": P.ErrorCode.UNKNOWN_WOBJ}
 
 
 @dataclass
@@ -58,21 +64,11 @@ class _Session:
 class RapidLineServer:
     """Serves the cellctl line protocol for one :class:`FakeRobot` (and its EGM side)."""
 
-    def __init__(
-        self,
-        robot: FakeRobot,
-        egm: EgmRobotSide | None,
-        *,
-        identity: ServerIdentity = ServerIdentity(),
-        idle_timeout_s: float = 10.0,
-        gripper_settle_s: float = 0.0,
-    ) -> None:
+    def __init__(self, robot: FakeRobot, egm: EgmRobotSide | None, config: FakeControllerConfig) -> None:
         self.robot = robot
         self.egm = egm
-        self.identity = identity
-        self.idle_timeout_s = idle_timeout_s
-        self.gripper_settle_s = gripper_settle_s
-        """Seconds GRIP waits after switching the output (the module's ``grip_settle``), times the robot's time_scale."""
+        self.config = config
+        """The controller's configuration: ``identity``, ``idle_timeout_s`` and ``gripper_settle_s`` are read here."""
         self.silent = False
         self.lines_received: list[str] = []
         self._server: asyncio.base_events.Server | None = None
@@ -128,9 +124,9 @@ class RapidLineServer:
         discarding = False
         while True:
             try:
-                chunk = await asyncio.wait_for(reader.read(256), self.idle_timeout_s)
+                chunk = await asyncio.wait_for(reader.read(256), self.config.idle_timeout_s)
             except asyncio.TimeoutError:
-                log.info("client silent for %.1f s: dropping it", self.idle_timeout_s)
+                log.info("client silent for %.1f s: dropping it", self.config.idle_timeout_s)
                 return
             if not chunk:
                 return
@@ -200,8 +196,8 @@ class RapidLineServer:
             return
         s.hello = True
         s.staged_pos = s.staged_ori = None
-        robot_type = "_".join(self.identity.robot_type.split(" "))[:28] or "-"
-        rw = "_".join(self.identity.rw_version.split(" "))[:28] or "-"
+        robot_type = "_".join(self.config.identity.robot_type.split(" "))[:28] or "-"
+        rw = "_".join(self.config.identity.rw_version.split(" "))[:28] or "-"
         await self._ok(s, rid, str(P.PROTOCOL_VERSION), robot_type, rw)
 
     async def _do_ping(self, s: _Session, rid: int) -> None:
@@ -211,21 +207,17 @@ class RapidLineServer:
         await self._ok(s, rid)
         return True
 
-    async def _do_tool(self, s: _Session, rid: int, name: str) -> None:
-        if name not in self.robot.tools:
-            await self._err(s, rid, P.ErrorCode.UNKNOWN_TOOL, f"no tooldata {name}")
+    async def _select_frame(self, kind: str, s: _Session, rid: int, name: str) -> None:
+        """TOOL and WOBJ: make the named tooldata or wobjdata the current one."""
+        if name not in getattr(self.robot, f"{kind}s"):
+            await self._err(s, rid, _UNKNOWN_FRAME[kind], f"no {kind}data {name}")
             return
         with self.robot.lock:
-            self.robot.tool_name = name
+            setattr(self.robot, f"{kind}_name", name)
         await self._ok(s, rid, name)
 
-    async def _do_wobj(self, s: _Session, rid: int, name: str) -> None:
-        if name not in self.robot.wobjs:
-            await self._err(s, rid, P.ErrorCode.UNKNOWN_WOBJ, f"no wobjdata {name}")
-            return
-        with self.robot.lock:
-            self.robot.wobj_name = name
-        await self._ok(s, rid, name)
+    _do_tool = functools.partialmethod(_select_frame, "tool")
+    _do_wobj = functools.partialmethod(_select_frame, "wobj")
 
     async def _do_speed(self, s: _Session, rid: int, v_tcp: float, v_ori: float) -> None:
         if not (0 < v_tcp <= 7000 and 0 < v_ori <= 1000):
@@ -382,7 +374,7 @@ class RapidLineServer:
             log.warning("gripper physics failed: %s", exc)
             await self._err(s, rid, P.ErrorCode.GRIPPER, f"gripper output error {type(exc).__name__}")
             return
-        settle_s = self.gripper_settle_s * self.robot.time_scale
+        settle_s = self.config.gripper_settle_s * self.robot.time_scale
         if settle_s > 0:
             await asyncio.sleep(settle_s)
         await self._ok(s, rid, str(hold))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -103,3 +105,15 @@ def plan_spot_poses(
         raise AlignmentError(f"spots must have shape (N, 2) (x, y on the wall in mm), got {spots.shape}")
     on_wall = apply_pose(T_X_T0, np.column_stack([spots, np.zeros(len(spots))]))
     return np.stack([flange_pose_for_spot(p, R_X_H, r, l, standoff_mm) for p in on_wall])
+
+
+def sweep_route(corners: Sequence[ArrayLike], l: ArrayLike, approach_mm: float, *, timed: bool) -> list[NDArray[np.float64]]:
+    """A sweep's flange poses in order: with ``timed``, in, out and in along the beam l (flange frame) by
+    ``approach_mm`` at the first corner (the moves that time the laser), starting from out; then the corners."""
+    first = np.asarray(corners[0], dtype=float)
+    rest = [np.asarray(T, dtype=float) for T in corners[1:]]
+    if not timed:
+        return [first, *rest]
+    back = first.copy()
+    back[:3, 3] -= (first[:3, :3] @ np.asarray(l, dtype=float)) * approach_mm
+    return [back, first, back, first, *rest]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 from fastapi import APIRouter, FastAPI, Request
@@ -10,6 +11,7 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
+from starlette.routing import BaseRoute
 from swagger_ui_bundle import swagger_ui_path
 
 import cellctl
@@ -18,9 +20,10 @@ from cellctl.api import (
     routes_cell,
     routes_cycles,
     routes_jobs,
+    routes_parts,
     routes_quality,
 )
-from cellctl.api.auth import TokenBeforeBody, TokenGuard
+from cellctl.api.auth import SECURITY_SCHEMES, TokenBeforeBody, TokenGuard
 from cellctl.api.limits import BodySizeLimit
 from cellctl.api.schemas import ErrorBody
 from cellctl.cell.orchestrator import CellOrchestrator
@@ -65,6 +68,29 @@ def document_error_bodies(schema: dict[str, Any]) -> dict[str, Any]:
     return schema
 
 
+def api_routes_of(routes: list[BaseRoute]) -> Iterator[APIRoute]:
+    """Every APIRoute in ``routes``, also inside included routers (FastAPI may keep those as one route each)."""
+    for route in routes:
+        if isinstance(route, APIRoute):
+            yield route
+        inner = getattr(route, "original_router", None)
+        if inner is not None:
+            yield from api_routes_of(inner.routes)
+
+
+def document_security(schema: dict[str, Any], guard: TokenGuard, routes: list[BaseRoute]) -> dict[str, Any]:
+    """The bearer scheme in the OpenAPI document (so /docs has *Authorize*) and, per operation, whether it needs it."""
+    schema.setdefault("components", {}).setdefault("securitySchemes", {}).update(SECURITY_SCHEMES)
+    for route in api_routes_of(routes):
+        security = guard.security(route)
+        ops = schema.get("paths", {}).get(route.path_format, {})
+        for method in route.methods:
+            op = ops.get(method.lower())
+            if op is not None and security is not None:
+                op["security"] = security
+    return schema
+
+
 def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | None = None) -> FastAPI:
     """The cell's HTTP face. The orchestrator (and the job manager) must be started by whoever runs the app."""
     app = FastAPI(
@@ -88,6 +114,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
         routes_cycles.build_router(orch, guard, config.cycle_wait_max_s),
         routes_cell.build_router(orch, guard),
         routes_quality.build_router(orch, guard),
+        routes_parts.build_router(orch, guard),
     ]
     if jobs is not None:
         routers.append(routes_jobs.build_router(jobs, guard))
@@ -110,13 +137,14 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
             swagger_js_url="/static/swagger-ui/swagger-ui-bundle.js",
             swagger_css_url="/static/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/static/swagger-ui/favicon-32x32.png",
+            swagger_ui_parameters={"persistAuthorization": True},
         )
 
     generate_openapi = app.openapi
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
-            app.openapi_schema = document_error_bodies(generate_openapi())
+            app.openapi_schema = document_security(document_error_bodies(generate_openapi()), guard, list(app.routes))
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

@@ -18,6 +18,17 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 
 from cellctl.config.api import ApiConfig
 
+SECURITY_SCHEME = "bearerToken"
+"""The OpenAPI security scheme's name (HTTP bearer): /docs offers it under *Authorize*."""
+SECURITY_SCHEMES = {
+    SECURITY_SCHEME: {
+        "type": "http",
+        "scheme": "bearer",
+        "description": "a token of [api].tokens (its name is the actor in the audit log); the operator's of the "
+        "simulated cell is in config/sim.toml",
+    }
+}
+
 UNAUTHORIZED_DETAIL = (
     "this route needs a bearer token: send 'Authorization: Bearer <token>' with a token from [api].tokens"
 )
@@ -85,6 +96,17 @@ class TokenGuard:
             return False
         guards: list[Callable[..., Any]] = [self.require] if self.open_reads else [self.require, self.read]
         return any(d.call in guards for d in _dependencies(route.dependant))
+
+
+    def security(self, route: BaseRoute) -> list[dict[str, list[str]]] | None:
+        """The OpenAPI ``security`` of ``route``: the token required, optional (an open read) or None (not guarded)."""
+        if not isinstance(route, APIRoute):
+            return None
+        if self.needs_token(route):
+            return [{SECURITY_SCHEME: []}]
+        if any(d.call == self.read for d in _dependencies(route.dependant)):
+            return [{}, {SECURITY_SCHEME: []}]  # anyone may read; a token names the caller
+        return None
 
 
 class TokenBeforeBody:

@@ -9,14 +9,20 @@ fonts), so the screen works on a cell network without internet. The page reads t
 - ``GET /dashboard/cycles``: the recent cycles digested for the trend charts and the filmstrip
   (the six install deviations, the corrections, the verification residual, the cycle time and
   the last annotated image of each);
-- ``GET /dashboard/thumbs/{cycle_id}/{name}``: a cycle image scaled down for the filmstrip.
+- ``GET /dashboard/thumbs/{cycle_id}/{name}``: a cycle image scaled down for the filmstrip;
+- ``GET /dashboard/shifts``: good and not OK parts and the takt (median cycle time) of the
+  current shift and the ones before it. Shifts begin at :data:`SHIFT_STARTS` (06:00, 14:00 and
+  22:00) local time unless the request names others (``starts=06:00,18:00``); "local" is the
+  page's time zone, which it sends as ``tz_offset_min`` (minutes east of UTC).
 """
 
 from __future__ import annotations
 
 import asyncio
+import statistics
 from collections import OrderedDict
 from dataclasses import asdict
+from datetime import UTC, datetime, timedelta
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -31,18 +37,68 @@ from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
 from cellctl.api.routes_cycles import image_file
 from cellctl.api.schemas import CycleId
-from cellctl.api.schemas_dashboard import CycleDigest, DashboardConfig, Tolerance
+from cellctl.api.schemas_dashboard import (
+    CycleDigest,
+    DashboardConfig,
+    ShiftCount,
+    ShiftCounts,
+    Tolerance,
+)
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.outcome import measured_of
-from cellctl.cell.tags import CycleStep
-from cellctl.domain import DEVIATION_KEYS
-from cellctl.store import CycleRecord, UnknownCycle
+from cellctl.domain import DEVIATION_KEYS, CycleStep
+from cellctl.store import CycleRecord, CycleState, UnknownCycle
 
 STATIC_DIR = Path(str(resources.files("cellctl.api") / "static"))
 STALE_AFTER_S = 2.5 * SSE_STATUS_PERIOD_S
 """The page marks its data stale when nothing (event or periodic status) arrived for this long."""
 
 THUMB_CACHE_SIZE = 256
+
+SHIFT_STARTS = ("06:00", "14:00", "22:00")
+"""Where a shift begins (local time) when the request names no other boundaries: three 8-hour shifts."""
+_HHMM = r"([01][0-9]|2[0-3]):[0-5][0-9]"
+SHIFT_STARTS_PATTERN = rf"^{_HHMM}(,{_HHMM}){{0,11}}$"
+SHIFT_SCAN_PAGES = 10
+"""At most this many pages of 1000 cycles are read to count the shifts."""
+
+
+def shift_windows(now_utc: datetime, starts: list[str], tz_offset_min: int, count: int) -> list[tuple[datetime, datetime, datetime]]:
+    """The current shift and the ``count - 1`` before it, newest first: (start UTC, end UTC, start local)."""
+    offset = timedelta(minutes=tz_offset_min)
+    local_now = (now_utc + offset).replace(tzinfo=None)
+    minutes = sorted({int(h) * 60 + int(m) for h, m in (t.split(":") for t in starts)})
+    days_back = count // len(minutes) + 2
+    today = datetime(local_now.year, local_now.month, local_now.day)
+    bounds = sorted(
+        today + timedelta(days=d, minutes=m) for d in range(-days_back, 2) for m in minutes
+    )
+    current = max(i for i, b in enumerate(bounds) if b <= local_now)
+    out = []
+    for i in range(current, current - count, -1):
+        start, end = bounds[i], bounds[i + 1]
+        out.append(((start - offset).replace(tzinfo=UTC), (end - offset).replace(tzinfo=UTC), start))
+    return out
+
+
+def _utc(t: datetime) -> datetime:
+    return t.replace(tzinfo=UTC) if t.tzinfo is None else t.astimezone(UTC)
+
+
+def count_shift(records: list[CycleRecord], start: datetime, end: datetime) -> tuple[int, int, float | None]:
+    """Good and not OK cycles that finished in [start, end), and the median cycle time of the good ones."""
+    good, not_ok, times = 0, 0, []
+    for r in records:
+        if r.finished_at is None or not (start <= _utc(r.finished_at) < end):
+            continue
+        res = dict(r.result or {})
+        if r.state is CycleState.DONE and res.get("part_ok", True) is not False:
+            good += 1
+            if isinstance(t := res.get("cycle_time_s"), int | float):
+                times.append(float(t))
+        elif r.state in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
+            not_ok += 1
+    return good, not_ok, (statistics.median(times) if times else None)
 
 
 def deviation_digest(record: CycleRecord) -> dict[str, Any]:
@@ -143,7 +199,37 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             mode_change_states=[s.upper() for s in cfg.packml.mode_change_states],
             status_period_s=SSE_STATUS_PERIOD_S,
             stale_after_s=STALE_AFTER_S,
+            calibration_max_age_days=float(cfg.calibration.max_age_days),
+            shift_starts=list(SHIFT_STARTS),
         )
+
+    @reads.get("/dashboard/shifts", response_model=ShiftCounts)
+    async def dashboard_shifts(
+        tz_offset_min: int = Query(0, ge=-840, le=840, description="the page's time zone: minutes east of UTC"),
+        starts: str = Query(",".join(SHIFT_STARTS), pattern=SHIFT_STARTS_PATTERN, description="shift starts, HH:MM local, comma separated"),
+        count: int = Query(3, ge=1, le=21, description="the current shift and this many minus one before it"),
+    ) -> ShiftCounts:
+        """Good and not OK parts per shift, newest shift first."""
+        boundaries = starts.split(",")
+        windows = shift_windows(datetime.now(UTC), boundaries, tz_offset_min, count)
+        oldest = windows[-1][0]
+        records: list[CycleRecord] = []
+        before: int | None = None
+        for _ in range(SHIFT_SCAN_PAGES):
+            page = await orch.store.cycles(limit=1000, before_id=before)
+            records.extend(page)
+            # A cycle finishes after it was created: once one was created a day before the oldest shift, stop.
+            if len(page) < 1000 or _utc(page[-1].created_at) < oldest - timedelta(days=1):
+                break
+            before = page[-1].id
+        shifts = []
+        for i, (start, end, local) in enumerate(windows):
+            good, not_ok, takt = count_shift(records, start, end)
+            shifts.append(ShiftCount(
+                start_utc=start.isoformat(), end_utc=end.isoformat(), start_local=local.strftime("%Y-%m-%d %H:%M"),
+                current=i == 0, good=good, not_ok=not_ok, median_cycle_time_s=takt,
+            ))  # fmt: skip
+        return ShiftCounts(shift_starts=sorted(set(boundaries)), tz_offset_min=tz_offset_min, shifts=shifts)
 
     @reads.get("/dashboard/cycles", response_model=list[CycleDigest])
     async def dashboard_cycles(limit: int = Query(40, ge=1, le=200)) -> list[CycleDigest]:

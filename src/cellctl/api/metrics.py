@@ -2,20 +2,38 @@
 
 Each app has its own :class:`CellMetrics`: a ``CollectorRegistry`` of its own (never the global
 one, so several services in one process do not clash) holding one collector that reads the cell
-when it is scraped. The cycle counts come from the database, which is read asynchronously, so
-:meth:`CellMetrics.exposition` reads them first and then renders the registry at once.
+when it is scraped, the cycle-time histogram, and prometheus_client's process and platform
+collectors (``process_*``: CPU, resident memory, open files; ``python_info``). The cycle counts
+and the cycles finished since the last scrape come from the database, which is read
+asynchronously, so :meth:`CellMetrics.exposition` reads them first and then renders the registry
+at once.
 """
 
 from __future__ import annotations
 
+import platform
 import time
 from collections.abc import Iterator
+from datetime import UTC, datetime
 
-from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Histogram,
+    PlatformCollector,
+    ProcessCollector,
+    generate_latest,
+)
 from prometheus_client.core import GaugeMetricFamily, Metric
 
+import cellctl
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.store import CycleState
+from cellctl.store.records import CycleRecord
+
+CYCLE_TIME_BUCKETS_S = (0.5, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0)
+"""Buckets of ``cellctl_cycle_time_seconds``: a simulated cycle takes about a second, a real one 10-40 s."""
+CYCLE_PAGE = 200
 
 __all__ = ["CONTENT_TYPE_LATEST", "CellMetrics"]
 
@@ -26,13 +44,43 @@ class CellMetrics:
     def __init__(self, orch: CellOrchestrator) -> None:
         self._orch = orch
         self._cycle_counts: dict[CycleState, int] = {}
+        self._since = datetime.now(UTC)  # the histogram counts cycles finished from here on
+        self._seen_id = 0  # the newest finished cycle already in the histogram
         self.registry = CollectorRegistry()
         self.registry.register(self)
+        self.cycle_time = Histogram(
+            "cellctl_cycle_time_seconds", "Duration of finished cycles (done or failed), request to result, since the service started",
+            labelnames=["outcome"], buckets=CYCLE_TIME_BUCKETS_S, registry=self.registry,
+        )  # fmt: skip
+        for outcome in (CycleState.DONE, CycleState.FAILED):
+            self.cycle_time.labels(outcome=outcome.value)  # both series from the first scrape, at 0
+        ProcessCollector(registry=self.registry)
+        PlatformCollector(registry=self.registry)
 
     async def exposition(self) -> bytes:
         """The text a scrape gets (content type :data:`CONTENT_TYPE_LATEST`)."""
         self._cycle_counts = await self._orch.store.cycle_counts()
+        await self._observe_finished_cycles()
         return generate_latest(self.registry)  # no await in between: this scrape's counts are the ones rendered
+
+    async def _observe_finished_cycles(self) -> None:
+        """Put the cycles finished since the last scrape into the histogram (newest first, a page at a time).
+
+        Cycles run one at a time in id order, so every finished cycle newer than the last one seen
+        is new; a cycle created before this service started is never counted.
+        """
+        fresh: list[CycleRecord] = []
+        before: int | None = None
+        while True:
+            page = await self._orch.store.cycles(limit=CYCLE_PAGE, before_id=before)
+            new = [r for r in page if r.id > self._seen_id and r.created_at >= self._since]
+            fresh += [r for r in new if r.finished_at is not None and r.state in (CycleState.DONE, CycleState.FAILED)]
+            if len(new) < CYCLE_PAGE:  # reached what was seen (or the start): no older page has anything new
+                break
+            before = page[-1].id
+        for rec in sorted(fresh, key=lambda r: r.id):
+            self.cycle_time.labels(outcome=rec.state.value).observe(_cycle_seconds(rec))
+            self._seen_id = rec.id
 
     def collect(self) -> Iterator[Metric]:
         """The gauges as of now (prometheus_client calls this while it renders the registry)."""
@@ -53,6 +101,18 @@ class CellMetrics:
         yield up
         yield age
         yield _gauge("cellctl_scrape_timestamp_seconds", "Wall time of this scrape", time.time())
+        build = GaugeMetricFamily("cellctl_build_info", "The running cellctl: its version (always 1)", labels=["version", "python_version"])
+        build.add_metric([cellctl.__version__, platform.python_version()], 1.0)
+        yield build
+
+
+def _cycle_seconds(rec: CycleRecord) -> float:
+    """The cycle's recorded time (its result's ``cycle_time_s``), else start to finish."""
+    recorded = (rec.result or {}).get("cycle_time_s")
+    if isinstance(recorded, (int, float)):
+        return float(recorded)
+    start = rec.started_at or rec.created_at
+    return max(0.0, ((rec.finished_at or start) - start).total_seconds())
 
 
 def _gauge(name: str, help_text: str, value: float) -> GaugeMetricFamily:

@@ -11,7 +11,8 @@ from collections.abc import AsyncIterator
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.responses import StreamingResponse
 
-from cellctl.api.auth import Caller, TokenGuard
+from cellctl.api.auth import SECURITY_SCHEME, Caller, TokenGuard
+from cellctl.api.health import judge
 from cellctl.api.metrics import CONTENT_TYPE_LATEST, CellMetrics
 from cellctl.api.schemas_cell import (
     AlarmsView,
@@ -19,13 +20,14 @@ from cellctl.api.schemas_cell import (
     CalibrationView,
     CommandResult,
     HealthView,
+    LiveView,
     StatusView,
     StoreHealth,
 )
-from cellctl.cell.alarms import Alarm, UnknownAlarm
+from cellctl.cell.alarms import UnknownAlarm
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
-from cellctl.cell.tags import PackMLCommand, UnitMode
+from cellctl.domain import Alarm, PackMLCommand, UnitMode
 
 CommandName = enum.Enum("CommandName", {c.name.lower(): c.name.lower() for c in PackMLCommand if c.value})  # type: ignore[misc]
 ModeName = enum.Enum("ModeName", {m.name.lower(): m.name.lower() for m in UnitMode if m.value})  # type: ignore[misc]
@@ -123,19 +125,22 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
     @reads.get(
         "/events", response_class=StreamingResponse,
-        responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: state, alarm, cycle, job, prompt, ..."}},
+        responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: `status` (the /status document, StatusView), state, alarm, cycle, step, image, job, prompt, ..."}},
     )  # fmt: skip
     async def events(request: Request) -> StreamingResponse:
         queue = orch.events.subscribe()
 
+        def status_event() -> str:  # the /status document, through the same model
+            return f"event: status\ndata: {StatusView.model_validate(orch.status()).model_dump_json(exclude_unset=True)}\n\n"
+
         async def stream() -> AsyncIterator[str]:
             try:
-                yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
+                yield status_event()
                 last_status = time.monotonic()
                 while not orch.events.closing and not await request.is_disconnected():
                     wait_s = last_status + SSE_STATUS_PERIOD_S - time.monotonic()
                     if wait_s <= 0:
-                        yield f"event: status\ndata: {json.dumps(orch.status())}\n\n"
+                        yield status_event()
                         last_status = time.monotonic()
                         continue
                     try:
@@ -150,19 +155,32 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
         return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-store"})
 
-    @router.get("/health", response_model=HealthView, response_model_exclude_none=True)
-    async def health(request: Request) -> HealthView:
-        """``ok``: every device answers (HTTP 200 either way: the service itself answers).
+    @router.get(
+        "/health",
+        response_model=HealthView,
+        response_model_exclude_none=True,
+        responses={503: {"model": HealthView, "description": "not healthy: `problems` says why (with the details)"}},
+        openapi_extra={"security": [{}, {SECURITY_SCHEME: []}]},  # open; with closed reads a token shows the details
+    )
+    async def health(request: Request, response: Response) -> HealthView:
+        """Readiness: 200 when the cell can work, 503 when a device link or the PLC link is down, the store
+        does not answer or the service is stopping (the rules: ``cellctl.api.health``).
 
         With ``[api] open_reads = false`` an anonymous caller (a plant's up/down monitor) gets ``ok``
-        alone; the details need the token. The database's path is never shown.
+        alone (and the status code); the details need the token. The database's path is never shown.
         """
-        devices = orch.status()["devices"]
-        lost = [n for n, d in devices.items() if d["link"] == "lost"]
+        verdict = await judge(orch)
+        if not verdict.ok:
+            response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
         if not guard.may_read_details(request):
-            return HealthView(ok=not lost)
-        info = await orch.store.info()
-        return HealthView(ok=not lost, devices_lost=lost, store=StoreHealth(journal_mode=info.journal_mode))
+            return HealthView(ok=verdict.ok)
+        store = None if verdict.journal_mode is None else StoreHealth(journal_mode=verdict.journal_mode)
+        return HealthView(ok=verdict.ok, devices_lost=verdict.devices_lost, plc=verdict.plc, problems=verdict.problems, store=store)
+
+    @router.get("/health/live", response_model=LiveView)
+    async def health_live() -> LiveView:
+        """Liveness: 200 while the process serves HTTP, whatever the cell's state (restart it only when this fails)."""
+        return LiveView()
 
     @reads.get(
         "/metrics",

@@ -54,7 +54,9 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
     @reads.get("/procedures", response_model=list[ProcedureView])
     async def procedures() -> list[ProcedureView]:
         c = jobs.config.calibration.procedure
-        defaults = {"views": c.camera.n_views, "poses": c.laser.n_poses, "store": True, "method": c.hand_eye.method}
+        defaults = {"views": c.camera.n_views, "poses": c.laser.n_poses, "store": True, "method": c.hand_eye.method,
+                    "recipe": jobs.config.default_recipe}  # fmt: skip
+        recipes = list(jobs.config.process.recipe_names().values())
         limits = {"views": [3.0, 200.0], "poses": [float(c.laser.min_poses), 5000.0]}
         out = []
         for name, p in ALL_PROCEDURES.items():
@@ -63,7 +65,7 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
                 name=name, part=p.part, dataset_kind=p.kind, needs=list(p.needs), options=options,
                 command=COMMANDS.get(name, "cellctl calibrate verify"),
                 defaults={k: defaults[k] for k in options}, limits={k: limits[k] for k in options if k in limits},
-                choices={"method": list(HAND_EYE_METHODS)} if name == "hand_eye" else {},
+                choices={"method": list(HAND_EYE_METHODS)} if name == "hand_eye" else {"recipe": recipes} if "recipe" in options else {},
             ))  # fmt: skip
         return out
 

@@ -169,6 +169,13 @@ class CalibrationPartSummary(BaseModel):
     failure: str | None
 
 
+class RecipeReadiness(BaseModel):
+    """Whether a recipe may run: its own teaching done, and everything its cycles need ready."""
+
+    taught: bool = Field(description="its teaching is in the set (the oracle teaches every recipe from the truth)")
+    ready: bool = Field(description="its cycles would find the calibration ready")
+
+
 class CalibrationSummary(BaseModel):
     """The calibration in use. A set names its version and parts; the simulated cell's oracle its template."""
 
@@ -179,6 +186,7 @@ class CalibrationSummary(BaseModel):
     parts: dict[str, CalibrationPartSummary | None] | None = Field(None, description="each part of the set (None: not calibrated)")
     damaged: str | None = Field(None, description="why the set's file cannot be used, and what to do")
     template_px: list[float] | None = Field(None, description="oracle: the template corner (u, v) once computed")
+    recipes: dict[str, RecipeReadiness] = Field({}, description="each recipe of [[process.recipes]], by name")
 
 
 class CalibrationVersion(BaseModel):
@@ -188,6 +196,7 @@ class CalibrationVersion(BaseModel):
     created_utc: str | None
     note: str
     parts: dict[str, str | None] = Field(description="each part's status in this version (None: not in it)")
+    recipes: dict[str, dict[str, str | None]] = Field({}, description="each recipe's own parts (but the first's) and their status")
     damaged: str | None = Field(None, description="why this version's file cannot be read")
 
 
@@ -209,8 +218,18 @@ class StoreHealth(BaseModel):
 
 
 class HealthView(BaseModel):
-    """``ok``: every device answers. Anonymous callers of a cell with closed reads get ``ok`` alone."""
+    """``ok``: the cell is ready (HTTP 200), else HTTP 503. Anonymous callers of a cell with closed reads get ``ok`` alone."""
 
     ok: bool
     devices_lost: list[str] | None = Field(None, description="devices the watchdog no longer hears (with the details)")
+    plc: str | None = Field(
+        None, description="the PLC link (with the details): up, waiting (no heartbeat yet), lost; absent with [plc] enabled = false"
+    )
+    problems: list[str] | None = Field(None, description="why the cell is not healthy, one line each (with the details); empty when ok")
     store: StoreHealth | None = Field(None, description="the database (with the details); never its path")
+
+
+class LiveView(BaseModel):
+    """``/health/live``: the process serves HTTP (liveness, not readiness)."""
+
+    ok: bool = True

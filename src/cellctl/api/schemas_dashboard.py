@@ -24,6 +24,28 @@ class DashboardConfig(BaseModel):
     mode_change_states: list[str] = Field(description="PackML states in which the unit mode may change")
     status_period_s: float = Field(description="/events sends a status event at least this often")
     stale_after_s: float = Field(description="the page marks its data stale after this long without an event")
+    calibration_max_age_days: float = Field(description="a calibration part older than this keeps the cell from production")
+    shift_starts: list[str] = Field(description="local times (HH:MM) at which a shift begins, earliest first")
+
+
+class ShiftCount(BaseModel):
+    """One shift's cycles: good parts, not OK ones (failed, interrupted or measured out of tolerance)."""
+
+    start_utc: str
+    end_utc: str
+    start_local: str = Field(description="the shift's start in the asked time zone, YYYY-MM-DD HH:MM")
+    current: bool
+    good: int
+    not_ok: int
+    median_cycle_time_s: float | None = Field(description="the takt: median cycle time of the shift's good cycles")
+
+
+class ShiftCounts(BaseModel):
+    """The current shift and the ones before it, newest first."""
+
+    shift_starts: list[str]
+    tz_offset_min: int
+    shifts: list[ShiftCount]
 
 
 Deviation = InstallDeviation

@@ -16,6 +16,7 @@ class JobOptions(BaseModel):
     poses: int | None = Field(None, description="laser: poses to plan (default calibration.procedure.laser.n_poses)")
     method: str | None = Field(None, description="hand_eye: the method whose result is stored (default tsai)")
     store: bool | None = Field(None, description="false: compute and report only; the calibration set is not changed")
+    recipe: str | None = Field(None, description="teaching, pixel_map: the recipe taught (a [[process.recipes]] name; default the first)")
 
 
 class JobRequestBody(BaseModel):

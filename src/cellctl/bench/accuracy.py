@@ -15,11 +15,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from cellctl.bench.line_plc import LinePlc, LinePlcError
 from cellctl.bench.progress import Progress
 from cellctl.bench.sources import (
     BenchSettingsError,
@@ -38,9 +40,11 @@ from cellctl.bench.stats import (
     within_tolerance_all_axes,
 )
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
-from cellctl.cell.tags import TO_EXECUTE, PackMLState
+from cellctl.cell.tags import TO_EXECUTE
 from cellctl.config import CellConfig
+from cellctl.domain import CycleStep, PackMLState
 from cellctl.service.compose import Service
+from cellctl.service.plc_link import PLC_SCOPE
 from cellctl.store import CycleRecord, CycleRequest, CycleState
 
 log = logging.getLogger(__name__)
@@ -72,7 +76,10 @@ class Trial:
     # The cell's own inspection of the installed glass (absent: the inspection did not run) and the
     # closed loop's state after the cycle (estimate, applied offset, drifting axes, samples).
     measured_deviation: dict[str, float] | None = None
+    step_time_s: dict[str, float] | None = None  # seconds on the cell's clock per step
+    align: dict[str, Any] | None = None  # how the alignment read the wall (mode, latency on the move)
     spc: dict[str, Any] | None = None
+    recipe: str | None = None
 
     @property
     def installed(self) -> bool:
@@ -91,6 +98,8 @@ class RunSettings:
     config_source: str = "config/sim.toml"
     label: str = ""
     devices: DevicesMode = "twin"
+    recipes: Literal["first", "mix"] = "first"  # mix: each trial's recipe drawn (seeded) from the config's recipes
+    via: Literal["orchestrator", "plc"] = "orchestrator"  # plc: each cycle requested by a line PLC over Modbus TCP
 
     def __post_init__(self) -> None:
         if self.trials < 1:
@@ -115,6 +124,7 @@ class AccuracyRun:
     within_tolerance: int
     workdir: str | None = None
     notes: list[str] = field(default_factory=list)
+    recipes: list[str] = field(default_factory=list)  # the configuration's recipes, in its order
 
     @property
     def installed(self) -> list[Trial]:
@@ -134,16 +144,33 @@ class AccuracyRun:
     def cycle_time(self) -> dict[str, float]:
         times = [t.cycle_time_s for t in self.installed if t.cycle_time_s is not None]
         shots = [float(t.shots) for t in self.installed if t.shots is not None]
+        steps = [t.step_time_s for t in self.installed if t.step_time_s]
+        names = sorted({n for st in steps for n in st}, key=lambda n: -percentile([st.get(n, 0.0) for st in steps], 50))
         return {
             "median_s": percentile(times, 50),
+            "p95_s": percentile(times, 95),
             "p99_s": percentile(times, 99),
             "median_shots": percentile(shots, 50),
             "max_shots": max(shots) if shots else float("nan"),
+            "median_step_s": {n: percentile([st.get(n, 0.0) for st in steps], 50) for n in names},
         }
+
+    def per_recipe(self) -> dict[str, list[AxisStats]]:
+        """The per-axis figures of each recipe's installs, when the trials ran more than one recipe."""
+        ran = {t.recipe for t in self.trials}
+        names = [n for n in self.recipes if n in ran]
+        if len(names) < 2:
+            return {}
+        return {
+            n: axis_stats([t.true_error for t in self.installed if t.recipe == n and t.true_error is not None],
+                          tolerance_mm=self.tolerance_mm, tolerance_deg=self.tolerance_deg)
+            for n in names
+        }  # fmt: skip
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "benchmark": "accuracy",
+            "recipes": {n: [s.as_dict() for s in stats] for n, stats in self.per_recipe().items()},
             "settings": {**asdict(self.settings), "off": list(self.settings.off)},
             "tolerance": {"position_mm": self.tolerance_mm, "orientation_deg": self.tolerance_deg},
             "paper": {"trials": PAPER_TRIALS, "max_abs": {a.label: a.paper_max for a in AXES}},
@@ -188,7 +215,19 @@ def trial_from_record(index: int, record: CycleRecord) -> Trial:
         correction_mm=None if res.get("correction_mm") is None else [float(v) for v in res["correction_mm"]],
         measured_deviation=_six(res.get("measured_deviation")),
         spc=_jsonable(res["spc"]) if isinstance(res.get("spc"), dict) else None,
+        step_time_s=_jsonable(res["step_time_s"]) if isinstance(res.get("step_time_s"), dict) else None,
+        align=_align_summary(record),
+        recipe=record.request.recipe,
     )
+
+
+def _align_summary(record: CycleRecord) -> dict[str, Any] | None:
+    """The alignment step's reading mode and, on the move, its latency estimate."""
+    figures = next((s.figures for s in record.steps if s.step is CycleStep.ALIGN), None)
+    if not figures:
+        return None
+    keys = ("mode", "on_the_fly_unavailable", "readings_fitted", "latency_ms", "latency_sigma_ms")
+    return {k: _jsonable(figures[k]) for k in keys if k in figures}
 
 
 def _six(value: Any) -> dict[str, float] | None:
@@ -285,6 +324,7 @@ async def _run_async(
     from cellctl.service import build_service
 
     t_start = time.monotonic()
+    stack = contextlib.AsyncExitStack()
     service = await build_service(config, workdir=workdir)
     hooks.attach(service)
     await service.start()
@@ -300,8 +340,15 @@ async def _run_async(
         cal_s = await prepare_calibration(service, calibrate_timeout_s)
         summary = dict(orch.calibration.summary())
         await bring_to_execute(orch)
-        recipe = next(iter(config.process.recipe_names().values()))
+        ids = {name: number for number, name in config.process.recipe_names().items()}
+        names = list(ids)
+        draw = random.Random(settings.seed)  # the mix of recipes, the same for a seed
+        plc = None
+        if settings.via == "plc":
+            plc = await stack.enter_async_context(LinePlc("127.0.0.1", service.plc_server.port, config.plc.float_word_order,  # type: ignore[attr-defined]
+                                                          config.plc.unit_id))  # fmt: skip
         for k in range(1, settings.trials + 1):
+            recipe = names[0] if settings.recipes == "first" else draw.choice(names)
             if orch.machine.state is not PackMLState.EXECUTE:
                 recoveries += 1
                 try:
@@ -311,14 +358,19 @@ async def _run_async(
                     break
             request = CycleRequest(recipe, f"bench-{k}", car_id=f"seed{settings.seed}-{k}", source=ACTOR)
             hooks.before_cycle(k, service)
-            try:
-                sub = await orch.submit_cycle(request, scope=ACTOR, key=f"bench-{settings.seed}-{k}", actor=ACTOR)
-            except CycleRefused as err:
-                trials.append(Trial(k, None, "refused", err.reason, None, None, None, None))
+            if plc is None:
+                try:
+                    sub = await orch.submit_cycle(request, scope=ACTOR, key=f"bench-{settings.seed}-{k}", actor=ACTOR)
+                    record: CycleRecord | str = await orch.wait_cycle(sub.cycle.id, cycle_timeout_s)
+                except CycleRefused as err:
+                    record = err.reason
+            else:
+                record = await _by_plc(plc, orch, ids[recipe], k, cycle_timeout_s)
+            if isinstance(record, str):  # refused: nothing ran
+                trials.append(Trial(k, None, "refused", record, None, None, None, None, recipe=recipe))
                 hooks.after_cycle(k, service, trials[-1])
                 progress.advance("refused")
                 continue
-            record = await orch.wait_cycle(sub.cycle.id, cycle_timeout_s)
             trial = trial_from_record(k, record)
             trials.append(trial)
             hooks.after_cycle(k, service, trial)
@@ -328,6 +380,7 @@ async def _run_async(
                 break
             progress.advance("ok" if trial.installed else f"{trial.outcome}: {(trial.reason or '')[:60]}")
     finally:
+        await stack.aclose()
         await service.stop()
     installed = [t.true_error for t in trials if t.installed and t.true_error is not None]
     tol = config.process.tolerance
@@ -343,7 +396,18 @@ async def _run_async(
         recoveries=recoveries,
         within_tolerance=within_tolerance_all_axes(installed, tolerance_mm=tol.position_mm, tolerance_deg=tol.orientation_deg),
         notes=notes,
+        recipes=list(config.process.recipe_names().values()),
     )
+
+
+async def _by_plc(plc: LinePlc, orch: CellOrchestrator, recipe_id: int, k: int, timeout_s: float) -> CycleRecord | str:
+    """Trial ``k`` requested by the line PLC (``cycle_req_id`` = part = k): its record, or why nothing ran."""
+    try:
+        done = await plc.cycle(recipe_id, k, k, timeout_s)
+    except LinePlcError as err:
+        return f"the PLC handshake failed: {err}"
+    record = await orch.store.cycle_for_key(PLC_SCOPE, str(k))
+    return record if record is not None else f"refused over Modbus with error_code {done['error_code']}"
 
 
 def _jsonable(value: Any) -> Any:
@@ -389,6 +453,8 @@ def run_accuracy(
             base, workdir=wd, seed=settings.seed, off=settings.off, calibration=settings.calibration,
             time_scale=settings.time_scale, devices=settings.devices,
         )  # fmt: skip
+        if settings.via == "plc":  # the cell's Modbus server on a free loopback port, for the bench's PLC
+            config = config.model_copy(update={"plc": config.plc.model_copy(update={"enabled": True, "host": "127.0.0.1", "port": 0})})
         config = hooks.configure(config, wd)
         run = asyncio.run(_run_async(config, settings, wd, bar, cycle_timeout_s, calibrate_timeout_s, hooks))
         run.workdir = str(wd) if workdir is not None else None

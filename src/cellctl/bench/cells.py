@@ -23,11 +23,23 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from cellctl.bench.accuracy import AccuracyRun, BenchRunError, RunHooks, RunSettings, Trial, run_accuracy
+from cellctl.bench.accuracy import (
+    AccuracyRun,
+    BenchRunError,
+    RunHooks,
+    RunSettings,
+    Trial,
+    run_accuracy,
+)
 from cellctl.bench.commissioned import commission_cell, copy_set
 from cellctl.bench.drift import DriftInjector, DriftSpec
 from cellctl.bench.progress import Progress
-from cellctl.bench.sources import BenchSettingsError, CalibrationMode, DevicesMode, run_workdir
+from cellctl.bench.sources import (
+    BenchSettingsError,
+    CalibrationMode,
+    DevicesMode,
+    run_workdir,
+)
 from cellctl.bench.stats import (
     AXES,
     CELLS_TARGET_P99,
@@ -49,7 +61,7 @@ DRIFT_ALARM = "SPC_DRIFT"
 
 def drift_alarm_code() -> Any:
     """The drift alarm's code (``AlarmCode.SPC_DRIFT``), or None when this build has none."""
-    from cellctl.cell.alarms import AlarmCode
+    from cellctl.domain import AlarmCode
 
     return getattr(AlarmCode, DRIFT_ALARM, None)
 

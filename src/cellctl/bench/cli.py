@@ -9,13 +9,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from cellctl.bench.sources import ERROR_SOURCES
+from cellctl.bench.sources import ERROR_SOURCES, BenchSettingsError
 from cellctl.bench.vision_args import add_arguments as add_vision_arguments
 from cellctl.cli_args import non_negative_int, positive_int
-from cellctl.config import load_config
+from cellctl.config import CellConfig, load_config
+
+# What a bench command's run gives: the printed report, its figures for --json, whether the targets were met.
+Outcome = tuple[str, dict[str, Any], bool]
 
 
 def _write_json(path: Path | None, data: dict[str, Any]) -> None:
@@ -39,6 +44,23 @@ def _failed(what: str, err: Exception, status: int) -> int:
     return status
 
 
+def _run(
+    args: argparse.Namespace,
+    what: str,
+    body: Callable[[CellConfig], Outcome],
+    usage: tuple[type[Exception], ...] = (),
+    unfinished: tuple[type[Exception], ...] = (),
+) -> int:
+    """``body`` on --config, reported; a ``usage`` error exits 2, an ``unfinished`` one 3 (see :func:`_failed`)."""
+    try:
+        text, figures, met = body(load_config(args.config))
+    except usage as err:
+        return _failed(f"bench {what}", err, 2)
+    except unfinished as err:
+        return _failed(f"bench {what} could not finish", err, 3)
+    return _report(args, text, figures, met)
+
+
 def _seed_range(args: argparse.Namespace) -> range:
     """The seeds of ``--seed`` and ``--seeds``: one twin each."""
     return range(args.seed, args.seed + args.seeds)
@@ -49,7 +71,7 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
     from cellctl.bench.budget import run_budget
     from cellctl.bench.plots import PlotsUnavailable, check_plots_available
     from cellctl.bench.report import format_accuracy, format_budget
-    from cellctl.bench.sources import BenchSettingsError, parse_off
+    from cellctl.bench.sources import parse_off
 
     try:
         config = load_config(args.config)
@@ -74,7 +96,8 @@ def _cmd_accuracy(args: argparse.Namespace) -> int:
                 print(f"plot written: {write_budget_plot(budget, args.plots)}")
             return 0
         settings = RunSettings(
-            args.trials, args.seed, off, args.calibration, args.time_scale, str(args.config), devices=args.devices
+            args.trials, args.seed, off, args.calibration, args.time_scale, str(args.config), devices=args.devices,
+            recipes=getattr(args, "recipes", "first"), via=getattr(args, "via", "orchestrator"),
         )
         run = run_accuracy(config, settings, progress=not args.quiet, workdir=args.workdir)
     except (BenchSettingsError, PlotsUnavailable) as err:
@@ -99,114 +122,140 @@ def _cells_mode(args: argparse.Namespace) -> bool:
 
 
 def _cmd_cells(args: argparse.Namespace, config: Any, off: tuple[str, ...]) -> int:
-    """``bench accuracy --cells N`` (and ``--budget parts``): many cells, each commissioned from its own data."""
-    from cellctl.bench.accuracy import BenchRunError
-    from cellctl.bench.sources import BenchSettingsError
+    """``bench accuracy --cells N`` (and ``--budget parts``): many cells, each commissioned from its own data.
 
-    try:
-        for opt, given in (("--plots", args.plots), ("--workdir", args.workdir)):
-            if given is not None:
-                raise BenchSettingsError(f"{opt} does not go with --cells, --loop, the drift options or --budget parts")
-        if args.budget == "parts":
-            from cellctl.bench.budget import run_part_budget
-            from cellctl.bench.report import format_part_budget
+    Called inside :func:`_cmd_accuracy`'s ``try``, which reports its errors.
+    """
+    for opt, given in (("--plots", args.plots), ("--workdir", args.workdir)):
+        if given is not None:
+            raise BenchSettingsError(f"{opt} does not go with --cells, --loop, the drift options or --budget parts")
+    if args.budget == "parts":
+        from cellctl.bench.budget import run_part_budget
+        from cellctl.bench.report import format_part_budget
 
-            if args.calibration != "data" or off or args.loop is not None or args.drift_camera_deg is not None:
-                raise BenchSettingsError(
-                    "--budget parts compares each cell's calibration from its own data with the twin's true parts: "
-                    "it takes --calibration data, runs with every source on and the loop off, and no drift"
-                )
-            budget = run_part_budget(
-                config, seeds=range(args.seed, args.seed + (args.cells or 1)), trials=args.trials,
-                time_scale=args.time_scale, config_source=str(args.config), devices=args.devices,
-                progress=not args.quiet, calibration_cache=args.calibration_cache,
-            )  # fmt: skip
-            return _report(args, format_part_budget(budget), budget.as_dict())
-        if args.budget:
-            raise BenchSettingsError(f"--budget {args.budget} runs one cell; for many cells use --budget parts")
-        from cellctl.bench.cells import CellsSettings, run_cells
-        from cellctl.bench.drift import DriftSpec
-        from cellctl.bench.report import format_cells
-
-        drift = None
-        if args.drift_camera_deg is not None or args.drift_at is not None:
-            if args.drift_camera_deg is None or args.drift_at is None:
-                raise BenchSettingsError("a drift needs both --drift-camera-deg A and --drift-at K")
-            drift = DriftSpec(args.drift_camera_deg, args.drift_at, args.drift_over, args.drift_axis)
-        settings = CellsSettings(
-            cells=args.cells or 1, trials=args.trials, seed=args.seed, loop=args.loop or "on", settle=args.settle,
-            calibration=args.calibration, off=off, time_scale=args.time_scale, config_source=str(args.config),
-            devices=args.devices, drift=drift,
+        if args.calibration != "data" or off or args.loop is not None or args.drift_camera_deg is not None:
+            raise BenchSettingsError(
+                "--budget parts compares each cell's calibration from its own data with the twin's true parts: "
+                "it takes --calibration data, runs with every source on and the loop off, and no drift"
+            )
+        budget = run_part_budget(
+            config, seeds=range(args.seed, args.seed + (args.cells or 1)), trials=args.trials,
+            time_scale=args.time_scale, config_source=str(args.config), devices=args.devices,
+            progress=not args.quiet, calibration_cache=args.calibration_cache,
         )  # fmt: skip
-        run = run_cells(config, settings, progress=not args.quiet, calibration_cache=args.calibration_cache)
-    except BenchSettingsError as err:
-        return _failed("bench accuracy", err, 2)
-    except BenchRunError as err:
-        return _failed("bench accuracy could not finish", err, 3)
+        return _report(args, format_part_budget(budget), budget.as_dict())
+    if args.budget:
+        raise BenchSettingsError(f"--budget {args.budget} runs one cell; for many cells use --budget parts")
+    from cellctl.bench.cells import CellsSettings, run_cells
+    from cellctl.bench.drift import DriftSpec
+    from cellctl.bench.report import format_cells
+
+    drift = None
+    if args.drift_camera_deg is not None or args.drift_at is not None:
+        if args.drift_camera_deg is None or args.drift_at is None:
+            raise BenchSettingsError("a drift needs both --drift-camera-deg A and --drift-at K")
+        drift = DriftSpec(args.drift_camera_deg, args.drift_at, args.drift_over, args.drift_axis)
+    settings = CellsSettings(
+        cells=args.cells or 1, trials=args.trials, seed=args.seed, loop=args.loop or "on", settle=args.settle,
+        calibration=args.calibration, off=off, time_scale=args.time_scale, config_source=str(args.config),
+        devices=args.devices, drift=drift,
+    )  # fmt: skip
+    run = run_cells(config, settings, progress=not args.quiet, calibration_cache=args.calibration_cache)
     return _report(args, format_cells(run), run.as_dict(), run.met())
 
 
 def _cmd_speed(args: argparse.Namespace) -> int:
-    from cellctl.bench.sources import BenchSettingsError
     from cellctl.bench.speed import SpeedSettings, format_speed, run_speed
 
-    try:
-        config = load_config(args.config)
+    def body(config: CellConfig) -> Outcome:
         settings = SpeedSettings(
             frames=args.frames, alignments=args.alignments, cycles=args.cycles, clients=args.clients,
             requests=args.requests, max_seconds=args.seconds, drivers=not args.no_drivers,
             abb_seconds=args.abb_seconds, seed=args.seed,
         )  # fmt: skip
         report = run_speed(config, settings, progress=not args.quiet)
-    except BenchSettingsError as err:
-        return _failed("bench speed", err, 2)
-    return _report(args, format_speed(report), report.as_dict(), report.targets_met())
+        return format_speed(report), report.as_dict(), report.targets_met()
+
+    return _run(args, "speed", body, usage=(BenchSettingsError,))
 
 
 def _cmd_calibration(args: argparse.Namespace) -> int:
     from cellctl.bench.calibration import format_calibration_bench, run_calibration_bench
 
-    try:
-        config = load_config(args.config)
+    def body(config: CellConfig) -> Outcome:
         parts = [p.strip() for p in args.parts.split(",") if p.strip()]
         bench = run_calibration_bench(config, _seed_range(args), parts, progress=not args.quiet)
-    except ValueError as err:
-        return _failed("bench calibration", err, 2)
-    return _report(args, format_calibration_bench(bench), bench.as_dict(), bench.bars_met())
+        return format_calibration_bench(bench), bench.as_dict(), bench.bars_met()
+
+    return _run(args, "calibration", body, usage=(ValueError,))
 
 
 def _cmd_responsiveness(args: argparse.Namespace) -> int:
     from cellctl.bench.responsiveness import format_responsiveness, run_responsiveness
 
-    figures = run_responsiveness(load_config(args.config), cycles=args.cycles, period_s=args.period)
-    return _report(args, format_responsiveness(figures), figures)
+    def body(config: CellConfig) -> Outcome:
+        figures = run_responsiveness(config, cycles=args.cycles, period_s=args.period)
+        return format_responsiveness(figures), figures, True
+
+    return _run(args, "responsiveness", body)
+
+
+def _cmd_opcua(args: argparse.Namespace) -> int:
+    from cellctl.bench.opcua_latency import TARGET_MS, format_opcua_latency, run_opcua_latency
+
+    def body(config: CellConfig) -> Outcome:
+        figures = run_opcua_latency(config, holds=args.holds, cycles=args.cycles, publish_ms=args.publish_ms)
+        met = all(figures[k].get("max_ms", 0.0) <= TARGET_MS for k in ("state", "cycle_step"))
+        return format_opcua_latency(figures), figures, met
+
+    return _run(args, "opcua", body)
+
+
+def _cmd_cycle_time(args: argparse.Namespace) -> int:
+    from cellctl.bench.accuracy import BenchRunError
+    from cellctl.bench.cycle_time import format_cycle_time, run_cycle_time
+
+    def body(config: CellConfig) -> Outcome:
+        figures = run_cycle_time(config, cells=args.cells, trials=args.trials, seed=args.seed, progress=not args.quiet)
+        return format_cycle_time(figures), figures, bool(figures["bar_met"])
+
+    return _run(args, "cycle-time", body, unfinished=(BenchRunError,))
+
+
+def _cmd_arc_corner(args: argparse.Namespace) -> int:
+    from cellctl.bench.arc_corner import format_arc_corner, run_arc_corner_bench
+
+    def body(config: CellConfig) -> Outcome:
+        t0 = time.perf_counter()
+        figures = run_arc_corner_bench(args.renders, args.seed)
+        return format_arc_corner(figures, time.perf_counter() - t0), figures, bool(figures["bar_met"])
+
+    return _run(args, "arc-corner", body)
 
 
 def _cmd_soak(args: argparse.Namespace) -> int:
     from cellctl.bench.accuracy import BenchRunError
-    from cellctl.bench.sources import BenchSettingsError
     from cellctl.bench.soak import SoakSettings, format_soak, run_soak
 
-    try:
-        config = load_config(args.config)
+    def body(config: CellConfig) -> Outcome:
         settings = SoakSettings(
             cycles=args.cycles, seed=args.seed, calibration=args.calibration, image_bound_mb=args.image_bound_mb,
             status_requests=args.status_requests, time_scale=args.time_scale,
         )  # fmt: skip
         report = run_soak(config, settings, progress=not args.quiet, workdir=args.workdir)
-    except BenchSettingsError as err:
-        return _failed("bench soak", err, 2)
-    except BenchRunError as err:
-        return _failed("bench soak could not finish", err, 3)
-    return _report(args, format_soak(report), report.as_dict(), report.disk_held)
+        return format_soak(report), report.as_dict(), report.disk_held
+
+    return _run(args, "soak", body, usage=(BenchSettingsError,), unfinished=(BenchRunError,))
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
     from cellctl.bench.verify import format_verify_bench, run_verify_bench
 
-    config = load_config(args.config)
-    bench = run_verify_bench(config, _seed_range(args), progress=not args.quiet)
-    return _report(args, format_verify_bench(bench, config), bench.as_dict(), bench.passed())
+    def body(config: CellConfig) -> Outcome:
+        bench = run_verify_bench(config, _seed_range(args), progress=not args.quiet)
+        return format_verify_bench(bench, config), bench.as_dict(), bench.passed()
+
+    return _run(args, "verify", body)
 
 
 def _cmd_vision(args: argparse.Namespace) -> int:
@@ -243,13 +292,26 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workdir", type=Path, default=None, help="keep the run's store and images here (new or empty folder)")
 
 
+def _command(sub: Any, name: str, func: Callable[[argparse.Namespace], int], **texts: str) -> argparse.ArgumentParser:
+    """The sub-command ``name`` (``help``, ``description``), run by ``func``."""
+    p = sub.add_parser(name, **texts)
+    p.set_defaults(func=func)
+    return p
+
+
+def _options(p: argparse.ArgumentParser, rows: tuple[tuple[str, Callable[[str], Any], Any, str], ...]) -> None:
+    """Plain options, one (flag, type, default, help) each."""
+    for flag, kind, default, text in rows:
+        p.add_argument(flag, type=kind, default=default, help=text)
+
+
 def register(subparsers: Any) -> None:
     """Add ``bench accuracy``, ``speed``, ``calibration`` and ``verify`` to ``cellctl``'s sub-commands."""
     bench = subparsers.add_parser("bench", help="benchmarks: install accuracy (the paper's experiment), speed, calibration")
     sub = bench.add_subparsers(dest="bench_command", required=True)
 
-    p = sub.add_parser(
-        "accuracy",
+    p = _command(
+        sub, "accuracy", _cmd_accuracy,
         help="N install cycles of the simulated cell at random postures, scored against the truth",
         description="Runs the paper's experiment (section 5.3) in the simulated cell through the orchestrator and "
         "prints per axis max |error|, mean, std and p99 beside the paper's figures and the tolerance.",
@@ -258,6 +320,16 @@ def register(subparsers: Any) -> None:
     _seed_option(p, "the twin's seed: postures and every error source (default 1)")
     _report_options(p, "write every trial and figure to this JSON file")
     p.add_argument("--plots", type=Path, default=None, help="write PNG plots (paper Figs. 5 and 6) into this folder")
+    p.add_argument(
+        "--recipes", choices=["first", "mix"], default="first",
+        help="first: every trial installs the configuration's first recipe (default); mix: each trial's recipe drawn at "
+        "random (seeded) from [[process.recipes]], with per-recipe figures",
+    )  # fmt: skip
+    p.add_argument(
+        "--via", choices=["orchestrator", "plc"], default="orchestrator",
+        help="orchestrator: each cycle submitted to the cell's orchestrator (default); plc: requested by a line PLC "
+        "over Modbus TCP on loopback (recipe_id, the handshake of docs/plc_register_map.md)",
+    )  # fmt: skip
     p.add_argument(
         "--off", default=None,
         help=f"error sources to switch off, comma-separated: {', '.join(ERROR_SOURCES)} (or all)",
@@ -285,8 +357,10 @@ def register(subparsers: Any) -> None:
         "--drift-camera-deg", type=float, default=None,
         help="with --cells: turn the twin's camera mount by this angle (deg) from cycle --drift-at",
     )  # fmt: skip
-    p.add_argument("--drift-at", type=_positive_int, default=None, help="the cycle the drift starts at (1-based)")
-    p.add_argument("--drift-over", type=_positive_int, default=1, help="spread the drift linearly over this many cycles")
+    _options(p, (
+        ("--drift-at", _positive_int, None, "the cycle the drift starts at (1-based)"),
+        ("--drift-over", _positive_int, 1, "spread the drift linearly over this many cycles"),
+    ))
     p.add_argument(
         "--drift-axis", choices=["x", "y", "z"], default="x",
         help="the camera's own axis the mount turns about (default x: the optical axis tilts along the image's v)",
@@ -301,38 +375,37 @@ def register(subparsers: Any) -> None:
         "the real drivers against their protocol fakes)",
     )  # fmt: skip
     _run_options(p)
-    p.set_defaults(func=_cmd_accuracy)
 
-    p = sub.add_parser(
-        "speed",
+    p = _command(
+        sub, "speed", _cmd_speed,
         help="vision, alignment, cycle compute overhead, GET /status under load, driver figures",
         description="Medians and ratios of the cell's compute: corner detection per frame (vs cv2.Canny), "
         "compute_alignment, the cycle's compute overhead, GET /status latency under concurrent load, and the "
         "driver packages' own benchmarks.",
     )
-    p.add_argument("--frames", type=_positive_int, default=30, help="timed corner detections (default 30)")
-    p.add_argument("--alignments", type=_positive_int, default=200, help="timed compute_alignment calls (default 200)")
-    p.add_argument("--cycles", type=_positive_int, default=15, help="cycles for the compute overhead (default 15)")
-    p.add_argument("--clients", type=_positive_int, default=16, help="concurrent GET /status clients (default 16)")
-    p.add_argument("--requests", type=_positive_int, default=2000, help="GET /status requests per phase (default 2000)")
-    p.add_argument("--seconds", type=float, default=20.0, help="time bound of each /status phase (default 20 s)")
-    p.add_argument("--abb-seconds", type=float, default=5.0, help="python -m abb_robot.bench --seconds (default 5)")
+    _options(p, (
+        ("--frames", _positive_int, 30, "timed corner detections (default 30)"),
+        ("--alignments", _positive_int, 200, "timed compute_alignment calls (default 200)"),
+        ("--cycles", _positive_int, 15, "cycles for the compute overhead (default 15)"),
+        ("--clients", _positive_int, 16, "concurrent GET /status clients (default 16)"),
+        ("--requests", _positive_int, 2000, "GET /status requests per phase (default 2000)"),
+        ("--seconds", float, 20.0, "time bound of each /status phase (default 20 s)"),
+        ("--abb-seconds", float, 5.0, "python -m abb_robot.bench --seconds (default 5)"),
+    ))
     p.add_argument("--no-drivers", action="store_true", help="leave out the driver packages' benchmarks")
     _seed_option(p)
     _report_options(p)
-    p.set_defaults(func=_cmd_speed)
 
-    p = sub.add_parser(
-        "vision",
+    p = _command(
+        sub, "vision", _cmd_vision,
         help="the corner detector against the twin's truth: clean, real openings (seal, flange, marks, dirt), disturbances",
         description="The corner detector's accuracy and acceptance per case against the twin's truth, and its time "
         "against cv2.Canny on the same frame (as python -m cellctl.bench.vision).",
     )
     add_vision_arguments(p)
-    p.set_defaults(func=_cmd_vision)
 
-    p = sub.add_parser(
-        "calibration",
+    p = _command(
+        sub, "calibration", _cmd_calibration,
         help="commissioning calibrations on one twin per seed, compared with the twin's true mountings",
         description="Runs the calibration procedures (as `cellctl calibrate` does) on --seeds simulated cells and "
         "prints each figure per seed, its median and worst beside the bar it must meet.",
@@ -343,20 +416,18 @@ def register(subparsers: Any) -> None:
         help="comma-separated: laser, camera, hand_eye (default laser; camera and hand_eye render board views)",
     )  # fmt: skip
     _report_options(p)
-    p.set_defaults(func=_cmd_calibration)
 
-    p = sub.add_parser(
-        "verify",
+    p = _command(
+        sub, "verify", _cmd_verify,
         help="calibrate verify on one twin per seed: quiet when nothing moved, an alarm when the camera moved",
         description="Calibrates camera, hand-eye and laser on --seeds simulated cells, then runs `cellctl calibrate verify` "
         "unchanged and with the twin's camera moved on the flange (0.3 mm + 0.05 deg, 0.3 mm, 0.05 deg).",
     )
     _seeds_options(p)
     _report_options(p)
-    p.set_defaults(func=_cmd_verify)
 
-    p = sub.add_parser(
-        "soak",
+    p = _command(
+        sub, "soak", _cmd_soak,
         help="N cycles of the simulated cell service: RSS, disk per cycle, GET /status latency, retention held",
         description="Runs N install cycles through the simulated cell service's orchestrator with a small image "
         "bound, and prints RSS, disk use per cycle (images, database) and GET /status latency at start and end, "
@@ -367,17 +438,46 @@ def register(subparsers: Any) -> None:
     _calibration_option(
         p, "data: the calibration set the cell computes from simulated data at start (default); oracle: the twin's truth"
     )
-    p.add_argument("--image-bound-mb", type=float, default=50.0, help="the retention's image bound for the run (default 50 MB)")
-    p.add_argument("--status-requests", type=_positive_int, default=300, help="GET /status requests at start and end (default 300)")
+    _options(p, (
+        ("--image-bound-mb", float, 50.0, "the retention's image bound for the run (default 50 MB)"),
+        ("--status-requests", _positive_int, 300, "GET /status requests at start and end (default 300)"),
+    ))
     _run_options(p)
     _report_options(p)
-    p.set_defaults(func=_cmd_soak)
 
-    p = sub.add_parser(
-        "responsiveness",
+    p = _command(
+        sub, "responsiveness", _cmd_responsiveness,
         help="PLC and REST response times while the simulated cell commissions itself and installs windows",
     )
-    p.add_argument("--cycles", type=_positive_int, default=20, help="windows installed after commissioning (default 20)")
-    p.add_argument("--period", type=float, default=0.05, help="seconds between two requests of each client (default 0.05)")
+    _options(p, (
+        ("--cycles", _positive_int, 20, "windows installed after commissioning (default 20)"),
+        ("--period", float, 0.05, "seconds between two requests of each client (default 0.05)"),
+    ))
     _report_options(p)
-    p.set_defaults(func=_cmd_responsiveness)
+
+    p = _command(
+        sub, "cycle-time", _cmd_cycle_time,
+        help="stop and go against reading the wall on the move: cycle time and accuracy on the same cells",
+    )
+    _options(p, (
+        ("--cells", _positive_int, 3, "twins (one seed each; default 3)"),
+        ("--trials", _positive_int, 10, "install cycles per twin and mode (default 10)"),
+    ))
+    _seed_option(p, "the first twin's seed (default 1)")
+    _report_options(p)
+
+    p = _command(
+        sub, "arc-corner", _cmd_arc_corner,
+        help="the large-radius corner (the arc as the feature) on renders with known truth: centre error, refusals",
+    )
+    _options(p, (("--renders", _positive_int, 200, "rendered frames (default 200)"),))
+    _seed_option(p, "the renders' seed (default 1)")
+    _report_options(p)
+
+    p = _command(sub, "opcua", _cmd_opcua, help="how soon an encrypted OPC UA client sees a state or step change of the cell")
+    _options(p, (
+        ("--holds", _positive_int, 20, "Hold/Unhold pairs (4 state changes each; default 20)"),
+        ("--cycles", _positive_int, 5, "cycles run after them (a CycleStep change per sub-step; default 5)"),
+        ("--publish-ms", float, 10.0, "the client's publishing interval in ms (default 10)"),
+    ))
+    _report_options(p)

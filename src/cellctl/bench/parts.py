@@ -233,10 +233,10 @@ class FixedCalibrationSource:
         self._cal = cal
         self._label = label
 
-    def problems(self) -> list[str]:
+    def problems(self, recipe: str | None = None) -> list[str]:
         return []
 
-    def cycle_calibration(self) -> CycleCalibration:
+    def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         return self._cal
 
     def summary(self) -> dict[str, Any]:
@@ -245,5 +245,8 @@ class FixedCalibrationSource:
     def history(self) -> list[dict[str, Any]]:
         return []
 
-    def reference(self) -> dict[str, Any]:
+    def reference(self, recipe: str | None = None) -> dict[str, Any]:
         return {"source": f"bench: {self._label}", "version": 0}
+
+    def untaught(self, recipe: str) -> str | None:
+        return None

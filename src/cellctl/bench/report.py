@@ -52,15 +52,19 @@ def format_accuracy(run: AccuracyRun) -> str:
     ts = "as configured" if s.time_scale is None else f"{s.time_scale:g}"
     lines = [
         f"accuracy: {s.trials} install cycles of the simulated cell at random car-body postures "
-        f"({s.config_source}, seed {s.seed}), through the orchestrator as in production",
+        f"({s.config_source}, seed {s.seed}), "
+        + ("each requested by a line PLC over Modbus TCP (recipe_id, the register map's handshake)" if s.via == "plc"
+           else "through the orchestrator as in production"),
         f"  devices: {'the twin in-process (kind sim)' if s.devices == 'twin' else 'as configured (drivers and their protocol fakes)'}"
         f"; error sources: {_sources_line(s.off)}",
         f"  calibration: {cal}",
         f"  installed {c['installed']}/{c['requested']}; failed {c['failed']}, refused {c['refused']}, "
         f"interrupted {c['interrupted']}, no result {c['timeout']}; within +-{run.tolerance_mm:g} mm and "
         f"+-{run.tolerance_deg:g} deg on all six axes: {c['within_tolerance_all_axes']}/{c['installed']}",
-        f"  cycle time (simulated time scale {ts}): median {_f(ct['median_s'], 0, 3)} s, p99 {_f(ct['p99_s'], 0, 3)} s; "
-        f"shots per cycle median {_f(ct['median_shots'], 0, 0)}, max {_f(ct['max_shots'], 0, 0)}; run took {run.wall_s:.0f} s",
+        f"  cycle time on the cell's clock (simulated robot seconds; time scale {ts}): median {_f(ct['median_s'], 0, 2)} s, "
+        f"p95 {_f(ct['p95_s'], 0, 2)} s, p99 {_f(ct['p99_s'], 0, 2)} s; shots per cycle median {_f(ct['median_shots'], 0, 0)}, "
+        f"max {_f(ct['max_shots'], 0, 0)}; run took {run.wall_s:.0f} s",
+        "  median per step: " + (", ".join(f"{n} {v:.2f} s" for n, v in ct["median_step_s"].items() if v >= 0.005) or "-"),
         "",
         f"  axis unit   max|e|     mean      std   p99|e|  target p99      paper max ({PAPER_TRIALS} trials)  tolerance   in tol.",
     ]
@@ -72,6 +76,7 @@ def format_accuracy(run: AccuracyRun) -> str:
             f"<= {a.target_p99:g} {verdict:7s}  {paper:>16s}  {'+-' + format(a.tolerance, 'g'):>9s}  "
             f"{a.within_tolerance:>4d}/{a.n}"
         )
+    lines += _recipe_lines(run)
     missed = [a.axis for a in run.axes if not a.p99_met]
     lines.append("")
     lines.append(
@@ -89,6 +94,24 @@ def format_accuracy(run: AccuracyRun) -> str:
     for note in run.notes:
         lines.append(f"  note: {note}")
     return "\n".join(lines)
+
+
+def _recipe_lines(run: AccuracyRun) -> list[str]:
+    """p99 |error| per axis of each recipe's installs, and its ratio to the first recipe's (a mix of recipes)."""
+    per = run.per_recipe()
+    if not per:
+        return []
+    first = next(iter(per))  # the configuration's first recipe among those run
+    lines = ["", "  per recipe: installed, p99|e| per axis (ratio to " + first + "'s)"]
+    for name, stats in per.items():
+        cells = [f"{a.axis} {_f(a.p99_abs).strip()}" + ("" if name == first else f" ({_ratio(a.p99_abs, b.p99_abs)})")
+                 for a, b in zip(stats, per[first], strict=True)]  # fmt: skip
+        lines.append(f"  {name:14.14s} {stats[0].n:>4d}  " + ", ".join(cells))
+    return lines
+
+
+def _ratio(a: float, b: float) -> str:
+    return f"{a / b:.2f}x" if b > 0 and a == a and b == b else "-"
 
 
 def format_budget(budget: Budget) -> str:

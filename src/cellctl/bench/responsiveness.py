@@ -52,6 +52,7 @@ class Series:
 def _config(base: CellConfig) -> CellConfig:
     data = base.model_dump(mode="json")
     data["plc"].update(enabled=True, host="127.0.0.1", port=0)
+    data["opcua"].update(enabled=False)
     data["calibration"].update(source="set", auto_calibrate_in_sim=True, directory="var/calibration")
     data["store"]["path"] = "var/cellctl.db"
     return parse_config(data, "bench responsiveness")

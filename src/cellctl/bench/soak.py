@@ -31,13 +31,24 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cellctl.bench.accuracy import ACTOR, BenchRunError, bring_to_execute, prepare_calibration
+from cellctl.bench.accuracy import (
+    ACTOR,
+    BenchRunError,
+    bring_to_execute,
+    prepare_calibration,
+)
 from cellctl.bench.progress import Progress
-from cellctl.bench.sources import BenchSettingsError, CalibrationMode, DevicesMode, run_config, run_workdir
+from cellctl.bench.sources import (
+    BenchSettingsError,
+    CalibrationMode,
+    DevicesMode,
+    run_config,
+    run_workdir,
+)
 from cellctl.bench.stats import percentile
 from cellctl.cell.orchestrator import CycleRefused
-from cellctl.cell.tags import PackMLState
 from cellctl.config import CellConfig, parse_config
+from cellctl.domain import PackMLState
 from cellctl.store import CycleRequest, CycleState
 
 MB = 1024**2

@@ -162,6 +162,7 @@ def run_config(
     if time_scale is not None:
         _set_path(data, "sim.time_scale", float(time_scale))
     _set_path(data, "plc.enabled", False)
+    _set_path(data, "opcua.enabled", False)
     _set_path(data, "store.path", str((workdir / "var" / "bench.db").resolve()))
     _set_path(data, "calibration.source", "set" if calibration == "data" else "oracle")
     _set_path(data, "calibration.directory", str((workdir / "var" / "calibration").resolve()))

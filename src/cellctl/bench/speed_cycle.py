@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +55,6 @@ class _DeviceTimer:
 
 
 async def _overhead_async(config: CellConfig, cycles: int, workdir: Path, progress: Progress) -> dict[str, Any]:
-    from cellctl.cell.cycle import CellDevices
     from cellctl.service import build_service
     from cellctl.store import CycleRequest, CycleState
 
@@ -71,9 +71,9 @@ async def _overhead_async(config: CellConfig, cycles: int, workdir: Path, progre
         for k in range(cycles + 1):  # the first is a warm-up (first-call costs), not counted
             account: dict[str, float] = {}
             frames: list[np.ndarray] = []
-            orch.devices = CellDevices(
-                _DeviceTimer(original.laser, account), _DeviceTimer(original.camera, account, frames),
-                _DeviceTimer(original.robot, account),
+            orch.devices = replace(
+                original, laser=_DeviceTimer(original.laser, account), camera=_DeviceTimer(original.camera, account, frames),
+                robot=_DeviceTimer(original.robot, account),
             )  # fmt: skip
             try:
                 if orch.machine.state.name != "EXECUTE":
@@ -87,9 +87,12 @@ async def _overhead_async(config: CellConfig, cycles: int, workdir: Path, progre
             if k == 0:
                 continue
             ok = rec.state is CycleState.DONE
-            cycle_s = float((rec.result or {}).get("cycle_time_s") or float("nan"))
+            res = rec.result or {}
+            cycle_s = float(res.get("wall_time_s") or float("nan"))  # the host's seconds: what the overhead is taken from
+            robot_s = float(res.get("cycle_time_s") or float("nan"))  # the cell's clock: the robot time of the cycle
             device_s = sum(account.values())
-            rows.append({"ok": ok, "cycle_s": cycle_s, "device_s": device_s, "by_call_s": dict(account), "shots": len(frames)})
+            rows.append({"ok": ok, "cycle_s": cycle_s, "robot_s": robot_s, "device_s": device_s, "by_call_s": dict(account),
+                         "shots": len(frames)})  # fmt: skip
             frames_per_cycle.append(frames)
             progress.advance("ok" if ok else f"failed: {rec.error}")
     finally:
@@ -129,6 +132,8 @@ def _overhead_figures(config: CellConfig, rows: list[dict[str, Any]], frames_per
         "failed": sum(1 for r in rows if not r["ok"]),
         "time_scale": config.sim.time_scale,
         "cycle_median_s": med([r["cycle_s"] for r, _ in ok_rows]),
+        "robot_cycle_median_s": med([r["robot_s"] for r, _ in ok_rows]),
+        "robot_cycle_p95_s": percentile([r["robot_s"] for r, _ in ok_rows], 95),
         "device_median_s": med([r["device_s"] for r, _ in ok_rows]),
         "device_calls_median_s": {k: med(v) for k, v in sorted(calls.items())},
         "overhead_median_s": med(over) if over else None,

@@ -1,6 +1,7 @@
 """The versioned calibration set: what the cycle needs, how it was obtained, and whether it is usable.
 
-One JSON document per version holds five parts, each with its values, when and how it was
+One JSON document per version holds five parts (``parts``; a recipe other than the cell's first
+has its own ``teaching`` and ``pixel_map`` under ``recipes``), each with its values, when and how it was
 made (method, software, the dataset it came from), its quality figures and warnings, the ids of
 the parts it was computed with, and how long it stays valid:
 
@@ -33,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, ValidationError
 
+from cellctl.calibration.camera import lens_from_matrix
 from cellctl.calibration.set_parts import (
     PART_MODELS,
     CalibrationSetError,
@@ -40,10 +42,12 @@ from cellctl.calibration.set_parts import (
     Parts,
     StrictRecord,
     PartRecord,
+    RecipeParts,
 )
 from cellctl.compensate import TaughtPoses
 from cellctl.config.loader import format_validation_errors
 from cellctl.geometry.pose import Pose
+from cellctl.vision.lens import Lens
 
 FORMAT = "cellctl-calibration-set"
 FORMAT_VERSION = 1
@@ -63,6 +67,12 @@ COMMANDS = {
     "pixel_map": "cellctl calibrate nine-point",
     "teaching": "cellctl teach",
 }
+RECIPE_PART_NAMES = ("teaching", "pixel_map")  # each recipe has its own; the others are the cell's
+
+
+def command(name: str, recipe: str | None = None) -> str:
+    """The command that makes part ``name`` (of ``recipe``'s own parts, when it names one)."""
+    return COMMANDS[name] + (f" --recipe {recipe}" if recipe is not None and name in RECIPE_PART_NAMES else "")
 
 
 class CalibrationSet(StrictRecord):
@@ -75,17 +85,27 @@ class CalibrationSet(StrictRecord):
     parent_version: int | None = None
     note: str = ""
     parts: Parts = Parts()
+    recipes: dict[str, RecipeParts] = {}  # the own parts of each recipe but the cell's first (whose are in parts)
 
-    def part(self, name: str) -> PartRecord | None:
+    def part(self, name: str, recipe: str | None = None) -> PartRecord | None:
+        """Part ``name``: a recipe's own (teaching, pixel_map) when ``recipe`` names one, else the set's."""
         if name not in PART_NAMES:
             raise KeyError(f"unknown calibration part {name!r}; the parts are {', '.join(PART_NAMES)}")
+        if recipe is not None and name in RECIPE_PART_NAMES:
+            return getattr(self.recipes.get(recipe, RecipeParts()), name)  # type: ignore[no-any-return]
         return getattr(self.parts, name)  # type: ignore[no-any-return]
 
-    def _ok(self, name: str) -> Any:
-        p = self.part(name)
+    def usable(self, name: str, recipe: str | None = None) -> bool:
+        """Part ``name`` (``recipe``'s own, when it names one) is in the set and ok."""
+        p = self.part(name, recipe)
+        return p is not None and p.status == "ok"
+
+    def _ok(self, name: str, recipe: str | None = None) -> Any:
+        p = self.part(name, recipe)
         if p is None or p.status != "ok" or getattr(p, "values", None) is None:
             state = "missing" if p is None else f"failed ({p.failure})"
-            raise CalibrationSetError(f"calibration part {name} is {state}; run `{COMMANDS[name]}`")
+            of = f" of recipe {recipe}" if recipe is not None and name in RECIPE_PART_NAMES else ""
+            raise CalibrationSetError(f"calibration part {name}{of} is {state}; run `{command(name, recipe)}`")
         return p.values  # type: ignore[attr-defined]
 
     # -- typed values for the cycle ----------------------------------------------------------
@@ -99,6 +119,10 @@ class CalibrationSet(StrictRecord):
     def image_size(self) -> tuple[int, int]:
         return tuple(self._ok("camera").image_size)  # type: ignore[return-value]
 
+    def lens(self) -> Lens:
+        """The calibrated lens: A (px), distortion k1, k2, p1, p2, k3 (eq. 17) and the image size."""
+        return lens_from_matrix(self.camera_matrix(), self.dist_coeffs(), self.image_size())
+
     def T_H_C(self) -> Pose:
         return np.asarray(self._ok("hand_eye").T_H_C, dtype=float)
 
@@ -106,27 +130,35 @@ class CalibrationSet(StrictRecord):
         v = self._ok("laser")
         return np.asarray(v.r, dtype=float), np.asarray(v.l, dtype=float)
 
-    def pixel_affine(self) -> NDArray[np.float64]:
-        return np.asarray(self._ok("pixel_map").affine, dtype=float)
+    def pixel_affine(self, recipe: str | None = None) -> NDArray[np.float64]:
+        return np.asarray(self._ok("pixel_map", recipe).affine, dtype=float)
 
-    def pixel_scale(self) -> float:
-        return float(self._ok("pixel_map").scale_mm_per_px)
+    def pixel_scale(self, recipe: str | None = None) -> float:
+        return float(self._ok("pixel_map", recipe).scale_mm_per_px)
 
-    def taught(self) -> TaughtPoses:
-        v = self._ok("teaching")
+    def taught(self, recipe: str | None = None) -> TaughtPoses:
+        v = self._ok("teaching", recipe)
         return TaughtPoses(np.asarray(v.T0, dtype=float), np.asarray(v.C_Pos_0, dtype=float), np.asarray(v.g_Pos_0, dtype=float))
 
-    def template(self) -> dict[str, float]:
+    def template(self, recipe: str | None = None) -> dict[str, float]:
         """u_d, v_d, theta_d and the two edge angles of the taught corner (ideal pixels, rad)."""
-        v = self._ok("teaching")
+        v = self._ok("teaching", recipe)
         return {k: float(getattr(v, k)) for k in ("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")}
 
-    def with_part(self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "") -> "CalibrationSet":
-        """A new version with ``part`` as ``name`` and every other part kept."""
+    def with_part(
+        self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "", recipe: str | None = None
+    ) -> "CalibrationSet":
+        """A new version with ``part`` as ``name`` (of ``recipe``'s own parts when it names one), all else kept."""
         if not isinstance(part, PART_MODELS[name]):
             raise TypeError(f"part {name} must be a {PART_MODELS[name].__name__}, got {type(part).__name__}")
-        parts = self.parts.model_copy(update={name: part})
-        return CalibrationSet(version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts)
+        parts, recipes = self.parts, dict(self.recipes)
+        if recipe is not None and name in RECIPE_PART_NAMES:
+            recipes[recipe] = recipes.get(recipe, RecipeParts()).model_copy(update={name: part})
+        else:
+            parts = parts.model_copy(update={name: part})
+        return CalibrationSet(
+            version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts, recipes=recipes
+        )
 
 
 def empty_set(created_utc: datetime) -> CalibrationSet:
@@ -240,42 +272,56 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def check_ready(cal: CalibrationSet | None, now: datetime) -> list[str]:
-    """Everything that stops production, one line per problem (an empty list: ready).
+def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
+    """Where a recipe's own parts are kept: None (``parts``) for the cell's first recipe, else its name."""
+    return None if recipe is None or recipe == first_recipe else recipe
+
+
+def check_ready(
+    cal: CalibrationSet | None, now: datetime, *, recipe: str | None = None, first_recipe: str | None = None
+) -> list[str]:
+    """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
     A part is a problem when it is missing, failed, expired, dated in the future, or was
-    computed from a part that has since been replaced (stale).
+    computed from a part that has since been replaced (stale); a teaching is one when it was
+    taught for another recipe than the one it stands for (``first_recipe`` names the cell's first).
     """
     if now.tzinfo is None:
         raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
     if cal is None:
         return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
+    slot = recipe_slot(recipe, first_recipe)
     problems: list[str] = []
     for name in PART_NAMES:
-        p = cal.part(name)
-        cmd = COMMANDS[name]
+        p = cal.part(name, slot)
+        cmd = command(name, slot)
+        label = f"{name} of recipe {slot}" if name in RECIPE_PART_NAMES and slot is not None else name
         if p is None:
-            problems.append(f"{name}: missing; run `{cmd}`")
+            problems.append(f"{label}: missing; run `{cmd}`")
             continue
         if p.status == "failed":
-            problems.append(f"{name}: the last calibration failed ({p.failure}); fix the cause and run `{cmd}` again")
+            problems.append(f"{label}: the last calibration failed ({p.failure}); fix the cause and run `{cmd}` again")
             continue
         expires = p.calibrated_utc + timedelta(days=p.valid_days)
         if now >= expires:
             problems.append(
-                f"{name}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
+                f"{label}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
                 f"valid {p.valid_days:g} days); run `{cmd}`"
             )
         if p.calibrated_utc > now + timedelta(minutes=5):
-            problems.append(f"{name}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
+            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
+        taught_for = getattr(getattr(p, "values", None), "recipe", None)
+        wanted = slot if slot is not None else first_recipe
+        if taught_for is not None and wanted is not None and taught_for != wanted:
+            problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
         for dep in DEPENDS_ON[name]:
             used = p.inputs.get(dep)
-            have = cal.part(dep)
+            have = cal.part(dep, slot)
             if used is None:
-                problems.append(f"{name}: does not record which {dep} it was computed with; run `{cmd}` again")
+                problems.append(f"{label}: does not record which {dep} it was computed with; run `{cmd}` again")
             elif have is not None and have.status == "ok" and have.id != used:
                 problems.append(
-                    f"{name}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
+                    f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
                 )
     return problems
 
@@ -343,14 +389,16 @@ class CalibrationStore:
             os.fsync(f.fileno())
         os.replace(tmp, path)
 
-    def commit(self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None) -> CalibrationSet:
-        """Store a new version with ``part`` replacing ``name`` and make it current."""
+    def commit(
+        self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None, recipe: str | None = None
+    ) -> CalibrationSet:
+        """Store a new version with ``part`` replacing ``name`` (``recipe``'s own, when it names one) and make it current."""
         when = now or datetime.now(timezone.utc)
         self.root.mkdir(parents=True, exist_ok=True)
         base = self.current() or empty_set(when)
         existing = self.versions()
         version = (max(existing) if existing else 0) + 1
-        new = base.with_part(name, part, version=version, created_utc=when, note=note)
+        new = base.with_part(name, part, version=version, created_utc=when, note=note, recipe=recipe)
         if base.version == 0:
             new = new.model_copy(update={"parent_version": None})
         path = self._path(version)
@@ -362,15 +410,19 @@ class CalibrationStore:
 
     def history(self) -> list[dict[str, Any]]:
         """One line per version: number, time, note and the status of each part."""
-        rows = []
-        for v in self.versions():
-            cal = self.load(v)
-            rows.append(
-                {
-                    "version": v,
-                    "created_utc": cal.created_utc.isoformat(),
-                    "note": cal.note,
-                    "parts": {n: (None if cal.part(n) is None else cal.part(n).status) for n in PART_NAMES},  # type: ignore[union-attr]
-                }
-            )
-        return rows
+        return [history_row(self.load(v)) for v in self.versions()]
+
+
+def history_row(cal: CalibrationSet) -> dict[str, Any]:
+    """A version in one line: number, time, note, the status of each part and of each recipe's own."""
+    def status(name: str, recipe: str | None = None) -> str | None:
+        p = cal.part(name, recipe)
+        return None if p is None else p.status
+
+    return {
+        "version": cal.version,
+        "created_utc": cal.created_utc.isoformat(),
+        "note": cal.note,
+        "parts": {n: status(n) for n in PART_NAMES},
+        "recipes": {r: {n: status(n, r) for n in RECIPE_PART_NAMES} for r in sorted(cal.recipes)},
+    }

@@ -22,22 +22,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.config.calibration_procedure import CameraCalibrationConfig
 from cellctl.geometry.pose import Pose, make_pose
+from cellctl.vision.lens import Lens
 
 F64 = NDArray[np.float64]
 
 # Coverage is counted on this grid of image cells.
 COVERAGE_GRID = 8
-
-
-@dataclass(frozen=True)
-class CameraLimits:
-    """When camera calibration data is refused, and how bad views are recognised."""
-
-    min_views: int = 8
-    max_rms_px: float = 0.5
-    reject_factor: float = 3.0
-    reject_floor_px: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -49,29 +41,12 @@ class ViewCorners:
     reason: str = "ok"
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    """The calibrated camera: A, distortion (k1, k2, p1, p2, k3) and the image size (w, h)."""
-
-    K: F64
-    dist: F64
-    image_size: tuple[int, int]
-
-    @property
-    def fx(self) -> float:
-        return float(self.K[0, 0])
-
-    @property
-    def fy(self) -> float:
-        return float(self.K[1, 1])
-
-    @property
-    def cx(self) -> float:
-        return float(self.K[0, 2])
-
-    @property
-    def cy(self) -> float:
-        return float(self.K[1, 2])
+def lens_from_matrix(K: ArrayLike, dist: ArrayLike, image_size: tuple[int, int]) -> Lens:
+    """The lens of camera matrix A (px), distortion (k1, k2, p1, p2, k3) (eq. 17) and (width, height) in px."""
+    A = np.asarray(K, dtype=float)
+    k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(dist, dtype=float).reshape(-1)[:5])
+    w, h = int(image_size[0]), int(image_size[1])
+    return Lens(float(A[0, 0]), float(A[1, 1]), float(A[0, 2]), float(A[1, 2]), k1, k2, p1, p2, k3, w, h)
 
 
 @dataclass(frozen=True)
@@ -79,7 +54,7 @@ class CameraCalibration:
     """Intrinsics and the figures that say how far to trust them.
 
     Attributes:
-        intrinsics: A, distortion and image size.
+        intrinsics: A, distortion and image size (the lens the corner detector would use).
         rms_px: overall reprojection RMS of the views used.
         per_view_rms_px: each used view's RMS, by name.
         rejected: (view name, reason) of every view left out.
@@ -89,7 +64,7 @@ class CameraCalibration:
         flags: the OpenCV flags used.
     """
 
-    intrinsics: Intrinsics
+    intrinsics: Lens
     rms_px: float
     per_view_rms_px: dict[str, float]
     rejected: list[tuple[str, str]]
@@ -118,7 +93,7 @@ def calibrate_camera(
     image_size: tuple[int, int],
     *,
     fix_k3: bool = False,
-    limits: CameraLimits = CameraLimits(),
+    limits: CameraCalibrationConfig = CameraCalibrationConfig(),
 ) -> CameraCalibration:
     """Zhang's calibration on the views whose board was found; bad views rejected.
 
@@ -127,7 +102,8 @@ def calibrate_camera(
         object_points: the board's inner corners (N, 3) in the board frame (mm).
         image_size: (width, height) in pixels.
         fix_k3: keep k3 at 0 (for a lens whose r^6 term the views cannot resolve).
-        limits: refusal thresholds.
+        limits: the refusal thresholds (``min_views``, ``max_rms_px``, ``reject_factor``,
+            ``reject_floor_px``); the other fields are the procedure's and not read here.
     """
     obj = np.asarray(object_points, dtype=np.float64)
     if obj.ndim != 2 or obj.shape[1] != 3:
@@ -188,7 +164,7 @@ def calibrate_camera(
         R, _ = cv2.Rodrigues(rv)
         poses[v.name] = make_pose(R, np.asarray(tv, dtype=float).reshape(3))
     return CameraCalibration(
-        intrinsics=Intrinsics(np.asarray(K, dtype=float), np.asarray(D, dtype=float).reshape(-1)[:5], (w, h)),
+        intrinsics=lens_from_matrix(K, D, (w, h)),
         rms_px=float(rms),
         per_view_rms_px={v.name: float(p) for v, p in zip(used, per)},
         rejected=rejected,

@@ -20,12 +20,12 @@ import numpy as np
 
 from cellctl.align import AlignmentError, compute_alignment
 from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
-from cellctl.calibration.calibration_set import CalibrationSet
-from cellctl.calibration.camera import CameraLimits, ViewCorners, calibrate_camera
+from cellctl.calibration.calibration_set import CalibrationSet, recipe_slot
+from cellctl.calibration.camera import ViewCorners, calibrate_camera
 from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.hand_eye import HandEyeLimits, board_pose, solve_hand_eye
-from cellctl.calibration.laser import LaserLimits, calibrate_laser
+from cellctl.calibration.hand_eye import board_pose, solve_hand_eye
+from cellctl.calibration.laser import calibrate_laser
 from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
 from cellctl.calibration.summary import summary_lines
 from cellctl.calibration.teach import workpiece_frame_from_corner
@@ -34,7 +34,6 @@ from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import invert_pose, mean_pose, pose_error
 from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
 from cellctl.vision.corner import CornerMeasurement, detect_corner
-from cellctl.vision.lens import Lens
 from cellctl.vision.ninepoint import NinePointError
 from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
 
@@ -51,6 +50,7 @@ class Outcome:
     warnings: list[str] = field(default_factory=list)
     inputs: dict[str, str] = field(default_factory=dict)
     detail: Any = None
+    recipe: str | None = None  # whose own part it is (teaching, pixel_map of a recipe but the first); None: the set's
 
     @property
     def summary(self) -> list[str]:
@@ -65,17 +65,11 @@ def _board(ds: Dataset) -> BoardSpec:
     return BoardSpec(tuple(b["inner_corners"]), float(b["square_mm"]))  # type: ignore[arg-type]
 
 
-def _lens(cal: CalibrationSet) -> Lens:
-    K, D = cal.camera_matrix(), cal.dist_coeffs()
-    w, h = cal.image_size()
-    return Lens(K[0, 0], K[1, 1], K[0, 2], K[1, 2], D[0], D[1], D[2], D[3], D[4], int(w), int(h))
-
-
-def _need(cal: CalibrationSet | None, part: str, name: str) -> str:
-    """The id of a part this calibration builds on, refusing when it is not usable."""
+def _need(cal: CalibrationSet | None, part: str, name: str, recipe: str | None = None) -> str:
+    """The id of a part this calibration builds on (``recipe``'s own, when it names one), refusing when it is not usable."""
     if cal is None:
         raise CalibrationRefused(part, "missing_input", f"{name} is not calibrated yet: there is no calibration set")
-    p = cal.part(name)
+    p = cal.part(name, recipe)
     if p is None or p.status != "ok":
         state = "missing" if p is None else "failed"
         raise CalibrationRefused(part, "missing_input", f"{name} is {state} in the calibration set; calibrate it first")
@@ -100,8 +94,7 @@ def compute_camera(
     dets = detections if detections is not None else detect_views(ds, cc.refine)
     views = [ViewCorners(name, d.corners_px, d.reason) for name, d in dets]
     size = tuple(int(x) for x in ds.manifest["image_size"])
-    limits = CameraLimits(cc.min_views, cc.max_rms_px, cc.reject_factor, cc.reject_floor_px)
-    res = calibrate_camera(views, spec.object_points(), size, fix_k3=cc.fix_k3, limits=limits)  # type: ignore[arg-type]
+    res = calibrate_camera(views, spec.object_points(), size, fix_k3=cc.fix_k3, limits=cc)  # type: ignore[arg-type]
     i = res.intrinsics
     sharp = [d.sharpness_px for _, d in dets if d.sharpness_px is not None]
     quality: dict[str, Any] = {
@@ -132,7 +125,7 @@ def compute_camera(
     return Outcome(
         "camera",
         "zhang (cv2.calibrateCameraExtended), corners by findChessboardCornersSB" + f" + {cc.refine}",
-        {"K": i.K.tolist(), "dist": i.dist.tolist(), "image_size": list(size)},
+        {"K": i.camera_matrix.tolist(), "dist": i.dist_coeffs.tolist(), "image_size": list(size)},
         quality,
         warnings,
         {},
@@ -172,8 +165,7 @@ def compute_hand_eye(
         pnp.append(rms)
     if not H:
         raise CalibrationRefused("hand_eye", "board_not_found", f"the board was not found in any of the {len(ds.manifest['views'])} views")
-    limits = HandEyeLimits(hc.min_views, hc.recommended_views, hc.min_pair_angle_deg, hc.min_max_pair_angle_deg, hc.min_axis_spread)
-    rep = solve_hand_eye(H, C, chosen=hc.method, limits=limits, object_points=obj, corners_px=corners, K=K, dist=D)
+    rep = solve_hand_eye(H, C, chosen=hc.method, limits=hc, object_points=obj, corners_px=corners, K=K, dist=D)
     worst_mm = max(rep.agreement_mm.values())
     worst_deg = max(rep.agreement_deg.values())
     if worst_mm > hc.max_translation_disagreement_mm or worst_deg > hc.max_rotation_disagreement_deg:
@@ -252,10 +244,9 @@ def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
     d = np.array([float(r["distance_mm"]) for r in ok])
     g = np.array([int(r.get("group", 0)) for r in ok], dtype=int)
     lo, hi = ds.manifest["sensor_range_mm"]
-    limits = LaserLimits(lc.min_poses, lc.min_direction_spread_deg, lc.max_rms_mm, lc.max_r_sigma_mm, lc.max_l_sigma_deg)
     res = calibrate_laser(
         H, d, ds.manifest["r_nominal"], ds.manifest["l_nominal"],
-        groups=g, linearity_terms=lc.linearity_terms, distance_range_mm=(float(lo), float(hi)), limits=limits,
+        groups=g, linearity_terms=lc.linearity_terms, distance_range_mm=(float(lo), float(hi)), limits=lc,
     )
     quality: dict[str, Any] = {
         "r_sigma_mm": res.r_sigma_mm.tolist(),
@@ -296,10 +287,11 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
     """The nine-point map and the pixel scale s from a nine_point dataset."""
     npc = config.calibration.procedure.nine_point
     camera_id = _need(cal, "pixel_map", "camera")
-    teaching_id = _need(cal, "pixel_map", "teaching")
+    recipe = recipe_slot(ds.manifest.get("recipe"), config.default_recipe)
+    teaching_id = _need(cal, "pixel_map", "teaching", recipe)
     assert cal is not None
-    lens = _lens(cal)
-    taught = cal.taught()
+    lens = cal.lens()
+    taught = cal.taught(recipe)
     views = ds.manifest["views"]
     corners, poses, quality_px = [], [], []
     for v in views:
@@ -350,6 +342,7 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
         warnings,
         {"camera": camera_id, "teaching": teaching_id},
         (amap, scale),
+        recipe,
     )
 
 
@@ -426,7 +419,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
             f"the image was taken {np.linalg.norm(moved_mm):.2f} mm / {np.degrees(np.linalg.norm(moved_rad)):.3f} deg away "
             "from the aligned shooting pose these laser readings give; the dataset does not belong together",
         )
-    lens = _lens(cal)
+    lens = cal.lens()
     m = detect_corner(ds.image(ds.manifest["shooting_image"]), lens, config.vision)
     if not m.ok:
         raise CalibrationRefused("teaching", "corner_not_found", f"the corner detector refused the template image: {m.message}")
@@ -462,6 +455,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
             "g_Pos_0_install_error": truth.get("g_Pos_0_install_error"),
         }
     values = {
+        "recipe": ds.manifest.get("recipe") or config.default_recipe,
         "T0": T0.tolist(),
         "C_Pos_0": C_Pos_0.tolist(),
         "g_Pos_0": g_Pos_0.tolist(),
@@ -480,6 +474,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         [],
         ids,
         (align, m, T0),
+        recipe_slot(ds.manifest.get("recipe"), config.default_recipe),
     )
 
 

@@ -16,20 +16,20 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import get_args
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.config.calibration_procedure import HandEyeCalibrationConfig, HandEyeMethod
 from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose, mean_pose
 from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
 
 F64 = NDArray[np.float64]
 
-HandEyeMethod = Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"]
-METHODS: tuple[HandEyeMethod, ...] = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
+METHODS: tuple[HandEyeMethod, ...] = get_args(HandEyeMethod)
 _OPENCV_METHOD = {
     "opencv_tsai": cv2.CALIB_HAND_EYE_TSAI,
     "opencv_park": cv2.CALIB_HAND_EYE_PARK,
@@ -294,19 +294,7 @@ def opencv_hand_eye(T_B_H: Sequence[ArrayLike], T_C_P: Sequence[ArrayLike], meth
     return make_pose(nearest_rotation(R), t)
 
 
-@dataclass(frozen=True)
-class HandEyeLimits:
-    """When hand-eye data is refused or warned about."""
-
-    min_views: int = 6
-    recommended_views: int = 10
-    min_pair_angle_deg: float = 5.0
-    min_max_pair_angle_deg: float = 15.0
-    min_axis_spread: float = 0.05
-    warn_axis_spread: float = 0.15
-
-
-def check_motion(diversity: MotionDiversity, limits: HandEyeLimits) -> list[str]:
+def check_motion(diversity: MotionDiversity, limits: HandEyeCalibrationConfig) -> list[str]:
     """Refuse motion sets that cannot determine X; return warnings for weak but usable ones."""
     d = diversity
     if d.n_views < limits.min_views:
@@ -342,7 +330,7 @@ def solve_hand_eye(
     *,
     chosen: HandEyeMethod = "tsai",
     methods: Sequence[HandEyeMethod] = METHODS,
-    limits: HandEyeLimits = HandEyeLimits(),
+    limits: HandEyeCalibrationConfig = HandEyeCalibrationConfig(),
     object_points: ArrayLike | None = None,
     corners_px: Sequence[ArrayLike] | None = None,
     K: ArrayLike | None = None,

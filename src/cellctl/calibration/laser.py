@@ -53,22 +53,12 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.config.calibration_procedure import LASER_MIN_POSES, LaserCalibrationConfig
 from cellctl.geometry.plane import PlaneFitError, fit_plane
 
 F64 = NDArray[np.float64]
 
 _ALTERNATIONS = 8
-
-
-@dataclass(frozen=True)
-class LaserLimits:
-    """When laser data is refused."""
-
-    min_poses: int = 12
-    min_direction_spread_deg: float = 4.0
-    max_rms_mm: float = 0.1
-    max_r_sigma_mm: float = 0.3
-    max_l_sigma_deg: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -160,7 +150,7 @@ def calibrate_laser(
     plane: tuple[ArrayLike, float] | None = None,
     linearity_terms: int = 0,
     distance_range_mm: tuple[float, float] | None = None,
-    limits: LaserLimits = LaserLimits(),
+    limits: LaserCalibrationConfig = LaserCalibrationConfig(min_poses=LASER_MIN_POSES),
 ) -> LaserCalibration:
     """r and l from readings of one flat surface (paper 2.2), by Levenberg-Marquardt.
 
@@ -176,7 +166,8 @@ def calibrate_laser(
         linearity_terms: how many Legendre terms (degree 2 and up) model the sensor's linearity.
         distance_range_mm: the sensor's measuring range, which the Legendre terms are normalised
             to (default: the range of the distances given).
-        limits: refusal thresholds.
+        limits: the refusal thresholds (``min_poses`` to ``max_l_sigma_deg``); the other fields
+            are the procedure's and not read here.
 
     Raises CalibrationRefused when there are too few poses, the plane is seen from too few
     directions, or the fit's residuals or uncertainties exceed the limits.

@@ -48,4 +48,4 @@ def record(store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config
         dataset=None if ds is None else ds.ref({"kind": ds.kind}),
         software=software(),
     )
-    return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when)
+    return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when, recipe=outcome.recipe)

@@ -111,6 +111,7 @@ class PixelMapValues(StrictRecord):
 
 
 class TeachingValues(StrictRecord):
+    recipe: str | None = None  # the recipe taught (None: taught before recipes had their own teaching; the first)
     T0: list[list[float]]
     C_Pos_0: list[list[float]]
     g_Pos_0: list[list[float]]
@@ -202,6 +203,13 @@ PART_MODELS: dict[str, type[PartRecord]] = {
     "pixel_map": PixelMapPart,
     "teaching": TeachingPart,
 }
+
+
+class RecipeParts(StrictRecord):
+    """A recipe's own parts: its teaching and the nine-point map taken at its shooting pose."""
+
+    pixel_map: PixelMapPart | None = None
+    teaching: TeachingPart | None = None
 
 
 class Parts(StrictRecord):

@@ -29,11 +29,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, check_ready, store_root
+from cellctl.calibration.calibration_set import (
+    PART_NAMES,
+    CalibrationSet,
+    CalibrationStore,
+    check_ready,
+    command,
+    history_row,
+    recipe_slot,
+    store_root,
+)
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
-from cellctl.vision import AffineMap, CornerFeatures, Lens
+from cellctl.vision import AffineMap, CornerFeatures
 
 if TYPE_CHECKING:
     from cellctl.cell.alarms import AlarmManager
@@ -42,26 +51,25 @@ log = logging.getLogger(__name__)
 
 FileSig = tuple[int, int, int, int] | None  # (inode, size, mtime_ns, ctime_ns); None: no such file
 
-def cycle_calibration_from_set(cal: CalibrationSet, laser_range_mm: tuple[float, float]) -> CycleCalibration:
-    """The parts a cycle needs, from a set that :func:`check_ready` accepts."""
-    K, D = cal.camera_matrix(), cal.dist_coeffs()
-    w, h = cal.image_size()
-    k1, k2, p1, p2, k3 = (float(v) for v in D[:5])
-    lens = Lens(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), k1, k2, p1, p2, k3, int(w), int(h))
+def cycle_calibration_from_set(
+    cal: CalibrationSet, laser_range_mm: tuple[float, float], recipe: str | None = None
+) -> CycleCalibration:
+    """The parts a cycle of ``recipe`` (None: the cell's first) needs, from a set that :func:`check_ready` accepts."""
     r, l = cal.laser_ray()  # noqa: E741
-    q = cal.parts.pixel_map.quality if cal.parts.pixel_map is not None else {}
+    pixel_map = cal.part("pixel_map", recipe)
+    q = pixel_map.quality if pixel_map is not None else {}
     residuals = np.asarray(q.get("map_residuals_mm", []), dtype=float)
-    nine_point = AffineMap(cal.pixel_affine(), residuals, float(q.get("map_rms_mm", 0.0)), float(q.get("map_max_mm", 0.0)))
-    t = cal.template()
+    nine_point = AffineMap(cal.pixel_affine(recipe), residuals, float(q.get("map_rms_mm", 0.0)), float(q.get("map_max_mm", 0.0)))
+    t = cal.template(recipe)
     template = CornerFeatures(t["u_d"], t["v_d"], t["theta_d"], t["top_angle_d"], t["right_angle_d"])
     return CycleCalibration(
-        lens=lens,
+        lens=cal.lens(),
         T_H_C=cal.T_H_C(),
         laser_r=r,
         laser_l=l,
         laser_range_mm=laser_range_mm,
         nine_point=nine_point,
-        taught=cal.taught(),
+        taught=cal.taught(recipe),
         template=template,
     )
 
@@ -93,7 +101,7 @@ class CalibrationSetSource:
         self.store = store
         self.config = config
         self._snap: _Snapshot | None = None
-        self._cached: tuple[_Snapshot, CycleCalibration] | None = None
+        self._cached: dict[str | None, tuple[_Snapshot, CycleCalibration]] = {}  # by recipe slot
         self._history: dict[Path, tuple[FileSig, dict[str, Any]]] = {}
         self._lock = threading.Lock()
         self._history_lock = threading.Lock()
@@ -167,7 +175,7 @@ class CalibrationSetSource:
         alarms, loop = self._alarms, self._loop
         if alarms is None or loop is None or loop.is_closed():
             return
-        from cellctl.cell.alarms import AlarmCode
+        from cellctl.domain import AlarmCode
 
         def _raise() -> None:
             task = loop.create_task(alarms.raise_alarm(AlarmCode.CALIBRATION_INVALID, source="calibration", detail=snap.damage or ""))
@@ -192,23 +200,28 @@ class CalibrationSetSource:
 
     # -- the CalibrationSource ----------------------------------------------------------------
 
-    def problems(self) -> list[str]:
+    def _slot(self, recipe: str | None) -> str | None:
+        return recipe_slot(recipe, self.config.default_recipe)
+
+    def problems(self, recipe: str | None = None) -> list[str]:
         snap = self._snapshot()
         if snap.damage is not None:
             return [snap.damage]
-        return check_ready(snap.cal, datetime.now(timezone.utc))
+        return check_ready(snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe)
 
-    def cycle_calibration(self) -> CycleCalibration:
+    def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         snap = self._snapshot()
         if snap.damage is not None:
             raise CalibrationRefused("set", "damaged", snap.damage)
         cal = snap.cal
         if cal is None:
             raise CalibrationRefused("set", "missing_input", "there is no calibration set; calibrate the cell first")
-        cached = self._cached
+        slot = self._slot(recipe)
+        cached = self._cached.get(slot)
         if cached is None or cached[0] is not snap:
-            cached = (snap, cycle_calibration_from_set(cal, self.config.process.align.laser_range_mm))
-            self._cached = cached
+            view = self.config.for_recipe(recipe or self.config.default_recipe)
+            cached = (snap, cycle_calibration_from_set(cal, view.process.align.laser_range_mm, slot))
+            self._cached = {k: v for k, v in self._cached.items() if v[0] is snap} | {slot: cached}
         return cached[1]
 
     def summary(self) -> dict[str, Any]:
@@ -225,7 +238,11 @@ class CalibrationSetSource:
                 "status": p.status, "calibrated_utc": p.calibrated_utc.isoformat(), "method": p.method,
                 "quality": p.quality, "failure": p.failure,
             }  # fmt: skip
-        return {"source": str(self.store.root), "version": cal.version, "parts": parts}
+        now = datetime.now(timezone.utc)
+        recipes = {r.name: {"ready": not check_ready(cal, now, recipe=r.name, first_recipe=self.config.default_recipe),
+                            "taught": cal.usable("teaching", self._slot(r.name))}
+                   for r in self.config.process.recipes}  # fmt: skip
+        return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes}
 
     def history(self) -> list[dict[str, Any]]:
         """Every version, oldest first; each file read once per change, a damaged one listed as such."""
@@ -244,13 +261,7 @@ class CalibrationSetSource:
                 rows.append(hit[1])
                 continue
             try:
-                cal = self.store.load(v)
-                row: dict[str, Any] = {
-                    "version": v,
-                    "created_utc": cal.created_utc.isoformat(),
-                    "note": cal.note,
-                    "parts": {n: (None if cal.part(n) is None else cal.part(n).status) for n in PART_NAMES},  # type: ignore[union-attr]
-                }
+                row = history_row(self.store.load(v))
             except (ValueError, OSError) as err:
                 row = {"version": v, "created_utc": None, "note": "", "parts": {}, "damaged": " ".join(str(err).split())}
             self._history[path] = (sig, row)
@@ -259,12 +270,25 @@ class CalibrationSetSource:
             del self._history[gone]
         return rows
 
-    def reference(self) -> dict[str, Any]:
+    def untaught(self, recipe: str) -> str | None:
+        snap = self._snapshot()
+        if snap.cal is None:  # no set yet, or a damaged one: the cycle fails with the set's own problem
+            return None
+        slot = self._slot(recipe)
+        for name, what in (("teaching", "teaching"), ("pixel_map", "nine-point map")):
+            part = snap.cal.part(name, slot)
+            if part is None or part.status != "ok":
+                state = "is missing" if part is None else f"failed ({part.failure})"
+                return f"recipe {recipe} is not taught: its {what} {state}; run `{command(name, slot)}`"
+        return None
+
+    def reference(self, recipe: str | None = None) -> dict[str, Any]:
         snap = self._snapshot()
         cal = snap.cal
         if snap.damage is not None:
             return {"source": str(self.store.root), "version": snap.version, "damaged": True}
         if cal is None:
             return {"source": str(self.store.root), "version": None}
-        parts = {name: (None if cal.part(name) is None else cal.part(name).id) for name in PART_NAMES}  # type: ignore[union-attr]
+        slot = self._slot(recipe)
+        parts = {name: (None if cal.part(name, slot) is None else cal.part(name, slot).id) for name in PART_NAMES}  # type: ignore[union-attr]
         return {"source": str(self.store.root), "version": cal.version, "parts": parts}

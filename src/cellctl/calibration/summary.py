@@ -14,7 +14,8 @@ _TRUTH_NOTE = "(robot poses are the controller's beliefs: its accuracy and repea
 
 
 def _vec(v: Any, precision: int) -> str:
-    return np.array2string(np.asarray(v, dtype=float), precision=precision)
+    """A vector as an engineer reads it: ``(1358.10, -1074.77, 1901.38)``, fixed decimals, no numpy layout."""
+    return "(" + ", ".join(f"{x:.{precision}f}" for x in np.asarray(v, dtype=float).ravel()) + ")"
 
 
 def _camera(values: dict[str, Any], q: dict[str, Any]) -> list[str]:
@@ -97,7 +98,7 @@ def _teaching(values: dict[str, Any], q: dict[str, Any]) -> list[str]:
         f"T0 at {_vec(np.asarray(values['T0'])[:3, 3], 2)} mm, {np.linalg.norm(q['T0_from_layout_mm']):.2f} mm from the "
         "layout's nominal corner",
         f"g_Pos_0 at {_vec(np.asarray(values['g_Pos_0'])[:3, 3], 2)} mm, the mean of {installs['count']} hand-guided "
-        f"install(s) (corner within {installs['spread_mm']:.3f} mm, glass within {installs['spread_deg']:.4f} deg of it)",
+        f"install{'s' if installs['count'] != 1 else ''} (corner within {installs['spread_mm']:.3f} mm, glass within {installs['spread_deg']:.4f} deg of it)",
     ]
     if t := q.get("twin_truth"):
         ie = t.get("g_Pos_0_install_error") or {}

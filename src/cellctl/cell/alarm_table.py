@@ -119,10 +119,16 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         AlarmCode.NOT_IN_EXECUTE: AlarmSpec(
             FaultClass.WARNING, "Cycle refused: the cell is not in Execute (the code of that refusal; never raised)", False
         ),
+        AlarmCode.RECIPE_NOT_TAUGHT: AlarmSpec(
+            FaultClass.WARNING, "Cycle refused: its recipe is not taught, `cellctl teach --recipe NAME` (the code of that refusal; never raised)", False
+        ),
         AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(
             FaultClass.WARNING, "Calibration check due: run `cellctl calibrate verify`", True
         ),
         AlarmCode.ROBOT_FAULT: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot refused or interrupted a motion", False),
+        AlarmCode.POSITION_FEEDBACK_LOST: AlarmSpec(
+            FaultClass.ROBOT_FAULT, "Robot position feedback (EGM) lost while reading the wall on the move: robot stopped", False
+        ),
         AlarmCode.TASK_FAILED: AlarmSpec(FaultClass.SOFTWARE_FAULT, "A cell task failed", False),
         AlarmCode.DEVICE_SLOW: AlarmSpec(FaultClass.WARNING, "Device missed a watchdog ping", True),
         # The store's disk ([store.retention] disk_warn_free_gb / disk_stop_free_gb): a warning first, then

@@ -17,6 +17,8 @@ persisted) before the robot is commanded there, so a restart never repeats it. A
 from __future__ import annotations
 
 import asyncio
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -30,6 +32,7 @@ from cellctl.align import (
 )
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.inspect_step import inspect_install
+from cellctl.cell.sweep import sweep_readings, sweep_unavailable
 from cellctl.compensate import (
     CorrectionLimitError,
     TaughtPoses,
@@ -70,11 +73,16 @@ from cellctl.vision import (
 
 @dataclass(frozen=True)
 class CellDevices:
-    """The three devices a cycle uses, behind their ports."""
+    """The three devices a cycle uses, behind their ports, and the cell's clock.
+
+    ``clock`` (s) times the cycle and its steps: the host's monotonic clock on a real cell; in
+    simulation the twin's time line, on which a move takes the seconds a real robot would.
+    """
 
     laser: DisplacementSensor
     camera: Camera
     robot: Robot
+    clock: Callable[[], float] = time.monotonic
 
 
 @dataclass(frozen=True)
@@ -170,11 +178,14 @@ class CycleRun:
         self.vision = vision
         self.rec = recorder
         self.motion = process.motion
+        self.sweep_latency_s: float | None = None  # this cycle's laser-to-robot latency, once a sweep timed it
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
         self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
 
-    async def move(self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False) -> Pose:
-        speed = self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s
+    async def move(
+        self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False, speed_mm_s: float | None = None
+    ) -> Pose:
+        speed = speed_mm_s or (self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s)
         request = MotionRequest(CartesianPose.from_matrix(T), kind, speed, self.motion.speed_deg_s)
         try:
             reached = await self.dev.robot.move(request, timeout_s=self.motion.move_timeout_s)
@@ -197,6 +208,50 @@ class CycleRun:
         step = CycleStep.ALIGN
         await self.rec.step_started(step)
         cfg, cal = self.process.align, self.cal
+        unavailable = sweep_unavailable(self) if cfg.mode == "on_the_fly" else None
+        if cfg.mode == "on_the_fly" and unavailable is None:
+            poses, distances, figures = await sweep_readings(self)
+        else:
+            poses, distances, figures = await self._spot_readings()
+            if unavailable is not None:  # asked for, but these devices cannot: the spots are read, and the record says why
+                figures["on_the_fly_unavailable"] = unavailable
+        try:
+            result = compute_alignment(
+                poses,
+                distances,
+                cal.laser_r,
+                cal.laser_l,
+                cal.T_H_C,
+                self.process.working_distance_mm,
+                T_B_H_current=cal.taught.C_Pos_0,
+                range_mm=cal.laser_range_mm,
+                inlier_threshold_mm=cfg.inlier_threshold_mm,
+                max_rms_mm=cfg.max_rms_mm,
+                min_collinearity=cfg.min_collinearity,
+            )
+        except AlignmentError as err:
+            raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
+        self.limit(step, cal.taught.C_Pos_0, result.T_B_H_aligned, "aligned shooting pose")
+        wall = result.wall
+        await self.rec.step_figures(
+            step,
+            figures | {
+                "rejected": [{"index": r.index, "residual_mm": r.residual_mm, "reason": r.reason} for r in wall.rejected],
+                "normal_B": wall.normal.tolist(),
+                "fit_rms_mm": wall.plane.rms,
+                "fit_max_residual_mm": wall.plane.max_residual,
+                "normal_uncertainty_deg": None if wall.uncertainty is None else float(np.degrees(wall.uncertainty.rms_rad)),
+                "flange_turn_deg": float(np.degrees(result.rotation_rad)),
+                "lm_vs_minimal_axis_rad": result.axis_agreement_rad,
+                "distance_correction_mm": result.distance.delta_d_mm,
+            },
+        )
+        C_Pos_1 = await self.move(step, result.T_B_H_aligned)
+        return result, C_Pos_1
+
+    async def _spot_readings(self) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+        """Stop at each spot and read once (stop and go): the flange poses (N, 4, 4), distances (N,) and the figures."""
+        step, cfg, cal = CycleStep.ALIGN, self.process.align, self.cal
         planned = plan_spot_poses(
             cal.taught.T0, cfg.spots_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, cfg.laser_standoff_mm
         )
@@ -219,41 +274,8 @@ class CycleRun:
                 f"only {len(distances)} of {len(planned)} laser spots gave a distance (spots {missing} "
                 "had none); is the car body in position?",
             )
-        try:
-            result = compute_alignment(
-                np.stack(poses),
-                np.array(distances),
-                cal.laser_r,
-                cal.laser_l,
-                cal.T_H_C,
-                self.process.working_distance_mm,
-                T_B_H_current=cal.taught.C_Pos_0,
-                range_mm=cal.laser_range_mm,
-                inlier_threshold_mm=cfg.inlier_threshold_mm,
-                max_rms_mm=cfg.max_rms_mm,
-                min_collinearity=cfg.min_collinearity,
-            )
-        except AlignmentError as err:
-            raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
-        self.limit(step, cal.taught.C_Pos_0, result.T_B_H_aligned, "aligned shooting pose")
-        wall = result.wall
-        await self.rec.step_figures(
-            step,
-            {
-                "spots": spots,
-                "spots_without_reading": missing,
-                "rejected": [{"index": r.index, "residual_mm": r.residual_mm, "reason": r.reason} for r in wall.rejected],
-                "normal_B": wall.normal.tolist(),
-                "fit_rms_mm": wall.plane.rms,
-                "fit_max_residual_mm": wall.plane.max_residual,
-                "normal_uncertainty_deg": None if wall.uncertainty is None else float(np.degrees(wall.uncertainty.rms_rad)),
-                "flange_turn_deg": float(np.degrees(result.rotation_rad)),
-                "lm_vs_minimal_axis_rad": result.axis_agreement_rad,
-                "distance_correction_mm": result.distance.delta_d_mm,
-            },
-        )
-        C_Pos_1 = await self.move(step, result.T_B_H_aligned)
-        return result, C_Pos_1
+        figures = {"mode": "stop_and_go", "spots": spots, "spots_without_reading": missing}
+        return np.stack(poses), np.array(distances), figures
 
     async def shoot_and_compensate(self, C_Pos_1: Pose) -> tuple[Pose, tuple[ShotRecord, ...]]:
         """The first shot at C_Pos_1, then verification shots at the corrected shooting pose.

@@ -19,6 +19,7 @@ import numpy as np
 from cellctl.align import AlignmentError, plan_spot_poses
 from cellctl.align.laser_points import laser_points
 from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.sweep import sweep_flush
 from cellctl.compensate import shooting_pose_in
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose, make_pose
@@ -95,8 +96,12 @@ async def _read_spot(run: CycleRun, index: int, what: str) -> float | None:
     return None
 
 
-async def measure_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, list[dict[str, Any]]]:
-    """Laser readings on the glass and the wall at each flush spot; their planes against each other."""
+async def measure_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, Any]]:
+    """Laser readings on the glass and the wall at each flush spot (or along the sweep, where the
+    alignment swept); their planes against each other, and the step's figures of them."""
+    if run.sweep_latency_s is not None:
+        flush, sweep = await sweep_flush(run, T2)
+        return flush, {"flush_sweep": sweep, "flush_mm_range": [min(flush.flush_mm), max(flush.flush_mm)]}
     cfg, cal = run.process.inspect, run.cal
     R_flange = shooting_pose_in(cal.taught, T2)[:3, :3]  # the camera parallel to the wall, as when shooting
     xy = np.array([p for s in cfg.flush_spots for p in (s.glass_mm, s.wall_mm)], dtype=float)
@@ -136,7 +141,7 @@ async def measure_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, list[dict
         flush = fit_flush(np.stack(glass_pts), np.stack(wall_pts), max_rms_mm=cfg.max_flush_rms_mm)
     except FlushError as err:
         raise _failed(str(err)) from err
-    return flush, rows
+    return flush, {"flush_spots": rows, "flush_mm": list(flush.flush_mm)}
 
 
 async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDeviation:
@@ -145,7 +150,7 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
     await release_and_back_off(run, T2, reached)
     image, gaps = await measure_gaps_at_shooting_pose(run, T2)
     try:
-        flush, rows = await measure_flush(run, T2)
+        flush, flush_figures = await measure_flush(run, T2)
     except CycleFailed:
         await record_inspection_image(run, image, gaps, None)  # the edges were found; show them beside the flush's failure
         raise
@@ -171,8 +176,7 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
             "measured_deviation": measured.as_dict(),
             "top_gap_mm": plane.top_gap_mm,
             "right_gap_mm": plane.right_gap_mm,
-            "flush_spots": rows,
-            "flush_mm": list(flush.flush_mm),
+            **flush_figures,
             "flush_fit_rms_mm": {"glass": flush.glass_rms_mm, "wall": flush.wall_rms_mm},
             "dz_sigma_mm": flush.dz_sigma_mm,
         },

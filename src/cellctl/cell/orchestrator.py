@@ -11,14 +11,15 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
+from dataclasses import asdict, replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.cell.alarms import AlarmCode, AlarmManager
-from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleResult, run_cycle
+from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.events import EventHub
 from cellctl.cell.outcome import part_verdict, result_fields
@@ -31,9 +32,16 @@ from cellctl.cell.packml import (
 from cellctl.cell.quality_loop import InstallQualityLoop
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.robots import TrackedRobot
-from cellctl.cell.tags import TO_EXECUTE, CycleStep, PackMLCommand, PackMLState
+from cellctl.cell.sources import CalibrationSource, SimTruth
+from cellctl.cell.tags import TO_EXECUTE
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.schema import CellConfig
+from cellctl.domain import (
+    AlarmCode,
+    CycleStep,
+    PackMLCommand,
+    PackMLState,
+)
 from cellctl.memory import release_free_memory
 from cellctl.ports import (
     DeviceError,
@@ -73,42 +81,6 @@ class CycleRefused(Exception):
         self.reason = reason
 
 
-class CalibrationSource(Protocol):
-    """Where the cycle's calibration comes from (the versioned calibration set)."""
-
-    def problems(self) -> list[str]:
-        """What keeps the set from production (missing, failed, out of date); empty when ready."""
-        ...
-
-    def cycle_calibration(self) -> CycleCalibration:
-        """The parts a cycle needs; only called when :meth:`problems` is empty."""
-        ...
-
-    def summary(self) -> dict[str, Any]:
-        """Versions, dates and quality figures for the records and the dashboard."""
-        ...
-
-    def history(self) -> list[dict[str, Any]]:
-        """Every version of the set, oldest first: number, time, note, each part's status."""
-        ...
-
-    def reference(self) -> dict[str, Any]:
-        """Which calibration a cycle uses, in a few fields: the set's version and each part's id."""
-        ...
-
-
-class SimTruth(Protocol):
-    """The twin's knowledge, for simulated cycles only."""
-
-    def new_car_body(self) -> None:
-        """The next car body arrives (a new random posture)."""
-        ...
-
-    def install_error(self) -> Mapping[str, float]:
-        """The true install error of the glass where it stands now (the paper's six figures)."""
-        ...
-
-
 class CellOrchestrator:
     """Runs the cell: PackML state actions, one cycle at a time in Execute, all of it recorded."""
 
@@ -128,7 +100,7 @@ class CellOrchestrator:
     ) -> None:
         self.config = config
         self.robot = devices.robot if isinstance(devices.robot, TrackedRobot) else TrackedRobot(devices.robot)
-        self.devices = CellDevices(devices.laser, devices.camera, self.robot)
+        self.devices = replace(devices, robot=self.robot)
         self.calibration = calibration
         self.store = store
         self.machine = machine
@@ -149,6 +121,7 @@ class CellOrchestrator:
         self.quality = InstallQualityLoop(config, store, alarms, events)
         self._calibration_read: dict[str, Any] = {}  # the running cycle's calibration reference, once read
         self._applied_offset: dict[str, float] = {}
+        self._looped = False  # whether the running cycle is one the closed loop follows
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
@@ -266,7 +239,7 @@ class CellOrchestrator:
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
         """Queue a cycle under an idempotency key; the same key returns the same cycle, never a second one.
 
-        Raises CycleRefused when the cell is not in Execute (for a key it has not seen).
+        Raises CycleRefused, for a key it has not seen, when the cell is not in Execute or the recipe is not taught.
         """
         existing = await self.store.cycle_for_key(scope, key)
         if existing is None and not self.ready_for_cycle():
@@ -274,6 +247,9 @@ class CellOrchestrator:
             steps = TO_EXECUTE.get(state)
             how = (" then ".join(c.name.lower() for c in steps) + " (POST /commands/<name>)") if steps else "wait until it settles"
             raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, f"the cell is {state.name}, not EXECUTE: {how}")
+        untaught = None if existing is not None else self.calibration.untaught(request.recipe)
+        if untaught is not None:
+            raise CycleRefused(AlarmCode.RECIPE_NOT_TAUGHT, untaught)
         result = await self.store.submit_cycle(request, scope=scope, key=key, actor=actor)
         if result.created:
             self._finished[result.cycle.id] = asyncio.Event()
@@ -316,16 +292,17 @@ class CellOrchestrator:
     async def _run(self, cycle_id: int) -> None:
         self._current = cycle_id
         self._finishing = False
-        rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir)
-        started = time.monotonic()
-        await self.store.start_cycle(cycle_id)
+        clock = self.devices.clock  # the cycle is timed on one clock, even if the devices are swapped meanwhile
+        rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir, clock=clock)
+        started = (clock, clock(), time.monotonic())
+        recipe = (await self.store.start_cycle(cycle_id)).request.recipe
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
-        self._calibration_read, self._applied_offset = {}, self.quality.no_offset()
+        self._calibration_read, self._applied_offset, self._looped = {}, self.quality.no_offset(), False
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
         try:
-            result = await self._cycle(rec)
+            result = await self._cycle(rec, recipe)
         except CycleFailed as f:
             # A move the stop interrupted is the stop's doing, not a robot fault of its own.
             failure = self._stopped() if self._stop_reason is not None else (str(f), int(f.code), f.code)
@@ -352,22 +329,26 @@ class CellOrchestrator:
         code = int(stop.code) if stop is not None else int(AlarmCode.CYCLE_STOPPED)
         return (f"stopped: {self._stop_reason}", code, None)
 
-    async def _cycle(self, rec: StoreRecorder) -> CycleResult:
+    async def _cycle(self, rec: StoreRecorder, recipe: str) -> CycleResult:
         await rec.step_started(CycleStep.CALIBRATE)
-        problems = self.calibration.problems()
+        problems = self.calibration.problems(recipe)
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
-        reference = self._calibration_read = self.calibration.reference()
-        self._applied_offset = self.quality.offset_for_next(reference.get("version"))
+        reference = self._calibration_read = self.calibration.reference(recipe)
+        self._looped = recipe == self.config.default_recipe  # the closed loop follows the first recipe's installs
+        if self._looped:
+            self._applied_offset = self.quality.offset_for_next(reference.get("version"))
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
         if self.truth is not None:
-            self.truth.new_car_body()
+            self.truth.new_car_body(recipe)
         try:
-            cal = await asyncio.to_thread(self.calibration.cycle_calibration)  # file reads (and the oracle's teaching) off the loop
+            # file reads (and the oracle's teaching) off the loop
+            cal = await asyncio.to_thread(self.calibration.cycle_calibration, recipe)
         except CalibrationRefused as err:  # the set changed (or was damaged) since problems() was asked
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, str(err)) from err
         offset = self.quality.offset_as_pose(self._applied_offset)
-        return await run_cycle(self.devices, cal, self.config.process, self.config.vision, rec, install_offset=offset)
+        view = self.config.for_recipe(recipe)
+        return await run_cycle(self.devices, cal, view.process, view.vision, rec, install_offset=offset)
 
     async def _feed_quality_loop(self, cycle_id: int, result: CycleResult | None) -> tuple[dict[str, Any], Any]:
         """The cycle's measured result into the closed loop (a failed cycle counts as not installed).
@@ -379,6 +360,8 @@ class CellOrchestrator:
             # Failed before it read the calibration set: no version to file it under (feeding it
             # under none would read as a new set and reset the loop).
             return {"skipped": "the cycle ended before it read the calibration set"}, None
+        if not self._looped:
+            return {"skipped": f"the closed loop follows the first recipe ({self.config.default_recipe}) only"}, None
         try:
             return await self.quality.after_cycle(
                 cycle_id, measured, calibration_version=self._calibration_read.get("version"), applied=self._applied_offset
@@ -391,12 +374,14 @@ class CellOrchestrator:
         self,
         rec: StoreRecorder,
         cycle_id: int,
-        started: float,
+        started: tuple[Callable[[], float], float, float],
         result: CycleResult | None,
         failure: tuple[str, int, AlarmCode | None] | None,
     ) -> None:
         try:
-            elapsed = time.monotonic() - started
+            clock, on_clock, on_host = started
+            elapsed = clock() - on_clock
+            times = {"wall_time_s": time.monotonic() - on_host}
             if failure is None and result is not None:
                 not_ok = part_verdict(result, self.config.process.tolerance)
                 if not_ok is not None:  # first, so the part's alarm is the first-out cause the PLC reads
@@ -404,7 +389,8 @@ class CellOrchestrator:
                         AlarmCode.INSTALL_OUT_OF_TOLERANCE, source="inspection", detail=not_ok, cycle_id=cycle_id
                     )
                 await rec.close_step(ok=True)
-                fields = result_fields(result, elapsed, not_ok=not_ok)
+                fields = result_fields(result, elapsed, not_ok=not_ok) | times | {"step_time_s": rec.step_times_s()}
+                fields["calibration_version"] = self._calibration_read.get("version")
                 fields["spc"], update = await self._feed_quality_loop(cycle_id, result)
                 await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
@@ -421,7 +407,9 @@ class CellOrchestrator:
                 await rec.close_step(ok=False, error=reason)
                 spc, _ = await self._feed_quality_loop(cycle_id, None)
                 await self.store.fail_cycle(
-                    cycle_id, error=reason, result={"error_code": code, "cycle_time_s": elapsed, "spc": spc},
+                    cycle_id, error=reason,
+                    result={"error_code": code, "cycle_time_s": elapsed, **times, "step_time_s": rec.step_times_s(),
+                            "spc": spc, "calibration_version": self._calibration_read.get("version")},
                     true_error=self._true_error(),
                 )
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
@@ -436,7 +424,7 @@ class CellOrchestrator:
                 await asyncio.to_thread(release_free_memory)  # what the cycle's worker threads freed
 
     def _true_error(self) -> dict[str, float] | None:
-        return None if self.truth is None else dict(self.truth.install_error())
+        return None if self.truth is None else asdict(self.truth.install_error())
 
     # -- commands and status ------------------------------------------------------------------
 

@@ -7,14 +7,14 @@ alarm 1311 as its error code and the figures outside named in the reason.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from cellctl.cell.cycle import CycleResult
 from cellctl.config.cell import ToleranceConfig
-from cellctl.domain import DEVIATION_KEYS, AlarmCode, InstallDeviation
+from cellctl.domain import DEVIATION_KEYS, AlarmCode, CycleStep, InstallDeviation
 from cellctl.store import CycleRecord, CycleState
 
 
@@ -34,6 +34,7 @@ class CycleSummary:
     correction_rad: tuple[float, float, float]
     cycle_time_s: float
     measured: InstallDeviation | None = None
+    calibration_version: str | None = None
 
 
 def part_verdict(result: CycleResult, tolerance: ToleranceConfig) -> str | None:
@@ -95,4 +96,46 @@ def summarize(record: CycleRecord) -> CycleSummary | None:
         (float(np.radians(deg[0])), float(np.radians(deg[1])), float(np.radians(deg[2]))),
         float(res.get("cycle_time_s") or 0.0),
         measured_of(res),
+        calibration_version_of(record),
     )
+
+
+def calibration_version_of(record: CycleRecord) -> str | None:
+    """The calibration set version the cycle ran with: its result's, else its calibrate step's figures (older records)."""
+    v = (record.result or {}).get("calibration_version")
+    if v is None:
+        for step in record.steps:
+            cal = step.figures.get("calibration") if step.step is CycleStep.CALIBRATE else None
+            if isinstance(cal, dict) and cal.get("version") is not None:
+                v = cal["version"]
+                break
+    return None if v is None else str(v)
+
+
+def result_message(record: CycleRecord) -> dict[str, Any] | None:
+    """A finished cycle's result as the plant reads it (OPC UA, MQTT, the MES export); None while it runs.
+
+    Units are in the names: corrections and measured deviations in mm and deg, XYZ fixed angles (eq. 13).
+    """
+    s = summarize(record)
+    if s is None:
+        return None
+    req = record.request
+    return {
+        "cycle_id": record.id,
+        "recipe": req.recipe,
+        "part_id": req.part_id,
+        "car_id": req.car_id,
+        "source": req.source,
+        "state": record.state.value,
+        "ok": s.ok,
+        "error_code": s.error_code,
+        "reason": s.error or "",
+        "measured_deviation": None if s.measured is None else asdict(s.measured),
+        "correction_mm": list(s.correction_mm),
+        "correction_deg": [float(np.degrees(v)) for v in s.correction_rad],
+        "cycle_time_s": s.cycle_time_s,
+        "calibration_version": s.calibration_version,
+        "started_at": None if record.started_at is None else record.started_at.isoformat(),
+        "finished_at": None if record.finished_at is None else record.finished_at.isoformat(),
+    }

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from cellctl.cell.events import EventHub
 from cellctl.cell.packml import PackMLMachine
-from cellctl.cell.tags import CycleStep
+from cellctl.domain import CycleStep
 from cellctl.ports import CartesianPose
 from cellctl.store import AsyncCellStore
 
@@ -21,15 +24,25 @@ class StoreRecorder:
     """
 
     def __init__(
-        self, store: AsyncCellStore, machine: PackMLMachine, events: EventHub, cycle_id: int, image_dir: Path
+        self,
+        store: AsyncCellStore,
+        machine: PackMLMachine,
+        events: EventHub,
+        cycle_id: int,
+        image_dir: Path,
+        *,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self._store = store
         self._machine = machine
         self._events = events
         self.cycle_id = cycle_id
         self._image_dir = image_dir
+        self._clock = clock
         self._open: CycleStep | None = None
+        self._opened_at = 0.0
         self._figures: dict[str, Any] = {}
+        self._step_s: dict[str, float] = {}
 
     @property
     def open_step(self) -> CycleStep | None:
@@ -39,7 +52,7 @@ class StoreRecorder:
     async def step_started(self, step: CycleStep) -> None:
         await self.close_step(ok=True)
         await self._store.begin_step(self.cycle_id, step)
-        self._open, self._figures = step, {}
+        self._open, self._figures, self._opened_at = step, {}, self._clock()
         await self._machine.set_cycle_step(step)
         self._events.publish("step", {"cycle_id": self.cycle_id, "step": step.name.lower()})
 
@@ -49,10 +62,11 @@ class StoreRecorder:
         self._figures.update(figures)
 
     async def image(self, name: str, png: bytes) -> None:
+        """Write the PNG to the image folder and reference it with its SHA-256 and size (traceability)."""
         path = self._image_dir / f"cycle-{self.cycle_id}-{name}.png"
-        await asyncio.to_thread(_write, path, png)  # a megabyte to disk: not on the event loop
+        digest = await asyncio.to_thread(_write, path, png)  # a megabyte to disk and its hash: not on the event loop
         step = self._open if self._open is not None else CycleStep.NONE
-        await self._store.add_image(self.cycle_id, step, name=name, uri=path.name)
+        await self._store.add_image(self.cycle_id, step, name=name, uri=path.name, sha256=digest, size_bytes=len(png))
         self._events.publish("image", {"cycle_id": self.cycle_id, "name": name})
 
     async def install_started(self, target: CartesianPose) -> None:
@@ -68,9 +82,18 @@ class StoreRecorder:
             return
         step, figures = self._open, self._figures
         self._open, self._figures = None, {}
+        figures["time_s"] = spent = self._clock() - self._opened_at
+        name = step.name.lower()
+        self._step_s[name] = self._step_s.get(name, 0.0) + spent
         await self._store.finish_step(self.cycle_id, step, ok=ok, figures=figures, error=error)
 
+    def step_times_s(self) -> dict[str, float]:
+        """Seconds on the cell's clock spent in each step so far (a step entered again adds up), in order of first entry."""
+        return {name: round(s, 4) for name, s in self._step_s.items()}
 
-def _write(path: Path, data: bytes) -> None:
+
+def _write(path: Path, data: bytes) -> str:
+    """Write ``data`` to ``path``; returns its SHA-256 (hex)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(data)
+    return hashlib.sha256(data).hexdigest()

@@ -7,6 +7,7 @@ from cellctl.ports import (
     DeviceRejected,
     Identified,
     MotionRequest,
+    PoseStream,
     Robot,
     RobotState,
 )
@@ -17,6 +18,11 @@ class RobotProxy:
 
     def __init__(self, robot: Robot) -> None:
         self._robot = robot
+
+    @property
+    def inner(self) -> Robot:
+        """The robot this proxy passes its calls to."""
+        return self._robot
 
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
         return await self._robot.move(request, timeout_s=timeout_s)
@@ -82,3 +88,10 @@ class ReducedSpeedRobot(RobotProxy):
 
     async def close(self) -> None:
         return None  # the service owns the robot
+
+
+def pose_stream_of(robot: Robot) -> PoseStream | None:
+    """The robot's position feedback stream (through any proxies), or None when its driver has none."""
+    while isinstance(robot, RobotProxy):
+        robot = robot.inner
+    return robot if isinstance(robot, PoseStream) else None

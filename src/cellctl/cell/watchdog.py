@@ -19,7 +19,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
-from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.alarms import AlarmManager
+from cellctl.domain import AlarmCode
 from cellctl.ports import Camera, DisplacementSensor, Robot
 
 _log = logging.getLogger(__name__)

@@ -1,4 +1,5 @@
-"""Commission the parts of the calibration set that are missing, failed or out of date, in order.
+"""Commission the parts of the calibration set that are missing, failed or out of date, in order;
+then teach every other recipe whose own teaching or nine-point map is missing, failed or out of date.
 
 The simulated cell's root runs this at start (``calibration.auto_calibrate_in_sim``), with its
 simulated operator answering the prompts: the same jobs, through the same job manager, that an
@@ -9,12 +10,13 @@ from __future__ import annotations
 
 import logging
 from datetime import datetime, timezone
+from typing import NamedTuple
 
-from cellctl.calibration.calibration_set import check_ready
+from cellctl.calibration.calibration_set import RECIPE_PART_NAMES, check_ready
 from cellctl.cell.packml import PackMLMachine
-from cellctl.cell.tags import PackMLCommand, PackMLState
 from cellctl.commissioning.jobs import JOB_STATES_ALLOWED, JobManager
 from cellctl.commissioning.procedures import ORDER
+from cellctl.domain import PackMLCommand, PackMLState
 from cellctl.store import JobRecord
 
 log = logging.getLogger(__name__)
@@ -24,13 +26,32 @@ class CommissioningFailed(RuntimeError):
     """A commissioning job did not end ``done``; the message names it and why."""
 
 
-def parts_needed(jobs: JobManager) -> list[str]:
-    """The parts (in commissioning order) whose calibration is missing, failed, stale or expired."""
+class Needed(NamedTuple):
+    """A part to commission: the procedure, and for a recipe's own part (not the first's) the recipe."""
+
+    part: str
+    recipe: str | None = None
+
+    def __str__(self) -> str:
+        return self.part if self.recipe is None else f"{self.part} --recipe {self.recipe}"
+
+
+def parts_needed(jobs: JobManager) -> list[Needed]:
+    """The parts (in commissioning order) whose calibration is missing, failed, stale or expired;
+    then each further recipe's own."""
     cal = jobs.current_calibration()
     if cal is None:
-        return list(ORDER)
-    problems = check_ready(cal, datetime.now(timezone.utc))
-    return [part for part in ORDER if any(p.startswith(f"{part}:") for p in problems)]
+        return [Needed(part) for part in ORDER]
+    now, first = datetime.now(timezone.utc), jobs.config.default_recipe
+    problems = check_ready(cal, now)
+    needed = [Needed(part) for part in ORDER if any(p.startswith(f"{part}:") for p in problems)]
+    if needed:
+        return needed
+    for recipe in jobs.config.process.recipes[1:]:
+        own = check_ready(cal, now, recipe=recipe.name, first_recipe=first)
+        needed += [Needed(part, recipe.name) for part in ORDER
+                   if part in RECIPE_PART_NAMES and any(p.startswith(f"{part} of recipe {recipe.name}:") for p in own)]  # fmt: skip
+    return needed
 
 
 async def commission_missing(
@@ -48,11 +69,11 @@ async def commission_missing(
         await machine.command(PackMLCommand.CLEAR, actor=actor, source=source)
         await machine.wait_for_state(*JOB_STATES_ALLOWED, timeout_s=30.0)
     while needed := parts_needed(jobs):
-        part = needed[0]
-        log.info("commissioning %s (missing, failed or out of date)", part)
-        rec = await jobs.submit(part, {}, actor=actor, source=source)
+        nxt = needed[0]
+        log.info("commissioning %s (missing, failed or out of date)", nxt)
+        rec = await jobs.submit(nxt.part, {} if nxt.recipe is None else {"recipe": nxt.recipe}, actor=actor, source=source)
         rec = await jobs.wait(rec.id, job_timeout_s)
         done.append(rec)
         if rec.state != "done":
-            raise CommissioningFailed(f"job {rec.id} ({part}) ended {rec.state}: {rec.error}")
+            raise CommissioningFailed(f"job {rec.id} ({nxt}) ended {rec.state}: {rec.error}")
     return done

@@ -23,9 +23,16 @@ from typing import Any
 from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSetError, CalibrationStore, check_ready, store_root
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir
 from cellctl.client import CellClient, service_url
 from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS
 from cellctl.config import load_config
+
+JOB_HELP = (
+    "Runs as a job of the running service (cellctl serve): a progress bar, each prompt answered at the keyboard "
+    "(Enter confirms, c cancels), Ctrl-C cancels and stops the robot. --dataset computes offline instead. "
+    "Exit status: 0 done, 1 refused, failed or cancelled, 2 usage or configuration problem, 130 Ctrl-C."
+)
 
 # CLI word -> procedure
 COMMAND_PROCEDURES = {"camera": "camera", "hand-eye": "hand_eye", "laser": "laser", "nine-point": "pixel_map", "verify": "verify"}
@@ -44,6 +51,8 @@ def _options(args: argparse.Namespace, procedure: str) -> dict[str, Any]:
         opts["poses"] = args.poses
     if getattr(args, "method_override", None) is not None:
         opts["method"] = args.method_override
+    if getattr(args, "recipe", None) is not None:
+        opts["recipe"] = args.recipe
     if getattr(args, "no_store", False):
         opts["store"] = False
     return opts
@@ -68,7 +77,8 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     try:
         current = store.current()
         ds = read_dataset(args.dataset, proc.kind)
-    except (CalibrationSetError, DatasetError) as err:
+        config = config.for_recipe(ds.manifest.get("recipe") or config.default_recipe)  # a recipe's dataset: its settings
+    except (CalibrationSetError, DatasetError, KeyError) as err:
         print(f"{procedure}: {err}", file=sys.stderr)
         return 2
     print(f"{procedure}: computing offline from {ds.root}")
@@ -95,7 +105,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     when = datetime.now(timezone.utc)
     saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
     print(f"stored as version {saved.version} in {store.root}")
-    problems = check_ready(saved, when)
+    problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=config.default_recipe)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
     return 0
 
@@ -117,6 +127,11 @@ def _job_command(procedure: str) -> Callable[[argparse.Namespace], int]:
     return command
 
 
+def _part_problems(problems: list[str]) -> dict[str, list[str]]:
+    """check_ready's lines by the part they are about (each starts with ``"<part>: "``)."""
+    return {name: [p[len(name) + 2 :] for p in problems if p.startswith(f"{name}: ")] for name in PART_NAMES}
+
+
 def _cmd_status(args: argparse.Namespace) -> int:
     store = _store(args)
     try:
@@ -125,33 +140,45 @@ def _cmd_status(args: argparse.Namespace) -> int:
     except CalibrationSetError as err:
         print(f"the calibration store is damaged:\n{err}", file=sys.stderr)
         return 2
-    print(f"calibration store {store.root}: {len(history)} version(s), current {None if cal is None else cal.version}")
-    if cal is not None:
+    root = store.root.resolve()
+    problems = check_ready(cal, datetime.now(timezone.utc))
+    if cal is None:
+        print(f"no calibration set in {root}")
+        if not args.store:
+            print(f"  (calibration.directory under --workdir {args.workdir}; give the --workdir `cellctl serve` runs with, "
+                  f"or set ${WORKDIR_ENV})")  # fmt: skip
+    else:
+        print(f"calibration store {root}: set version {cal.version} in use, {len(history)} version(s) kept")
+        by_part = _part_problems(problems)
         for name in PART_NAMES:
             p = cal.part(name)
             if p is None:
                 print(f"  {name:10s} missing")
-            else:
-                print(f"  {name:10s} {p.status:6s} {p.calibrated_utc:%Y-%m-%d %H:%M} UTC  {p.id}" + (f"  ({p.failure})" if p.failure else ""))
+                continue
+            verdict = "ok" if p.status == "ok" and not by_part[name] else "FAILED" if p.status == "failed" else "NEEDS WORK"
+            print(f"  {name:10s} {verdict:10s} {p.calibrated_utc:%Y-%m-%d %H:%M} UTC  {p.id}" + (f"  ({p.failure})" if p.failure else ""))
     if args.history:
         for row in history:
             print(f"  v{row['version']:<4d} {row['created_utc']}  {row['note']}")
-    problems = check_ready(cal, datetime.now(timezone.utc))
     print("ready for production" if not problems else "not ready:\n  - " + "\n  - ".join(problems))
+    recipes = load_config(args.config).process.recipes if getattr(args, "config", None) and cal is not None else ()
+    for recipe in recipes[1:]:
+        own = check_ready(cal, datetime.now(timezone.utc), recipe=recipe.name, first_recipe=recipes[0].name)
+        print(f"recipe {recipe.name}: " + ("ready" if not own else "not ready: " + "; ".join(own)))
     return 0 if not problems else 1
 
 
 def _store_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--store", help="calibration store folder (default: calibration.directory of the configuration)")
     p.add_argument(
-        "--workdir", default=".",
-        help="the folder a relative calibration.directory is taken from, as `cellctl serve --workdir` (default: .)",
+        "--workdir", type=Path, default=default_workdir(),
+        help="the folder a relative calibration.directory is taken from, as `cellctl serve --workdir` "
+             f"(default: ${WORKDIR_ENV}, else the current folder)",
     )  # fmt: skip
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--url", default=None, help="the running service (default: $CELLCTL_URL, else the configuration's [api])")
-    p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
+    add_remote_options(p)
     p.add_argument("--dry-run", action="store_true", help="print the plan (poses, reach, rotation spread, robot time); move nothing")
     p.add_argument("--list-poses", action="store_true", help="with --dry-run: list every planned pose")
     p.add_argument("--no-store", action="store_true", help="compute and print only; the calibration set is not changed")
@@ -164,7 +191,7 @@ def _job_parser(
     parent: argparse._SubParsersAction, word: str, help_text: str, procedure: str | None = None  # type: ignore[type-arg]
 ) -> argparse.ArgumentParser:
     """The sub-command ``word`` that runs ``procedure`` (by default the one COMMAND_PROCEDURES names) as a job."""
-    p: argparse.ArgumentParser = parent.add_parser(word, help=help_text)
+    p: argparse.ArgumentParser = parent.add_parser(word, help=help_text, description=f"{help_text[0].upper()}{help_text[1:]}. {JOB_HELP}")
     _common(p)
     p.set_defaults(func=_job_command(procedure or COMMAND_PROCEDURES[word]))
     return p
@@ -173,6 +200,10 @@ def _job_parser(
 def _count_option(p: argparse.ArgumentParser, positive: Callable[[str], int], what: str, setting: str) -> None:
     """``--views`` or ``--poses``: how many to collect, by default the configuration's ``setting``."""
     p.add_argument(f"--{what}", type=positive, default=None, help=f"number of {what} (default: {setting})")
+
+
+def _recipe_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--recipe", default=None, help="the recipe taught (a name of [[process.recipes]]; default: the first)")
 
 
 def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], int]) -> None:  # type: ignore[type-arg]
@@ -190,7 +221,8 @@ def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], i
     p = _job_parser(sub, "laser", "laser origin r and direction l from a plane seen from many poses")
     _count_option(p, positive, "poses", "calibration.procedure.laser.n_poses")
 
-    _job_parser(sub, "nine-point", "pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
+    p = _job_parser(sub, "nine-point", "pixel scale (eq. 15) and the nine-point pixel-to-workpiece map")
+    _recipe_option(p)
     _job_parser(sub, "verify", "a few minutes' check of how far hand-eye and laser have drifted since they were calibrated")
 
     p = sub.add_parser("status", help="the current calibration set, its history and whether production may start")
@@ -198,7 +230,8 @@ def register(subparsers: argparse._SubParsersAction, positive: Callable[[str], i
     p.add_argument("--history", action="store_true", help="list every version")
     p.set_defaults(func=_cmd_status)
 
-    _job_parser(
+    p = _job_parser(
         subparsers, "teach", "teach T0, C_Pos_0, the corner template and g_Pos_0 (paper 4.3 step 1) on the running cell",
         procedure="teaching",
     )  # fmt: skip
+    _recipe_option(p)

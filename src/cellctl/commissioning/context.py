@@ -21,12 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.calibration.calibration_set import CalibrationSet
-from cellctl.calibration.collect import MotionSettings
 from cellctl.calibration.dataset import Dataset, write_dataset
 from cellctl.calibration.recording import software
 from cellctl.cell.cycle import CellDevices
 from cellctl.commissioning.plans import MotionPlan
 from cellctl.commissioning.prompts import Ask
+from cellctl.config.calibration_procedure import MotionSettings
 from cellctl.config.schema import CellConfig
 from cellctl.ports import Frame, Identified
 

@@ -23,26 +23,36 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready
+from cellctl.calibration.calibration_set import (
+    CalibrationSet,
+    CalibrationStore,
+    check_ready,
+    recipe_slot,
+)
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.recording import record
-from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import MachineEvent, PackMLMachine
-from cellctl.cell.tags import PackMLCommand, PackMLState
+from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
-from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
+from cellctl.commissioning.registry import (
+    ALL_PROCEDURES,
+    JobRefused,
+    check_options,
+    motion_settings,
+)
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
-from cellctl.memory import release_free_memory
+from cellctl.domain import AlarmCode, MachineEvent, PackMLCommand, PackMLState
 from cellctl.geometry.pose import Pose
+from cellctl.memory import release_free_memory
 from cellctl.ports import DeviceError, Frame
 from cellctl.store import AsyncCellStore, JobRecord
 
@@ -53,6 +63,7 @@ JOB_STATES_ALLOWED = frozenset({PackMLState.STOPPED, PackMLState.IDLE})
 _CANCELLING_STATES = frozenset({PackMLState.STOPPING, PackMLState.ABORTING})
 PROGRESS_PERSIST_EVERY = 10
 LAST_FRAMES_KEPT = 4
+
 
 @dataclass
 class _Running:
@@ -215,7 +226,7 @@ class JobManager:
         start = await self._robot_pose()
         cal = await asyncio.to_thread(self.current_calibration)
         try:
-            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, self.config, cal, opts, start)
+            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, self._config_for(opts), cal, opts, start)
         except (PlanError, CalibrationRefused) as err:
             raise JobRefused(str(err)) from None
 
@@ -242,9 +253,11 @@ class JobManager:
                     conflict=True,
                 )
             cal = await asyncio.to_thread(self.current_calibration)
-            missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or cal.part(n) is None or cal.part(n).status != "ok"]  # type: ignore[union-attr]
+            slot = recipe_slot(opts.get("recipe"), self.config.default_recipe)
+            missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
             if missing:
-                raise JobRefused(f"{procedure} needs {', '.join(missing)} calibrated first", conflict=True)
+                of = "" if slot is None else f" (recipe {slot})"
+                raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first", conflict=True)
             rec = await self.store.create_job(
                 procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
             )
@@ -341,12 +354,14 @@ class JobManager:
         return take
 
     def _config_for(self, opts: Mapping[str, Any]) -> CellConfig:
+        """The configuration a job runs with: its recipe's, and the hand-eye method it asks for."""
+        config = self.config.for_recipe(opts.get("recipe") or self.config.default_recipe)
         method = opts.get("method")
         if method is None:
-            return self.config
-        proc = self.config.calibration.procedure
+            return config
+        proc = config.calibration.procedure
         proc = proc.model_copy(update={"hand_eye": proc.hand_eye.model_copy(update={"method": method})})
-        return self.config.model_copy(update={"calibration": self.config.calibration.model_copy(update={"procedure": proc})})
+        return config.model_copy(update={"calibration": config.calibration.model_copy(update={"procedure": proc})})
 
     async def _run(self, run: _Running, cal: CalibrationSet | None, opts: dict[str, Any]) -> None:
         rec = run.record
@@ -360,7 +375,7 @@ class JobManager:
         d = self.devices
         ctx = JobContext(
             job_id=rec.id, config=config,
-            devices=CellDevices(d.laser, d.camera, ReducedSpeedRobot(d.robot, motion.speed_mm_s, motion.speed_deg_s)),
+            devices=replace(d, robot=ReducedSpeedRobot(d.robot, motion.speed_mm_s, motion.speed_deg_s)),
             calibration=cal, motion=motion, ask=self.desk.asker(rec.id), dest=dest, witness=self.witness,
             source=describe_source(config, d),
         )  # fmt: skip
@@ -409,7 +424,9 @@ class JobManager:
             saved = await asyncio.to_thread(record, self.calibration_store, outcome, ds, config, when, f"{outcome.part}: job {rec.id}")
             fields["version_after"] = saved.version
             result["stored_version"] = saved.version
-            result["ready_problems"] = check_ready(saved, datetime.now(timezone.utc))
+            result["ready_problems"] = check_ready(
+                saved, datetime.now(timezone.utc), recipe=opts.get("recipe"), first_recipe=self.config.default_recipe
+            )
         else:
             result["stored_version"] = None
         return fields

@@ -19,7 +19,7 @@ import numpy as np
 
 from cellctl.align import plan_spot_poses
 from cellctl.calibration.board import BoardSpec
-from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
 from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
 from cellctl.calibration.poses import plan_board_views, plan_laser_poses
@@ -216,11 +216,11 @@ def plan_laser(config: CellConfig, *, poses: int | None = None, start: Pose | No
     return make_plan(config, "laser", plan.flange_poses, labels, plan.dropped, start, details)
 
 
-def _need(cal: CalibrationSet | None, procedure: str, *parts: str) -> CalibrationSet:
+def _need(cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str | None = None) -> CalibrationSet:
+    """The set, when the parts the plan needs are usable (a recipe part: ``recipe``'s own); else PlanError."""
     for name in parts:
-        p = None if cal is None else cal.part(name)
-        if p is None or p.status != "ok":
-            raise PlanError(f"{procedure}: {name} must be calibrated first")
+        if cal is None or not cal.usable(name, recipe):
+            raise PlanError(f"{procedure}: {name} must be calibrated first: run `{command(name, recipe)}`")
     assert cal is not None
     return cal
 
@@ -233,7 +233,7 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
     ac = config.process.align
     T0 = nominal_T0(config)
     shoot = nominal_shooting_pose(T0, T_H_C, config.process.working_distance_mm)
-    spots = plan_spot_poses(T0, ac.spots_mm, shoot[:3, :3], r, l, ac.laser_standoff_mm)
+    spots = plan_spot_poses(T0, ac.wall_spots_mm(), shoot[:3, :3], r, l, ac.laser_standoff_mm)
     poses, labels, dropped = [], [], []
     check = _reach_check(config)
     for k, X in enumerate(spots):
@@ -246,15 +246,18 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
         labels.append(f"spot {k}")
     if dropped:
         raise PlanError("teaching: " + "; ".join(dropped) + "; move process.align.spots_mm or the layout's opening")
-    details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.spots_mm],
+    details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.wall_spots_mm()],
                "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
     return make_plan(config, "teaching", poses, labels, dropped, start, details)
 
 
-def plan_nine_point(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
-    """A 3 x 3 grid of camera shifts in the wall plane about the taught shooting pose."""
-    cal = _need(cal, "pixel_map", "camera", "teaching")
-    taught = cal.taught()
+def plan_nine_point(
+    config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None, recipe: str | None = None
+) -> MotionPlan:
+    """A 3 x 3 grid of camera shifts in the wall plane about the taught shooting pose (of ``recipe``; None: the first)."""
+    slot = recipe_slot(recipe, config.default_recipe)
+    cal = _need(cal, "pixel_map", "camera", "teaching", recipe=slot)
+    taught = cal.taught(slot)
     npc = config.calibration.procedure.nine_point
     offsets = nine_point_offsets(npc.step_mm)
     targets = nine_point_targets(taught.C_Pos_0, taught.T0, offsets)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from cellctl.align import AlignmentError, compute_alignment
-from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
@@ -106,9 +106,15 @@ async def confirm_start(ctx: JobContext, plan: MotionPlan, what: str) -> None:
     )  # fmt: skip
 
 
-async def car_body_in_place(ctx: JobContext, text: str) -> None:
-    corner = ctx.config.layout.opening.corner_position_mm
-    await ctx.ask(PromptKind.CAR_BODY, text, details={"nominal_corner_base_mm": list(corner), "nominal": True})
+async def car_body_in_place(ctx: JobContext, text: str, *, recipe: str | None = None) -> None:
+    """Ask for the car body at its nominal place (``recipe``: a reference car body of that recipe's window)."""
+    opening = ctx.config.layout.opening
+    details: dict[str, Any] = {"nominal_corner_base_mm": list(opening.corner_position_mm), "nominal": True}
+    if recipe is not None:
+        details |= {"recipe": recipe, "opening_mm": [opening.width_mm, opening.height_mm, opening.corner_radius_mm]}
+        text = (f"Recipe {recipe} ({opening.width_mm:g} x {opening.height_mm:g} mm opening, corner radius "
+                f"{opening.corner_radius_mm:g} mm): {text}")  # fmt: skip
+    await ctx.ask(PromptKind.CAR_BODY, text, details=details)
 
 
 async def place_board(ctx: JobContext, place: dict[str, Any], name: str) -> float:
@@ -206,17 +212,17 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
 # -- teaching ------------------------------------------------------------------------------------
 
 
-def _need(cal: CalibrationSet | None, part: str, *names: str) -> CalibrationSet:
+def _need(cal: CalibrationSet | None, part: str, *names: str, recipe: str | None = None) -> CalibrationSet:
+    """The set, when the parts ``part`` builds on are usable (a recipe part: ``recipe``'s own); else refused."""
     for name in names:
-        p = None if cal is None else cal.part(name)
-        if p is None or p.status != "ok":
-            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first")
+        if cal is None or not cal.usable(name, recipe):
+            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first: run `{command(name, recipe)}`")
     assert cal is not None
     return cal
 
 
-async def collect_teaching(ctx: JobContext) -> Dataset:
-    """Align at the reference car body, take the template image, record the hand-guided installs."""
+async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dataset:
+    """Align at the reference car body (of ``recipe``; None: the first), take the template image, record the hand-guided installs."""
     cal = _need(ctx.calibration, "teaching", "camera", "hand_eye", "laser")
     config = ctx.config
     plan = await asyncio.to_thread(plan_teaching, config, cal, start=await current_pose(ctx))
@@ -230,6 +236,7 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
         ctx,
         "Bring the reference car body into the cell and clamp it at its nominal place: its opening defines the "
         "workpiece frame T0 every cycle is corrected to. Confirm when it stands still.",
+        recipe=recipe or config.default_recipe,
     )
     draft = ctx.begin(
         "teaching",
@@ -239,6 +246,7 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
         operator={"kind": "hand guiding", "installs": tc.hand_guided_installs},
         g_Pos_0_installs=[],
         plan=plan.summary(),
+        recipe=recipe or config.default_recipe,
     )
     await confirm_start(ctx, plan, "the teaching alignment")
     spots_H, spots_d = [], []
@@ -301,18 +309,21 @@ async def collect_teaching(ctx: JobContext) -> Dataset:
 # -- nine-point map and pixel scale ----------------------------------------------------------------
 
 
-async def collect_nine_point(ctx: JobContext) -> Dataset:
-    """Nine images of the window corner from the taught pose shifted in the wall plane, then the scale board."""
-    cal = _need(ctx.calibration, "pixel_map", "camera", "teaching")
-    plan = await asyncio.to_thread(plan_nine_point, ctx.config, cal, start=await current_pose(ctx))
-    taught = cal.taught()
+async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> Dataset:
+    """Nine images of the window corner from the taught pose (of ``recipe``; None: the first) shifted in the wall plane, then the scale board."""
+    recipe = recipe or ctx.config.default_recipe
+    slot = recipe_slot(recipe, ctx.config.default_recipe)
+    cal = _need(ctx.calibration, "pixel_map", "camera", "teaching", recipe=slot)
+    plan = await asyncio.to_thread(plan_nine_point, ctx.config, cal, start=await current_pose(ctx), recipe=recipe)
+    taught = cal.taught(slot)
     npc = ctx.config.calibration.procedure.nine_point
     await car_body_in_place(
         ctx, "The car body taught with (or one clamped at the same place) stands in the cell; its window corner must be "
-        "in view from the taught shooting pose. Confirm.",
+        "in view from the taught shooting pose. Confirm.", recipe=recipe,
     )  # fmt: skip
     draft = ctx.begin(
         "nine_point",
+        recipe=recipe,
         views=[],
         C_Pos_0=pose_list(taught.C_Pos_0),
         T0=pose_list(taught.T0),
@@ -404,11 +415,12 @@ PROCEDURES: dict[str, Procedure] = {
     ),
     "teaching": Procedure(
         "teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"),
-        lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching,
+        lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching, ("recipe",),
     ),
     "pixel_map": Procedure(
         "pixel_map", "nine_point", "nine-point", ("camera", "teaching"),
-        lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start), collect_nine_point, compute_nine_point,
+        lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start, recipe=o.get("recipe")), collect_nine_point,
+        compute_nine_point, ("recipe",),
     ),
 }  # fmt: skip
 # The order a cell is commissioned in: each part only needs parts before it.

@@ -5,9 +5,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from cellctl.calibration.collect import MotionSettings
+from cellctl.calibration.hand_eye import METHODS as HAND_EYE_METHODS
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
+from cellctl.config.calibration_procedure import MotionSettings
 from cellctl.config.schema import CellConfig
 from cellctl.store import JobRecord
 
@@ -18,7 +19,6 @@ ALL_PROCEDURES: dict[str, Procedure] = {
         collect_verify, compute_verify, records_part=False,
     ),
 }
-HAND_EYE_METHODS = ("tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis")
 
 
 class JobRefused(Exception):
@@ -52,13 +52,16 @@ def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig
                 raise JobRefused(f"options.store: true or false, got {value!r}")
         elif key == "method" and value not in HAND_EYE_METHODS:
             raise JobRefused(f"options.method: one of {', '.join(HAND_EYE_METHODS)}, got {value!r}")
+        elif key == "recipe" and value not in config.process.recipe_names().values():
+            known = ", ".join(config.process.recipe_names().values())
+            raise JobRefused(f"options.recipe: one of the configured recipes ({known}; [[process.recipes]]), got {value!r}")
         out[key] = value
     return out
 
 
 def motion_settings(config: CellConfig) -> MotionSettings:
-    c = config.calibration.procedure
-    return MotionSettings(c.speed_mm_s, c.speed_deg_s, c.move_timeout_s, c.read_timeout_s, c.grab_timeout_s)
+    """The speeds and timeouts of the procedures' moves: the top of ``calibration.procedure``."""
+    return config.calibration.procedure
 
 
 def job_view(rec: JobRecord, live: Mapping[str, Any]) -> dict[str, Any]:

@@ -14,9 +14,10 @@ import contextlib
 import logging
 from datetime import datetime, timezone
 
-from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
 from cellctl.config.calibration_procedure import VerifyCalibrationConfig
+from cellctl.domain import AlarmCode
 from cellctl.store import AsyncCellStore, CycleState
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import Field, model_validator
 
-from cellctl.config.types import StrictModel
+from cellctl.config.types import StrictModel, check_unique
 
 MIN_TOKEN_LENGTH = 16
 SIM_DEFAULT_TOKEN = "sim-operator-token-change-me"
@@ -66,7 +66,7 @@ class ApiToken(StrictModel):
     token_file: Path | None = None
 
     @model_validator(mode="after")
-    def _one_source(self) -> "ApiToken":
+    def _one_source(self) -> ApiToken:
         given = [k for k in ("token", "token_env", "token_file") if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(
@@ -89,54 +89,60 @@ class ApiToken(StrictModel):
         """The token's value, read now (environment or file). Raises :class:`TokenUnavailable` naming the source and the fix."""
         if self.token is not None:
             return self.token
-        where = f"api.tokens '{self.name}'"
-        if self.token_env is not None:
-            value = os.environ.get(self.token_env, "").strip()
-            if not value:
-                raise TokenUnavailable(
-                    f"{where}: token_env: environment variable {self.token_env} is not set or empty; set it in the "
-                    "service's environment (/etc/cellctl/cellctl.env, see deploy/cellctl.env.example)"
-                )
-            field = "token_env"
-        else:
-            value = _read_token_file(where, Path(self.token_file))  # type: ignore[arg-type]
-            field = "token_file"
-        weak = token_weakness(value)
-        if weak is not None:
+        return read_secret(f"api.tokens '{self.name}'", env=("token_env", self.token_env), file=("token_file", self.token_file))
+
+
+def read_secret(where: str, *, env: tuple[str, str | None], file: tuple[str, Path | None], what: str = "token") -> str:
+    """A secret from the environment variable ``env[1]`` or else the file ``file[1]``, checked by :func:`token_weakness`.
+
+    ``where`` and the field names (``env[0]``, ``file[0]``) name the setting in every error, with its fix.
+    """
+    (env_field, variable), (file_field, path) = env, file
+    if variable is not None:
+        value = os.environ.get(variable, "").strip()
+        if not value:
             raise TokenUnavailable(
-                f"{where}: {field}: the token in {self.source} is refused: {weak}; make a new one with {MAKE_A_TOKEN}"
+                f"{where}: {env_field}: environment variable {variable} is not set or empty; set it in the "
+                "service's environment (/etc/cellctl/cellctl.env, see deploy/cellctl.env.example)"
             )
-        return value
+        field, source = env_field, f"environment variable {variable}"
+    else:
+        value = _read_token_file(f"{where}: {file_field}", Path(path))  # type: ignore[arg-type]
+        field, source = file_field, f"file {path}"
+    weak = token_weakness(value)
+    if weak is not None:
+        raise TokenUnavailable(f"{where}: {field}: the {what} in {source} is refused: {weak}; make a new one with {MAKE_A_TOKEN}")
+    return value
 
 
 def _read_token_file(where: str, path: Path) -> str:
-    """The token in ``path`` (surrounding whitespace, e.g. a final newline, removed)."""
-    fix = f"write the token into it (one line, chmod 600, owned by the service's user; make one with {MAKE_A_TOKEN})"
+    """The secret in ``path`` (surrounding whitespace, e.g. a final newline, removed); ``where`` names the setting."""
+    fix = f"write the secret into it (one line, chmod 600, owned by the service's user; make one with {MAKE_A_TOKEN})"
     try:
         st = path.stat()
     except FileNotFoundError:
-        raise TokenUnavailable(f"{where}: token_file: {path} does not exist; {fix}") from None
+        raise TokenUnavailable(f"{where}: {path} does not exist; {fix}") from None
     except OSError as err:
-        raise TokenUnavailable(f"{where}: token_file: {path} cannot be read ({err.strerror}); {fix}") from None
+        raise TokenUnavailable(f"{where}: {path} cannot be read ({err.strerror}); {fix}") from None
     if not stat.S_ISREG(st.st_mode):
-        raise TokenUnavailable(f"{where}: token_file: {path} is not a regular file; {fix}")
+        raise TokenUnavailable(f"{where}: {path} is not a regular file; {fix}")
     if st.st_mode & (stat.S_IROTH | stat.S_IWOTH):
         raise TokenUnavailable(
-            f"{where}: token_file: {path} can be read or written by every user (mode {stat.S_IMODE(st.st_mode):04o}); "
+            f"{where}: {path} can be read or written by every user (mode {stat.S_IMODE(st.st_mode):04o}); "
             f"chmod 600 {path} (or 640 with the service's group)"
         )
     if st.st_size > TOKEN_FILE_MAX_BYTES:
-        raise TokenUnavailable(f"{where}: token_file: {path} has {st.st_size} bytes; a token file holds one token")
+        raise TokenUnavailable(f"{where}: {path} has {st.st_size} bytes; the file holds one secret")
     try:
         raw = path.read_bytes()
     except OSError as err:
-        raise TokenUnavailable(f"{where}: token_file: {path} cannot be read ({err.strerror}); {fix}") from None
+        raise TokenUnavailable(f"{where}: {path} cannot be read ({err.strerror}); {fix}") from None
     try:
         value = raw.decode("utf-8").strip()
     except UnicodeDecodeError:
-        raise TokenUnavailable(f"{where}: token_file: {path} is not UTF-8 text; {fix}") from None
+        raise TokenUnavailable(f"{where}: {path} is not UTF-8 text; {fix}") from None
     if not value:
-        raise TokenUnavailable(f"{where}: token_file: {path} is empty; {fix}")
+        raise TokenUnavailable(f"{where}: {path} is empty; {fix}")
     return value
 
 
@@ -151,12 +157,10 @@ class ApiConfig(StrictModel):
     max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, ge=1024, le=16 * 1024 * 1024)
 
     @model_validator(mode="after")
-    def _tokens(self) -> "ApiConfig":
+    def _tokens(self) -> ApiConfig:
         if not self.tokens:
             raise ValueError("tokens: give at least one token; mutating routes need a bearer token")
-        names = [t.name for t in self.tokens]
-        if len(set(names)) != len(names):
-            raise ValueError(f"tokens: names must be unique, got {names}")
+        check_unique("tokens", "name", [t.name for t in self.tokens])
         return self
 
     def hardware_problems(self) -> list[str]:

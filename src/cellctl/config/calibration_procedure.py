@@ -52,17 +52,25 @@ class CameraCalibrationConfig(StrictModel):
     reject_floor_px: Finite = Field(0.1, gt=0)  # ... and above this absolute RMS is rejected
 
 
+HandEyeMethod = Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"]
+
+
 class HandEyeCalibrationConfig(StrictModel):
     """Hand-eye T_H_C from the same kind of board views, with the robot's reported poses."""
 
-    method: Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"] = "tsai"
+    method: HandEyeMethod = "tsai"
     min_views: int = Field(6, ge=3)
     recommended_views: int = Field(10, ge=3)
     min_pair_angle_deg: Finite = Field(5.0, ge=0, le=45)
     min_max_pair_angle_deg: Finite = Field(15.0, ge=0, le=180)
     min_axis_spread: Finite = Field(0.05, ge=0, le=1)
+    warn_axis_spread: Finite = Field(0.15, ge=0, le=1)  # below this the result carries a warning
     max_translation_disagreement_mm: Finite = Field(1.0, gt=0)  # between methods, before it is refused
     max_rotation_disagreement_deg: Finite = Field(0.1, gt=0)
+
+
+# The fewest readings calibrate_laser accepts when not told otherwise, and the floor of min_poses.
+LASER_MIN_POSES = 12
 
 
 class LaserCalibrationConfig(StrictModel):
@@ -88,7 +96,7 @@ class LaserCalibrationConfig(StrictModel):
     range_margin_mm: Finite = Field(6.0, ge=0)  # keep nominal distances this far inside the sensor's range
     wrist_in_flange_mm: Vec3 = (0.0, 0.0, -250.0)  # the wrist centre (axis 5) in the flange frame
     linearity_terms: int = Field(5, ge=0, le=8)  # Legendre terms 2.. of the sensor's linearity curve
-    min_poses: int = Field(100, ge=12)  # fewer rarely pin r and l within max_r_sigma_mm / max_l_sigma_deg
+    min_poses: int = Field(100, ge=LASER_MIN_POSES)  # fewer rarely pin r and l within max_r_sigma_mm / max_l_sigma_deg
     min_direction_spread_deg: Finite = Field(4.0, ge=0)
     max_rms_mm: Finite = Field(0.1, gt=0)
     max_r_sigma_mm: Finite = Field(0.3, gt=0)
@@ -170,13 +178,12 @@ class VerifyCalibrationConfig(StrictModel):
 REDUCED_SPEED_MM_S = 250.0
 
 
-class CalibrationProcedureConfig(StrictModel):
-    """Everything the calibration and teaching procedures read (the store folder and the parts'
-    validity are the ``calibration`` section's ``directory`` and ``max_age_days``).
+class MotionSettings(StrictModel):
+    """Speeds and timeouts of a procedure's moves and reads.
 
-    Every move of a procedure runs at ``speed_mm_s`` / ``speed_deg_s`` at most; the TCP speed may
-    not exceed the reduced speed of ISO 10218-1 (250 mm/s), since the engineer works beside the
-    cell while the job runs.
+    Every move runs at ``speed_mm_s`` / ``speed_deg_s`` at most; the TCP speed may not exceed the
+    reduced speed of ISO 10218-1 (250 mm/s), since the engineer works beside the cell while the
+    job runs.
     """
 
     move_timeout_s: Finite = Field(60.0, gt=0)
@@ -184,6 +191,14 @@ class CalibrationProcedureConfig(StrictModel):
     grab_timeout_s: Finite = Field(10.0, gt=0)
     speed_mm_s: Finite = Field(250.0, gt=0, le=REDUCED_SPEED_MM_S)
     speed_deg_s: Finite = Field(30.0, gt=0, le=90)
+
+
+class CalibrationProcedureConfig(MotionSettings):
+    """Everything the calibration and teaching procedures read (the store folder and the parts'
+    validity are the ``calibration`` section's ``directory`` and ``max_age_days``); the motion
+    settings stand at the top of the section.
+    """
+
     camera: CameraCalibrationConfig = CameraCalibrationConfig()
     hand_eye: HandEyeCalibrationConfig = HandEyeCalibrationConfig()
     laser: LaserCalibrationConfig = LaserCalibrationConfig()

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
+import numpy as np
 from pydantic import Field, model_validator
 
 from cellctl.config.inspection import InspectionConfig
+from cellctl.config.recipe import Recipe
 from cellctl.config.spc import SpcConfig
-from cellctl.config.types import Finite, StrictModel, Vec2
+from cellctl.config.types import Finite, StrictModel, Vec2, check_unique
 
 
 class ToleranceConfig(StrictModel):
@@ -16,12 +20,57 @@ class ToleranceConfig(StrictModel):
     orientation_deg: Finite = Field(1.0, gt=0)
 
 
+class SweepConfig(StrictModel):
+    """Reading the wall on the move (issue 19): the laser stores readings while the flange sweeps a path.
+
+    ``path_mm`` are the corners of the path the laser spot follows on the wall, in T0 like
+    ``spots_mm`` (keep every leg on the wall, off the opening). At the first corner the flange
+    moves in, out and in again along the beam by ``approach_mm``: those moves time the laser against
+    the robot's feedback (the latency between the two is estimated from them, every cycle). Used
+    when the laser can store readings and the robot streams its position; else the cell reads at
+    standing spots.
+    """
+
+    path_mm: tuple[Vec2, ...] = ((-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0))
+    speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)  # the laser stores every 2 mm at the default cycle
+    approach_mm: Finite = Field(40.0, gt=5, le=200)
+    storage_cycle_s: Finite = Field(0.002, ge=2e-5, le=1.0)  # the LK-G's storage cycle
+    max_points: int = Field(400, ge=20, le=20000)  # readings used in the plane fit, spread evenly along the path
+    latency_search_s: tuple[Finite, Finite] = (-0.01, 0.05)
+    max_latency_sigma_s: Finite = Field(0.0005, gt=0)  # a worse estimate fails the alignment
+    # The latency (s) when it is known (from commissioning): the sweep then skips the moves along the beam
+    # and does not estimate it. None (the default) estimates it in every cycle.
+    fixed_latency_s: float | None = Field(None, ge=-0.1, le=0.5)
+    feedback_stale_s: Finite = Field(0.05, gt=0, le=5)  # the robot's feedback older than this: stop the robot, alarm 1402
+    max_feedback_gap_s: Finite = Field(0.02, gt=0, le=1)  # no pose is guessed across a longer gap in the feedback
+    min_paired_share: Finite = Field(0.9, gt=0, le=1)  # of the legs' readings with a distance, at least this share needs a pose
+
+    def points_along_mm(self, step_mm: float = 100.0) -> tuple[tuple[float, float], ...]:
+        """Points on the path every ``step_mm`` or less (its corners included), in T0 (mm)."""
+        corners = np.asarray(self.path_mm, dtype=float)
+        out = [corners[0]]
+        for a, b in zip(corners[:-1], corners[1:]):
+            n = max(1, int(np.ceil(np.linalg.norm(b - a) / step_mm)))
+            out += [a + (b - a) * k / n for k in range(1, n + 1)]
+        return tuple((float(p[0]), float(p[1])) for p in out)
+
+    @model_validator(mode="after")
+    def _path(self) -> "SweepConfig":
+        if len(self.path_mm) < 3:
+            raise ValueError("path_mm needs at least 3 corners (two legs), so the readings span the wall in two directions")
+        lo, hi = self.latency_search_s
+        if not lo < hi:
+            raise ValueError(f"latency_search_s must be [min, max] with min < max, got {list(self.latency_search_s)}")
+        return self
+
+
 class AlignConfig(StrictModel):
     """Laser alignment (paper section 3).
 
     ``spots_mm`` are where the laser should hit the wall, in the taught workpiece frame T0
     (x right, y down from the upper-right corner; the opening is x < 0, 0 < y). Keep them on the
-    wall, off the opening, and spread in two directions.
+    wall, off the opening, and spread in two directions. ``mode = "on_the_fly"`` reads the wall
+    while sweeping ``[process.align.sweep]`` instead, where the devices can (else the spots are read).
     """
 
     spots_mm: tuple[Vec2, ...] = (
@@ -37,6 +86,16 @@ class AlignConfig(StrictModel):
     max_rms_mm: Finite = Field(0.2, gt=0)
     inlier_threshold_mm: Finite = Field(0.5, gt=0)
     min_collinearity: Finite = Field(1e-3, gt=0, lt=1)
+    mode: Literal["stop_and_go", "on_the_fly"] = "stop_and_go"
+    sweep: SweepConfig = SweepConfig()
+
+    def wall_spots_mm(self) -> tuple[tuple[float, float], ...]:
+        """Where the alignment reads the wall: the spots, or on the move points along the sweep's path.
+
+        Teaching reads these standing, so the taught plane comes from the part of the wall the
+        cycles measure (the robot's accuracy errors there then cancel between the two).
+        """
+        return self.spots_mm if self.mode == "stop_and_go" else self.sweep.points_along_mm()
 
     @model_validator(mode="after")
     def _standoff_in_range(self) -> "AlignConfig":
@@ -104,14 +163,6 @@ class LimitsConfig(StrictModel):
     max_verify_step_deg: Finite = Field(0.5, gt=0)
 
 
-class Recipe(StrictModel):
-    """A workpiece type the cell installs: its PLC number and the name records and the API use."""
-
-    id: int = Field(ge=1, le=65535)
-    name: str = Field(min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_.-]*$")
-    description: str = ""
-
-
 class ProcessConfig(StrictModel):
     """What the cell does each cycle."""
 
@@ -130,9 +181,7 @@ class ProcessConfig(StrictModel):
         if not self.recipes:
             raise ValueError("recipes: give at least one recipe (id and name)")
         for what in ("id", "name"):
-            values = [getattr(r, what) for r in self.recipes]
-            if len(set(values)) != len(values):
-                raise ValueError(f"recipes: each recipe needs its own {what}, got {values}")
+            check_unique("recipes", what, [getattr(r, what) for r in self.recipes])
         return self
 
     def recipe_names(self) -> dict[int, str]:

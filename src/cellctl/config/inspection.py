@@ -84,6 +84,16 @@ class InspectionConfig(StrictModel):
     reads_per_spot: int = Field(3, ge=1, le=10)
     max_flush_rms_mm: Finite = Field(0.15, gt=0)
     back_off_mm: Finite = Field(100.0, ge=0)
+    # On the move (process.align.mode = "on_the_fly", where the devices can): the laser sweeps these
+    # corners in T instead of standing at the flush spots, along the wall just outside the opening's
+    # top and right edges and along the glass just inside them; readings within sweep_margin_mm of
+    # an edge (the gap) are left out.
+    sweep_path_mm: tuple[Vec2, ...] = (
+        (-60.0, -15.0), (-1700.0, -15.0), (-1700.0, 20.0), (-60.0, 20.0),
+        (-20.0, 60.0), (-20.0, 1200.0), (15.0, 1200.0), (15.0, 60.0),
+    )  # fmt: skip
+    sweep_margin_mm: Finite = Field(6.0, ge=0, le=50)
+    sweep_max_points: int = Field(300, ge=20, le=20000)  # per surface (glass, wall), spread along the path
 
     @model_validator(mode="after")
     def _enough(self) -> "InspectionConfig":

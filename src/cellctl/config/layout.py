@@ -172,19 +172,6 @@ class LayoutConfig(StrictModel):
 # The twin's car body stands at the layout's opening and its robot reaches as far as the layout's:
 # these fields of [sim.world] and [sim.robot] are filled from [layout] (never set there).
 TWIN_FIELDS_FROM_LAYOUT: dict[tuple[str, str], tuple[str, str]] = {
-    ("world", "corner_position_mm"): ("opening", "corner_position_mm"),
-    ("world", "wall_normal"): ("opening", "wall_normal"),
-    ("world", "up"): ("opening", "up"),
-    ("world", "opening_width_mm"): ("opening", "width_mm"),
-    ("world", "opening_height_mm"): ("opening", "height_mm"),
-    ("world", "corner_radius_mm"): ("opening", "corner_radius_mm"),
-    ("robot", "reach_mm"): ("robot", "reach_mm"),
-    ("robot", "min_reach_mm"): ("robot", "min_reach_mm"),
-    ("robot", "reach_centre_mm"): ("robot", "reach_centre_mm"),
-    ("robot", "wrist_to_flange_mm"): ("robot", "wrist_to_flange_mm"),
-    ("robot", "max_speed_mm_s"): ("robot", "max_speed_mm_s"),
-    ("robot", "acceleration_mm_s2"): ("robot", "acceleration_mm_s2"),
-    ("robot", "max_speed_deg_s"): ("robot", "max_speed_deg_s"),
-    ("robot", "acceleration_deg_s2"): ("robot", "acceleration_deg_s2"),
-    ("robot", "settle_time_s"): ("robot", "settle_time_s"),
+    **{("world", name): ("opening", name) for name in OpeningLayout.model_fields},
+    **{("robot", name): ("robot", name) for name in RobotEnvelope.model_fields},
 }

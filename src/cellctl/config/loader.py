@@ -53,11 +53,20 @@ def check_tokens(config: CellConfig, source: str = "<config>") -> None:
     ``cellctl serve`` calls this before it builds anything: a service must not start with a token it
     cannot read. Commands that only talk to a running service do not need the service's tokens.
     """
+    problems: list[str] = []
     try:
         config.api.secrets()
     except TokenUnavailable as err:
-        problems = str(err).splitlines()
-        lines = [f"{source}: {len(problems)} API token(s) cannot be used:", *(f"  - {p}" for p in problems)]
+        problems += str(err).splitlines()
+    if config.opcua.enabled:
+        for user in config.opcua.users:
+            if user.certificate is None:
+                try:
+                    user.secret()
+                except TokenUnavailable as err:
+                    problems.append(str(err))
+    if problems:
+        lines = [f"{source}: {len(problems)} API token(s) or OPC UA password(s) cannot be used:", *(f"  - {p}" for p in problems)]
         raise ConfigError("\n".join(lines)) from None
 
 

@@ -5,14 +5,17 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, model_validator
 
 from cellctl.config.api import ApiConfig
 from cellctl.config.calibration import CalibrationConfig
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
 from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig
+from cellctl.config.mqtt import MqttConfig
+from cellctl.config.opcua import OpcUaConfig
 from cellctl.config.plc import PlcConfig
+from cellctl.config.recipe import RECIPE_SECTIONS, Recipe, merge_into
 from cellctl.config.sim import SimConfig
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
 from cellctl.config.types import StrictModel
@@ -31,6 +34,8 @@ class CellConfig(StrictModel):
     process: ProcessConfig = ProcessConfig()
     devices: DevicesConfig = DevicesConfig()
     plc: PlcConfig = PlcConfig()
+    opcua: OpcUaConfig = OpcUaConfig()
+    mqtt: MqttConfig = MqttConfig()
     store: StoreConfig = StoreConfig()
     alarms: AlarmsConfig = AlarmsConfig()
     packml: PackMLConfig = PackMLConfig()
@@ -38,6 +43,8 @@ class CellConfig(StrictModel):
     api: ApiConfig = ApiConfig()
     calibration: CalibrationConfig = CalibrationConfig()
     sim: SimConfig = SimConfig()
+    # (the id of the configuration they were made from, each recipe's view): a model_copy must make its own
+    _recipe_views: tuple[int, dict[str, "CellConfig"]] = PrivateAttr(default=(0, {}))
 
     @model_validator(mode="before")
     @classmethod
@@ -77,7 +84,7 @@ class CellConfig(StrictModel):
                 )
             if self.calibration.source == "oracle":
                 raise ValueError('calibration.source = "oracle" exists only in the simulated cell; use "set"')
-            problems = self.api.hardware_problems()
+            problems = self.api.hardware_problems() + self.opcua.hardware_problems()
             if problems:
                 raise ValueError('mode = "hardware": ' + "; ".join(problems))
         return self
@@ -109,6 +116,74 @@ class CellConfig(StrictModel):
                 f"{min(fov_w, fov_h) / 2.0 - MIN_STRAIGHT_EDGE_MM:.0f} mm or raise the working distance"
             )
         return self
+
+    @model_validator(mode="after")
+    def _recipes_make_valid_cells(self) -> "CellConfig":
+        """Each recipe's sections checked as the tables they replace (a bad field names its recipe)."""
+        self._recipe_views = (id(self), self._make_recipe_views())
+        return self
+
+    def _make_recipe_views(self) -> dict[str, "CellConfig"]:
+        views: dict[str, CellConfig] = {}
+        problems: list[str] = []
+        for k, recipe in enumerate(self.process.recipes):
+            if not recipe.overrides():
+                continue
+            try:
+                views[recipe.name] = CellConfig.model_validate(self._recipe_data(recipe))
+            except ValidationError as err:
+                problems += [_recipe_problem(k, recipe, e) for e in err.errors() if not _twin_copy(recipe, e)]
+        if problems:
+            raise ValueError("recipe settings that make no valid cell:\n    - " + "\n    - ".join(problems))
+        return views
+
+    def _recipe_data(self, recipe: Recipe) -> dict[str, Any]:
+        """This configuration as data with the recipe's sections set in, every recipe listed bare."""
+        data = self.model_dump(mode="python", exclude_defaults=False)
+        for section, field in TWIN_FIELDS_FROM_LAYOUT:  # filled again from [layout]
+            data["sim"][section].pop(field, None)
+        data["process"]["recipes"] = [r.bare() for r in self.process.recipes]
+        for name, fields in recipe.overrides().items():
+            merge_into(data, RECIPE_SECTIONS[name], fields)
+        return data
+
+    def for_recipe(self, name: str) -> "CellConfig":
+        """The configuration a cycle of recipe ``name`` runs with: the cell's, with the recipe's sections set in.
+
+        Its own list of recipes is bare (numbers and names); ask this configuration for another recipe.
+        """
+        if name not in {r.name for r in self.process.recipes}:
+            known = ", ".join(r.name for r in self.process.recipes)
+            raise KeyError(f"no recipe {name!r} in [[process.recipes]] (the recipes are: {known})")
+        owner, views = self._recipe_views
+        if owner != id(self):  # a model_copy (with other settings, maybe): its own views, made once
+            views = self._make_recipe_views()
+            self._recipe_views = (id(self), views)
+        return views.get(name, self)
+
+    @property
+    def default_recipe(self) -> str:
+        """The first recipe's name: a cycle that names none is one of these."""
+        return self.process.recipes[0].name
+
+
+def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
+    """One field error of a recipe's view, named where the recipe sets it (else where the cell does)."""
+    loc = tuple(str(p) for p in error["loc"] if not str(p).startswith("function-after"))
+    msg = str(error["msg"]).removeprefix("Value error, ")
+    if error["type"] == "extra_forbidden":
+        msg = "unknown field; check its spelling against the table it replaces"
+    where = ".".join(loc) or "(top level)"
+    for name, path in RECIPE_SECTIONS.items():
+        if loc[: len(path)] == path and getattr(recipe, name):
+            where = f"{name}." + ".".join(loc[len(path):]) if len(loc) > len(path) else name
+            break
+    return f"process.recipes[{index}] ({recipe.name}): {where}: {msg}"
+
+
+def _twin_copy(recipe: Recipe, error: Any) -> bool:
+    """An error of the twin's copy of the recipe's opening (``sim.world``): the opening's own error says it."""
+    return bool(recipe.opening) and tuple(error["loc"][:2]) == ("sim", "world")
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -4,38 +4,25 @@ from __future__ import annotations
 
 from typing import Literal
 
-import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from cellctl.config.layout import (
-    check_reach_order,
-    opening_problem,
-    workpiece_frame,
-    wrist_reach_mm,
-)
+from cellctl.config.layout import OpeningLayout, RobotEnvelope, check_reach_order
 from cellctl.config.mounting import CameraIntrinsics, HandEye, LaserMount
 from cellctl.config.render import RenderConfig
 from cellctl.config.surface import Range
-from cellctl.config.types import Finite, StrictModel, UnitVec3, Vec3, as_array
-from cellctl.geometry.pose import Pose, make_pose
-from cellctl.geometry.rotation import xyz_fixed_to_matrix
+from cellctl.config.types import Finite, StrictModel, Vec3
+from cellctl.geometry.pose import Pose, pose_from_xyz_fixed_deg
 
 
-class WorldConfig(StrictModel):
+class WorldConfig(OpeningLayout):
     """The twin's car-body wall with its window opening, and how the car body's posture varies.
 
-    The car body stands at the cell's nominal opening (:class:`cellctl.config.layout.OpeningLayout`,
-    whose docstring defines the workpiece frame T): in a cell configuration the geometry fields
-    here are filled from ``[layout.opening]`` and only the posture is the twin's own. Each cycle
+    The car body stands at the cell's nominal opening (the fields of :class:`OpeningLayout`, whose
+    docstring defines the workpiece frame T): in a cell configuration they are filled from
+    ``[layout.opening]`` and only the posture is the twin's own. Each cycle
     the car body is placed at a random posture about the nominal one.
     """
 
-    corner_position_mm: Vec3 = (1700.0, -1000.0, 1800.0)
-    wall_normal: UnitVec3 = (1.0, 0.0, 0.0)
-    up: UnitVec3 = (0.0, 0.0, 1.0)
-    opening_width_mm: Finite = Field(2000.0, gt=0)
-    opening_height_mm: Finite = Field(1500.0, gt=0)
-    corner_radius_mm: Finite = Field(30.0, ge=0)
     posture_translation_mm: Vec3 = (20.0, 20.0, 20.0)
     posture_rotation_deg: Vec3 = (2.0, 2.0, 2.0)
     # Where the posture's rotation turns about: "corner" (the workpiece frame T, the paper's posture)
@@ -44,20 +31,13 @@ class WorldConfig(StrictModel):
     posture_pivot: Literal["corner", "opening_centre"] = "corner"
 
     @model_validator(mode="after")
-    def _geometry(self) -> "WorldConfig":
-        problem = opening_problem(self.wall_normal, self.up, self.opening_width_mm, self.opening_height_mm, self.corner_radius_mm)
-        if problem is not None:
-            raise ValueError(problem)
+    def _posture(self) -> "WorldConfig":
         if any(v < 0 for v in (*self.posture_translation_mm, *self.posture_rotation_deg)):
             raise ValueError("posture ranges are half-widths and must not be negative")
         return self
 
-    def T_B_T_nominal(self) -> Pose:
-        """The nominal workpiece frame at the upper-right corner, in the robot base frame."""
-        return workpiece_frame(self.corner_position_mm, self.wall_normal, self.up)
 
-
-class RobotSimConfig(StrictModel):
+class RobotSimConfig(RobotEnvelope):
     """ABB IRB 7600-325 as the twin models it.
 
     Error sources (each one off when its magnitude is 0):
@@ -67,33 +47,41 @@ class RobotSimConfig(StrictModel):
       changes little over ``accuracy_wavelength_mm`` (an uncalibrated robot: up to about 0.5 mm).
     - repeatability: ISO 9283 pose repeatability RP (``repeatability_mm``, paper: 0.1 mm) and
       orientation repeatability (``repeatability_orientation_deg``, the ISO 9283 +-3 S per angle).
+    - path deviation at speed (zero at rest): the arm lags the reported path by ``path_lag_s`` and
+      deviates sideways by ``path_sideways_s`` times the TCP speed; defaults give 0.15 / 0.05 mm at
+      500 mm/s on a straight line (Slamani et al. 2012: about 0.25 mm radial at 700 mm/s on a small
+      circle, IRB 1600).
+    - position feedback (EGM): every ``feedback_period_s``, the reported (motor-side) pose, stamped
+      ``feedback_latency_s`` +- ``feedback_jitter_s`` (uniform) late.
 
-    Reach and motion limits: the arm reaches and moves as the cell's ``[layout.robot]`` says (those
-    fields here are filled from it, see :class:`cellctl.config.layout.RobotEnvelope`).
+    Reach and motion limits are :class:`RobotEnvelope`'s: in a cell configuration they are filled
+    from ``[layout.robot]``.
     """
 
-    reach_mm: Finite = Field(3100.0, gt=0)
-    min_reach_mm: Finite = Field(500.0, ge=0)
-    reach_centre_mm: Vec3 = (0.0, 0.0, 780.0)
-    wrist_to_flange_mm: Finite = Field(250.0, ge=0)
     repeatability_mm: Finite = Field(0.1, ge=0)
     repeatability_orientation_deg: Finite = Field(0.005, ge=0, le=1.0)
     absolute_accuracy_mm: Finite = Field(0.5, ge=0, le=50.0)
     absolute_accuracy_deg: Finite = Field(0.015, ge=0, le=1.0)
     accuracy_wavelength_mm: Finite = Field(2000.0, ge=100.0)
-    max_speed_mm_s: Finite = Field(1000.0, gt=0, le=7000.0)
-    acceleration_mm_s2: Finite = Field(2000.0, gt=0)
-    max_speed_deg_s: Finite = Field(60.0, gt=0, le=1000.0)
-    acceleration_deg_s2: Finite = Field(120.0, gt=0)
-    settle_time_s: Finite = Field(0.15, ge=0, le=10.0)
     call_latency_s: Finite = Field(0.004, ge=0, le=1.0)
+    gripper_settle_s: Finite = Field(0.5, ge=0, le=10.0)  # the vacuum switching and settling before the gripper answers
+    feedback_period_s: Finite = Field(0.004, gt=0, le=0.1)  # position feedback (EGM) sample period
+    feedback_latency_s: Finite = Field(0.001, ge=0, le=0.1)  # a feedback sample's stamp is this late (mean)
+    feedback_jitter_s: Finite = Field(0.0002, ge=0, le=0.01)  # plus uniform +-jitter per sample
+    path_lag_s: Finite = Field(0.0003, ge=0, le=0.05)  # servo lag of the arm behind the reported path (v * lag mm)
+    path_sideways_s: Finite = Field(0.0001, ge=0, le=0.01)  # sideways path deviation per TCP speed (mm per mm/s)
     home_position_mm: Vec3 = (1000.0, 0.0, 1600.0)
     home_xyz_fixed_deg: Vec3 = (180.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _reach(self) -> "RobotSimConfig":
+        if 2.0 * self.feedback_jitter_s >= self.feedback_period_s:
+            raise ValueError(
+                f"feedback_jitter_s ({self.feedback_jitter_s:g}) must stay below half of feedback_period_s "
+                f"({self.feedback_period_s:g}) so the feedback samples keep their order"
+            )
         check_reach_order(self.min_reach_mm, self.reach_mm)
-        dist = wrist_reach_mm(self.T_B_H_home(), self.wrist_to_flange_mm, self.reach_centre_mm)
+        dist = self.reach_distance(self.T_B_H_home())
         if not (self.min_reach_mm <= dist <= self.reach_mm):
             raise ValueError(
                 f"home_position_mm puts the wrist centre {dist:.0f} mm from reach_centre_mm, outside the "
@@ -103,8 +91,7 @@ class RobotSimConfig(StrictModel):
 
     def T_B_H_home(self) -> Pose:
         """The flange pose the robot starts at (XYZ fixed angles rx, ry, rz as in eq. 13)."""
-        rx, ry, rz = np.deg2rad(as_array(self.home_xyz_fixed_deg))
-        return make_pose(xyz_fixed_to_matrix(rz, ry, rx), self.home_position_mm)
+        return pose_from_xyz_fixed_deg(self.home_position_mm, self.home_xyz_fixed_deg)
 
 
 class LaserSimConfig(LaserMount):
@@ -114,13 +101,15 @@ class LaserSimConfig(LaserMount):
     scale, a fixed smooth curve over the range, seeded) and ``noise_mm`` (repeatability, one sigma,
     drawn per reading). ``no_return_status`` is what a reading says when the beam finds no surface
     (through the window opening): the LK-G shows over range; which sign it takes for a missing
-    return is not confirmed by the manual pages at hand, so it is a setting.
+    return is not confirmed by the manual pages at hand, so it is a setting. Stored readings (the
+    LK-G's data storage) measure where the flange was ``storage_latency_s`` before their instant.
     """
 
     linearity_fraction_fs: Finite = Field(0.0002, ge=0, le=0.05)  # +-0.02 % of full scale (paper)
     noise_mm: Finite = Field(0.002, ge=0, le=10.0)  # repeatability of the LK-G500 head, one sigma
     no_return_status: Literal["over_range_far", "over_range_near", "no_value"] = "over_range_far"
     read_latency_s: Finite = Field(0.002, ge=0, le=1.0)  # one M1 round trip at 115200 Bd
+    storage_latency_s: Finite = Field(0.008, ge=0, le=1.0)  # a stored reading's delay: head response plus averaging
 
 
 class CameraSimConfig(StrictModel):
@@ -194,8 +183,7 @@ class GlassConfig(StrictModel):
 
     def T_H_G(self) -> Pose:
         """The glass corner frame in the flange frame."""
-        rx, ry, rz = np.deg2rad(as_array(self.rotation_xyz_fixed_deg))
-        return make_pose(xyz_fixed_to_matrix(rz, ry, rx), self.corner_in_flange_mm)
+        return pose_from_xyz_fixed_deg(self.corner_in_flange_mm, self.rotation_xyz_fixed_deg)
 
 
 class SimOperatorConfig(StrictModel):

@@ -46,3 +46,9 @@ Matrix3Rows = tuple[Vec3, Vec3, Vec3]
 def as_array(v: tuple[float, ...] | tuple[tuple[float, ...], ...]) -> np.ndarray:
     """A config tuple as a float numpy array."""
     return np.asarray(v, dtype=float)
+
+
+def check_unique(section: str, what: str, values: list[object]) -> None:
+    """Raise ValueError naming the section unless every entry's ``what`` differs."""
+    if len(set(values)) != len(values):
+        raise ValueError(f"{section}: each entry needs its own {what}, got {values}")

@@ -95,6 +95,12 @@ def pose_from_xyz_fixed(t: ArrayLike, alpha: float, beta: float, gamma: float) -
     return make_pose(xyz_fixed_to_matrix(alpha, beta, gamma), t)
 
 
+def pose_from_xyz_fixed_deg(t: ArrayLike, rx_ry_rz_deg: ArrayLike) -> Pose:
+    """Pose from a translation and XYZ fixed angles given as (rx, ry, rz) in degrees, as configs give them (eq. 13)."""
+    rx, ry, rz = np.deg2rad(np.asarray(rx_ry_rz_deg, dtype=float))
+    return pose_from_xyz_fixed(t, rz, ry, rx)
+
+
 def pose_to_xyz_fixed(T: ArrayLike) -> tuple[NDArray[np.float64], tuple[float, float, float]]:
     """Translation and (alpha, beta, gamma) XYZ fixed angles of a pose (eq. 13), radians."""
     return translation(T), matrix_to_xyz_fixed(rotation(T))

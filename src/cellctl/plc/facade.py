@@ -12,7 +12,7 @@ import numbers
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
+from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 from cellctl.plc.register_map import CommandReply, PlcErrorCode
 
 __all__ = [

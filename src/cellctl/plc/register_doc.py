@@ -2,19 +2,19 @@
 
 from __future__ import annotations
 
-from cellctl.cell.alarms import RECOVERY_COMMANDS, AlarmCode
-from cellctl.cell.tags import PackMLState
+from cellctl.cell.alarms import RECOVERY_COMMANDS
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.store import PackMLConfig
+from cellctl.domain import AlarmCode, PackMLState
 from cellctl.plc.register_map import (
     BLOCKS,
     CELL_BLOCK,
     MAP_VERSION,
     PLC_BLOCK,
-    UNIT_ID_EXCEPTION,
     PLC_ERROR_CODE_RANGE,
     PLC_ERROR_TEXT,
     STORED_REFUSALS,
+    UNIT_ID_EXCEPTION,
     Block,
     CommandReply,
     PlcErrorCode,
@@ -102,7 +102,8 @@ same way.
 
 `recipe_id` must be the `id` of one of the config's `[[process.recipes]]` tables (each has an `id`
 1-65535, the number the PLC sends, and a `name`, which the cycle records and the REST API use).
-Any other `recipe_id` is refused with `error_code` {unknown_recipe}. A config without
+Any other `recipe_id` is refused with `error_code` {unknown_recipe}, and a recipe the cell has not
+been taught yet with {not_taught}. A config without
 `[[process.recipes]]` (such as `config/sim.toml`) has this one:
 
 | recipe_id | name | description |
@@ -183,6 +184,7 @@ def render_markdown() -> str:
         initial_state=initial.name.title(), initial_state_id=int(initial), initial_state_cfg=packml.initial_state,
         start_path=" -> ".join(f"{s.name.title()} ({int(s)})" for s in path),
         not_ready=int(PlcErrorCode.NOT_READY), unknown_recipe=int(PlcErrorCode.UNKNOWN_RECIPE),
+        not_taught=int(PlcErrorCode.RECIPE_NOT_TAUGHT),
         mode_states=", ".join(f"{s.name.title()} ({int(s)})" for s in mode_states),
         stored_codes=_code_list(sorted(STORED_REFUSALS)),
         unstored_codes=_code_list([c for c in PlcErrorCode if c not in STORED_REFUSALS]),

@@ -17,13 +17,14 @@ import enum
 import re
 from dataclasses import dataclass
 
-from cellctl.cell.tags import CycleStep, PackMLCommand, PackMLState, UnitMode
+from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 
-MAP_VERSION: tuple[int, int] = (1, 2)
+MAP_VERSION: tuple[int, int] = (1, 3)
 """(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
 1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
 stored under their cycle_req_id, exception 11 for another unit id; no register moved.
-1.2: the inspection's measured result (inspection_status, meas_* at 137-149); no register moved."""
+1.2: the inspection's measured result (inspection_status, meas_* at 137-149); no register moved.
+1.3: refusal code 908, a recipe of the cell not taught yet; no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -43,7 +44,7 @@ class CommandReply(enum.IntEnum):
 class PlcErrorCode(enum.IntEnum):
     """Error codes raised by the PLC interface itself, within ``PLC_ERROR_CODE_RANGE``.
 
-    901-904 say the interface could not get a definite answer; 905-907 are the cell's refusals of a
+    901-904 say the interface could not get a definite answer; 905-908 are the cell's refusals of a
     request it will never run (stored under the request's ``cycle_req_id``, see ``STORED_REFUSALS``).
     """
 
@@ -54,6 +55,7 @@ class PlcErrorCode(enum.IntEnum):
     UNKNOWN_RECIPE = 905
     NOT_READY = 906
     ID_IN_USE = 907
+    RECIPE_NOT_TAUGHT = 908
 
 
 UNIT_ID_EXCEPTION = 11
@@ -61,7 +63,7 @@ UNIT_ID_EXCEPTION = 11
 than ``[plc] unit_id`` gets."""
 
 STORED_REFUSALS: frozenset[PlcErrorCode] = frozenset(
-    {PlcErrorCode.UNKNOWN_RECIPE, PlcErrorCode.NOT_READY, PlcErrorCode.ID_IN_USE})
+    {PlcErrorCode.UNKNOWN_RECIPE, PlcErrorCode.NOT_READY, PlcErrorCode.ID_IN_USE, PlcErrorCode.RECIPE_NOT_TAUGHT})
 """Refusals stored as the result of their ``cycle_req_id``: a repeated id republishes them with
 ``replayed`` = 1 (like any refusal by the cell). The other codes are not results: repeating the id
 asks the cell again."""
@@ -82,6 +84,9 @@ PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
                             "with a new id.",
     PlcErrorCode.ID_IN_USE: "Refused: the cell's store holds this cycle_req_id for another request it could "
                             "not match. Nothing ran; use a new id.",
+    PlcErrorCode.RECIPE_NOT_TAUGHT: "Refused: the recipe is one of the cell's but is not taught yet (`cellctl teach "
+                                    "--recipe NAME`, then its nine-point map). Nothing ran; request another recipe, "
+                                    "or this one with a new id once it is taught.",
 }
 
 
@@ -267,7 +272,9 @@ CELL_BLOCK = Block(
                  "Install correction about X (XYZ fixed angles, eq. 13 of the method)."),
         Register("dry_deg", 124, _F32, _C, "deg", "Install correction about Y."),
         Register("drz_deg", 126, _F32, _C, "deg", "Install correction about Z."),
-        Register("cycle_time_ms", 128, _U32, _C, "ms", "Duration of the cycle, request to result."),
+        Register("cycle_time_ms", 128, _U32, _C, "ms",
+                 "Duration of the cycle on the cell's clock, start to result (in simulation: the robot time a "
+                 "real cell would take)."),
         Register("cmd_ack", 130, _U16, _C, "0/1",
                  "1 once the latched command was handled (cmd_result says how); 0 after the PLC "
                  "drops cmd_change_request."),

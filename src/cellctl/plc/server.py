@@ -38,8 +38,8 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from cellctl.cell.tags import PackMLCommand, UnitMode
 from cellctl.config.plc import PlcConfig
+from cellctl.domain import PackMLCommand, UnitMode
 from cellctl.plc.codec import decode_block
 from cellctl.plc.facade import CellFacade, CellStatus
 from cellctl.plc.handshake import CycleHandshake, HandshakeTiming, LatchedRequest

@@ -5,35 +5,8 @@ the cell, the API, the service, the store, a driver or the twin (tests/unit/test
 outlier gate); its values and their JSON form are in :mod:`cellctl.quality.spc_state`.
 """
 
+from cellctl.quality import spc_state
 from cellctl.quality.spc import SpcLoop, offset_pose
-from cellctl.quality.spc_state import (
-    AXES,
-    AxisState,
-    Drift,
-    DriftKind,
-    Exclusion,
-    SpcEvent,
-    SpcRecord,
-    SpcState,
-    SpcUpdate,
-    axis_unit,
-    state_from_dict,
-    state_to_dict,
-)
+from cellctl.quality.spc_state import *  # noqa: F403 - the loop's values are the package's vocabulary
 
-__all__ = [
-    "AXES",
-    "AxisState",
-    "Drift",
-    "DriftKind",
-    "Exclusion",
-    "SpcEvent",
-    "SpcLoop",
-    "SpcRecord",
-    "SpcState",
-    "SpcUpdate",
-    "axis_unit",
-    "offset_pose",
-    "state_from_dict",
-    "state_to_dict",
-]
+__all__ = ["SpcLoop", "offset_pose", *spc_state.__all__]

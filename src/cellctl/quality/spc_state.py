@@ -16,6 +16,11 @@ from typing import Any, Literal
 
 from cellctl.domain import DEVIATION_KEYS
 
+__all__ = [
+    "AXES", "AxisState", "Drift", "DriftKind", "Exclusion", "SpcEvent", "SpcRecord", "SpcState", "SpcUpdate",
+    "axis_unit", "state_from_dict", "state_to_dict",
+]
+
 AXES: tuple[str, ...] = DEVIATION_KEYS
 """``dx_mm, dy_mm, dz_mm, drx_deg, dry_deg, drz_deg``."""
 

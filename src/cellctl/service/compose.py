@@ -13,23 +13,26 @@ import asyncio
 import contextlib
 import logging
 import sys
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from cellctl.calibration.calibration_set import CalibrationStore, store_root
 from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.orchestrator import CalibrationSource, CellOrchestrator, SimTruth
-from cellctl.cell.robots import TrackedRobot
+from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.packml import PackMLMachine
-from cellctl.cell.tags import PackMLState, UnitMode
+from cellctl.cell.robots import TrackedRobot
+from cellctl.cell.sources import CalibrationSource, SimTruth
 from cellctl.cell.watchdog import DeviceWatchdog, WatchdogSettings
 from cellctl.commissioning.context import Witness
 from cellctl.commissioning.jobs import JobManager
 from cellctl.config.schema import CellConfig
+from cellctl.domain import PackMLState, UnitMode
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
@@ -57,6 +60,7 @@ class Service:
     workdir: Path
     closers: list[Closer] = field(default_factory=list)
     plc_server: object | None = None
+    opcua_server: Any = None
     after_start: list[Callable[["Service"], Awaitable[None]]] = field(default_factory=list)
     commissioning: asyncio.Task[None] | None = None
     extras: dict[str, object] = field(default_factory=dict)  # what a root adds (the simulated cell: its twin and operator)
@@ -77,6 +81,21 @@ class Service:
             self.plc_server = server
             self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
+        if self.config.opcua.enabled:
+            from cellctl.opcua.server import CellOpcUaServer, OpcUaStartError
+            from cellctl.service.opcua_link import OpcUaCellLink
+
+            recipes = tuple(self.config.process.recipe_names().values())
+            opcua = CellOpcUaServer(self.config.opcua, OpcUaCellLink(self.orchestrator, self.config.cell_id, recipes),
+                                    root=self.workdir)  # fmt: skip
+            try:
+                await opcua.start()
+            except (OpcUaStartError, OSError) as err:
+                await opcua.stop()
+                await self.stop()
+                raise ServiceError(f"the OPC UA server cannot start: {err}") from None
+            self.opcua_server = opcua
+            log.info("OPC UA server on %s", opcua.endpoint)
         for hook in self.after_start:
             await hook(self)
 
@@ -96,6 +115,8 @@ class Service:
         steps.append(("commissioning jobs", self.jobs.stop))
         if self.plc_server is not None:
             steps.append(("PLC server", self.plc_server.stop))  # type: ignore[attr-defined]
+        if self.opcua_server is not None:
+            steps.append(("OPC UA server", self.opcua_server.stop))
         steps += [("PLC link", self.plc_link.close), ("orchestrator", self.orchestrator.stop)]
         steps += [(getattr(close, "__qualname__", "device"), close) for close in reversed(self.closers)]
         steps.append(("store", self.store.close))
@@ -134,6 +155,8 @@ class Service:
                 )
             print(f"cellctl serving on http://{self.config.api.host}:{self.config.api.port}/ (mode {self.config.mode}); "
                   "Ctrl-C stops", flush=True)  # fmt: skip
+            if self.opcua_server is not None:
+                print(f"OPC UA on {self.opcua_server.endpoint} (namespace urn:cellctl:opcua, docs/opcua_nodeset.md)", flush=True)
             if ready is not None:
                 ready.set()
             if demo_cycles and not task.done():
@@ -164,11 +187,12 @@ async def assemble_service(
     calibration: CalibrationSource | None = None,
     truth: SimTruth | None = None,
     witness: Witness | None = None,
+    clock: Callable[[], float] = time.monotonic,
 ) -> Service:
     """Build (not start) the cell around its devices. Relative paths are taken from ``workdir``.
 
     ``calibration`` defaults to the versioned calibration set of ``calibration.directory``;
-    ``truth`` and ``witness`` are the twin's (simulated cell only).
+    ``truth``, ``witness`` and the ``clock`` of the twin's time line are the simulated cell's.
     """
     root = (workdir or Path.cwd()).resolve()
     robot = TrackedRobot(robot)
@@ -193,7 +217,7 @@ async def assemble_service(
     watchdog.add("camera", camera)
     watchdog.add("robot", robot)
     events = EventHub()
-    devices = CellDevices(laser, camera, robot)
+    devices = CellDevices(laser, camera, robot, clock)
     orch = CellOrchestrator(
         config=config,
         devices=devices,
@@ -223,4 +247,21 @@ async def assemble_service(
     service.after_start.append(lambda _svc: retention.start())
     service.closers.append(retention.stop)  # runs before the store closes
     # -- end issue 15 item 7
+    # -- issue 18 item 3: MQTT publication to the plant's broker (cellctl.mqtt; docs/mqtt.md)
+    if config.mqtt.enabled:
+        from cellctl.mqtt import MqttPublication, MqttSetupError
+
+        mqtt = MqttPublication(config.mqtt, orch, workdir=root)
+        orch.add_status("mqtt", mqtt.status)
+        service.extras["mqtt"] = mqtt
+
+        async def start_mqtt(_svc: Service) -> None:
+            try:
+                await mqtt.start()
+            except MqttSetupError as err:
+                raise ServiceError(f"MQTT publication cannot start: {err}") from None
+
+        service.after_start.append(start_mqtt)
+        service.closers.append(mqtt.stop)  # after the orchestrator, before the store closes
+    # -- end issue 18 item 3
     return service

@@ -51,6 +51,6 @@ class ServiceServer(uvicorn.Server):
 
 
 def make_server(app: Any, host: str, port: int, on_exit: Callable[[], Any]) -> ServiceServer:
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off",
+    config = uvicorn.Config(app, host=host, port=port, log_level="warning", log_config=None, lifespan="off",
                             timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)  # fmt: skip
     return ServiceServer(config, on_exit)

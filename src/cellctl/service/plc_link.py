@@ -13,11 +13,10 @@ import contextlib
 import logging
 from dataclasses import astuple
 
-from cellctl.cell.alarms import AlarmCode
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.cell.outcome import summarize
 from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
-from cellctl.cell.tags import PackMLCommand, UnitMode
+from cellctl.domain import AlarmCode, PackMLCommand, UnitMode
 from cellctl.plc.facade import (
     CellStatus,
     CommandReply,
@@ -72,8 +71,9 @@ class PlcCellLink:
             await self._orch.submit_cycle(
                 CycleRequest(recipe, str(part_id), None, source="plc"), scope=PLC_SCOPE, key=key, actor=PLC_ACTOR
             )
-        except CycleRefused as err:  # the cell does not take a cycle now (not in Execute)
-            return await self._refuse(req_id, recipe_id, part_id, PlcErrorCode.NOT_READY, err.reason)
+        except CycleRefused as err:  # the cell does not take a cycle now (not in Execute), or not of this recipe
+            code = PlcErrorCode.RECIPE_NOT_TAUGHT if err.code == AlarmCode.RECIPE_NOT_TAUGHT else PlcErrorCode.NOT_READY
+            return await self._refuse(req_id, recipe_id, part_id, code, err.reason)
         except IdempotencyConflict as err:  # the key is taken by something this request cannot match
             log.warning("PLC cycle request %d: %s", req_id, err)
             return CycleAcceptance(False, int(PlcErrorCode.ID_IN_USE), str(err))

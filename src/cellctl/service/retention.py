@@ -44,10 +44,10 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
-from cellctl.cell.alarms import AlarmCode, AlarmManager
+from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
-from cellctl.cell.tags import CycleStep
 from cellctl.config.store import RetentionConfig, days_or_none
+from cellctl.domain import AlarmCode, CycleStep
 from cellctl.service.retention_plan import (
     GB,
     MB,

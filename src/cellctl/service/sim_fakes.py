@@ -44,7 +44,10 @@ class TwinArmModel:
     def motion_time(
         self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, linear: bool
     ) -> float:
-        return self._cell.motion_time(start.to_matrix(), target.to_matrix(), speed_mm_s, speed_deg_s)
+        """The move's simulated seconds; the fake asks as it begins the move, so they go on the twin's time line."""
+        duration = self._cell.motion_time(start.to_matrix(), target.to_matrix(), speed_mm_s, speed_deg_s)
+        self._cell.timeline.waited(duration)
+        return duration
 
     def execute(self, target: CartesianPose) -> CartesianPose:
         self._cell.execute(target.to_matrix())  # the twin's arm now truly stands there (with its errors)
@@ -121,10 +124,17 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeControlle
             home=CartesianPose.from_matrix(cell.belief_flange_pose()),
             seed=cell.seed,
             gripper_hold=cell.glass_on_gripper,
-            on_gripper=cell.set_gripper,
+            gripper_settle_s=cell.config.robot.gripper_settle_s,
+            on_gripper=lambda hold: _grip(cell, hold),
         ),
         TwinArmModel(cell),
     )
+
+
+def _grip(cell: SimCell, hold: bool) -> None:
+    """The fake's GRIP on the twin: the gripper switches, and its settling goes on the twin's time line."""
+    cell.set_gripper(hold)
+    cell.timeline.waited(cell.config.robot.gripper_settle_s)
 
 
 def abb_on_fake(

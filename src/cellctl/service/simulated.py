@@ -22,7 +22,7 @@ from cellctl.geometry.pose import Pose
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.compose import Closer, Service, ServiceError, assemble_service
 from cellctl.sim.operator import ACTOR
-from cellctl.sim.rig import SimRig
+from cellctl.sim.rig import SimRig, recipe_twins
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ async def _auto_commission(service: Service) -> None:
     needed = parts_needed(service.jobs)
     if not needed:
         return
-    log.info("simulated cell: commissioning %s through the service's jobs (the simulated operator answers)", ", ".join(needed))
+    log.info("simulated cell: commissioning %s through the service's jobs (the simulated operator answers)", ", ".join(map(str, needed)))
     await commission_missing(service.jobs, service.orchestrator.machine, actor=ACTOR, source="sim")
 
 
@@ -79,7 +79,7 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
         raise ServiceError('the simulated cell root builds mode = "sim" only; a real cell uses the hardware root')
     import asyncio
 
-    rig = SimRig(config.sim, seed=seed)
+    rig = SimRig(config.sim, seed=seed, recipes=recipe_twins(config))
     closers: list[Closer] = []
     fakes: dict[str, object] = {}
     laser, camera, robot, jog = _devices(config, rig, closers, fakes)
@@ -91,7 +91,7 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     operator, witness = rig.add_operator(jog, twin_camera=camera is rig.camera)
     service = await assemble_service(
         config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
-        witness=witness,
+        witness=witness, clock=rig.cell.timeline.now,
     )  # fmt: skip
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
     service.closers.extend(closers)

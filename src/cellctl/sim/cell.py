@@ -22,6 +22,7 @@ from cellctl.sim.glass import InstalledGlass, glass_scene
 from cellctl.sim.laser import LaserModel
 from cellctl.sim.robot import RobotArm, RobotModel
 from cellctl.sim.streams import WORLD_POSTURE, rng_stream
+from cellctl.sim.timeline import TwinTimeline
 from cellctl.sim.truth import CellTruth, InstallError
 from cellctl.sim.world import World, sample_world
 
@@ -46,8 +47,12 @@ class SimCell:
         self.time_scale = config.time_scale
         self.robot_model = RobotModel(config.robot, self.seed)
         self.laser_model = LaserModel(config.laser, self.seed)
-        self.arm = RobotArm(self.robot_model, time_scale=config.time_scale, clock=clock)
+        self.timeline = TwinTimeline(config.time_scale, clock)
+        line = self.timeline
+        scale = config.time_scale
+        self.arm = RobotArm(self.robot_model, time_scale=scale, clock=clock, waited=line.waited, line=line.now)
         self.T_H_C: Pose = config.camera.hand_eye.T_H_C()
+        self.world_config, self.glass_config = config.world, config.glass  # the recipe now in the cell
         self.T_H_G: Pose = config.glass.T_H_G()
         self._posture_rng = rng_stream(self.seed, WORLD_POSTURE)
         self._world = sample_world(config.world, self._posture_rng)
@@ -61,11 +66,23 @@ class SimCell:
         """The car body as it stands now."""
         return self._world
 
-    def new_car_body(self) -> World:
-        """The next car body arrives at a new random posture (the next cycle)."""
-        self._world = sample_world(self.config.world, self._posture_rng)
+    def new_car_body(self, recipe: SimConfig | None = None) -> World:
+        """The next car body arrives at a new random posture (the next cycle).
+
+        ``recipe``: the twin's settings of the recipe it is built for (its opening, ``world``, and the
+        glass the gripper takes, ``glass``); None: the same type as the last.
+        """
+        if recipe is not None:
+            self.build_for(recipe)
+        self._world = sample_world(self.world_config, self._posture_rng)
         self._next_glass()
         return self._world
+
+    def build_for(self, recipe: SimConfig) -> None:
+        """The car bodies from now on are of the recipe whose twin settings are ``recipe`` (its ``world``
+        opening, and the ``glass`` the gripper takes); the body standing now stays where it is."""
+        self.world_config, self.glass_config = recipe.world, recipe.glass
+        self.T_H_G = recipe.glass.T_H_G()
 
     def place_car_body(self, world: World) -> None:
         """Put the car body at a given placement (tests, teaching at a known posture)."""
@@ -96,7 +113,7 @@ class SimCell:
         """
         if not hold and self._glass_on_gripper:
             self._installed_T_B_G = self.arm.true_pose() @ self.T_H_G
-            self._installed_scene = glass_scene(self.config.glass, self._world, self._installed_T_B_G)
+            self._installed_scene = glass_scene(self.glass_config, self._world, self._installed_T_B_G)
             self._glass_on_gripper = False
 
     def installed_glass(self) -> Pose | None:

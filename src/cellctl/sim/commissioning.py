@@ -19,7 +19,7 @@ from cellctl.commissioning.prompts import Answer, PromptDesk
 from cellctl.commissioning.registry import ALL_PROCEDURES, motion_settings
 from cellctl.config.schema import CellConfig
 from cellctl.sim.cell import SimCell
-from cellctl.sim.rig import SimRig
+from cellctl.sim.rig import SimRig, recipe_twins
 
 
 class TwinCommissioning:
@@ -32,7 +32,7 @@ class TwinCommissioning:
 
     def __init__(self, config: CellConfig, *, seed: int | None = None) -> None:
         self.config = config
-        self.rig = SimRig(config.sim, seed=seed)
+        self.rig = SimRig(config.sim, seed=seed, recipes=recipe_twins(config))
         self.operator, self.witness = self.rig.add_operator(answer_everything=True)
         self.desk = PromptDesk(lambda kind, data: None)
         self.operator.attach(self.desk.watch, self._answer)

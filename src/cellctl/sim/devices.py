@@ -5,6 +5,12 @@ DeviceTimeout when the (scaled) simulated time does not fit in it; a move the ro
 is refused with UnreachableTarget before anything moves; a stop ends a move early with
 MotionInterrupted; the gripper is not switched while the robot moves (DeviceRejected); the robot
 reports its belief, never the truth; a laser reading without a valid distance comes back as a status. Simulated durations are multiplied by the cell's ``time_scale``.
+
+On the move (issue 19) both are computed from the arm's history on the twin's time line, never
+polled: the robot's position feedback (:class:`cellctl.ports.PoseStream`) samples the reported
+path every ``feedback_period_s`` and stamps each sample ``feedback_latency_s`` +- jitter late; the
+laser's storage (:class:`cellctl.ports.StoringSensor`) reads the true flange ``storage_latency_s``
+before each stored instant. Times are seconds on the cell's clock (``cell.timeline``).
 """
 
 from __future__ import annotations
@@ -12,22 +18,37 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from dataclasses import dataclass
 from typing import Literal
+
+import numpy as np
 
 from cellctl.ports import (
     CartesianPose,
     DeviceDisconnected,
+    DeviceError,
     DeviceRejected,
     DeviceTimeout,
     DistanceReading,
     LaserStatus,
     MotionInterrupted,
     MotionRequest,
+    PoseSample,
     RobotState,
+    StoredReadings,
     UnreachableTarget,
 )
 from cellctl.sim.cell import SimCell
 from cellctl.sim.robot import Motion, ReachError, RobotBusy
+from cellctl.sim.streams import rng_stream
+
+# The stream of the feedback's phase on the controller's sample grid and of its stamps' jitter.
+ROBOT_FEEDBACK = "robot.feedback"
+# A feedback collection keeps its newest samples, at most this many (about 17 min at 4 ms).
+MAX_STREAM_SAMPLES = 262_144
+# The LK-G's storage: sampling 20..1000 us times 1..1000, at most 65535 readings.
+STORAGE_CYCLE_S = (20e-6, 1.0)
+MAX_STORAGE_COUNT = 65535
 
 
 def check_timeout(device: str, timeout_s: float) -> float:
@@ -46,6 +67,7 @@ class _TwinDevice:
     def __init__(self, cell: SimCell, name: str, latency_s: float) -> None:
         self._cell = cell
         self.name = name
+        self._latency_sim_s = latency_s
         self._latency_s = latency_s * cell.time_scale
         self._closed = False
 
@@ -57,6 +79,7 @@ class _TwinDevice:
         if self._latency_s > timeout_s:
             await asyncio.sleep(timeout_s)
             raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
+        self._cell.timeline.waited(self._latency_sim_s)
         await asyncio.sleep(self._latency_s)
 
     async def ping(self, *, timeout_s: float) -> float:
@@ -66,6 +89,15 @@ class _TwinDevice:
         t0 = time.monotonic()
         await self._round_trip(timeout_s)
         return time.monotonic() - t0
+
+
+@dataclass(frozen=True)
+class FeedbackFault:
+    """A fault of the robot's feedback stream: a share of the samples lost, and the stream stopping
+    ``stop_after_s`` (s, time line) after its start (None: it goes on)."""
+
+    drop_fraction: float = 0.0
+    stop_after_s: float | None = None
 
 
 class SimRobot(_TwinDevice):
@@ -81,6 +113,11 @@ class SimRobot(_TwinDevice):
         self._arm = cell.arm
         self._outcome: asyncio.Future[Literal["reached", "stopped"]] | None = None
         self._waiter: asyncio.Task[None] | None = None
+        self._feedback_rng = rng_stream(cell.seed, ROBOT_FEEDBACK)
+        self.feedback_phase_s = float(self._feedback_rng.uniform(0.0, cell.config.robot.feedback_period_s))
+        self._stream_from: float | None = None
+        self.feedback_fault: FeedbackFault | None = None  # a test's fault on the feedback stream (None: healthy)
+        self._fault_rng = rng_stream(cell.seed, ROBOT_FEEDBACK + ".fault")
 
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
         """Move to ``request.target`` (the controller's belief) and return the pose read back after it."""
@@ -150,6 +187,62 @@ class SimRobot(_TwinDevice):
         if self._waiter is not None:
             self._waiter.cancel()
 
+    async def start_stream(self, *, timeout_s: float) -> None:
+        """Start collecting the position feedback (the previous collection is dropped)."""
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        await self._round_trip(timeout_s)
+        self._stream_from = self._cell.timeline.now()
+
+    async def stop_stream(self, *, timeout_s: float) -> tuple[PoseSample, ...]:
+        """Stop collecting; the samples stamped since :meth:`start_stream`, in time order (DeviceRejected if none)."""
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        if self._stream_from is None:
+            raise DeviceRejected(self.name, "no feedback stream was started; call start_stream first")
+        await self._round_trip(timeout_s)
+        t_from, self._stream_from = self._stream_from, None
+        return self._feedback(t_from, self._cell.timeline.now())
+
+    def latest(self) -> PoseSample | None:
+        """The newest feedback sample since :meth:`start_stream` (its stamp without jitter), or None."""
+        if self._stream_from is None:
+            return None
+        c = self._cell.config.robot
+        t_to = self._cell.timeline.now()
+        if self.feedback_fault is not None and self.feedback_fault.stop_after_s is not None:
+            t_to = min(t_to, self._stream_from + self.feedback_fault.stop_after_s)
+        k = math.floor((t_to - c.feedback_latency_s - self.feedback_phase_s) / c.feedback_period_s)
+        instant = self.feedback_phase_s + k * c.feedback_period_s
+        if instant + c.feedback_latency_s < self._stream_from:
+            return None
+        try:
+            pose = self._arm.belief_at_line(instant)
+        except LookupError:
+            return None
+        return PoseSample(instant + c.feedback_latency_s, CartesianPose.from_matrix(pose))
+
+    def _feedback(self, t_from: float, t_to: float) -> tuple[PoseSample, ...]:
+        """The samples whose stamps fall in [t_from, t_to] (s, time line): the reported pose at each true instant."""
+        c = self._cell.config.robot
+        period, late, jitter = c.feedback_period_s, c.feedback_latency_s, c.feedback_jitter_s
+        fault = self.feedback_fault
+        if fault is not None and fault.stop_after_s is not None:
+            t_to = min(t_to, t_from + fault.stop_after_s)
+        first = math.ceil((t_from - late - jitter - self.feedback_phase_s) / period)
+        last = math.floor((t_to - late + jitter - self.feedback_phase_s) / period)
+        instants = self.feedback_phase_s + np.arange(first, max(last + 1, first)) * period
+        stamps = instants + late + self._feedback_rng.uniform(-jitter, jitter, size=instants.size)
+        keep = (stamps >= t_from) & (stamps <= t_to)
+        if fault is not None and fault.drop_fraction > 0.0:
+            keep &= self._fault_rng.random(stamps.size) >= fault.drop_fraction
+        instants, stamps = instants[keep][-MAX_STREAM_SAMPLES:], stamps[keep][-MAX_STREAM_SAMPLES:]
+        try:
+            poses = [self._arm.belief_at_line(float(t)) for t in instants]
+        except LookupError as err:
+            raise DeviceError(self.name, f"feedback lost: {err}") from None
+        return tuple(PoseSample(float(t), CartesianPose.from_matrix(T)) for t, T in zip(stamps, poses, strict=True))
+
     async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
         """Vacuum on (``hold``) or off: off lets the cell's glass go where it truly stands (installed).
 
@@ -164,6 +257,9 @@ class SimRobot(_TwinDevice):
             what = "hold" if hold else "release"
             raise DeviceRejected(self.name, f"gripper {what} refused: the robot is moving; the gripper keeps its state")
         self._cell.set_gripper(hold)
+        settle_s = self._cell.config.robot.gripper_settle_s
+        self._cell.timeline.waited(settle_s)
+        await asyncio.sleep(settle_s * self._cell.time_scale)
 
     async def close(self) -> None:
         """Close the connection (the arm finishes any motion on its own). Safe to call twice."""
@@ -194,6 +290,7 @@ class SimDisplacementSensor(_TwinDevice):
         super().__init__(cell, name, cell.config.laser.read_latency_s)
         self.head = head
         self._waiting = False
+        self._storage: tuple[float, float, int] | None = None
 
     def identity(self) -> dict[str, str]:
         """The twin's laser (Identified port): which simulated cell it belongs to."""
@@ -213,6 +310,57 @@ class SimDisplacementSensor(_TwinDevice):
             return DistanceReading(None, LaserStatus.NO_VALUE, time.monotonic(), self.head)
         status, distance = self._cell.laser_reading()
         return DistanceReading(distance, status, time.monotonic(), self.head)
+
+    async def start_storage(self, *, cycle_s: float, count: int, timeout_s: float) -> float:
+        """Clear the storage, store a reading every ``cycle_s`` (at most ``count``); returns ``started_s`` (s).
+
+        Refused (DeviceRejected) for a cycle outside 20 us .. 1 s or a count outside 1..65535.
+        """
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        number = isinstance(cycle_s, (int, float)) and not isinstance(cycle_s, bool)
+        if not number or not math.isfinite(cycle_s):
+            raise ValueError(f"{self.name}: cycle_s must be a finite number of seconds, got {cycle_s!r}")
+        if not isinstance(count, int) or isinstance(count, bool):
+            raise TypeError(f"{self.name}: count must be a whole number, got {count!r}")
+        low, high = STORAGE_CYCLE_S
+        if not (low * (1.0 - 1e-9) <= cycle_s <= high * (1.0 + 1e-9)):
+            raise DeviceRejected(
+                self.name,
+                f"storage cycle {cycle_s:g} s refused: the LK-G stores every 20 us .. 1 s "
+                "(its sampling period 20..1000 us times 1, 2, 5 .. 1000)",
+            )
+        if not (1 <= count <= MAX_STORAGE_COUNT):
+            limit = f"the LK-G stores 1..{MAX_STORAGE_COUNT} readings"
+            raise DeviceRejected(self.name, f"storage count {count} refused: {limit}")
+        await self._round_trip(timeout_s)
+        started_s = self._cell.timeline.now()
+        self._storage = (started_s, float(cycle_s), count)
+        return started_s
+
+    async def stop_storage(self, *, timeout_s: float) -> StoredReadings:
+        """Stop storing and read out the readings stored since :meth:`start_storage` (DeviceRejected without one).
+
+        Reading k is the beam at the true flange pose ``storage_latency_s`` before ``started_s + k * cycle_s``.
+        """
+        timeout_s = check_timeout(self.name, timeout_s)
+        self._check_open()
+        if self._storage is None:
+            raise DeviceRejected(self.name, "no storage was started; call start_storage first")
+        await self._round_trip(timeout_s)
+        (started_s, cycle_s, count), self._storage = self._storage, None
+        stored = min(count, max(math.floor((self._cell.timeline.now() - started_s) / cycle_s) + 1, 0))
+        try:  # thousands of ray casts: the physics runs off the event loop, as the sensor's own readout would
+            distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)
+        except LookupError as err:
+            raise DeviceError(self.name, f"storage lost: {err}") from None
+        return StoredReadings(started_s, cycle_s, distances)
+
+    def _stored_distances(self, started_s: float, cycle_s: float, stored: int) -> tuple[float | None, ...]:
+        latency_s = self._cell.config.laser.storage_latency_s
+        return tuple(
+            self._cell.laser_reading(self._cell.arm.true_at_line(started_s + k * cycle_s - latency_s))[1] for k in range(stored)
+        )
 
     async def close(self) -> None:
         """Release the (simulated) port. Safe to call twice."""

@@ -46,10 +46,15 @@ class SimulatedOperator:
         config: the twin's configuration (``operator`` says which prompts it answers).
         targets: the calibration targets the twin's camera sees (this list is changed in place).
         jog: moves the robot to a belief pose as a jog or lead-through would.
+        recipe: a recipe's twin settings by its name, for a prompt that names the recipe of the car body.
     """
 
-    def __init__(self, cell: SimCell, config: SimConfig, targets: list[PlacedTarget], jog: Jog) -> None:
+    def __init__(
+        self, cell: SimCell, config: SimConfig, targets: list[PlacedTarget], jog: Jog,
+        *, recipe: Callable[[str], SimConfig] | None = None,
+    ) -> None:
         self.cell = cell
+        self.recipe = recipe  # a recipe's twin settings, by name (None: one type of car body)
         self.config = config
         self.targets = targets
         self.jog = jog
@@ -91,8 +96,10 @@ class SimulatedOperator:
         """Do in the twin what the prompt asks; returns the value to answer with, if any."""
         d = prompt.details
         if prompt.kind is PromptKind.CAR_BODY:
+            if self.recipe is not None and isinstance(d.get("recipe"), str):
+                self.cell.build_for(self.recipe(d["recipe"]))  # the reference body of the recipe asked for
             if d.get("nominal", False):
-                self.cell.place_car_body(nominal_world(self.config.world))
+                self.cell.place_car_body(nominal_world(self.cell.world_config))
             return None
         if prompt.kind is PromptKind.PLACE_BOARD:
             b = d["board"]

@@ -39,7 +39,7 @@ def teaching_alignment(
     through the given laser ray and hand-eye (the truth for the oracle, a calibration's for the budget):
     its aligned shooting pose and wall plane."""
     cell, align = rig.cell, config.process.align
-    planned = plan_spot_poses(T0, align.spots_mm, C_guess[:3, :3], laser_r, laser_l, align.laser_standoff_mm)
+    planned = plan_spot_poses(T0, align.wall_spots_mm(), C_guess[:3, :3], laser_r, laser_l, align.laser_standoff_mm)
     distances = []
     for k, X in enumerate(planned):
         cell.execute(X)
@@ -113,27 +113,34 @@ class OracleCalibrationSource:
     def __init__(self, rig: SimRig, config: CellConfig) -> None:
         self._rig = rig
         self._config = config
-        self._cal: CycleCalibration | None = None
+        self._cals: dict[str, CycleCalibration] = {}  # by recipe
         self._lock = threading.Lock()
 
-    def problems(self) -> list[str]:
+    def problems(self, recipe: str | None = None) -> list[str]:
         return []
 
-    def cycle_calibration(self) -> CycleCalibration:
-        """Taught once, on a twin of its own with the cell's seed (the same robot, mountings and car
-        body): teaching never moves the cell's arm under a running cycle or a stop, nor draws from
-        the cell's noise streams."""
+    def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
+        """Taught once per recipe, on a twin of its own with the cell's seed (the same robot, mountings,
+        and a car body of the recipe): teaching never moves the cell's arm under a running cycle or a
+        stop, nor draws from the cell's noise streams."""
+        name = recipe or self._config.default_recipe
         with self._lock:
-            if self._cal is None:
+            if name not in self._cals:
+                view = self._config.for_recipe(name)
                 cell = self._rig.cell
-                self._cal = oracle_calibration(SimRig(cell.config, seed=cell.seed), self._config)
-            return self._cal
+                self._cals[name] = oracle_calibration(SimRig(view.sim, seed=cell.seed), view)
+            return self._cals[name]
 
     def summary(self) -> dict[str, Any]:
-        return {"source": "twin truth (oracle)", "template_px": None if self._cal is None else [self._cal.template.u_px, self._cal.template.v_px]}
+        first = self._cals.get(self._config.default_recipe)
+        return {"source": "twin truth (oracle)", "template_px": None if first is None else [first.template.u_px, first.template.v_px],
+                "recipes": {r.name: {"ready": True, "taught": True} for r in self._config.process.recipes}}  # fmt: skip
 
     def history(self) -> list[dict[str, Any]]:
         return []
 
-    def reference(self) -> dict[str, Any]:
+    def untaught(self, recipe: str) -> str | None:
+        return None  # the oracle teaches every recipe from the truth
+
+    def reference(self, recipe: str | None = None) -> dict[str, Any]:
         return {"source": "twin truth (oracle)", "version": None}

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from cellctl.config.schema import CellConfig
 from cellctl.config.sim import SimConfig
+from cellctl.domain import InstallDeviation
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.camera_device import SimCamera
 from cellctl.sim.cell import SimCell
@@ -19,6 +21,12 @@ from cellctl.sim.devices import SimDisplacementSensor, SimRobot
 from cellctl.sim.operator import Jog, SimulatedOperator, TwinWitness
 from cellctl.sim.streams import rng_stream
 from cellctl.sim.targets import PlacedTarget
+
+
+def recipe_twins(config: CellConfig) -> dict[str, SimConfig]:
+    """Each recipe's twin settings (its car body's opening, its glass), by name: ``recipes`` of :class:`SimRig`."""
+    return {r.name: config.for_recipe(r.name).sim for r in config.process.recipes}
+
 
 CAMERA_NOISE = "camera.noise"
 TEACH_CAMERA_NOISE = "camera.noise.teach"
@@ -34,10 +42,13 @@ class SimRig:
         laser, camera, robot: the devices, implementing the ports.
         teach_rng: the camera noise of the oracle's teaching shots.
         operator, witness: the simulated operator and the twin's witness (None until added).
+        recipes: each recipe's twin settings (its opening and glass), by name; a recipe not listed
+            is built as ``config`` says.
     """
 
-    def __init__(self, config: SimConfig, *, seed: int | None = None) -> None:
+    def __init__(self, config: SimConfig, *, seed: int | None = None, recipes: Mapping[str, SimConfig] | None = None) -> None:
         self.cell = SimCell(config, seed=seed)
+        self.recipes: dict[str, SimConfig] = dict(recipes or {})
         self.renderer = CameraRenderer(config.camera.intrinsics, config.camera.render)
         self.targets: list[PlacedTarget] = []
         self.laser = SimDisplacementSensor(self.cell)
@@ -64,19 +75,25 @@ class SimRig:
         acting = sim
         if answer_everything:
             acting = sim.model_copy(update={"operator": sim.operator.model_copy(update={"answers": "all", "answer_delay_s": 0.0})})
-        self.operator = SimulatedOperator(self.cell, acting, self.targets, self.cell.execute if jog is None else jog)
+        self.operator = SimulatedOperator(
+            self.cell, acting, self.targets, self.cell.execute if jog is None else jog, recipe=self.recipe_settings
+        )
         self.witness = TwinWitness(self.cell, sim, self.operator, self.camera if twin_camera else None)
         return self.operator, self.witness
 
     # SimTruth of the orchestrator
 
-    def new_car_body(self) -> None:
-        """The next car body arrives at a random posture."""
-        self.cell.new_car_body()
+    def recipe_settings(self, recipe: str) -> SimConfig:
+        """The twin's settings of a car body and glass of ``recipe``."""
+        return self.recipes.get(recipe, self.cell.config)
 
-    def install_error(self) -> Mapping[str, float]:
+    def new_car_body(self, recipe: str | None = None) -> None:
+        """The next car body arrives at a random posture, built for ``recipe`` (None: the same type as the last)."""
+        self.cell.new_car_body(None if recipe is None else self.recipe_settings(recipe))
+
+    def install_error(self) -> InstallDeviation:
         """The paper's six figures of the glass: where it was released, else as the flange holds it now."""
-        return self.cell.install_error().as_dict()
+        return self.cell.install_error()
 
     async def close(self) -> None:
         """Close the devices, then stop the operator (if any)."""

@@ -87,13 +87,13 @@ def sample_world(config: WorldConfig, rng: np.random.Generator) -> World:
     if config.posture_pivot == "corner":
         centre_T = np.zeros(3)
     else:
-        centre_T = np.array([-config.opening_width_mm / 2.0, config.opening_height_mm / 2.0, 0.0])
+        centre_T = np.array([-config.width_mm / 2.0, config.height_mm / 2.0, 0.0])
     # Rotate about the pivot, expressed in T, then translate (translation in T's axes).
     T_T_Tnew = make_pose(np.eye(3), centre_T) @ make_pose(R, np.zeros(3)) @ make_pose(np.eye(3), -centre_T)
     T_T_Tnew[:3, 3] += dt
     T_B_T = T_nom @ T_T_Tnew
     return World(
-        T_B_T, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm, placement_seed(T_B_T)
+        T_B_T, config.width_mm, config.height_mm, config.corner_radius_mm, placement_seed(T_B_T)
     )
 
 
@@ -101,7 +101,7 @@ def nominal_world(config: WorldConfig) -> World:
     """The car body exactly at its nominal placement (its surface seeded from that placement too)."""
     T_B_T = config.T_B_T_nominal()
     return World(
-        T_B_T, config.opening_width_mm, config.opening_height_mm, config.corner_radius_mm, placement_seed(T_B_T)
+        T_B_T, config.width_mm, config.height_mm, config.corner_radius_mm, placement_seed(T_B_T)
     )
 
 

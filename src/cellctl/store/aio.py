@@ -143,6 +143,21 @@ class AsyncCellStore:
     spc_history = _on_store_thread(CellStore.spc_history)
     prune_spc_history = _on_store_thread(CellStore.prune_spc_history)
 
+    # part traceability (PartRows)
+    part_installs = _on_store_thread(CellStore.part_installs)
+    cycle_actions = _on_store_thread(CellStore.cycle_actions)
+
+    # the MQTT outbox (OutboxRows)
+    outbox_enqueue = _on_store_thread(CellStore.outbox_enqueue)
+    outbox_next_seq = _on_store_thread(CellStore.outbox_next_seq)
+    outbox_pending = _on_store_thread(CellStore.outbox_pending)
+    outbox_delete = _on_store_thread(CellStore.outbox_delete)
+    outbox_counts = _on_store_thread(CellStore.outbox_counts)
+    outbox_drops_reported = _on_store_thread(CellStore.outbox_drops_reported)
+    outbox_start_results = _on_store_thread(CellStore.outbox_start_results)
+    outbox_result_backlog = _on_store_thread(CellStore.outbox_result_backlog)
+    outbox_retained_topics = _on_store_thread(CellStore.outbox_retained_topics)
+
     # retention (RetentionRows)
     kept_images = _on_store_thread(CellStore.kept_images)
     mark_images_pruned = _on_store_thread(CellStore.mark_images_pruned)

@@ -38,20 +38,22 @@ class AlarmRows(Database):
 
     def alarms(self, *, active_only: bool = False, limit: int = 100) -> list[Alarm]:
         """Newest first."""
-        sql = f"SELECT {_ALARM_COLUMNS} FROM alarms"
+        sql = f"SELECT {ALARM_COLUMNS} FROM alarms"
         if active_only:
             sql += " WHERE active = 1"
         sql += " ORDER BY raised_at DESC LIMIT ?"
-        return [_alarm_from_row(r) for r in self._conn.execute(sql, (limit,))]
+        return [alarm_from_row(r) for r in self._conn.execute(sql, (limit,))]
 
 
-_ALARM_COLUMNS = (
+ALARM_COLUMNS = (
     "uid, code, value, message, category, severity, source, raised_at, active, condition, ack_at, ack_by, "
     "cleared_at, reaction, cycle_id"
 )
+"""The columns of ``alarms`` that :func:`alarm_from_row` reads, in its order."""
 
 
-def _alarm_from_row(r: tuple[Any, ...]) -> Alarm:
+def alarm_from_row(r: tuple[Any, ...]) -> Alarm:
+    """An ``alarms`` row (:data:`ALARM_COLUMNS`) as its record."""
     return Alarm(
         uid=r[0],
         code=AlarmCode(r[1]),

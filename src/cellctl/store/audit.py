@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from datetime import datetime
 from typing import Any
 
@@ -82,12 +82,9 @@ class AuditRows(Database):
     def audit_entries(self, *, after_seq: int = 0, limit: int = 100) -> list[AuditEntry]:
         """Oldest first, from ``after_seq`` on."""
         return [
-            AuditEntry(r[0], datetime.fromisoformat(r[1]), r[2], r[3], r[4], json.loads(r[5]), r[6], r[7], r[8],
-                       r[9], r[10], r[11])  # fmt: skip
+            audit_entry(r)
             for r in self._conn.execute(
-                "SELECT seq, at, actor, source, action, params_json, state_before, state_after, result, cycle_id, "
-                "prev_hash, hash FROM audit_log WHERE seq > ? ORDER BY seq LIMIT ?",
-                (after_seq, limit),
+                f"SELECT {AUDIT_COLUMNS} FROM audit_log WHERE seq > ? ORDER BY seq LIMIT ?", (after_seq, limit)
             )
         ]
 
@@ -95,10 +92,7 @@ class AuditRows(Database):
         """Recompute the hash chain; returns the number of entries, raises AuditChainBroken."""
         prev = GENESIS_HASH
         expected_seq = 1
-        for r in self._conn.execute(
-            "SELECT seq, at, actor, source, action, params_json, state_before, state_after, result, cycle_id, "
-            "prev_hash, hash FROM audit_log ORDER BY seq"
-        ):
+        for r in self._conn.execute(f"SELECT {AUDIT_COLUMNS} FROM audit_log ORDER BY seq"):
             seq = int(r[0])
             if seq != expected_seq:
                 raise AuditChainBroken(seq, f"expected entry {expected_seq} here: entries are missing")
@@ -109,6 +103,18 @@ class AuditRows(Database):
             prev = r[11]
             expected_seq += 1
         return expected_seq - 1
+
+
+AUDIT_COLUMNS = (
+    "seq, at, actor, source, action, params_json, state_before, state_after, result, cycle_id, prev_hash, hash"
+)
+"""The columns of ``audit_log`` that :func:`audit_entry` reads, in its order."""
+
+
+def audit_entry(r: Sequence[Any]) -> AuditEntry:
+    """An ``audit_log`` row (:data:`AUDIT_COLUMNS`) as its entry."""
+    return AuditEntry(r[0], datetime.fromisoformat(r[1]), r[2], r[3], r[4], json.loads(r[5]), r[6], r[7], r[8],
+                      r[9], r[10], r[11])  # fmt: skip
 
 
 def _audit_hash(prev: str, fields: tuple[Any, ...]) -> str:

@@ -156,18 +156,33 @@ class CycleRows(Database):
             )
         return StepRecord(step, int(row[1]), started, now, duration, bool(ok), json.loads(fig_json), error)
 
-    def add_image(self, cycle_id: int, step: CycleStep, *, name: str, uri: str) -> ImageRef:
-        """Reference an image saved elsewhere (the store keeps the reference, not the pixels)."""
+    def add_image(
+        self,
+        cycle_id: int,
+        step: CycleStep,
+        *,
+        name: str,
+        uri: str,
+        sha256: str | None = None,
+        size_bytes: int | None = None,
+    ) -> ImageRef:
+        """Reference an image saved elsewhere (the store keeps the reference, not the pixels).
+
+        ``sha256`` (64 hex digits) and ``size_bytes`` describe the file as written: the record's
+        proof of what the image was (``GET /parts`` checks the file against them).
+        """
         need("image name", name)
         need("image uri", uri)
+        digest = _check_digest(sha256, size_bytes)
         now = self._clock()
         with self._tx() as c:
             self._cycle_state(c, cycle_id)
             c.execute(
-                "INSERT INTO cycle_images (cycle_id, step, name, uri, created_at) VALUES (?, ?, ?, ?, ?)",
-                (cycle_id, int(CycleStep(step)), name, uri, ts(now)),
+                "INSERT INTO cycle_images (cycle_id, step, name, uri, created_at, sha256, size_bytes) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (cycle_id, int(CycleStep(step)), name, uri, ts(now), digest, size_bytes),
             )
-        return ImageRef(CycleStep(step), name, uri, now)
+        return ImageRef(CycleStep(step), name, uri, now, sha256=digest, size_bytes=size_bytes)
 
     def complete_cycle(
         self, cycle_id: int, *, result: Mapping[str, Any], true_error: Mapping[str, Any] | None = None
@@ -218,27 +233,10 @@ class CycleRows(Database):
 
     def cycle(self, cycle_id: int) -> CycleRecord:
         """One cycle with its steps and images (UnknownCycle if there is none)."""
-        row = self._conn.execute(f"SELECT {_CYCLE_COLUMNS} FROM cycles WHERE id = ?", (cycle_id,)).fetchone()
+        row = self._conn.execute(f"SELECT {CYCLE_COLUMNS} FROM cycles WHERE id = ?", (cycle_id,)).fetchone()
         if row is None:
             raise UnknownCycle(cycle_id)
-        steps = tuple(
-            StepRecord(CycleStep(r[0]), r[1], datetime.fromisoformat(r[2]), dt(r[3]), r[4],
-                       None if r[5] is None else bool(r[5]), json.loads(r[6]), r[7])  # fmt: skip
-            for r in self._conn.execute(
-                "SELECT step, attempt, started_at, finished_at, duration_s, ok, figures_json, error "
-                "FROM cycle_steps WHERE cycle_id = ? ORDER BY id",
-                (cycle_id,),
-            )
-        )
-        images = tuple(
-            ImageRef(CycleStep(r[0]), r[1], r[2], datetime.fromisoformat(r[3]), dt(r[4]), r[5])
-            for r in self._conn.execute(
-                "SELECT step, name, uri, created_at, pruned_at, pruned_reason FROM cycle_images "
-                "WHERE cycle_id = ? ORDER BY id",
-                (cycle_id,),
-            )
-        )
-        return _cycle_from_row(row, steps, images)
+        return full_cycle(self._conn, row)
 
     def cycles(
         self, *, limit: int = 50, before_id: int | None = None, state: CycleState | None = None
@@ -254,7 +252,7 @@ class CycleRows(Database):
         if state is not None:
             where.append("state = ?")
             args.append(CycleState(state).value)
-        sql = f"SELECT {_CYCLE_COLUMNS} FROM cycles"
+        sql = f"SELECT {CYCLE_COLUMNS} FROM cycles"
         if where:
             sql += " WHERE " + " AND ".join(where)
         sql += " ORDER BY id DESC LIMIT ?"
@@ -358,11 +356,47 @@ def _opt_json(what: str, obj: Mapping[str, Any] | None) -> str | None:
     return None if obj is None else to_json(what, dict(obj))
 
 
-_CYCLE_COLUMNS = (
+def _check_digest(sha256: str | None, size_bytes: int | None) -> str | None:
+    """An image's SHA-256 as stored (lower-case hex), refusing a malformed one or a negative size."""
+    if size_bytes is not None and (isinstance(size_bytes, bool) or not isinstance(size_bytes, int) or size_bytes < 0):
+        raise ValueError(f"image size_bytes must be a whole number of bytes, 0 or more, got {size_bytes!r}")
+    if sha256 is None:
+        return None
+    digest = sha256.lower() if isinstance(sha256, str) else ""
+    if len(digest) != 64 or any(ch not in "0123456789abcdef" for ch in digest):
+        raise ValueError(f"image sha256 must be 64 hexadecimal digits, got {sha256!r}")
+    return digest
+
+
+CYCLE_COLUMNS = (
     "id, idempotency_scope, idempotency_key, recipe, part_id, car_id, source, actor, state, current_step, "
     "result_json, error, true_error_json, created_at, started_at, finished_at, install_started_at, "
     "interrupted_step, interrupted_at"
 )
+"""The columns of ``cycles`` that :func:`full_cycle` reads, in its order."""
+
+
+def full_cycle(conn: sqlite3.Connection, row: tuple[Any, ...]) -> CycleRecord:
+    """A ``cycles`` row (:data:`CYCLE_COLUMNS`) as its record with its steps and images."""
+    cycle_id = int(row[0])
+    steps = tuple(
+        StepRecord(CycleStep(r[0]), r[1], datetime.fromisoformat(r[2]), dt(r[3]), r[4],
+                   None if r[5] is None else bool(r[5]), json.loads(r[6]), r[7])  # fmt: skip
+        for r in conn.execute(
+            "SELECT step, attempt, started_at, finished_at, duration_s, ok, figures_json, error "
+            "FROM cycle_steps WHERE cycle_id = ? ORDER BY id",
+            (cycle_id,),
+        )
+    )
+    images = tuple(
+        ImageRef(CycleStep(r[0]), r[1], r[2], datetime.fromisoformat(r[3]), dt(r[4]), r[5], r[6], r[7])
+        for r in conn.execute(
+            "SELECT step, name, uri, created_at, pruned_at, pruned_reason, sha256, size_bytes FROM cycle_images "
+            "WHERE cycle_id = ? ORDER BY id",
+            (cycle_id,),
+        )
+    )
+    return _cycle_from_row(row, steps, images)
 
 
 def _cycle_from_row(r: tuple[Any, ...], steps: tuple[StepRecord, ...], images: tuple[ImageRef, ...]) -> CycleRecord:

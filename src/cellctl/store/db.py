@@ -11,7 +11,9 @@ aggregate, each in its own module, all sharing one connection
 :class:`~cellctl.store.audit.AuditRows`         the hash-chained audit log
 :class:`~cellctl.store.jobs.JobRows`            commissioning jobs
 :class:`~cellctl.store.spc.SpcRows`             the closed-loop offset: its state and history
+:class:`~cellctl.store.parts.PartRows`          part traceability: installs by car body, glass, time
 :class:`~cellctl.store.retention.RetentionRows` pruning and the database's size
+:class:`~cellctl.store.outbox.OutboxRows`       the MQTT outbox: messages the broker has not acknowledged
 ==============================================  ===========================================================
 
 What spans them lives here: :meth:`CellStore.recover` after an unclean stop.
@@ -34,12 +36,14 @@ from cellctl.store.audit import AuditRows
 from cellctl.store.connection import StoreInfo, ts
 from cellctl.store.cycles import CycleRows
 from cellctl.store.jobs import JobRows
+from cellctl.store.outbox import OutboxRows
+from cellctl.store.parts import PartRows
 from cellctl.store.records import CycleState, InterruptedCycle, RecoveryReport
 from cellctl.store.retention import RetentionRows
 from cellctl.store.spc import SpcRows
 
 
-class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows):
+class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows, PartRows, OutboxRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
 
     def recover(self) -> RecoveryReport:

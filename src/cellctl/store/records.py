@@ -71,7 +71,11 @@ class StepRecord:
 @dataclass(frozen=True)
 class ImageRef:
     """An image of a cycle: the file ``uri`` (relative to the image folder) and, once retention
-    deleted the file, when and why (the reference itself is kept as long as its cycle record)."""
+    deleted the file, when and why (the reference itself is kept as long as its cycle record).
+
+    ``sha256`` (lower-case hex) and ``size_bytes`` are those of the file as written, for
+    traceability; both None for images recorded before the store kept them (schema version 5).
+    """
 
     step: CycleStep
     name: str
@@ -79,6 +83,8 @@ class ImageRef:
     created_at: datetime
     pruned_at: datetime | None = None
     pruned_reason: str | None = None
+    sha256: str | None = None
+    size_bytes: int | None = None
 
     @property
     def pruned(self) -> bool:

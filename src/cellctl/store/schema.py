@@ -194,7 +194,52 @@ CREATE INDEX spc_history_by_time ON spc_history (recorded_at);
 per update. A cycle feeds the loop once (the unique index); ``cycle_id`` has no foreign key, the
 history's rows go with their cycles in :meth:`cellctl.store.retention.RetentionRows.prune_cycles`."""
 
-MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC)
+V5_IMAGE_DIGEST = """
+ALTER TABLE cycle_images ADD COLUMN sha256 TEXT;
+ALTER TABLE cycle_images ADD COLUMN size_bytes INTEGER;
+CREATE INDEX cycles_by_car ON cycles (car_id);
+CREATE INDEX cycles_by_part ON cycles (part_id);
+CREATE INDEX audit_log_by_cycle ON audit_log (cycle_id) WHERE cycle_id IS NOT NULL;
+CREATE INDEX alarms_by_cycle ON alarms (cycle_id) WHERE cycle_id IS NOT NULL;
+"""
+"""Traceability: an image reference keeps the SHA-256 and size of the file as written (NULL for
+images recorded before); cycles are found by car body and by glass, and a cycle's audit entries
+and alarms by its id (``GET /parts``, :mod:`cellctl.store.parts`)."""
+
+V6_MQTT_OUTBOX = """
+CREATE TABLE mqtt_outbox (
+    seq         INTEGER PRIMARY KEY,
+    topic       TEXT NOT NULL,
+    payload     TEXT NOT NULL,
+    qos         INTEGER NOT NULL,
+    retain      INTEGER NOT NULL,
+    kind        TEXT NOT NULL,
+    created_at  TEXT NOT NULL
+);
+CREATE INDEX mqtt_outbox_retained ON mqtt_outbox (topic) WHERE retain = 1;
+
+CREATE TABLE mqtt_outbox_state (
+    id                          INTEGER PRIMARY KEY CHECK (id = 1),
+    last_seq                    INTEGER NOT NULL DEFAULT 0,
+    result_hwm                  INTEGER,
+    dropped_total               INTEGER NOT NULL DEFAULT 0,
+    dropped_results             INTEGER NOT NULL DEFAULT 0,
+    unreported_dropped          INTEGER NOT NULL DEFAULT 0,
+    unreported_dropped_results  INTEGER NOT NULL DEFAULT 0
+);
+INSERT INTO mqtt_outbox_state (id) VALUES (1);
+
+CREATE TABLE mqtt_retained (
+    topic       TEXT PRIMARY KEY
+);
+"""
+"""Messages for the plant's MQTT broker not yet acknowledged by it (:mod:`cellctl.store.outbox`,
+:mod:`cellctl.mqtt`): a broker outage or a restart of the service loses none up to the configured
+bound. ``mqtt_outbox_state`` holds the message sequence (``seq`` never goes back), the last cycle
+whose result was queued (NULL until publication is first enabled) and the drop counters;
+``mqtt_retained`` the retained topics the cell has set and not cleared."""
+
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 

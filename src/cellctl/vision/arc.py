@@ -88,8 +88,8 @@ def estimate_radius(corner: F64, top: Line2D, right: Line2D, pixels: F64, max_ra
     return float(np.median(R[i : ends[i]]))
 
 
-def _fit_circle(points: F64) -> tuple[F64, float]:
-    """Geometric least-squares circle (algebraic start, then Gauss-Newton)."""
+def fit_circle(points: F64) -> tuple[F64, float]:
+    """Geometric least-squares circle (algebraic start, then Gauss-Newton): centre and radius (px)."""
     x, y = points[:, 0], points[:, 1]
     A = np.column_stack([2 * x, 2 * y, np.ones(len(x))])
     sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
@@ -108,13 +108,14 @@ def _fit_circle(points: F64) -> tuple[F64, float]:
     return c, R
 
 
-def _ransac_circle(
-    points: F64, radius_px: float, band_px: float, iterations: int, rng: np.random.Generator
+def ransac_circle(
+    points: F64, radius_px: float, band_px: float, iterations: int, rng: np.random.Generator,
+    radius_tolerance: float = 0.2,
 ) -> NDArray[np.bool_]:
     """Inliers of the circle through three of the points that most points lie within ``band_px`` of.
 
-    Only circles within 20 % of the expected radius count: a straight stretch (a mark's border)
-    is a circle too, of a huge radius.
+    Only circles within ``radius_tolerance`` (a fraction) of the expected radius count: a straight
+    stretch (a mark's border) is a circle too, of a huge radius.
     """
     n = len(points)
     idx = rng.integers(0, n, size=(iterations, 3))
@@ -129,7 +130,7 @@ def _ransac_circle(
     ux = (sa * (b[:, 1] - c[:, 1]) + sb * (c[:, 1] - a[:, 1]) + sc * (a[:, 1] - b[:, 1])) / d
     uy = (sa * (c[:, 0] - b[:, 0]) + sb * (a[:, 0] - c[:, 0]) + sc * (b[:, 0] - a[:, 0])) / d
     radius = np.hypot(a[:, 0] - ux, a[:, 1] - uy)
-    plausible = np.abs(radius - radius_px) <= 0.2 * radius_px
+    plausible = np.abs(radius - radius_px) <= radius_tolerance * radius_px
     if not np.any(plausible):
         return np.zeros(n, dtype=bool)
     ux, uy, radius = ux[plausible], uy[plausible], radius[plausible]
@@ -172,8 +173,68 @@ def measure_arc(
     ideal, normals = ideal[inside], normals[inside]
     if len(ideal) < 10:
         return None
+    found = arc_crossings(
+        image, lens, ideal, normals, step_px=2, expect_dark=expect_dark, search_px=search_px,
+        level_samples=level_samples, max_blur_sigma_px=max_blur_sigma_px,
+    )
+    keep = found.usable & (found.contrast >= 0.5 * min_contrast_dn)
+    pts_raw = found.raw_px[keep]
+    if len(pts_raw) < 10:
+        return None
+    pts = lens.undistort(pts_raw)
+    fitted = robust_circle(
+        pts, centre, radius_px, search_px=search_px, ransac_band_px=max(min_band_px, 0.5), robust_k=robust_k,
+        min_band_px=min_band_px, rng=np.random.default_rng(0),
+    )
+    if fitted is None:
+        return None
+    c, R, inl = fitted
+    r = np.hypot(*(pts[inl] - c).T) - R
+    d = pts[inl] - c
+    mid = _unit(e1 + e2)
+    ang = np.arctan2(mid[0] * d[:, 1] - mid[1] * d[:, 0], d @ mid)  # about the arc's middle
+    coverage = float(np.degrees(ang.max() - ang.min()))
+    gap_top = abs(float(top.signed_distance(c[None])[0])) - R
+    gap_right = abs(float(right.signed_distance(c[None])[0])) - R
+    return ArcMeasurement(c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl)
+
+
+@dataclass(frozen=True)
+class ArcCrossings:
+    """Edge crossings on the pixel rows or columns crossing an arc (raw px), in the arc's order per group.
+
+    ``contrast`` is signed so that the expected polarity is positive; ``usable``: a valid crossing,
+    not saturated, blur within the limit; ``levels``: the two plateau levels of each profile;
+    ``order``: the position along the arc (the index of the nearest sample of the arc given).
+    """
+
+    raw_px: F64
+    contrast: F64
+    usable: NDArray[np.bool_]
+    saturated: NDArray[np.bool_]
+    levels: tuple[F64, F64]
+    order: F64
+
+
+def arc_crossings(
+    image: NDArray[np.uint8],
+    lens: Lens,
+    ideal: F64,
+    normals: F64,
+    *,
+    step_px: int,
+    expect_dark: bool,
+    search_px: float,
+    level_samples: int,
+    max_blur_sigma_px: float,
+) -> ArcCrossings:
+    """Sub-pixel crossings of the edge predicted at ``ideal`` (ideal px, outward unit ``normals``).
+
+    Each profile runs along the pixel column or row closest to the normal (every ``step_px``-th),
+    the same polarity as the top edge (scanning down) or the right edge (scanning right).
+    """
     raw = lens.distort(ideal)
-    raw_pts, contrasts, valid = [], [], []
+    raw_pts, contrasts, valid, sat, lo, hi, order = [], [], [], [], [], [], []
     for along_v in (True, False):
         group = np.abs(normals[:, 1]) >= np.abs(normals[:, 0]) if along_v else np.abs(normals[:, 1]) < np.abs(normals[:, 0])
         if group.sum() < 2:
@@ -181,10 +242,10 @@ def measure_arc(
         step_axis = 0 if along_v else 1  # the coordinate that steps from profile to profile
         s = raw[group, step_axis]
         e = raw[group, 1 - step_axis]
-        order = np.argsort(s)
-        s, e = s[order], e[order]
-        # Every other row or column: the check needs the arc's position, not its finest detail.
-        fixed = np.arange(int(np.ceil(s[0])), int(np.floor(s[-1])) + 1, 2, dtype=np.int64)
+        k = np.flatnonzero(group).astype(float)
+        srt = np.argsort(s)
+        s, e, k = s[srt], e[srt], k[srt]
+        fixed = np.arange(int(np.ceil(s[0])), int(np.floor(s[-1])) + 1, step_px, dtype=np.int64)
         if len(fixed) == 0:
             continue
         expected = np.interp(fixed.astype(float), s, e)
@@ -196,20 +257,41 @@ def measure_arc(
             image, fixed, expected, along_rows=not along_v, search_px=search_px,
             level_samples=level_samples, max_blur_sigma_px=max_blur_sigma_px,
         )
-        # Same polarity as the top edge (scanning down) or the right edge (scanning right).
         sign = (-1.0 if along_v else 1.0) * (1.0 if expect_dark else -1.0)
         pts = np.column_stack([fixed.astype(float), cr.position]) if along_v else np.column_stack([cr.position, fixed.astype(float)])
         raw_pts.append(pts)
         contrasts.append(sign * cr.contrast)
         valid.append(cr.valid & ~cr.saturated & (cr.blur_sigma_px <= max_blur_sigma_px))
+        sat.append(cr.saturated)
+        lo.append(cr.level_before)
+        hi.append(cr.level_after)
+        order.append(np.interp(fixed.astype(float), s, k))
     if not raw_pts:
-        return None
-    pts_raw = np.vstack(raw_pts)
-    keep = np.concatenate(valid) & (np.concatenate(contrasts) >= 0.5 * min_contrast_dn)
-    pts_raw = pts_raw[keep]
-    if len(pts_raw) < 10:
-        return None
-    pts = lens.undistort(pts_raw)
+        z = np.zeros(0)
+        return ArcCrossings(np.zeros((0, 2)), z, np.zeros(0, bool), np.zeros(0, bool), (z, z), z)
+    return ArcCrossings(
+        np.vstack(raw_pts), np.concatenate(contrasts), np.concatenate(valid), np.concatenate(sat),
+        (np.concatenate(lo), np.concatenate(hi)), np.concatenate(order),
+    )
+
+
+def robust_circle(
+    pts: F64,
+    centre: F64,
+    radius_px: float,
+    *,
+    search_px: float,
+    ransac_band_px: float,
+    robust_k: float,
+    min_band_px: float,
+    rng: np.random.Generator,
+    iterations: int = 100,
+    radius_tolerance: float = 0.2,
+) -> tuple[F64, float, NDArray[np.bool_]] | None:
+    """Circle through ``pts`` (ideal px) near the predicted one: RANSAC, then least squares within a robust band (3 times).
+
+    Returns (centre, radius, inlier mask), or None when fewer than 10 points remain.
+    """
     # Start from the points near the predicted arc: a mark or a spot crossing the arc gives
     # crossings far off it, which a first unweighted circle would follow.
     near = np.abs(np.hypot(*(pts - centre).T) - radius_px) < search_px
@@ -218,10 +300,10 @@ def measure_arc(
     # Then the circle most of them agree on (RANSAC), so that a stretch of points displaced by a
     # mark along the arc cannot pull the first fit (and with it the robust band) off.
     inl = near.copy()
-    inl[near] = _ransac_circle(pts[near], radius_px, max(min_band_px, 0.5), 100, np.random.default_rng(0))
+    inl[near] = ransac_circle(pts[near], radius_px, ransac_band_px, iterations, rng, radius_tolerance)
     if inl.sum() < 10:
         return None
-    c, R = _fit_circle(pts[inl])
+    c, R = fit_circle(pts[inl])
     for _ in range(3):
         r = np.hypot(*(pts - c).T) - R
         ri = r[inl]
@@ -230,12 +312,5 @@ def measure_arc(
         if new.sum() < 10:
             break
         inl = new
-        c, R = _fit_circle(pts[inl])
-    r = np.hypot(*(pts[inl] - c).T) - R
-    d = pts[inl] - c
-    mid = _unit(e1 + e2)
-    ang = np.arctan2(mid[0] * d[:, 1] - mid[1] * d[:, 0], d @ mid)  # about the arc's middle
-    coverage = float(np.degrees(ang.max() - ang.min()))
-    gap_top = abs(float(top.signed_distance(c[None])[0])) - R
-    gap_right = abs(float(right.signed_distance(c[None])[0])) - R
-    return ArcMeasurement(c, float(R), float(np.sqrt(np.mean(r * r))), gap_top, gap_right, coverage, pts_raw, pts, inl)
+        c, R = fit_circle(pts[inl])
+    return c, float(R), inl

@@ -13,7 +13,7 @@ Pipeline, for one raw image:
    is left out) to the edge of the ROI, mapped into the raw image, and on every pixel column (top
    edge) or row (right edge) the edge crossing is measured to sub-pixel precision
    (cellctl.vision.subpixel). Profiles that are saturated, too faint, of the wrong polarity or
-   on a disturbed background (a glare veil: see ``_background_consistent``) are left out; the
+   on a disturbed background (a glare veil: see ``background_consistent``) are left out; the
    rest are undistorted.
 4. Fit: RANSAC on the sub-pixel points, then least squares on the inliers within a robust band
    (twice). The seed corner is within a few pixels, far less than the margin of the arc
@@ -40,10 +40,10 @@ from cellctl.config.vision import RoiConfig, VisionConfig
 from cellctl.vision.arc import ArcMeasurement, estimate_radius, measure_arc
 from cellctl.vision.coarse import CoarseFailure, find_coarse_corner
 from cellctl.vision.lens import Lens
-from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, Refused, measure_edge
+from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, measure_edge
 from cellctl.vision.lines import Line2D, fit_line, intersect, ransac_line
 from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening
-from cellctl.vision.quality import Check, Refusal, at_least, at_most
+from cellctl.vision.quality import Check, Refusal, Refused, at_least, at_most
 
 F64 = NDArray[np.float64]
 
@@ -107,18 +107,6 @@ class CornerMeasurement:
         )
 
 
-def _check_image(image: object, lens: Lens) -> NDArray[np.uint8]:
-    if not isinstance(image, np.ndarray):
-        raise ValueError(f"image must be a numpy array, got {type(image).__name__}")
-    if image.ndim != 2 or image.dtype != np.uint8:
-        raise ValueError(f"image must be 2-D uint8 grey values, got {image.dtype} with shape {image.shape}")
-    if image.shape != (lens.height_px, lens.width_px):
-        raise ValueError(
-            f"image is {image.shape[1]} x {image.shape[0]} px but the lens is calibrated for "
-            f"{lens.width_px} x {lens.height_px} px; use the calibration of this camera"
-        )
-    return image
-
 def _check_arc(
     img: NDArray[np.uint8],
     lens: Lens,
@@ -180,7 +168,7 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
     outside the image); whatever the image shows, the answer is a CornerMeasurement, refused
     with a reason when a quality figure fails its limit.
     """
-    img = _check_image(image, lens)
+    img = lens.check_image(image)
     config.roi.check_inside(lens.width_px, lens.height_px)
     roi = config.roi
     exclusion = float(config.fit.arc_exclusion_px)

@@ -21,7 +21,7 @@ from cellctl.config.vision import VisionConfig
 from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, LineFit, fit_line, line_angle_to_u, ransac_line
 from cellctl.vision.profile import EdgeProfile
-from cellctl.vision.quality import Check, EdgeQuality, Refusal, at_least, at_most
+from cellctl.vision.quality import Check, EdgeQuality, Refusal, Refused, at_least, at_most
 from cellctl.vision.subpixel import EdgeCrossings, measure_crossings
 
 F64 = NDArray[np.float64]
@@ -115,7 +115,7 @@ def _measure_profiles(
     return pts, cr
 
 
-def _background_consistent(
+def background_consistent(
     levels: tuple[F64, F64], mask: NDArray[np.bool_], tolerance: float
 ) -> NDArray[np.bool_]:
     """Profiles whose darker-to-brighter plateau ratio matches the edge's undisturbed one.
@@ -145,7 +145,7 @@ def _background_consistent(
     return keep
 
 
-def _robust_fit(points: F64, config: VisionConfig, rng: np.random.Generator) -> tuple[LineFit, NDArray[np.bool_]] | None:
+def robust_line_fit(points: F64, config: VisionConfig, rng: np.random.Generator) -> tuple[LineFit, NDArray[np.bool_]] | None:
     """RANSAC, then least squares on the inliers within a robust band (k x MAD sigma), twice."""
     fit_cfg = config.fit
     mask = ransac_line(points, fit_cfg.subpixel_band_px, fit_cfg.ransac_iterations, rng)
@@ -177,15 +177,6 @@ def _bow(line: Line2D, points: F64) -> tuple[float, float]:
     return abs(c2), span
 
 
-class Refused(Exception):
-    """Internal: carries a refusal out of the pipeline (turned into a CornerMeasurement)."""
-
-    def __init__(self, refusal: Refusal, message: str) -> None:
-        super().__init__(message)
-        self.refusal = refusal
-        self.message = message
-
-
 def measure_edge(
     image: NDArray[np.uint8],
     lens: Lens,
@@ -215,7 +206,7 @@ def measure_edge(
     saturated_fraction = float(np.mean(prof.saturated)) if n_prof else 0.0
     good = valid & ~prof.saturated & (sign * prof.contrast >= 0.5 * lim.min_contrast_dn)
     good &= prof.blur_sigma_px <= config.fit.max_blur_sigma_px
-    flat = _background_consistent((prof.level_before, prof.level_after), good, config.fit.background_tolerance)
+    flat = background_consistent((prof.level_before, prof.level_after), good, config.fit.background_tolerance)
     uneven = int(np.sum(good & ~flat))
     good &= flat
     checks = [
@@ -229,7 +220,7 @@ def measure_edge(
         raise_first(checks)
         raise Refused(Refusal.EDGE_MISSING, f"the {name} edge gave only {len(pts_raw)} sub-pixel points")
     pts_ideal = lens.undistort(pts_raw)
-    fitted = _robust_fit(pts_ideal, config, rng)
+    fitted = robust_line_fit(pts_ideal, config, rng)
     if fitted is None:
         raise Refused(Refusal.EDGE_MISSING, f"no line fits the {name} edge's points")
     fit, mask = fitted

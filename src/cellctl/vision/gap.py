@@ -33,13 +33,13 @@ from numpy.typing import NDArray
 
 from cellctl.config.vision import FeatureConfig, FitConfig, GapVisionConfig, LimitsConfig, RoiConfig, VisionConfig
 from cellctl.vision.corner import CornerFeatures
-from cellctl.vision.edge import AWAY, EdgeMeasurement, EdgeName, Refused, measure_edge
+from cellctl.vision.edge import AWAY, EdgeMeasurement, EdgeName, measure_edge
 from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, intersect
 from cellctl.vision.gap_figures import GapLines, InPlaneGaps, in_plane_from_gaps
 from cellctl.vision.gap_steps import GapRefusal, GapRefused, find_gap_steps
 from cellctl.vision.profile import EdgeProfile, into_opening
-from cellctl.vision.quality import Check
+from cellctl.vision.quality import Check, Refused
 
 __all__ = ["GapLines", "GapMeasurement", "GapRefusal", "InPlaneGaps", "in_plane_from_gaps", "measure_gaps", "template_lines"]
 
@@ -167,17 +167,6 @@ def _edge_config(config: GapVisionConfig, lens: Lens, name: EdgeName, line: Line
     return VisionConfig(roi=roi, fit=fit, limits=limits)
 
 
-def _check_image(image: object, lens: Lens) -> NDArray[np.uint8]:
-    if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
-        raise ValueError(f"image must be a 2-D uint8 numpy array, got {getattr(image, 'dtype', type(image).__name__)}")
-    if image.shape != (lens.height_px, lens.width_px):
-        raise ValueError(
-            f"image is {image.shape[1]} x {image.shape[0]} px but the lens is calibrated for "
-            f"{lens.width_px} x {lens.height_px} px; use the calibration of this camera"
-        )
-    return image
-
-
 def measure_gaps(
     image: NDArray[np.uint8],
     lens: Lens,
@@ -204,7 +193,7 @@ def measure_gaps(
     Raises ValueError only for a wrong call; whatever the image shows, the answer is a
     GapMeasurement, refused with a reason when an edge is missing or fails its limits.
     """
-    img = _check_image(image, lens)
+    img = lens.check_image(image)
     if not np.isfinite(gap_px_expected) or gap_px_expected <= 0:
         raise ValueError(f"gap_px_expected must be a positive number of pixels, got {gap_px_expected!r}")
     if opening_polarity not in ("darker", "brighter", "auto"):

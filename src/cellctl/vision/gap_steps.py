@@ -18,6 +18,7 @@ from cellctl.vision.edge import EdgeName
 from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D
 from cellctl.vision.profile import EdgeProfile, ProfileStep, find_steps, into_opening, pick_feature, sample_profile
+from cellctl.vision.quality import Refused
 
 F64 = NDArray[np.float64]
 
@@ -39,13 +40,8 @@ def steps_text(steps: tuple[ProfileStep, ...] | list[ProfileStep]) -> str:
     return ", ".join(f"{s.offset_px:+.0f} px {s.change_dn:+.0f} DN ({s.fraction:.2f})" for s in steps) or "none"
 
 
-class GapRefused(Exception):
-    """Carries a refusal out of the measurement (turned into a GapMeasurement)."""
-
-    def __init__(self, refusal: GapRefusal, message: str) -> None:
-        super().__init__(message)
-        self.refusal = refusal
-        self.message = message
+class GapRefused(Refused[GapRefusal]):
+    """An inspection refusal (turned into a GapMeasurement)."""
 
 
 def find_gap_steps(

@@ -163,11 +163,22 @@ class Lens:
                 raise ValueError("undistorting points did not converge; check the distortion coefficients")
         return np.column_stack([self.fx * x + self.cx, self.fy * y + self.cy])
 
-    def undistort_image(self, image: NDArray[np.generic]) -> NDArray[np.generic]:
-        """The whole image resampled onto the ideal pinhole model (same camera matrix A)."""
+    def check_size(self, image: NDArray[np.generic]) -> None:
+        """Raise ValueError unless the image has this lens's size."""
         if image.shape[:2] != (self.height_px, self.width_px):
             raise ValueError(
                 f"image is {image.shape[1]} x {image.shape[0]} px but the lens is calibrated for "
-                f"{self.width_px} x {self.height_px} px"
+                f"{self.width_px} x {self.height_px} px; use the calibration of this camera"
             )
+
+    def check_image(self, image: object) -> NDArray[np.uint8]:
+        """The image, if it is a 2-D uint8 grey image of this lens's size; else ValueError."""
+        if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
+            raise ValueError(f"image must be a 2-D uint8 numpy array, got {getattr(image, 'dtype', type(image).__name__)}")
+        self.check_size(image)
+        return image
+
+    def undistort_image(self, image: NDArray[np.generic]) -> NDArray[np.generic]:
+        """The whole image resampled onto the ideal pinhole model (same camera matrix A)."""
+        self.check_size(image)
         return cv2.undistort(image, self.camera_matrix, self.dist_coeffs, None, self.camera_matrix)

@@ -8,6 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Generic, TypeVar
+
+R = TypeVar("R", bound=Enum)
 
 
 class Refusal(str, Enum):
@@ -24,6 +27,15 @@ class Refusal(str, Enum):
     ARC_NOT_SEEN = "arc_not_seen"  # the rounded corner could not be measured to check the edges
     ARC_MISMATCH = "arc_mismatch"  # an edge line does not touch the arc: not the true edge
     FEATURE_NOT_FOUND = "feature_not_found"  # the recipe's feature edge is not among the edge's steps
+
+
+class Refused(Exception, Generic[R]):
+    """Internal: carries a refusal and its message out of a pipeline, which turns it into its value."""
+
+    def __init__(self, refusal: R, message: str) -> None:
+        super().__init__(message)
+        self.refusal = refusal
+        self.message = message
 
 
 @dataclass(frozen=True)

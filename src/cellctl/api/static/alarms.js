@@ -3,7 +3,7 @@
 
 import { getJSON, post } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
-import { clock } from "./format.js";
+import { clock, dateTime } from "./format.js";
 import { currentPage, model } from "./state.js";
 import { refreshStatus } from "./status.js";
 
@@ -26,7 +26,8 @@ function alarmTable(alarms, { withAck, firstOutUid, compact = false }) {
     const unacked = !a.acknowledged;
     setClass(sevCell, "is-alarm", unacked && a.severity !== "warning");
     setClass(sevCell, "is-warn", unacked && a.severity === "warning");
-    const state = [a.active ? "active" : "gone", a.acknowledged ? `ack by ${a.ack_by} ${clock(a.ack_at)}` : "unacknowledged"].join(", ");
+    const when = compact ? clock : dateTime; // the pages' tables (the history goes back days) carry the date
+    const state = [a.active ? "active" : "gone", a.acknowledged ? `ack by ${a.ack_by} ${when(a.ack_at)}` : "unacknowledged"].join(", ");
     const action = withAck && unacked
       ? el("button", {
           type: "button",
@@ -54,7 +55,7 @@ function alarmTable(alarms, { withAck, firstOutUid, compact = false }) {
     return el(
       "tr",
       { "data-alarm": a.uid },
-      el("td", { text: clock(a.raised_at) }),
+      el("td", { class: "when", text: dateTime(a.raised_at) }),
       codeCell,
       sevCell,
       el("td", { text: a.message }),
@@ -84,9 +85,11 @@ function renderAlarms() {
   $("alarm-count").textContent = current.length
     ? `${current.length} alarm${current.length === 1 ? "" : "s"}: ${unacked.length} unacknowledged, ${active.length} active.`
     : "No current alarms.";
-  $("first-out").textContent = stop
-    ? ` First-out: ${stop.code} ${stop.message} (${clock(stop.raised_at)}${stop.cycle_id ? `, cycle ${stop.cycle_id}` : ""}).`
-    : "";
+  // What the alarm is, first: the first-out (the one that stopped the cell), else the oldest one
+  // still waiting for acknowledgement, else the oldest one.
+  const lead = stop || unacked[0] || current[0] || null;
+  $("first-out").textContent = lead ? `${stop ? "First-out" : "Alarm"}: ${lead.code} ${lead.message}` : "";
+  $("first-out-when").textContent = lead ? `${clock(lead.raised_at)}${lead.cycle_id ? `, cycle ${lead.cycle_id}` : ""}, ${lead.source}` : "";
   $("ack-all").hidden = unacked.length === 0;
   const firstOutUid = stop ? stop.uid : null;
   $("alarms-now").replaceChildren(alarmTable(current, { withAck: true, firstOutUid, compact: true }));

@@ -7,13 +7,17 @@
    the views it concerns and starts the page. The views are modules of their own:
      status.js         the header tiles and the command bar (commands, unit mode, operator token)
      alarms.js         the alarm banner, the current alarms and the alarms page
-     overview.js       the overview: last image, trend charts (chart.js), filmstrip
+     overview.js       the overview: last image, trend charts (chart.js), filmstrip; shifts.js
+                       its shift counters
+     stale.js          no control works while the data is stale (status.js decides when)
      cycles.js         the cycles page: history and cycle detail
      calibration.js    the calibration page
      commissioning.js  the commissioning page (with comm-*.js), following the rest through the
                        hooks in state.js
    under them api.js (requests, token, event stream), state.js (the model, the address, the refresh
-   scheduler, the hooks), dom.js and format.js (building elements, formatting figures). */
+   scheduler, the hooks), dom.js and format.js (building elements, formatting figures), figures.js
+   (nested records as short, folded key-value lists), statemark.js (a shape per PackML state) and
+   caldue.js (when the calibration set falls due). */
 
 import { getJSON, openEvents } from "./api.js";
 import { bindAlarms, refreshAlarmHistory, refreshAlarms } from "./alarms.js";
@@ -22,6 +26,7 @@ import { installCommissioning } from "./commissioning.js";
 import { bindCycles, refreshCycleTable, refreshDetail } from "./cycles.js";
 import { $, showMessage } from "./dom.js";
 import { refreshDigest, renderLastImage, renderTrends } from "./overview.js";
+import { refreshShifts } from "./shifts.js";
 import { DEFAULT_CONFIG, PAGES, currentPage, emit, model, schedule } from "./state.js";
 import {
   bindControls,
@@ -33,11 +38,13 @@ import {
   takePlcLink,
 } from "./status.js";
 
+const SHIFT_POLL_MS = 60_000;
+
 // -- refreshing --------------------------------------------------------------------------------
 
 // Everything the header and the page shown need, read again (at the start, and after stale data).
 async function refreshAll() {
-  const jobs = [refreshStatus(), refreshAlarms(), refreshDigest(), refreshCalibration()];
+  const jobs = [refreshStatus(), refreshAlarms(), refreshDigest(), refreshCalibration(), refreshShifts()];
   const page = currentPage();
   if (page.page === "cycles") jobs.push(refreshCycleTable(), refreshDetail());
   jobs.push(...emit("refresh", page));
@@ -99,6 +106,7 @@ function onEvent(kind, data) {
     case "cycle":
       schedule("status", refreshStatus);
       schedule("digest", refreshDigest, 150);
+      schedule("shifts", refreshShifts, 400);
       schedule("calibration", refreshCalibration, 300);
       if (currentPage().page === "cycles") schedule("cycles", refreshCycleTable, 150);
       if (model.detailId === data.cycle_id) schedule("detail", refreshDetail, 150);
@@ -149,6 +157,7 @@ async function init() {
   model.source = openEvents(onEvent, renderLive);
   await refreshAll();
   setInterval(renderLive, 500);
+  setInterval(() => schedule("shifts", refreshShifts, 0), SHIFT_POLL_MS); // a new shift begins without a cycle
   renderLive();
   document.body.dataset.ready = "1";
 }

@@ -3,7 +3,8 @@
    the table of recent jobs. commissioning.js puts the panel together (renderJob). */
 
 import { post, token } from "./api.js";
-import { $, el, kvList, setClass, showMessage } from "./dom.js";
+import { figureList } from "./figures.js";
+import { $, el, setClass, showMessage } from "./dom.js";
 import { clock, dateTime, figure, isNum } from "./format.js";
 import { ACTIVE, ALARM_JOBS, WARN_JOBS, fresh, liveOf, noteLive, page, shownId, visible } from "./comm-state.js";
 
@@ -45,7 +46,7 @@ export function resultParts(job) {
       out.push(el("div", { class: "muted" }, "Still to do before production:", el("ul", {}, res.ready_problems.map((p) => el("li", { text: p })))));
     }
     if (res.quality && Object.keys(res.quality).length) {
-      out.push(el("details", {}, el("summary", { text: "Quality figures" }), kvList(res.quality)));
+      out.push(el("details", {}, el("summary", { text: "Quality figures" }), figureList(res.quality)));
     }
   }
   if (job.dataset) out.push(el("p", { class: "muted small", text: `Dataset: ${job.dataset}` }));
@@ -90,7 +91,7 @@ export function renderPrompt() {
   box.dataset.kind = prompt.kind;
   const parts = [el("p", { class: "prompt-text", id: "comm-prompt-text", text: prompt.text }), el("p", { class: "muted small", text: `${prompt.kind}, asked ${clock(prompt.created_utc)}` })];
   if (prompt.details && Object.keys(prompt.details).length) {
-    parts.push(el("details", {}, el("summary", { text: "Details" }), kvList(prompt.details)));
+    parts.push(el("details", {}, el("summary", { text: "Details" }), figureList(prompt.details)));
   }
   let input = null;
   if (prompt.value_label) {

@@ -28,6 +28,12 @@ function optionInputs(proc) {
       out.push(
         el("label", { class: "check" }, el("input", { id, type: "checkbox", checked: true, "data-option": opt }), "store the result"),
       );
+    } else if (opt === "recipe" && (proc.choices.recipe || []).length > 1) {
+      // the recipe taught: each has its own teaching and nine-point map
+      out.push(
+        el("label", { for: id, text: "recipe" }),
+        el("select", { id, "data-option": opt }, proc.choices.recipe.map((r) => el("option", { value: r, text: r }))),
+      );
     }
   }
   return out;
@@ -111,6 +117,8 @@ export function gatherOptions(proc) {
     const opt = input.dataset.option;
     if (input.type === "checkbox") {
       if (!input.checked) options[opt] = false;
+    } else if (input.tagName === "SELECT") {
+      options[opt] = input.value;
     } else if (input.value.trim() !== "") {
       const v = Number(input.value);
       if (!Number.isInteger(v) || v <= 0) throw new Error(`${NUMBER_OPTIONS[opt] || opt}: give a whole number, or leave it empty for the default`);

@@ -3,7 +3,8 @@
    install error (simulation), images and steps. */
 
 import { getJSON, thumbUrl } from "./api.js";
-import { $, el, kvList, setClass } from "./dom.js";
+import { figureList } from "./figures.js";
+import { $, el, setClass } from "./dom.js";
 import { dateTime, isNum, num, signed } from "./format.js";
 import { AXES, NOK_CYCLES, model, schedule } from "./state.js";
 
@@ -58,6 +59,13 @@ function renderCycleTable() {
   $("cycle-table").tBodies[0].replaceChildren(...body);
 }
 
+// The cell-clock seconds of each step (robot time; simulated seconds on the simulated cell), largest first.
+function stepTimes(times) {
+  if (!times || typeof times !== "object") return "-";
+  const rows = Object.entries(times).filter(([, v]) => isNum(v) && v >= 0.05).sort((a, b) => b[1] - a[1]);
+  return rows.length ? rows.map(([k, v]) => `${k} ${v.toFixed(1)} s`).join(", ") : "-";
+}
+
 function renderDetail(rec) {
   const res = rec.result || {};
   const parts = [
@@ -65,7 +73,7 @@ function renderDetail(rec) {
     rec.error ? el("p", { class: "problems is-alarm", text: rec.error }) : null,
     el(
       "dl",
-      { class: "kv" },
+      { class: "kv kv-inline facts" },
       [
         ["Part", rec.part_id],
         ["Car", rec.car_id || "-"],
@@ -75,9 +83,10 @@ function renderDetail(rec) {
         ["Started", dateTime(rec.started_at)],
         ["Finished", dateTime(rec.finished_at)],
         ["Cycle time", isNum(res.cycle_time_s) ? `${res.cycle_time_s.toFixed(2)} s` : "-"],
+        ["Time per step", stepTimes(res.step_time_s)],
         ["Correction", `${triple(res.correction_mm, 3)} mm, ${triple(res.correction_deg, 4)} deg`],
         ["Interrupted in", rec.interrupted_step || "-"],
-      ].map(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]),
+      ].map(([k, v]) => el("div", { class: "pair" }, el("dt", { text: k }), el("dd", { text: v }))),
     ),
   ];
   const deviations = [
@@ -125,9 +134,9 @@ function renderDetail(rec) {
       "tr",
       {},
       el("td", { text: `${s.step} ${s.attempt}` }),
-      el("td", { class: "num", text: num(s.duration_s, 3) }),
+      el("td", { class: "num", text: num(isNum((s.figures || {}).time_s) ? s.figures.time_s : s.duration_s, 3) }),
       okCell,
-      el("td", {}, Object.keys(s.figures || {}).length ? kvList(s.figures) : "-", s.error ? el("p", { text: s.error }) : null),
+      el("td", {}, Object.keys(s.figures || {}).length ? figureList(s.figures) : "-", s.error ? el("p", { text: s.error }) : null),
     );
   });
   parts.push(

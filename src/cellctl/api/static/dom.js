@@ -1,7 +1,5 @@
 /* cellctl dashboard: building page elements, and the message line under the commands. */
 
-import { flatten } from "./format.js";
-
 export const $ = (id) => document.getElementById(id);
 
 // el("p", { class: "muted", text: "..." }, ...children): attributes, then children (nodes or
@@ -39,11 +37,6 @@ function setAttrs(node, attrs) {
 
 export function setClass(node, cls, on) {
   node.classList.toggle(cls, Boolean(on));
-}
-
-export function kvList(obj) {
-  const rows = flatten(obj);
-  return el("dl", { class: "kv" }, rows.map(([k, v]) => [el("dt", { text: k || "value" }), el("dd", { text: v })]));
 }
 
 export function showMessage(text, isError = false) {

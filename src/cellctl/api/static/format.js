@@ -26,12 +26,19 @@ export function clock(iso) {
   return Number.isNaN(d.getTime()) ? iso : d.toLocaleTimeString([], { hour12: false });
 }
 
+const pad = (n) => String(n).padStart(2, "0");
+
+// The local date of an ISO time or a Date: 2026-03-05.
+export function day(t) {
+  const d = t instanceof Date ? t : new Date(t);
+  return Number.isNaN(d.getTime()) ? String(t) : `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())}`;
+}
+
 export function dateTime(iso) {
   if (!iso) return "-";
   const d = new Date(iso);
   if (Number.isNaN(d.getTime())) return iso;
-  const pad = (n) => String(n).padStart(2, "0");
-  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ${d.toLocaleTimeString([], { hour12: false })}`;
+  return `${day(d)} ${d.toLocaleTimeString([], { hour12: false })}`;
 }
 
 // A nested record as [dotted key, text] rows, for the key-value lists (see kvList in dom.js).

@@ -44,7 +44,8 @@ export function renderTrends() {
         ? "The twin's truth of the installed glass against the template, "
         : "The last verification shot's offset; dZ, dRx and dRy are set by the laser alignment and not measured by the shot. ") +
     (installed.length ? `last ${installed.length} installed cycle${installed.length === 1 ? "" : "s"}` : "no installed cycle yet") +
-    `; grey band: tolerance \u00b1${tol.position_mm} mm, \u00b1${tol.orientation_deg} deg.`;
+    `; each chart's scale follows its data (\u00b1 max * 1.2, written on the axis); grey band: tolerance ` +
+    `\u00b1${tol.position_mm} mm, \u00b1${tol.orientation_deg} deg, arrows at the edges when the band is beyond the scale.`;
   const charts = AXES.map((ax) => {
     const band = ax.kind === "position" ? tol.position_mm : tol.orientation_deg;
     const points = installed.map((c) => ({ id: c.id, y: c[source] ? c[source][ax.key] : null, nok: c.part_ok === false }));
@@ -55,7 +56,7 @@ export function renderTrends() {
       points,
       digits: 3,
       width: sixWidth,
-      height: 130,
+      height: 150,
       emptyText: useMeasured || useTruth || installed.length === 0 ? "no installed cycle yet" : "not measured by the verification shot",
     });
     c.dataset.axis = ax.key;
@@ -64,14 +65,14 @@ export function renderTrends() {
   $("trend-charts").replaceChildren(...charts);
   const timed = chronological.filter((c) => isNum(c.cycle_time_s)).slice(-TREND_CYCLES);
   const ct = chart({
-    title: "Cycle time",
+    title: "Takt (cycle time)",
     unit: "s",
     band: null,
     points: timed.map((c) => ({ id: c.id, y: c.cycle_time_s, nok: c.state !== "done" })),
     digits: 2,
     emptyText: "no finished cycle yet",
     width: chartWidth($("cycle-time-chart"), 1),
-    height: 110,
+    height: 130,
   });
   ct.dataset.axis = "cycle_time_s";
   $("cycle-time-chart").replaceChildren(ct);

@@ -21,6 +21,8 @@ export const DEFAULT_CONFIG = {
   stale_after_s: 5,
   plc_enabled: false,
   plc_heartbeat_alarm: true,
+  calibration_max_age_days: 90,
+  shift_starts: ["06:00", "14:00", "22:00"],
 };
 
 export const model = {
@@ -31,6 +33,7 @@ export const model = {
   digest: [], // GET /dashboard/cycles: the recent cycles, newest first
   cycles: [], // GET /cycles with the state filter (the cycles page)
   calibration: null, // GET /calibration
+  shifts: null, // GET /dashboard/shifts: good and not OK parts of the current shift and the ones before
   plc: null, // the PLC link: the newer of the status's links.plc and the last "plc" event
   currentCycle: null, // the record of the cycle running now
   liveImage: null, // {cycle_id, name} of the last "image" event

@@ -4,9 +4,12 @@
 
 import { forgetToken, getJSON, post, saveToken, token } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
-import { clock, isNum } from "./format.js";
+import { DUE_SOON_DAYS, calibrationDue } from "./caldue.js";
+import { clock, day, isNum } from "./format.js";
 import { renderSpc } from "./spc.js";
+import { applyStale } from "./stale.js";
 import { emit, model, schedule } from "./state.js";
+import { stateKind, stateMark } from "./statemark.js";
 
 const ALARM_STATES = new Set(["ABORTING", "ABORTED"]);
 const WARN_STATES = new Set(["HOLDING", "HELD", "SUSPENDING", "SUSPENDED"]);
@@ -39,6 +42,12 @@ export function renderStatus() {
   const st = model.status;
   if (!st) return;
   $("state").textContent = st.state;
+  const kind = stateKind(st.state);
+  const tile = $("tile-state");
+  if (tile.dataset.state !== st.state) {
+    tile.dataset.state = st.state;
+    $("state-mark").replaceChildren(stateMark(kind));
+  }
   setClass($("tile-state"), "is-alarm", ALARM_STATES.has(st.state));
   setClass($("tile-state"), "is-warn", WARN_STATES.has(st.state));
   $("mode").textContent = st.mode;
@@ -98,8 +107,15 @@ export function renderCalibrationTile() {
   const current = model.calibration && model.calibration.current;
   const version = current && current.version !== undefined && current.version !== null ? `, set v${current.version}` : "";
   $("cal").textContent = problems.length ? `NOT READY (${problems.length})` : `ready${version}`;
-  tile.title = problems.length ? problems.join("\n") : "The calibration set is complete, valid and in date.";
-  setClass(tile, "is-warn", problems.length > 0);
+  const due = calibrationDue(model.calibration, model.config.calibration_max_age_days);
+  const soon = due && due.daysLeft < DUE_SOON_DAYS;
+  $("cal-due").textContent = due
+    ? `due ${day(due.due)} (${due.daysLeft < 0 ? "overdue" : `${due.daysLeft} d`})`
+    : current && current.parts ? "due: no part calibrated" : "no due date";
+  tile.title =
+    (problems.length ? problems.join("\n") : "The calibration set is complete, valid and in date.") +
+    (due ? `\nDue ${day(due.due)}: ${due.part} turns ${model.config.calibration_max_age_days} days old.` : "");
+  setClass(tile, "is-warn", problems.length > 0 || soon);
 }
 
 function renderCommands() {
@@ -109,9 +125,11 @@ function renderCommands() {
   const notes = [];
   for (const btn of document.querySelectorAll("[data-command]")) {
     const cmd = btn.dataset.command;
-    const ok = allowed.has(cmd);
+    const ok = allowed.has(cmd) && !model.stale;
     btn.disabled = !ok;
-    if (ok) {
+    if (model.stale) {
+      btn.title = `${cmd}: the data is stale, so no command is sent`;
+    } else if (ok) {
       btn.title = `Send ${cmd} (allowed in ${st.state})`;
     } else if (blocked[cmd]) {
       btn.title = `${cmd} is held back: ${blocked[cmd]}`;
@@ -121,7 +139,7 @@ function renderCommands() {
     }
   }
   $("blocked").textContent = notes.length ? "Held back: " + notes.join("; ") : "";
-  const modeOk = (model.config.mode_change_states || []).includes(st.state);
+  const modeOk = (model.config.mode_change_states || []).includes(st.state) && !model.stale;
   const apply = $("mode-apply");
   apply.disabled = !modeOk;
   apply.title = modeOk
@@ -134,6 +152,7 @@ function renderCommands() {
 export function renderLive() {
   const age = model.lastMessageAt ? (Date.now() - model.lastMessageAt) / 1000 : Infinity;
   const stale = age > model.config.stale_after_s;
+  const changed = stale !== model.stale;
   model.stale = stale;
   const tile = $("tile-live");
   const text = !model.lastMessageAt ? "no data yet" : stale ? "STALE" : "live";
@@ -144,6 +163,8 @@ export function renderLive() {
     : "Waiting for the cell controller";
   setClass(tile, "is-warn", stale);
   setClass(document.body, "stale", stale);
+  applyStale(stale, model.lastMessageAt);
+  if (changed && model.status) renderCommands(); // the state's own rules again on recovery
 }
 
 // -- the command bar ------------------------------------------------------------------------------

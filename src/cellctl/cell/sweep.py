@@ -1,0 +1,234 @@
+"""Reading the wall on the move (issue 19): the laser stores readings while the flange sweeps a path.
+
+At the path's first corner the flange moves in, out and in along the beam, then follows the path
+at the sweep speed; meanwhile the laser stores a reading every storage cycle and the robot streams
+its pose (supervised: a stale stream stops the robot). The moves along the beam, where the distance
+changes with the motion, time the laser against the feedback (the latency, estimated every cycle);
+every reading is then paired with the flange pose at its instant and the plane is fitted to an
+even selection of those along the legs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Coroutine
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cellctl.align import plan_spot_poses
+from cellctl.align.laser_points import laser_points, sweep_route
+from cellctl.align.onthefly import LatencyEstimate, estimate_latency, pair_stored_readings, pose_samples_arrays, stored_instants
+from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.robots import pose_stream_of
+from cellctl.compensate import shooting_pose_in
+from cellctl.domain import AlarmCode, CycleStep
+from cellctl.geometry.pose import Pose, apply_pose, invert_pose
+from cellctl.inspection import FlushError, FlushResult, fit_flush
+from cellctl.ports import DeviceError, PoseSample, PoseStream, StoringSensor
+
+if TYPE_CHECKING:
+    from cellctl.cell.cycle import CycleRun
+
+STEP = CycleStep.ALIGN
+SUPERVISION_PERIOD_S = 0.002  # how often the feedback's freshness is checked while the robot sweeps (host seconds)
+
+
+def sweep_unavailable(run: CycleRun) -> str | None:
+    """Why this cell cannot read the wall on the move (its laser cannot store, or its robot streams no pose), or None."""
+    if not isinstance(run.dev.laser, StoringSensor):
+        return "the laser driver cannot store readings"
+    if pose_stream_of(run.dev.robot) is None:
+        return "the robot driver streams no position feedback"
+    return None
+
+
+def _even(n: int, keep: int) -> np.ndarray:
+    """Indices of ``keep`` items spread evenly over ``n``."""
+    return np.unique(np.linspace(0, n - 1, min(n, keep)).round().astype(int))
+
+
+@dataclass(frozen=True)
+class Swept:
+    """The readings of one sweep along its legs, each with its flange pose, and how they were taken."""
+
+    poses: np.ndarray  # (K, 4, 4) T_B_H at each reading's instant minus the latency
+    distances: np.ndarray  # (K,) mm along l from r
+    latency_s: float
+    figures: dict[str, Any]
+
+
+async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The alignment's sweep (timed every cycle): the readings' flange poses (N, 4, 4), distances (N,) and figures."""
+    cfg, cal = run.process.align.sweep, run.cal
+    corners = plan_spot_poses(
+        cal.taught.T0, cfg.path_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm
+    )
+    swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s)
+    run.sweep_latency_s = swept.latency_s
+    keep = _even(len(swept.distances), cfg.max_points)
+    return swept.poses[keep], swept.distances[keep], swept.figures | {"readings_fitted": int(len(keep))}
+
+
+async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, Any]]:
+    """The flush on the move: sweep the inspection's path past the installed glass, with this cycle's latency.
+
+    Each reading's laser point is taken into T2 and sorted by where it falls: on the glass (inside
+    the glass's edge) or on the wall (outside the opening's), none within the margin of an edge.
+    """
+    cal, insp = run.cal, run.process.inspect
+    assert run.sweep_latency_s is not None, "the alignment's sweep times the laser first"
+    R_flange = shooting_pose_in(cal.taught, T2)[:3, :3]  # the camera parallel to the wall, as when shooting
+    corners = plan_spot_poses(T2, insp.sweep_path_mm, R_flange, cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm)
+    swept = await sweep_path(run, CycleStep.INSPECT, corners, latency_s=run.sweep_latency_s)
+    pts = apply_pose(invert_pose(T2), laser_points(swept.poses, cal.laser_r, cal.laser_l, swept.distances, cal.laser_range_mm))
+    x, y, m, gap = pts[:, 0], pts[:, 1], insp.sweep_margin_mm, insp.nominal_gap_mm
+    on_glass = np.flatnonzero((x < -(gap + m)) & (y > gap + m))
+    on_wall = np.flatnonzero((x > m) | (y < -m))
+    glass = pts[on_glass[_even(len(on_glass), insp.sweep_max_points)]]
+    wall = pts[on_wall[_even(len(on_wall), insp.sweep_max_points)]]
+    try:
+        flush = fit_flush(glass, wall, max_rms_mm=insp.max_flush_rms_mm)
+    except FlushError as err:
+        raise CycleFailed(CycleStep.INSPECT, AlarmCode.INSPECTION_FAILED, str(err)) from err
+    figures = swept.figures | {"glass_readings": int(len(on_glass)), "wall_readings": int(len(on_wall)),
+                               "glass_fitted": int(len(glass)), "wall_fitted": int(len(wall))}  # fmt: skip
+    return flush, figures
+
+
+async def sweep_path(run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None) -> Swept:
+    """Sweep the flange through ``corners`` while the laser stores and the robot streams; pair the legs' readings.
+
+    With ``latency_s`` None the sweep first moves in, out and in along the beam at the first corner
+    and the latency is estimated from it; else the given latency (this cycle's estimate) is used.
+    """
+    cfg, cal = run.process.align.sweep, run.cal
+    laser, stream = run.dev.laser, pose_stream_of(run.dev.robot)
+    assert isinstance(laser, StoringSensor) and stream is not None, "sweep_unavailable() first"
+    timed = latency_s is None
+    route = sweep_route(corners, cal.laser_l, cfg.approach_mm, timed=timed)
+    timing = route[1:4] if timed else []  # in, out and in along the beam at the first corner
+    await run.move(step, route[0], kind="joint")
+    timeout = run.motion.read_timeout_s
+    path_s = _path_seconds(corners, cfg.speed_mm_s) + 3.0 * cfg.approach_mm / cfg.speed_mm_s
+    count = int(min(65535, np.ceil(3.0 * path_s / cfg.storage_cycle_s) + 100))
+    approach: list[float] = []
+
+    async def path() -> None:
+        # In, out and in again along the beam: the latency shifts the readings one way going in and the
+        # other going out, while what depends on where the flange is (the robot's accuracy along the way,
+        # the laser's linearity) is the same both ways, so it does not pass for latency.
+        approach.append(run.dev.clock())
+        for T in timing:
+            await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
+        approach.append(run.dev.clock())
+        for T in route[1 + len(timing):]:
+            await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
+
+    try:
+        await stream.start_stream(timeout_s=timeout)
+        await laser.start_storage(cycle_s=cfg.storage_cycle_s, count=count, timeout_s=timeout)
+        await _supervised(run, step, path(), stream)
+        stored = await laser.stop_storage(timeout_s=timeout)
+        samples = await stream.stop_stream(timeout_s=timeout)
+    except DeviceError as err:
+        raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
+    window = (approach[0], approach[1])
+    instants, distances = stored_instants(stored)
+    latency = await asyncio.to_thread(_latency, run, step, instants, distances, samples, window) if timed else None  # plane fits: off the loop
+    lat_s = latency.latency_s if latency is not None else float(latency_s)  # type: ignore[arg-type]
+    try:
+        paired = await asyncio.to_thread(pair_stored_readings, stored, samples, lat_s, max_gap_s=cfg.max_feedback_gap_s)
+    except ValueError as err:
+        raise CycleFailed(step, _failed_code(step), f"readings could not be paired with the robot's poses: {err}") from err
+    on_path = np.flatnonzero(paired.instants > window[1])  # the moves along the beam only time the laser
+    wanted = int(np.count_nonzero((instants > window[1]) & np.isfinite(distances)))
+    if len(on_path) < cfg.min_paired_share * wanted:
+        raise CycleFailed(
+            step, AlarmCode.POSITION_FEEDBACK_LOST,
+            f"only {len(on_path)} of the {wanted} readings along the path had a robot pose within "
+            f"{1e3 * cfg.max_feedback_gap_s:g} ms (the position feedback had gaps): nothing is fitted to guesses",
+        )  # fmt: skip
+    figures: dict[str, Any] = {
+        "mode": "on_the_fly",
+        "stored_readings": len(stored.distances_mm),
+        "readings_with_distance": int(sum(d is not None for d in stored.distances_mm)),
+        "paired_readings": len(paired.distances),
+        "readings_on_the_legs": int(len(on_path)),
+        "feedback_samples": len(samples),
+        "latency_ms": 1e3 * lat_s,
+    }
+    if latency is not None:
+        figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
+    return Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures)
+
+
+async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any, None], stream: PoseStream) -> None:
+    """Run the moves while the robot's feedback stays fresh; on a stale feedback stop the robot and fail (alarm 1402)."""
+    cfg = run.process.align.sweep
+    since = run.dev.clock()  # the stream has just started: its first sample may still be on its way
+    task = asyncio.ensure_future(moves)
+    try:
+        while True:
+            done, _ = await asyncio.wait({task}, timeout=SUPERVISION_PERIOD_S)
+            if done:
+                return task.result()
+            latest = stream.latest()
+            age = run.dev.clock() - (since if latest is None else latest.t_s)
+            if age > cfg.feedback_stale_s:
+                break
+    finally:
+        if not task.done():
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+    try:
+        await run.dev.robot.stop(timeout_s=run.motion.read_timeout_s)
+    except DeviceError as err:
+        raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"the position feedback stopped and the robot did not stop: {err}") from err
+    raise CycleFailed(
+        step, AlarmCode.POSITION_FEEDBACK_LOST,
+        f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s): "
+        "the robot was stopped and no wall plane was fitted",
+    )  # fmt: skip
+
+
+def _failed_code(step: CycleStep) -> AlarmCode:
+    """The alarm of a sweep that cannot give its figures: the alignment's, or the inspection's."""
+    return AlarmCode.ALIGNMENT_FAILED if step is CycleStep.ALIGN else AlarmCode.INSPECTION_FAILED
+
+
+def _path_seconds(corners: list[Pose], speed_mm_s: float) -> float:
+    return float(sum(np.linalg.norm(b[:3, 3] - a[:3, 3]) for a, b in zip(corners, corners[1:]))) / speed_mm_s
+
+
+def _latency(
+    run: CycleRun, step: CycleStep, instants: np.ndarray, distances: np.ndarray, samples: tuple[PoseSample, ...],
+    approach: tuple[float, float],
+) -> LatencyEstimate:
+    """The latency between the laser's and the robot's clocks, from the readings since the approach began.
+
+    The approach along the beam is where the latency shows (the distance changes with the motion);
+    the legs after it fix the wall's plane, which a line of spots alone would not.
+    """
+    cfg, cal = run.process.align.sweep, run.cal
+    since = instants >= approach[0]
+    in_approach = int(np.count_nonzero(since & (instants <= approach[1]) & np.isfinite(distances)))
+    if len(samples) < 2 or in_approach < 10:
+        raise CycleFailed(
+            step, AlarmCode.ALIGNMENT_FAILED,
+            f"the approach gave {in_approach} laser readings and the sweep {len(samples)} robot poses: too few to time "
+            "the laser against the robot (is the wall in the laser's range at the path's first corner?)",
+        )  # fmt: skip
+    t, T = pose_samples_arrays(samples)
+    try:
+        est = estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=cfg.latency_search_s)
+    except ValueError as err:
+        raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, f"the laser could not be timed against the robot: {err}") from err
+    if est.sigma_s > cfg.max_latency_sigma_s:
+        raise CycleFailed(
+            step, AlarmCode.ALIGNMENT_FAILED,
+            f"the laser-to-robot latency is uncertain by {1e3 * est.sigma_s:.2f} ms (limit "
+            f"{1e3 * cfg.max_latency_sigma_s:g} ms): the readings scatter; check the wall along the path",
+        )  # fmt: skip
+    return est

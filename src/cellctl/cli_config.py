@@ -1,0 +1,78 @@
+"""``cellctl config check``: load and validate a configuration, say what it sets up, exit 0 (valid) or 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from cellctl.config import CellConfig, ConfigError, load_config
+from cellctl.config.api import TokenUnavailable
+from cellctl.config.loader import check_tokens
+from cellctl.commissioning.wall_plan import wall_plan
+
+
+def _device(dev: Any) -> str:
+    """One device as the summary names it: its kind and where it is reached."""
+    where = [str(v) for v in (getattr(dev, "host", None), getattr(dev, "rapid_port", None), getattr(dev, "port", None),
+                              getattr(dev, "serial_number", None)) if v is not None]  # fmt: skip
+    return dev.kind + (f" ({':'.join(where)})" if where else "")
+
+
+def summary(config: CellConfig) -> list[str]:
+    """What the configuration sets up: mode, cell, the endpoints the service opens, the devices it reaches."""
+    api, plc, ua, mq = config.api, config.plc, config.opcua, config.mqtt
+    d = config.devices
+    return [
+        f"mode {config.mode}, cell_id {config.cell_id}",
+        f"REST API and dashboard  http://{api.host}:{api.port}/  ({len(api.tokens)} API token(s))",
+        "PLC Modbus TCP          " + (f"{plc.host}:{plc.port}, unit {plc.unit_id}" if plc.enabled else "off"),
+        "OPC UA                  " + (f"opc.tcp://{ua.host}:{ua.port}{ua.path}" if ua.enabled else "off"),
+        "MQTT                    " + (f"{mq.host}:{mq.port}" + (" (TLS)" if mq.tls else "") if mq.enabled else "off"),
+        f"devices                 robot {_device(d.robot)}, laser {_device(d.laser)}, camera {_device(d.camera)}",
+        f"calibration store       {config.calibration.directory} (relative to the service's --workdir)",
+        "recipes                 " + "\n                          ".join(_recipe(config, r.name) for r in config.process.recipes),
+    ]
+
+
+def _recipe(config: CellConfig, name: str) -> str:
+    """A recipe as the summary shows it: its PLC number, its opening, and the sections it sets."""
+    recipe = next(r for r in config.process.recipes if r.name == name)
+    o = config.for_recipe(name).layout.opening
+    own = ", ".join(recipe.overrides())
+    return (f"{recipe.id} {name}: opening {o.width_mm:g} x {o.height_mm:g} mm, corner radius {o.corner_radius_mm:g} mm"
+            f" at {tuple(round(v, 1) for v in o.corner_position_mm)}; " + (f"its own {own}" if own else "the cell's settings"))
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    try:
+        config = load_config(args.config)
+        if args.secrets:
+            check_tokens(config, str(args.config))
+    except (ConfigError, TokenUnavailable) as err:
+        print(f"NOT OK: {args.config}\n{err}", file=sys.stderr)
+        return 2
+    print(f"OK: {args.config}")
+    for line in summary(config):
+        print(f"  {line}")
+    try:
+        plan = wall_plan(config).lines()
+    except ValueError as err:  # e.g. spots on a line: the configuration loads, the alignment would refuse
+        plan = [f"cannot be predicted: {err}"]
+    print("  wall readings           " + "\n                          ".join(plan))
+    print("  secrets                 " + ("every API token and OPC UA password could be read" if args.secrets
+                                          else "not read (--secrets reads the API tokens and OPC UA passwords)"))  # fmt: skip
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Add ``config check`` to cellctl's parser."""
+    p = subparsers.add_parser("config", help="check a configuration file before the service uses it")
+    sub = p.add_subparsers(dest="config_command", required=True, metavar="SUBCOMMAND")
+    p = sub.add_parser(
+        "check", help="load and validate the configuration (--config); print what it sets up, or each error by field",
+        description="Exit status 0: the configuration is valid; 2: it is not (each problem names its field).",
+    )  # fmt: skip
+    p.add_argument("--secrets", action="store_true",
+                   help="also read every API token and OPC UA password (environment variables, files), as `serve` does")  # fmt: skip
+    p.set_defaults(func=_cmd_check)

@@ -1,0 +1,150 @@
+"""The OPC UA server's certificate, its users and what each may do; the caller of a method call.
+
+asyncua hands a method callback no session, so the permission check (which sees the user of every
+request, on the connection's own task, just before the request runs) remembers the caller in a
+context variable the callbacks read: :func:`caller`.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import hmac
+import ipaddress
+import logging
+import os
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.crypto import cert_gen, uacrypto
+from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
+from cryptography.x509.oid import ExtendedKeyUsageOID
+
+from cellctl.config.opcua import OpcUaConfig
+
+log = logging.getLogger(__name__)
+
+CERT_VALID_DAYS = 3650
+
+
+@dataclass
+class CellUser(User):
+    """An authenticated OPC UA user; ``may_call``: operator (methods) or viewer (reads and subscriptions)."""
+
+    may_call: bool = False
+
+
+_caller: contextvars.ContextVar[CellUser | None] = contextvars.ContextVar("opcua_caller", default=None)
+
+
+def caller() -> str:
+    """The name of the user whose method call is running (for the audit log)."""
+    user = _caller.get()
+    return "opcua:unknown" if user is None or not user.name else user.name
+
+
+class CellRuleset(SimpleRoleRuleset):
+    """Operators may call methods; viewers read, browse and subscribe; nobody writes the address space."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._call = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
+        self._write = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+
+    def check_validity(self, user: Any, action_type_id: ua.NodeId, body: Any) -> bool:
+        if not isinstance(user, CellUser):
+            return False
+        _caller.set(user)
+        if action_type_id == self._write:
+            return False
+        if action_type_id == self._call:
+            return user.may_call
+        return bool(super().check_validity(user, action_type_id, body))
+
+
+class CellUserManager:
+    """Password users (compared in constant time), certificate users (by their DER), anonymous if allowed."""
+
+    def __init__(self, passwords: dict[str, tuple[str, bool]], certificates: dict[bytes, tuple[str, bool]],
+                 *, allow_anonymous: bool) -> None:  # fmt: skip
+        self._passwords = passwords
+        self._certificates = certificates
+        self._anonymous = allow_anonymous
+
+    @classmethod
+    def from_config(cls, cfg: OpcUaConfig, root: Path) -> CellUserManager:
+        """Read every password and certificate now; a missing one raises naming the user and the fix."""
+        passwords: dict[str, tuple[str, bool]] = {}
+        certificates: dict[bytes, tuple[str, bool]] = {}
+        for u in cfg.users:
+            if u.certificate is not None:
+                path = u.certificate if u.certificate.is_absolute() else root / u.certificate
+                try:
+                    cert = x509.load_der_x509_certificate(path.read_bytes()) if path.suffix.lower() == ".der" \
+                        else x509.load_pem_x509_certificate(path.read_bytes())  # fmt: skip
+                except (OSError, ValueError) as err:
+                    raise ValueError(f"opcua.users '{u.name}': certificate {path} cannot be read ({err}); give the "
+                                     "user's X.509 certificate as a DER (.der) or PEM file") from None
+                certificates[cert.public_bytes(Encoding.DER)] = (u.name, u.role == "operator")
+            else:
+                passwords[u.name] = (u.secret(), u.role == "operator")
+        return cls(passwords, certificates, allow_anonymous=cfg.allow_anonymous)
+
+    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
+                 certificate: Any = None) -> CellUser | None:  # fmt: skip
+        if username is not None:
+            known = self._passwords.get(username)
+            if known is None or password is None or not hmac.compare_digest(known[0].encode(), password.encode()):
+                log.warning("OPC UA: user %r refused (unknown user or wrong password)", username)
+                return None
+            return CellUser(role=UserRole.User, name=username, may_call=known[1])
+        if certificate is not None:
+            der = certificate if isinstance(certificate, bytes) else certificate.public_bytes(Encoding.DER)
+            who = self._certificates.get(der)
+            if who is None:
+                log.warning("OPC UA: a certificate user not in opcua.users was refused")
+                return None
+            return CellUser(role=UserRole.User, name=who[0], may_call=who[1])
+        if self._anonymous:
+            return CellUser(role=UserRole.User, name="opcua-anonymous", may_call=True)
+        return None
+
+
+def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) -> bool:
+    """Create the server's self-signed certificate and key if either is absent; True if it created them.
+
+    RSA 2048 / SHA-256, SubjectAltName the application URI, this host's name, localhost and
+    127.0.0.1, valid ten years; the key is written readable by the service's user only.
+    """
+    if cert_path.is_file() and key_path.is_file():
+        return False
+    key = cert_gen.generate_private_key()
+    host = socket.gethostname()
+    names: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri), x509.DNSName(host),
+                                     x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]  # fmt: skip
+    cert = cert_gen.generate_self_signed_app_certificate(
+        key, f"cellctl {host}", {"organizationName": "cellctl"}, names,
+        extended=[ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH], days=CERT_VALID_DAYS,
+    )  # fmt: skip
+    for p in (cert_path, key_path):
+        p.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(cert_gen.dump_private_key_as_pem(key))
+    cert_path.write_bytes(cert.public_bytes(Encoding.DER))
+    return True
+
+
+def certificate_uri(cert_path: Path) -> str | None:
+    """The application URI in a certificate's SubjectAltName (None if it has none)."""
+    cert = uacrypto.x509_from_der(cert_path.read_bytes())
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return None
+    uris = san.get_values_for_type(x509.UniformResourceIdentifier)
+    return uris[0] if uris else None

@@ -1,0 +1,162 @@
+"""The arc corner's orientation from its end tangents (issue 21; paper 4.2, "derive the lines from
+its centre, radius and tangent directions").
+
+Where a straight edge is in view beyond an end of the arc, its sub-pixel points (from the tangent
+point outwards) give a line; it must touch the fitted circle (an occluder's border or a shadow does
+not) and be long and straight enough. theta is the top edge's angle to u and the right edge's to v
+(their mean when both are seen, which must then agree); without such an edge the orientation needs
+a second feature and is None, with the reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.config.arc_vision import ArcCornerConfig
+from cellctl.config.vision import FitConfig, VisionConfig
+from cellctl.vision.arc import arc_crossings
+from cellctl.vision.edge import background_consistent, robust_line_fit
+from cellctl.vision.lens import Lens
+from cellctl.vision.lines import Line2D, fit_line, ransac_line
+
+F64 = NDArray[np.float64]
+
+# Per edge: unit vector from the centre to the tangent point and along the edge away from the arc
+# (upright corner, image frame: u right, v down).
+_SIDES: dict[str, tuple[F64, F64]] = {
+    "top": (np.array([0.0, -1.0]), np.array([-1.0, 0.0])),
+    "right": (np.array([1.0, 0.0]), np.array([0.0, 1.0])),
+}
+
+
+@dataclass(frozen=True)
+class TangentEdge:
+    """A straight edge beyond the arc: its line (ideal px), angle (top to u, right to v; rad) and checks."""
+
+    name: str
+    line: Line2D
+    angle_rad: float
+    sigma_angle_rad: float
+    length_px: float
+    points: int
+    rms_px: float
+    gap_px: float  # distance of the circle's centre from the line minus the radius
+    reason: str  # why it does not give the orientation ("" when it does)
+
+    @property
+    def ok(self) -> bool:
+        return not self.reason
+
+
+@dataclass(frozen=True)
+class ArcOrientation:
+    """theta (rad, positive from u towards v) or None with ``reason``; the edges that were tried."""
+
+    theta_rad: float | None
+    reason: str
+    top: TangentEdge | None
+    right: TangentEdge | None
+
+
+@lru_cache(maxsize=8)
+def _line_fit_config(band_px: float, iterations: int, robust_k: float, min_band_px: float) -> VisionConfig:
+    """The straight edges' robust line fit is the corner detector's (cellctl.vision.edge)."""
+    fit = FitConfig(subpixel_band_px=band_px, ransac_iterations=iterations, robust_k=robust_k, min_robust_band_px=min_band_px)
+    return VisionConfig(fit=fit)
+
+
+def _edge(
+    img: NDArray[np.uint8], lens: Lens, name: str, pixels: F64, centre: F64, radius: float,
+    config: ArcCornerConfig, search_px: float, rng: np.random.Generator,
+) -> TangentEdge | str:
+    """The straight edge ``name`` beyond the arc, or why none is seen."""
+    e, a = _SIDES[name]
+    tc, s = config.tangent, config.search
+    tilt = np.radians(tc.max_tilt_deg)
+    q = pixels - centre
+    along, across = q @ a, q @ e
+    band = s.ransac_band_px * s.downscale
+    near = (along > 0) & (np.abs(across - radius) <= along * np.tan(tilt) + radius * (1 - np.cos(tilt)) + band)
+    if near.sum() < 10:
+        return "no straight edge beyond the arc in view"
+    mask = ransac_line(pixels[near], band, s.ransac_iterations, rng)
+    if mask.sum() < 10:
+        return "no straight edge beyond the arc in view"
+    seed = fit_line(pixels[near][mask]).line.oriented(a)
+    # From the tangent point (the foot of the centre on the line) outwards, in steps of 0.5 px.
+    t0 = float(seed.along(centre[None])[0]) + tc.start_px
+    t = t0 + np.arange(0.0, 2.0 * (lens.width_px + lens.height_px), 0.5)
+    ideal = seed.at(t)
+    roi, m = config.roi, float(s.border_margin_px)
+    raw = lens.distort(ideal)
+    inside = np.all((raw >= [roi.x_px + m, roi.y_px + m]) & (raw <= [roi.x_px + roi.width_px - 1 - m, roi.y_px + roi.height_px - 1 - m]), axis=1)
+    stop = int(np.argmin(inside)) if not np.all(inside) else len(inside)
+    if stop < 10:
+        return "no straight edge beyond the arc in view"
+    outward = seed.normal if float(seed.normal @ e) > 0 else -seed.normal
+    found = arc_crossings(
+        img, lens, ideal[:stop], np.repeat(outward[None], stop, axis=0), step_px=1,
+        expect_dark=config.opening_polarity == "darker", search_px=search_px, level_samples=s.level_samples,
+        max_blur_sigma_px=s.max_blur_sigma_px,
+    )
+    order = np.argsort(found.order, kind="stable")
+    usable = found.usable[order] & (found.contrast[order] >= 0.5 * config.limits.min_contrast_dn)
+    levels = (found.levels[0][order], found.levels[1][order])
+    usable &= background_consistent(levels, usable, s.background_tolerance)
+    if usable.sum() < tc.min_points:
+        return f"{int(usable.sum())} points on the straight {name} edge (fewer than {tc.min_points})"
+    pts = lens.undistort(found.raw_px[order][usable])
+    cfg = _line_fit_config(max(s.min_robust_band_px, 0.5), s.ransac_iterations, s.robust_k, s.min_robust_band_px)
+    fitted = robust_line_fit(pts, cfg, rng)
+    if fitted is None:
+        return f"no line fits the straight {name} edge's points"
+    fit, inl = fitted
+    line = fit.line.oriented(a)
+    d = line.oriented([1.0, 0.0] if name == "top" else [0.0, 1.0]).direction
+    angle = float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
+    span = line.along(pts[inl])
+    length = float(span.max() - span.min())
+    gap = abs(float(line.signed_distance(centre[None])[0])) - radius
+    reasons = []
+    if int(inl.sum()) < tc.min_points or length < tc.min_length_px:
+        reasons.append(f"straight run {length:.0f} px with {int(inl.sum())} points (at least {tc.min_length_px:g} px, {tc.min_points})")
+    if fit.rms_px > tc.max_rms_px:
+        reasons.append(f"line rms {fit.rms_px:.3f} px (at most {tc.max_rms_px:g})")
+    if abs(gap) > tc.max_tangent_gap_px:
+        reasons.append(f"not tangent to the arc: gap {gap:+.2f} px (at most {tc.max_tangent_gap_px:g})")
+    if np.degrees(fit.sigma_angle_rad) > tc.max_angle_sigma_deg:
+        reasons.append(f"angle sigma {np.degrees(fit.sigma_angle_rad):.3f} deg (at most {tc.max_angle_sigma_deg:g})")
+    why = f"the {name} edge: " + "; ".join(reasons) if reasons else ""
+    return TangentEdge(name, line, angle, fit.sigma_angle_rad, length, int(inl.sum()), fit.rms_px, gap, why)
+
+
+def measure_orientation(
+    img: NDArray[np.uint8], lens: Lens, pixels: F64, centre: F64, radius: float,
+    config: ArcCornerConfig, search_px: float, rng: np.random.Generator,
+) -> ArcOrientation:
+    """theta from the straight edges beyond the arc (``pixels``: Canny pixels, ideal px), or None and why."""
+    edges: dict[str, TangentEdge | None] = {}
+    reasons = []
+    for name in ("top", "right"):
+        got = _edge(img, lens, name, pixels, centre, radius, config, search_px, rng)
+        edges[name] = got if isinstance(got, TangentEdge) else None
+        if isinstance(got, str):
+            reasons.append(f"the {name} edge: {got}")
+        elif not got.ok:
+            reasons.append(got.reason)
+    good = [e for e in edges.values() if e is not None and e.ok]
+    top, right = edges["top"], edges["right"]
+    if not good:
+        return ArcOrientation(None, "orientation needs a second feature: " + "; ".join(reasons), top, right)
+    if len(good) == 2:
+        skew = np.degrees(abs(good[0].angle_rad - good[1].angle_rad))
+        tol = config.tangent.perpendicular_tolerance_deg
+        if skew > tol:
+            why = f"the two straight edges are {skew:.2f} deg off a right angle (at most {tol:g})"
+            return ArcOrientation(None, why, top, right)
+        return ArcOrientation(0.5 * (good[0].angle_rad + good[1].angle_rad), "", top, right)
+    return ArcOrientation(good[0].angle_rad, f"from the {good[0].name} edge only", top, right)

@@ -1,0 +1,191 @@
+"""`cellctl` as an engineer types it: --version, python -m cellctl, config check, where the client calls, bad arguments."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+from shared_support import free_port
+
+import cellctl.cli as cli
+from cellctl.cli import build_parser, main
+
+ROOT = Path(__file__).resolve().parents[2]
+SIM = ROOT / "config" / "sim.toml"
+
+
+def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    """``main(argv)`` in this process: exit status (argparse's SystemExit too), stdout, stderr."""
+    try:
+        rc = main(list(argv))
+    except SystemExit as stop:
+        rc = int(stop.code or 0)
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _config_on_port(tmp_path: Path, port: int) -> Path:
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(SIM.read_text(encoding="utf-8").replace("\nport = 8080\n", f"\nport = {port}\n", 1), encoding="utf-8")
+    return cfg
+
+
+def test_version_comes_from_the_installed_metadata(capsys: pytest.CaptureFixture[str]) -> None:
+    rc, out, _ = _run(capsys, "--version")
+    assert rc == 0 and out.strip() == f"cellctl {version('cellctl')}"
+
+
+def test_python_dash_m_cellctl_is_the_same_command() -> None:
+    run = subprocess.run([sys.executable, "-m", "cellctl", "--version"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.strip() == f"cellctl {version('cellctl')}", run.stderr
+
+
+def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFixture[str]) -> None:
+    rc, out, _ = _run(capsys, "config", "check", "--config", str(SIM))
+    assert rc == 0
+    assert out.startswith(f"OK: {SIM}") and "mode sim, cell_id cell-1" in out
+    assert "http://127.0.0.1:8080/" in out and "opc.tcp://127.0.0.1:4840/cellctl" in out and "127.0.0.1:5020" in out
+    # the alignment's choice of readings: robot time and predicted plane error, spots against the sweep
+    assert re.search(r"stop and go: 6 spots, [\d.]+ s of robot time .*plane \+-[\d.]+ deg, \+-[\d.]+ mm", out), out
+    assert re.search(r"on the move: \d+ readings along the sweep, [\d.]+ s of robot time; plane \+-", out), out
+    rc, out, _ = _run(capsys, "--config", str(SIM), "config", "check", "--secrets")
+    assert rc == 0 and "could be read" in out
+
+
+def test_config_check_names_the_bad_field_and_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SIM.read_text(encoding="utf-8").replace("\nport = 8080\n", "\nport = 99999\n", 1), encoding="utf-8")
+    rc, out, err = _run(capsys, "config", "check", "--config", str(bad))
+    assert rc == 2 and out == "" and f"NOT OK: {bad}" in err and "api.port" in err and "Traceback" not in err
+
+
+def test_config_check_secrets_reads_the_tokens(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.delenv("CELLCTL_TOKEN", raising=False)
+    hw = ROOT / "config" / "hardware.example.toml"
+    rc, _, err = _run(capsys, "config", "check", "--config", str(hw), "--secrets")
+    assert rc == 2 and "CELLCTL_TOKEN" in err
+
+
+def test_client_commands_call_the_port_of_the_given_config(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.delenv("CELLCTL_URL", raising=False)
+    port = free_port()  # nobody listens: the error says where it called
+    cfg = _config_on_port(tmp_path, port)
+    for argv in (["--config", str(cfg), "status"], ["status", "--config", str(cfg)]):
+        rc, _, err = _run(capsys, *argv)
+        assert rc == 1 and f"http://127.0.0.1:{port}" in err and "Traceback" not in err
+    other = free_port()
+    monkeypatch.setenv("CELLCTL_URL", f"http://127.0.0.1:{other}")
+    rc, _, err = _run(capsys, "--config", str(cfg), "status")
+    assert rc == 1 and f"http://127.0.0.1:{other}" in err
+    rc, _, err = _run(capsys, "--config", str(cfg), "status", "--url", "http://127.0.0.1:1")
+    assert rc == 1 and "http://127.0.0.1:1" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["calibrate", "camera", "--views", "0"], "--views must be ≥ 1 (got 0)"),
+        (["calibrate", "laser", "--poses", "-3"], "--poses must be ≥ 1 (got -3)"),
+        (["calibrate", "hand-eye", "--views", "many"], "--views expected a whole number (got 'many')"),
+        (["calibrate", "camera", "--view", "5"], "unrecognized arguments: --view 5"),
+        (["cycle", "--count", "0"], "--count must be ≥ 1 (got 0)"),
+        (["cycle", "--timeout", "-1"], "--timeout must be > 0 (got -1)"),
+        (["serve", "--port", "70000"], "--port must be a TCP port, 0 to 65535 (got 70000)"),
+        (["serve", "--demo-cycles", "-1"], "--demo-cycles must be ≥ 0 (got -1)"),
+        (["--log-level", "loud", "status"], "invalid choice: 'loud'"),
+    ],
+)
+def test_a_bad_argument_is_one_line_and_exit_2(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    rc, out, err = _run(capsys, *argv)
+    assert rc == 2 and out == ""
+    first = err.splitlines()[0]
+    assert first.startswith("cellctl") and ": error: " in first and message in first, err
+    assert "Traceback" not in err and "usage:" not in err
+
+
+def test_a_bad_log_level_in_the_environment_is_a_usage_error(capsys: pytest.CaptureFixture[str],
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.setenv("CELLCTL_LOG_LEVEL", "loud")
+    rc, _, err = _run(capsys, "config", "check")
+    assert rc == 2 and "unknown log level 'loud'" in err
+
+
+def _all_parsers(parser: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    found = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in dict.fromkeys(action.choices.values()):
+                found += _all_parsers(child)
+    return found
+
+
+def test_no_parser_takes_abbreviations_and_every_option_says_what_it_does() -> None:
+    parsers = _all_parsers(build_parser())
+    assert len(parsers) > 15
+    assert all(not p.allow_abbrev for p in parsers)
+    undocumented = [
+        (p.prog, a.option_strings or a.dest)
+        for p in parsers
+        if not p.prog.startswith("cellctl bench")  # the benches' own options (not this issue's)
+        for a in p._actions
+        if not a.help and not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))
+    ]
+    assert not undocumented
+
+
+def test_teach_and_cycle_help_describe_their_options(capsys: pytest.CaptureFixture[str]) -> None:
+    for argv, words in ((["teach", "--help"], ("--dry-run", "--dataset", "--workdir", "--url")),
+                        (["cycle", "--help"], ("--recipe", "--count", "--timeout", "Idempotency-Key"))):  # fmt: skip
+        rc, out, _ = _run(capsys, *argv)
+        assert rc == 0 and all(w in out for w in words)
+        assert "--config" in out and "--log-level" in out  # the global options after the command too
+
+
+def test_default_config_falls_back_to_the_packaged_copy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("CELLCTL_CONFIG", raising=False)
+    assert cli.default_config() == SIM  # a source checkout: its config/sim.toml
+    monkeypatch.setattr(cli, "_CHECKOUT_CONFIG", tmp_path / "absent.toml")
+    packaged = cli.default_config()
+    assert packaged == Path(cli.__file__).resolve().parent / "data" / "sim.toml"
+    assert packaged.read_bytes() == SIM.read_bytes()  # one file: data/sim.toml is config/sim.toml
+    monkeypatch.setenv("CELLCTL_CONFIG", str(tmp_path / "mine.toml"))
+    assert cli.default_config() == tmp_path / "mine.toml"
+
+
+def test_calibrate_status_without_a_set_says_where_it_looked(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CELLCTL_WORKDIR", str(tmp_path / "cell"))
+    rc, out, _ = _run(capsys, "--config", str(SIM), "calibrate", "status")
+    assert rc == 1
+    assert f"no calibration set in {tmp_path / 'cell' / 'var' / 'calibration'}" in out
+    assert "0 version(s)" not in out and "CELLCTL_WORKDIR" in out
+
+
+def test_serve_host_and_port_override_the_configuration(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    import cellctl.service as service
+    from cellctl.service.compose import ServiceError as BuildError
+
+    seen: dict[str, object] = {}
+
+    async def fake_build(config: object, *, workdir: Path) -> None:
+        seen.update(config=config, workdir=workdir)
+        raise BuildError("stop here")
+
+    monkeypatch.setattr(service, "build_service", fake_build)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("CELLCTL_WORKDIR", raising=False)
+    rc, _, err = _run(capsys, "--config", str(SIM), "serve", "--host", "0.0.0.0", "--port", "18080")
+    assert rc == 1 and "stop here" in err and "Traceback" not in err
+    api = seen["config"].api  # type: ignore[attr-defined]
+    assert (api.host, api.port) == ("0.0.0.0", 18080) and seen["workdir"] == tmp_path.resolve()
+    rc, _, _ = _run(capsys, "--config", str(SIM), "serve", "--port", "18081")
+    assert (seen["config"].api.host, seen["config"].api.port) == ("127.0.0.1", 18081)  # type: ignore[attr-defined]

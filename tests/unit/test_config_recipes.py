@@ -1,0 +1,90 @@
+"""Recipes that carry their own window (issue 21): each recipe's sections checked as the tables they replace."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cellctl.config.loader import ConfigError, parse_config
+from cellctl.config.recipe import RECIPE_SECTIONS, Recipe
+
+ROOT = Path(__file__).resolve().parents[2]
+DOOR: dict[str, Any] = {
+    "id": 2, "name": "door-window", "description": "1200 x 900 mm door window",
+    "opening": {"corner_position_mm": [1700.0, -600.0, 1650.0], "width_mm": 1200.0, "height_mm": 900.0},
+    "align": {"spots_mm": [[-900.0, -60.0], [-300.0, -60.0], [60.0, 225.0], [60.0, 675.0], [-600.0, 960.0], [-1260.0, 450.0]]},
+    "sim_glass": {"width_mm": 1200.0, "height_mm": 900.0, "corner_in_flange_mm": [600.0, -450.0, 120.0]},
+}  # fmt: skip
+
+
+def _data(*recipes: dict[str, Any]) -> dict[str, Any]:
+    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
+    data.setdefault("process", {})["recipes"] = [{"id": 1, "name": "side-window"}, *recipes]
+    return data
+
+
+def test_a_recipe_runs_with_its_own_opening_spots_and_glass_and_the_cells_everything_else() -> None:
+    config = parse_config(_data(DOOR))
+    door = config.for_recipe("door-window")
+    assert (door.layout.opening.width_mm, door.layout.opening.height_mm) == (1200.0, 900.0)
+    assert door.layout.opening.corner_position_mm == (1700.0, -600.0, 1650.0)
+    assert door.process.align.spots_mm[0] == (-900.0, -60.0)
+    # the twin's car body stands at the recipe's opening, and the gripper holds the recipe's glass
+    assert (door.sim.world.width_mm, door.sim.world.corner_position_mm) == (1200.0, (1700.0, -600.0, 1650.0))
+    assert door.sim.glass.width_mm == 1200.0 and door.sim.glass.corner_in_flange_mm == (600.0, -450.0, 120.0)
+    # what the recipe leaves out is the cell's
+    assert door.process.align.laser_range_mm == config.process.align.laser_range_mm
+    assert door.process.inspect == config.process.inspect and door.vision == config.vision
+    assert door.layout.opening.wall_normal == config.layout.opening.wall_normal
+    # the cell's own view is untouched; a recipe without sections is the cell's configuration itself
+    assert config.layout.opening.width_mm == 2000.0 and config.for_recipe("side-window") is config
+    assert config.default_recipe == "side-window"
+    # the workpiece frame moved with the opening's corner
+    assert np.allclose(door.layout.opening.T_B_T_nominal()[:3, 3], [1700.0, -600.0, 1650.0])
+
+
+def test_a_bad_recipe_field_refuses_the_config_naming_the_recipe_and_the_field() -> None:
+    bad = {**DOOR, "opening": {**DOOR["opening"], "width_mm": -5.0}, "align": {"spotz_mm": [[0.0, 0.0]]}}
+    with pytest.raises(ConfigError) as err:
+        parse_config(_data(bad), "cell.toml")
+    text = str(err.value)
+    assert "process.recipes[1] (door-window): opening.width_mm: Input should be greater than 0" in text
+    assert "process.recipes[1] (door-window): align.spotz_mm: unknown field" in text
+    assert "sim.world" not in text  # the twin's copy of the opening is not a second complaint
+
+
+def test_a_recipe_can_break_a_rule_that_spans_tables_and_is_told_which() -> None:
+    # a 150 mm corner radius leaves the line detector too little straight edge: the cell's rule, named for the recipe
+    bad = {**DOOR, "opening": {**DOOR["opening"], "corner_radius_mm": 150.0}, "sim_glass": DOOR["sim_glass"]}
+    with pytest.raises(ConfigError) as err:
+        parse_config(_data(bad))
+    assert "process.recipes[1] (door-window)" in str(err.value) and "corner_radius_mm = 150" in str(err.value)
+
+
+def test_unknown_recipe_names_are_refused_with_the_list() -> None:
+    config = parse_config(_data(DOOR))
+    with pytest.raises(KeyError, match="side-window, door-window"):
+        config.for_recipe("boot-lid")
+
+
+def test_every_recipe_section_lands_in_a_table_of_the_config() -> None:
+    config = parse_config(_data())
+    for name, path in RECIPE_SECTIONS.items():
+        node: Any = config
+        for part in path:
+            node = getattr(node, part)
+        assert node is not None, name
+        assert name in Recipe.model_fields
+
+
+def test_a_copy_with_other_settings_gives_recipe_views_with_those_settings() -> None:
+    config = parse_config(_data(DOOR))
+    process = config.process.model_copy(update={"align": config.process.align.model_copy(update={"mode": "on_the_fly"})})
+    copy = config.model_copy(update={"process": process})
+    assert copy.for_recipe("door-window").process.align.mode == "on_the_fly"  # the copy's setting, the recipe's spots
+    assert copy.for_recipe("door-window").process.align.spots_mm[0] == (-900.0, -60.0)
+    assert config.for_recipe("door-window").process.align.mode == "stop_and_go"  # the original's views are its own
