@@ -182,6 +182,7 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     assert log.loads == 1
     shot(pg, "02-cycle-live.png")
     # The filmstrip opens the cycle's detail: its steps, figures and images.
+    expect(pg.locator(f"#filmstrip [data-cycle='{cid}']")).to_contain_text("done")
     pg.click(f"#filmstrip [data-cycle='{cid}']")
     detail = pg.locator("#cycle-detail")
     expect(detail.locator("h2")).to_have_text(f"Cycle {cid}: done")

@@ -57,7 +57,9 @@ def test_a_cycle_started_over_opcua_shows_on_the_dashboard(
     cid = _start_over_opcua(cell, tmp_path, "P-OPCUA-1", "CAR-UA", "mes-req-1")
     rec = wait_cycle(client, cid)
     assert rec["state"] == "done" and rec["source"] == "opcua", rec
-    expect(pg.locator(f"#filmstrip [data-cycle='{cid}']")).to_contain_text("P-OPCUA-1")
+    film = pg.locator(f"#filmstrip [data-cycle='{cid}']")
+    expect(film).to_contain_text("P-OPCUA-1")
+    expect(film).to_contain_text("done")  # its last render: a click is not raced by the strip's rebuild
     expect(pg.locator("#part")).to_have_text("last: P-OPCUA-1 / CAR-UA")
     pg.click(f"#filmstrip [data-cycle='{cid}']")
     expect(pg.locator("#cycle-detail h2")).to_have_text(f"Cycle {cid}: done")

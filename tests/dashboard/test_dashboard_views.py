@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
@@ -116,3 +117,30 @@ def test_every_view_opens_without_a_script_error(cell: LiveCell, cycle_id: int, 
     assert log.foreign() == [], log.foreign()
     assert log.errors == [], log.errors
     assert warnings == [], warnings
+
+
+@needs_chromium
+def test_an_answer_that_arrives_late_never_overwrites_a_newer_one(
+    cell: LiveCell, cycle_id: int, page: tuple[Page, PageLog]
+) -> None:
+    """The history is asked for twice, unfiltered and then 'failed' only; the unfiltered answer is held
+    back until the filtered one is shown. It arrives last and is dropped: the table stays filtered."""
+    pg, log = page
+    pg.goto(cell.url + "/#/cycles")
+    expect(pg.locator("body")).to_have_attribute("data-ready", "1")
+    row = pg.locator(f"#cycle-table tbody tr[data-cycle='{cycle_id}']")
+    expect(row).to_have_count(1)
+    held: list[Any] = []
+    pg.route(re.compile(r"/cycles\?limit=200$"), lambda route: held.append(route))
+    pg.dispatch_event("#filter-state", "change")  # asks again, unfiltered: held
+    while not held:
+        pg.wait_for_timeout(20)
+    pg.select_option("#filter-state", "failed")
+    expect(row).to_have_count(0)
+    with pg.expect_response(lambda r: r.url.endswith("/cycles?limit=200")) as late:
+        for route in held:
+            route.continue_()
+    late.value.finished()
+    pg.evaluate("() => new Promise((done) => setTimeout(done, 300))")  # its answer has been read and dropped
+    expect(row).to_have_count(0)
+    assert log.errors == [], log.errors

@@ -23,6 +23,17 @@ export async function getJSON(url) {
   return r.json();
 }
 
+const asked = new Map(); // slot -> number of the newest request
+
+// getJSON for a view that refreshes itself: answers null when a newer request for the same `slot`
+// began meanwhile, so an older answer arriving late never overwrites a newer one.
+export async function getLatest(slot, url) {
+  const n = (asked.get(slot) || 0) + 1;
+  asked.set(slot, n);
+  const body = await getJSON(url);
+  return asked.get(slot) === n ? body : null;
+}
+
 // -- the operator token ---------------------------------------------------------------------------
 
 export function token() {

@@ -2,7 +2,7 @@
    (state from the API, part id in the page) and the selected cycle's detail: its figures, true
    install error (simulation), images and steps. */
 
-import { getJSON, thumbUrl } from "./api.js";
+import { getJSON, getLatest, thumbUrl } from "./api.js";
 import { figureList } from "./figures.js";
 import { $, el, setClass } from "./dom.js";
 import { dateTime, isNum, num, signed } from "./format.js";
@@ -11,7 +11,9 @@ import { AXES, NOK_CYCLES, model, schedule } from "./state.js";
 export async function refreshCycleTable() {
   const state = $("filter-state").value;
   const url = "/cycles?limit=200" + (state ? `&state=${encodeURIComponent(state)}` : "");
-  model.cycles = await getJSON(url);
+  const cycles = await getLatest("cycles", url); // an answer from before the filter changed is dropped
+  if (cycles === null) return;
+  model.cycles = cycles;
   renderCycleTable();
 }
 

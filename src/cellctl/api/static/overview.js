@@ -2,7 +2,7 @@
    cycle-time trends, and the filmstrip of recent cycles (not OK ones pinned first). All of it comes
    from GET /dashboard/cycles, the recent cycles digested. */
 
-import { getJSON, thumbUrl } from "./api.js";
+import { getLatest, thumbUrl } from "./api.js";
 import { $, el } from "./dom.js";
 import { chart, chartWidth } from "./chart.js";
 import { clock, isNum } from "./format.js";
@@ -14,7 +14,9 @@ const FILM_RECENT = 10;
 const FILM_PINNED = 6;
 
 export async function refreshDigest() {
-  model.digest = await getJSON("/dashboard/cycles?limit=60");
+  const digest = await getLatest("digest", "/dashboard/cycles?limit=60");
+  if (digest === null) return;
+  model.digest = digest;
   renderTrends();
   renderFilmstrip();
   renderLastImage();
@@ -124,10 +126,18 @@ function filmItem(c, pinned) {
   return el("li", {}, btn);
 }
 
+// What a film item shows; the strip is rebuilt only when this changes, so a refresh that brings
+// nothing new neither reloads the thumbnails nor swaps a button out from under the operator's click.
+const filmKey = (c, pinned) => [c.id, c.part_id, c.state, c.image ? c.image.name : "", c.finished_at || c.created_at, pinned].join("|");
+let shownFilm = null;
+
 function renderFilmstrip() {
   const pinned = model.digest.filter((c) => NOK_CYCLES.has(c.state)).slice(0, FILM_PINNED);
   const pinnedIds = new Set(pinned.map((c) => c.id));
   const recent = model.digest.filter((c) => !pinnedIds.has(c.id)).slice(0, FILM_RECENT);
+  const key = [...pinned.map((c) => filmKey(c, true)), ...recent.map((c) => filmKey(c, false))].join("\n");
+  if (key === shownFilm) return;
+  shownFilm = key;
   const items = [...pinned.map((c) => filmItem(c, true)), ...recent.map((c) => filmItem(c, false))];
   $("filmstrip").replaceChildren(...(items.length ? items : [el("li", { class: "muted", text: "No cycles yet." })]));
 }

@@ -3,7 +3,7 @@
    shifts begin at the dashboard config's shift_starts (06:00, 14:00, 22:00 unless the service
    says otherwise) in this browser's time zone; GET /dashboard/shifts counts them. */
 
-import { getJSON } from "./api.js";
+import { getLatest } from "./api.js";
 import { $, el, setClass } from "./dom.js";
 import { clock, num } from "./format.js";
 import { model } from "./state.js";
@@ -12,7 +12,9 @@ export async function refreshShifts() {
   const tz = -new Date().getTimezoneOffset();
   const starts = (model.config.shift_starts || []).join(",");
   const query = `tz_offset_min=${tz}&count=3` + (starts ? `&starts=${encodeURIComponent(starts)}` : "");
-  model.shifts = await getJSON(`/dashboard/shifts?${query}`);
+  const shifts = await getLatest("shifts", `/dashboard/shifts?${query}`);
+  if (shifts === null) return;
+  model.shifts = shifts;
   renderShifts();
 }
 

@@ -2,7 +2,7 @@
    the live/stale mark) and the command bar (PackML commands, unit mode, the operator token). The
    header shows on every page. */
 
-import { forgetToken, getJSON, post, saveToken, token } from "./api.js";
+import { forgetToken, getJSON, getLatest, post, saveToken, token } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
 import { DUE_SOON_DAYS, calibrationDue } from "./caldue.js";
 import { clock, day, isNum } from "./format.js";
@@ -21,7 +21,9 @@ export function takePlcLink(status) {
 }
 
 export async function refreshStatus() {
-  model.status = await getJSON("/status");
+  const status = await getLatest("status", "/status");
+  if (status === null) return;
+  model.status = status;
   takePlcLink(model.status);
   await refreshCurrentCycle();
   renderStatus();
