@@ -1,8 +1,9 @@
 """Keyence LK-G laser displacement sensor (LK-G3001 and LK-G5001 controllers) over RS-232C.
 
-- :class:`KeyenceLkgSensor`: the asyncio driver, a :class:`cellctl.ports.DisplacementSensor`.
+- :class:`KeyenceLkgSensor`: the asyncio driver, a :class:`cellctl.ports.DisplacementSensor` and,
+  by the controller's data storage (``storage``), a :class:`cellctl.ports.StoringSensor`.
 - :class:`FakeLkgController`: a simulated controller on a pseudo-terminal, for tests and the
-  simulated cell.
+  simulated cell (its storage in ``fake_storage``).
 - ``codec``, ``units``, ``errors``: the protocol of both dialects.
 - ``python -m keyence_lkg.bench``: the driver's CPU time per exchange against the wire time.
 """

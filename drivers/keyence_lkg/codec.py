@@ -44,6 +44,7 @@ class Command:
         echo: the header a normal reply starts with (the reply is ``echo`` or ``echo,...``).
         payload: what follows the echo: nothing, measurement values, or setting fields.
         value_count: for "values", the exact number of values, or None for "one or more".
+        max_reply_chars: the longest reply it may get (a storage read-out is long).
     """
 
     text: str
@@ -51,6 +52,7 @@ class Command:
     echo: str
     payload: PayloadKind
     value_count: int | None = None
+    max_reply_chars: int = MAX_REPLY_CHARS
 
     @property
     def wire(self) -> bytes:
@@ -78,11 +80,11 @@ class GarbledReply(ValueError):
     """A line that is no reply the protocol allows (noise, a cut-off reply, a wrong baud rate)."""
 
 
-def parse_line(line: bytes) -> Reply | ErrorReply:
+def parse_line(line: bytes, max_chars: int = MAX_REPLY_CHARS) -> Reply | ErrorReply:
     """Classify one CR-terminated line (without its CR); raises GarbledReply for anything else."""
     if not line:
         raise GarbledReply("empty line")
-    if len(line) > MAX_REPLY_CHARS:
+    if len(line) > max_chars:
         raise GarbledReply(f"line of {len(line)} bytes without CR")
     try:
         text = line.decode("ascii")

@@ -47,6 +47,7 @@ from cellctl.ports import (
     LaserStatus,
 )
 from keyence_lkg.codec import (
+    MAX_REPLY_CHARS,
     Command,
     ErrorReply,
     GarbledReply,
@@ -58,6 +59,7 @@ from keyence_lkg.codec import (
     payload_of,
 )
 from keyence_lkg.link import LinkLost, LinkTimeout, SerialLine
+from keyence_lkg.storage import LkgStorage
 from keyence_lkg.units import UnitFormat, ValueKind, WireValue, unit_format
 
 _log = logging.getLogger(__name__)
@@ -127,8 +129,8 @@ class _Call:
     saw_link_loss: bool = False
 
 
-class KeyenceLkgSensor:
-    """A Keyence LK-G controller (LK-G3001 or LK-G5001) on a serial port.
+class KeyenceLkgSensor(LkgStorage):
+    """A Keyence LK-G controller (LK-G3001 or LK-G5001) on a serial port; it stores readings on the move (LkgStorage).
 
     Args:
         port: the serial device path (a stable udev name such as /dev/serial/by-id/..., or a
@@ -353,6 +355,8 @@ class KeyenceLkgSensor:
     async def _exchange(self, command: Command, call: _Call, *, exchange_timeout_s: float | None = None) -> _Answer:
         loop = asyncio.get_running_loop()
         per_exchange = self.exchange_timeout_s if exchange_timeout_s is None else exchange_timeout_s
+        if command.max_reply_chars > MAX_REPLY_CHARS:  # a storage read-out: twice its time on the wire (8N1)
+            per_exchange += 2.0 * 10.0 * command.max_reply_chars / self._line.baud
         while True:
             if loop.time() >= call.deadline:
                 raise self._deadline_error(command, call)
@@ -394,11 +398,12 @@ class KeyenceLkgSensor:
         if len(self._outstanding) > MAX_OUTSTANDING:
             del self._outstanding[0]
         self.stats.exchanges += 1
+        self._line.max_line = command.max_reply_chars
         await self._line.write(command.wire, deadline)
         while True:
             raw, arrived = await self._line.read_line(deadline)
             try:
-                reply = parse_line(raw)
+                reply = parse_line(raw, command.max_reply_chars)
             except GarbledReply:
                 self.stats.garbled_lines += 1
                 raise

@@ -33,12 +33,14 @@ import random
 import select
 import tempfile
 import threading
+import time
 import tty
 from dataclasses import dataclass
 from typing import Callable, Literal, Mapping
 
 from keyence_lkg.errors import DIALECTS, ERROR_CODES, Dialect
 from keyence_lkg.fake_commands import MAX_COMMAND_CHARS, DistanceSource, LkgCommandSet, Mode, setting_specs
+from keyence_lkg.fake_storage import StorageState
 from keyence_lkg.units import unit_format
 
 _log = logging.getLogger(__name__)
@@ -107,6 +109,7 @@ class FakeLkgController(LkgCommandSet):
             link_path = os.path.join(self._own_dir, "ttyLKG0")
         self.path = link_path
         self.mode: Mode = "general"
+        self.storage = StorageState()
         self._specs = setting_specs(self.dialect)
         self._settings: dict[tuple[str, tuple[str, ...]], tuple[str, ...]] = {}
         self._rng = random.Random(seed)
@@ -314,10 +317,12 @@ class FakeLkgController(LkgCommandSet):
             if requests:
                 continue
             watch = [self._wake_r] + ([master] if master is not None else [])
+            due = self.storage.next_due_s(time.monotonic())
             try:
-                ready, _, _ = select.select(watch, [], [], 0.5)
+                ready, _, _ = select.select(watch, [], [], 0.5 if due is None else min(0.5, due))
             except (OSError, ValueError):
                 continue
+            self.sample_storage(time.monotonic())
             if self._wake_r in ready:
                 try:
                     os.read(self._wake_r, 4096)
@@ -384,10 +389,16 @@ class FakeLkgController(LkgCommandSet):
             master = self._master
         if master is None:
             return
-        try:
-            os.write(master, data)
-        except OSError:
-            pass  # nobody listening and the buffer full: bytes are lost, as on a real line
+        deadline = time.monotonic() + 2.0  # a long reply (a storage read-out) goes as the reader takes it
+        while data:
+            try:
+                data = data[os.write(master, data) :]
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    return  # nobody reads: the rest is lost, as on a real line
+                select.select([], [master], [], 0.05)
+            except OSError:
+                return
 
     def _log(self, exchange: FakeExchange) -> None:
         with self._lock:

@@ -52,6 +52,7 @@ class SerialLine:
         self._lost: str | None = None
         self.bytes_written = 0
         self.bytes_read = 0
+        self.max_line = MAX_REPLY_CHARS  # a longer run without CR is handed on as one (garbled) line
 
     @property
     def is_open(self) -> bool:
@@ -174,7 +175,7 @@ class SerialLine:
                 break
             self._lines.append((bytes(buf[:i]), now))
             del buf[: i + 1]
-        if len(buf) > MAX_REPLY_CHARS:
+        if len(buf) > self.max_line:
             # a run of bytes without CR: hand it on as one (garbled) line so it is seen and dropped
             self._lines.append((bytes(buf), now))
             buf.clear()

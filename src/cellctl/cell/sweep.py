@@ -130,7 +130,7 @@ async def sweep_path(run: CycleRun, step: CycleStep, corners: list[Pose], *, lat
         await stream.start_stream(timeout_s=timeout)
         await laser.start_storage(cycle_s=cfg.storage_cycle_s, count=count, timeout_s=timeout)
         await _supervised(run, step, path(), stream)
-        stored = await laser.stop_storage(timeout_s=timeout)
+        stored = await laser.stop_storage(timeout_s=timeout + path_s)  # the read-out is on the serial line: up to as long as the path
         samples = await stream.stop_stream(timeout_s=timeout)
     except DeviceError as err:
         raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
@@ -174,8 +174,9 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
             done, _ = await asyncio.wait({task}, timeout=SUPERVISION_PERIOD_S)
             if done:
                 return task.result()
+            now = run.dev.clock()  # before the sample: a host stall between the two must not read as a stale stream
             latest = stream.latest()
-            age = run.dev.clock() - (since if latest is None else latest.t_s)
+            age = now - (since if latest is None else latest.t_s)
             if age > cfg.feedback_stale_s:
                 break
     finally:

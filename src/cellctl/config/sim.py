@@ -102,7 +102,8 @@ class LaserSimConfig(LaserMount):
     drawn per reading). ``no_return_status`` is what a reading says when the beam finds no surface
     (through the window opening): the LK-G shows over range; which sign it takes for a missing
     return is not confirmed by the manual pages at hand, so it is a setting. Stored readings (the
-    LK-G's data storage) measure where the flange was ``storage_latency_s`` before their instant.
+    LK-G's data storage) measure where the flange was ``storage_latency_s`` before their instant, and
+    reading them out takes ``readout_s_per_reading`` each (the serial line's time).
     """
 
     linearity_fraction_fs: Finite = Field(0.0002, ge=0, le=0.05)  # +-0.02 % of full scale (paper)
@@ -110,6 +111,8 @@ class LaserSimConfig(LaserMount):
     no_return_status: Literal["over_range_far", "over_range_near", "no_value"] = "over_range_far"
     read_latency_s: Finite = Field(0.002, ge=0, le=1.0)  # one M1 round trip at 115200 Bd
     storage_latency_s: Finite = Field(0.008, ge=0, le=1.0)  # a stored reading's delay: head response plus averaging
+    # Reading the storage out (AO) takes this per reading: 9 characters of 10 bits at 115200 Bd (RS-232C, 8N1).
+    readout_s_per_reading: Finite = Field(9 * 10 / 115200, ge=0, le=0.1)
 
 
 class CameraSimConfig(StrictModel):

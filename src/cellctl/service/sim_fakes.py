@@ -9,6 +9,7 @@ releases it. The controller reports the belief back, as a real one does.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Awaitable, Callable
 from typing import Literal
 
@@ -67,17 +68,34 @@ def lkg_reference_mm(cell: SimCell) -> float:
     return 0.5 * (laser.range_min_mm + laser.range_max_mm)
 
 
+class TwinLaserSource:
+    """The twin's laser where the flange truly is: now, or at a past instant of time.monotonic() (for the storage)."""
+
+    def __init__(self, cell: SimCell) -> None:
+        self._cell = cell
+
+    def __call__(self) -> float | LaserStatus:
+        return self._distance(self._cell.laser_reading())
+
+    def at(self, t: float) -> float | LaserStatus:
+        line_t = t + (self._cell.timeline.now() - time.monotonic())  # the same instant on the twin's time line
+        try:
+            return self._distance(self._cell.laser_reading(self._cell.arm.true_at_line(line_t)))
+        except LookupError:  # older than the arm remembers
+            return self()
+
+    @staticmethod
+    def _distance(reading: tuple[LaserStatus, float | None]) -> float | LaserStatus:
+        status, d = reading
+        return d if status is LaserStatus.OK and d is not None else status
+
+
 def lkg_fake(cell: SimCell, dialect: str, display_unit: str) -> FakeLkgController:
     """The LK-G protocol fake on a new pseudo-terminal (started), reading the twin's laser where the flange truly is."""
     laser = cell.config.laser
-
-    def distance() -> float | LaserStatus:
-        status, d = cell.laser_reading()
-        return d if status is LaserStatus.OK and d is not None else status
-
     return FakeLkgController(
         dialect,
-        distance,
+        TwinLaserSource(cell),
         display_unit=display_unit,
         reference_distance_mm=lkg_reference_mm(cell),
         measuring_range_mm=0.5 * laser.full_scale_mm,

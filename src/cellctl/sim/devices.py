@@ -341,7 +341,8 @@ class SimDisplacementSensor(_TwinDevice):
     async def stop_storage(self, *, timeout_s: float) -> StoredReadings:
         """Stop storing and read out the readings stored since :meth:`start_storage` (DeviceRejected without one).
 
-        Reading k is the beam at the true flange pose ``storage_latency_s`` before ``started_s + k * cycle_s``.
+        Reading k is the beam at the true flange pose ``storage_latency_s`` before ``started_s + k * cycle_s``;
+        reading them out takes ``readout_s_per_reading`` each.
         """
         timeout_s = check_timeout(self.name, timeout_s)
         self._check_open()
@@ -350,6 +351,11 @@ class SimDisplacementSensor(_TwinDevice):
         await self._round_trip(timeout_s)
         (started_s, cycle_s, count), self._storage = self._storage, None
         stored = min(count, max(math.floor((self._cell.timeline.now() - started_s) / cycle_s) + 1, 0))
+        readout_s = stored * self._cell.config.laser.readout_s_per_reading  # the readings on the serial line
+        if readout_s * self._cell.time_scale > timeout_s:
+            raise DeviceTimeout(self.name, f"reading out {stored} stored readings takes {readout_s:.2f} s, more than {timeout_s:g} s")
+        self._cell.timeline.waited(readout_s)
+        await asyncio.sleep(readout_s * self._cell.time_scale)
         try:  # thousands of ray casts: the physics runs off the event loop, as the sensor's own readout would
             distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)
         except LookupError as err:
