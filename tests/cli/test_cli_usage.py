@@ -52,7 +52,7 @@ def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFix
     assert "http://127.0.0.1:8080/" in out and "opc.tcp://127.0.0.1:4840/cellctl" in out and "127.0.0.1:5020" in out
     # the alignment's choice of readings: robot time and predicted plane error, spots against the sweep
     assert re.search(r"stop and go: 6 spots, [\d.]+ s of robot time .*plane \+-[\d.]+ deg, \+-[\d.]+ mm", out), out
-    assert re.search(r"on the move: \d+ readings along the sweep, [\d.]+ s of robot time; plane \+-", out), out
+    assert re.search(r"on the move: \d+ readings along the sweep, [\d.]+ s of robot time and [\d.]+ s to read the laser.s storage out; plane \+-", out), out
     rc, out, _ = _run(capsys, "--config", str(SIM), "config", "check", "--secrets")
     assert rc == 0 and "could be read" in out
 

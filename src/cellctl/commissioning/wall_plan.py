@@ -2,7 +2,8 @@
 
 From the nominal layout (the opening where the layout puts it, the camera and laser as drawn) and
 ``[process.align]``: the robot time between the standing spots (as listed, and in the fastest
-order), the time of the sweep with its moves along the beam, and what each predicts for the wall
+order), the time of the sweep with its moves along the beam and of reading the laser's storage
+out, and what each predicts for the wall
 plane (:mod:`cellctl.align.reading_plan`). ``cellctl config check`` prints it.
 """
 
@@ -16,6 +17,7 @@ from cellctl.align import plan_spot_poses
 from cellctl.align.laser_points import sweep_route
 from cellctl.align.reading_plan import fastest_order, predicted_plane_error, standing_readings, sweep_readings
 from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.config.devices import KeyenceLkgDevice
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose
 
@@ -37,6 +39,7 @@ class WallPlan:
     sweep_s: float
     sweep_readings: int
     sweep_error: tuple[float, float]
+    readout_s: float  # reading the laser's storage out after the sweep (its serial line)
 
     def lines(self) -> list[str]:
         return [
@@ -44,7 +47,8 @@ class WallPlan:
             + ("" if self.fastest_s >= self.spots_s - 0.05 else
                f" ({self.fastest_s:.1f} s in the order {', '.join(map(str, self.fastest_order))})")  # fmt: skip
             + f"; plane +-{self.spots_error[0]:.4f} deg, +-{self.spots_error[1]:.3f} mm",
-            f"on the move: {self.sweep_readings} readings along the sweep, {self.sweep_s:.1f} s of robot time; "
+            f"on the move: {self.sweep_readings} readings along the sweep, {self.sweep_s:.1f} s of robot time "
+            f"and {self.readout_s:.1f} s to read the laser's storage out; "
             f"plane +-{self.sweep_error[0]:.4f} deg, +-{self.sweep_error[1]:.3f} mm",
             f"(predicted 1 sigma with laser {LASER_SIGMA_MM:g} mm per reading, robot {ROBOT_SIGMA_MM:g} mm per standing stop)",
         ]
@@ -70,10 +74,21 @@ def wall_plan(config: CellConfig) -> WallPlan:
     sw = ac.sweep
     route = sweep_route(list(poses(sw.path_mm)), l, sw.approach_mm, timed=sw.fixed_latency_s is None)
     sweep_s = sum(robot.move_time_s(a, b, sw.speed_mm_s, motion.speed_deg_s) for a, b in zip(route, route[1:]))
+    readout_s = sweep_s / sw.storage_cycle_s * readout_s_per_reading(config)  # everything stored from start to stop
     along = sweep_readings(sw.path_mm, sw.speed_mm_s * sw.storage_cycle_s)
     noise = {"laser_sigma_mm": LASER_SIGMA_MM, "robot_sigma_mm": ROBOT_SIGMA_MM}
     return WallPlan(
         spots=len(spots), spots_s=sum(between(i, i + 1) for i in range(len(spots) - 1)), fastest_order=order,
         fastest_s=fastest, spots_error=predicted_plane_error(standing_readings(ac.spots_mm), **noise),
         sweep_s=float(sweep_s), sweep_readings=len(along.xy_mm), sweep_error=predicted_plane_error(along, **noise),
+        readout_s=float(readout_s),
     )  # fmt: skip
+
+
+def readout_s_per_reading(config: CellConfig) -> float:
+    """Seconds to read one stored reading out of the laser: 9 characters of 10 bits at the LK-G's baud (RS-232C,
+    8N1) on a real cell, the twin's ``sim.laser.readout_s_per_reading`` in simulation."""
+    laser = config.devices.laser
+    if isinstance(laser, KeyenceLkgDevice):
+        return 9 * 10 / laser.baud
+    return config.sim.laser.readout_s_per_reading
