@@ -114,8 +114,9 @@ class LkgStorage:
     async def start_storage(self: KeyenceLkgSensor, *, cycle_s: float, count: int, timeout_s: float) -> float:
         """Clear the storage and store the configured OUT every ``cycle_s`` (at most ``count``).
 
-        Returns the instant of the first reading on ``time.monotonic()``: the middle of the ``AS``
-        exchange (the constant part of its error is the latency the cell estimates).
+        Returns the instant of the first reading on ``time.monotonic()``: the controller starts when it
+        has ``AS``, so its echo's arrival less the echo's own time on the wire (the host's delay in
+        noticing the echo is part of the latency the cell estimates).
         """
         deadline = time.monotonic() + timeout_s
         left = functools.partial(_left_until, deadline)
@@ -132,9 +133,8 @@ class LkgStorage:
             self._storage_setup, self._storage_cycle_s = (self.output, count, code), actual_s
         self._storage_asked = count
         await self._run(self._measure, storage_command("AQ"), timeout_s=left())
-        sent = time.monotonic()
         answer = await self._run(self._measure, storage_command("AS"), timeout_s=left())
-        self._storage_started_s = 0.5 * (sent + answer.arrived_s)
+        self._storage_started_s = answer.arrived_s - 10.0 * len(b"AS\r") / self._line.baud  # 8N1
         return self._storage_started_s
 
     async def stop_storage(self: KeyenceLkgSensor, *, timeout_s: float) -> StoredReadings:

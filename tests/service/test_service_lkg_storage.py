@@ -35,9 +35,12 @@ async def test_the_wall_is_read_on_the_move_through_the_lkg_storage(tmp_path: Pa
     align = next(s["figures"] for s in rec["steps"] if s["step"] == "align")
     assert align["mode"] == "on_the_fly" and "on_the_fly_unavailable" not in align, align
     assert align["readings_fitted"] >= 100, align
-    # The fake reads the twin where the flange truly is when it stores, so the cell's latency is the
-    # servo lag minus the feedback's delay (the twin's sensor delay is its own device's, not the fake's).
+    # The fake reads the twin where the flange truly was at each stored instant, so the cell's latency is
+    # the servo lag minus the feedback's delay (the twin's sensor delay is its own device's, not the fake's),
+    # less how late the host noticed the AS echo that dates the first stored reading: under 1 ms on an idle
+    # machine, up to 6 ms seen with three busy processes on two cores. The estimate takes it in by design (the
+    # pairing then stays right, which the install error below shows); a wrong cycle would not pass either.
     expected_ms = 1e3 * (twin.robot.path_lag_s - twin.robot.feedback_latency_s)
-    assert abs(align["latency_ms"] - expected_ms) < 2.0, (align["latency_ms"], expected_ms)
+    assert abs(align["latency_ms"] - expected_ms) < 10.0, (align["latency_ms"], expected_ms)
     te = rec["true_error"]
     assert all(abs(te[k]) < 0.3 for k in AXES_MM) and all(abs(te[k]) < 0.05 for k in AXES_DEG), te
