@@ -18,23 +18,29 @@ from keyence_lkg.fake import FakeLkgController
 
 REF_MM = 350.0
 SPEED_MM_S = 10.0  # the distance source moves this fast, so an instant's error shows as a distance error
-T0 = time.monotonic()
 
 
 class MovingWall:
-    """350 mm plus 10 mm/s since T0, no value in every fifth 0.1 s window; it can say what it read at any
-    instant (a TimedSource), so the fake stores each reading for its exact instant however busy the host."""
+    """350 mm plus 10 mm/s since it was made (a saw tooth of 5 s, so it stays in range), no value in every fifth
+    0.1 s window; it can say what it read at any instant (a TimedSource), so the fake stores each reading for
+    its exact instant however busy the host."""
+
+    def __init__(self) -> None:
+        self.t0 = time.monotonic()
 
     def __call__(self) -> float | LaserStatus:
         return self.at(time.monotonic())
 
     def at(self, t: float) -> float | LaserStatus:
-        return LaserStatus.NO_VALUE if int((t - T0) * 10) % 5 == 4 else REF_MM + SPEED_MM_S * (t - T0)
+        since = (t - self.t0) % 5.0
+        return LaserStatus.NO_VALUE if int(since * 10) % 5 == 4 else REF_MM + SPEED_MM_S * since
 
 
 @pytest.fixture(params=["LK-G3001", "LK-G5001"])
 def fake(request: pytest.FixtureRequest) -> Iterator[FakeLkgController]:
-    with FakeLkgController(request.param, MovingWall(), display_unit="0.001mm") as controller:
+    wall = MovingWall()
+    with FakeLkgController(request.param, wall, display_unit="0.001mm") as controller:
+        controller.wall = wall  # type: ignore[attr-defined]
         yield controller
 
 
@@ -81,7 +87,8 @@ async def test_the_driver_is_a_storing_sensor_and_each_reading_stands_for_its_in
     assert n == fake.storage.taken and n >= 250, n  # 0.6 s at 2 ms, and what the stop took
     # Every reading, in order and none lost, is the wall at its instant on the controller's clock (to the
     # display's 0.001 mm), and no value exactly where the wall had none.
-    truth = [MovingWall().at(fake.storage.started_at + k * stored.cycle_s) for k in range(n)]
+    wall: MovingWall = fake.wall  # type: ignore[attr-defined]
+    truth = [wall.at(fake.storage.started_at + k * stored.cycle_s) for k in range(n)]
     missing = [k for k, v in enumerate(truth) if v is LaserStatus.NO_VALUE]
     assert [k for k, v in enumerate(stored.distances_mm) if v is None] == missing and len(missing) > 20
     shown = np.array([v for v in stored.distances_mm if v is not None])
