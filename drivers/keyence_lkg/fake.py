@@ -3,7 +3,8 @@
 The fake owns a pseudo-terminal pair and a symbolic link at a path it controls; the driver opens
 that path exactly as it would ``/dev/ttyUSB0``. It answers in order, one reply per command, in
 the chosen dialect (LK-G3001 or LK-G5001), keeps the mode rules (measuring in general mode,
-settings in communication mode) and answers rule breaks with that dialect's error codes.
+settings in communication mode) and answers rule breaks with that dialect's error codes. Its data
+storage (``AQ``/``AS``/``AP``/``AN``/``AO``) is keyence_lkg.fake_storage, sampled on the serving thread.
 
 Physics comes from a callback per OUT: ``distance() -> float | None | LaserStatus``, the distance
 along the laser from its origin r in mm (the twin's ray cast), ``None`` for no return (shown as
