@@ -4,7 +4,7 @@
 storage cycle (sampling cycle ``CA`` times the setup's multiplier), up to the setup's count; the
 fake's serving thread takes each reading for its instant: from a source that can say what it read
 then (keyence_lkg.fake_commands.TimedSource, as the twin can), exactly as the controller's clock
-would; from any other source when the thread gets there (late on a busy host: counted in
+would; from any other source when the thread gets there (on a busy host, late: how often is
 :attr:`StorageState.late`); ``AP`` stops, ``AN`` tells whether it still
 stores and how many it holds, ``AO,<OUT>`` sends them in one line (refused while storing).
 """
@@ -19,9 +19,8 @@ from keyence_lkg.storage import SAMPLING_CYCLE_US, STORAGE_MULTIPLIERS
 from keyence_lkg.units import NO_VALUE
 
 
-
 class Refuse(Exception):
-    """The controller answers ``ER,<main>,<code>``."""
+    """The controller answers ``ER,<main>,<code>`` (raised by every command handler, keyence_lkg.fake_commands too)."""
 
     def __init__(self, code: str) -> None:
         self.code = code
