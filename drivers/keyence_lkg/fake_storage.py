@@ -12,6 +12,7 @@ stores and how many it holds, ``AO,<OUT>`` sends them in one line (refused while
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from keyence_lkg.errors import PARAMETER_ERROR, STATUS_ERROR, Dialect
@@ -53,14 +54,11 @@ class StorageState:
 class StorageCommands:
     """The storage commands of the fake controller (mixed into keyence_lkg.fake_commands.LkgCommandSet)."""
 
+    # provided by LkgCommandSet: the controller's model, a setting's value (written or default), an OUT's token
     dialect: Dialect
     storage: StorageState
-
-    def _setting_of(self, ident: str, address: tuple[str, ...]) -> tuple[str, ...]:  # provided by LkgCommandSet
-        raise NotImplementedError
-
-    def _display(self, out: int, at: float | None = None) -> tuple[str, float | None]:  # provided by LkgCommandSet
-        raise NotImplementedError
+    _setting_of: Callable[[str, tuple[str, ...]], tuple[str, ...]]
+    _display: Callable[[int, float | None], tuple[str, float | None]]
 
     def _storage_setup(self) -> tuple[tuple[int, ...], float, int]:
         """The OUTs to store, the storage cycle (s) and the count, from the settings the PC wrote."""

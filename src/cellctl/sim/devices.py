@@ -68,7 +68,6 @@ class _TwinDevice:
         self._cell = cell
         self.name = name
         self._latency_sim_s = latency_s
-        self._latency_s = latency_s * cell.time_scale
         self._closed = False
 
     def _check_open(self) -> None:
@@ -76,11 +75,15 @@ class _TwinDevice:
             raise DeviceDisconnected(self.name, self._closed_message)
 
     async def _round_trip(self, timeout_s: float) -> None:
-        if self._latency_s > timeout_s:
+        await self._take(self._latency_sim_s, timeout_s, "no answer")
+
+    async def _take(self, simulated_s: float, timeout_s: float, what: str) -> None:
+        """Spend ``simulated_s`` of the cell's time (scaled in real time), or DeviceTimeout saying ``what`` after ``timeout_s``."""
+        if simulated_s * self._cell.time_scale > timeout_s:
             await asyncio.sleep(timeout_s)
-            raise DeviceTimeout(self.name, f"no answer within {timeout_s:g} s")
-        self._cell.timeline.waited(self._latency_sim_s)
-        await asyncio.sleep(self._latency_s)
+            raise DeviceTimeout(self.name, f"{what} within {timeout_s:g} s")
+        self._cell.timeline.waited(simulated_s)
+        await asyncio.sleep(simulated_s * self._cell.time_scale)
 
     async def ping(self, *, timeout_s: float) -> float:
         """A harmless round trip; returns its duration in seconds."""
@@ -352,10 +355,7 @@ class SimDisplacementSensor(_TwinDevice):
         (started_s, cycle_s, count), self._storage = self._storage, None
         stored = min(count, max(math.floor((self._cell.timeline.now() - started_s) / cycle_s) + 1, 0))
         readout_s = stored * self._cell.config.laser.readout_s_per_reading  # the readings on the serial line
-        if readout_s * self._cell.time_scale > timeout_s:
-            raise DeviceTimeout(self.name, f"reading out {stored} stored readings takes {readout_s:.2f} s, more than {timeout_s:g} s")
-        self._cell.timeline.waited(readout_s)
-        await asyncio.sleep(readout_s * self._cell.time_scale)
+        await self._take(readout_s, timeout_s, f"{stored} stored readings not read out")
         try:  # thousands of ray casts: the physics runs off the event loop, as the sensor's own readout would
             distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)
         except LookupError as err:
