@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
 import numpy as np
 import pytest
@@ -12,10 +13,11 @@ from cellctl.config.render import RenderConfig
 from cellctl.config.sim import WorldConfig
 from cellctl.geometry.pose import make_pose
 from cellctl.ports import Camera, DeviceDisconnected, DeviceTimeout, Frame
-from cellctl.sim.camera import CameraRenderer
+from cellctl.sim.camera import AppliedDisturbances, CameraRenderer, RenderedFrame
 from cellctl.sim.camera_device import SimCamera
 from cellctl.sim.image_truth import camera_pose_seeing_corner, corner_truth
 from cellctl.sim.targets import Checkerboard, PlacedTarget
+from cellctl.sim.timeline import TwinTimeline
 from cellctl.sim.world import World, nominal_world
 
 WORLD = nominal_world(WorldConfig())
@@ -120,3 +122,26 @@ async def test_targets_in_view_are_rendered(renderer: CameraRenderer) -> None:
     u, v = renderer.project(placed.points_B()[:1], np.eye(4))[0]
     # Around the first inner corner: the black top-left cell and the white cell beside it.
     assert frame.image[int(v) - 40, int(u) - 40] < 60 and frame.image[int(v) - 40, int(u) + 40] > 150
+
+
+class _SlowRenderer:
+    """Renders a black frame after ``seconds`` of the host's time (the twin's physics at its slowest)."""
+
+    def __init__(self, renderer: CameraRenderer, seconds: float) -> None:
+        self.intrinsics, self._seconds = renderer.intrinsics, seconds
+
+    def render(self, *args: object, **kwargs: object) -> RenderedFrame:
+        time.sleep(self._seconds)
+        return RenderedFrame(np.zeros((8, 8), np.uint8), AppliedDisturbances(1.0, 1.0, 200.0, 20.0))
+
+
+async def test_a_grab_takes_the_frame_time_on_the_cells_clock_not_the_rendering(renderer: CameraRenderer) -> None:
+    line = TwinTimeline(0.001)
+    scene = Scene(renderer, (1500.0, 560.0))
+    cam = SimCamera(
+        _SlowRenderer(renderer, 0.4), scene.true_camera_pose, scene.current_world, np.random.default_rng(1),  # type: ignore[arg-type]
+        timeline=line, frame_time_s=0.045,
+    )
+    before = line.now()
+    await cam.grab(timeout_s=10.0)
+    assert line.now() - before == pytest.approx(0.045, abs=0.1)  # not 0.4 s: a real cell does not wait for the twin

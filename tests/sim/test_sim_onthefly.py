@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 
 import numpy as np
 import pytest
@@ -220,3 +221,24 @@ def test_the_true_path_follows_the_accuracy_field_along_the_way() -> None:
     np.testing.assert_allclose(true, cell.robot_model.deform(belief), atol=1e-9)
     ends = interpolate_pose(motion.start_true, motion.target_true, motion.timing.fraction(tau))
     assert np.linalg.norm(true[:3, 3] - ends[:3, 3]) > 1e-3  # the field bends the path between the ends
+
+
+async def test_reading_the_storage_out_takes_the_serial_line_not_the_twins_ray_casts(monkeypatch: pytest.MonkeyPatch) -> None:
+    cell = SimCell(_config())
+    laser, c = SimDisplacementSensor(cell), cell.config.laser
+    await laser.start_storage(cycle_s=0.001, count=200, timeout_s=T_OUT)
+    cell.timeline.waited(0.5)  # the robot stands while the laser stores: 200 readings
+    cast = cell.laser_reading
+
+    def slow_cast(*args: object) -> object:
+        time.sleep(0.003)  # the twin's physics at its slowest: 0.6 s of ray casts for 200 readings
+        return cast(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cell, "laser_reading", slow_cast)
+    before = cell.timeline.now()
+    stored = await laser.stop_storage(timeout_s=T_OUT)
+    spent = cell.timeline.now() - before
+    assert len(stored.distances_mm) == 200
+    # The cell waits for the stop's round trip and the read-out on the serial line, not for the ray casts
+    # (the host's own scheduling counts at its real duration: a loaded machine adds a few ms).
+    assert spent == pytest.approx(c.read_latency_s + 200 * c.readout_s_per_reading, abs=0.1)

@@ -25,6 +25,7 @@ from cellctl.align.wall import (
     RejectedSpot,
     WallPlane,
     fit_wall_plane,
+    offset_at_rest,
     orient_normal_into_wall,
     predict_normal_uncertainty,
 )
@@ -46,6 +47,7 @@ __all__ = [
     "flange_pose_for_spot",
     "laser_origins",
     "laser_points",
+    "offset_at_rest",
     "orient_normal_into_wall",
     "plan_spot_poses",
     "predict_normal_uncertainty",
@@ -99,6 +101,7 @@ def compute_alignment(
     min_collinearity: float = 1e-3,
     sigma_prior_mm: float | None = None,
     orientation: Literal["lm", "minimal"] = "minimal",
+    at_rest: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> AlignmentResult:
     """Laser spots in, aligned shooting pose out (paper section 3).
 
@@ -113,6 +116,9 @@ def compute_alignment(
         T_H_C: camera pose in the flange frame (hand-eye).
         working_distance_mm: the camera-to-wall distance to reach (400 mm in the paper).
         T_B_H_current: the flange pose to correct; default the pose at the last spot (as the paper).
+        at_rest: flange poses (M, 4, 4) and distances (M,) of readings a sweep took with the flange
+            standing (its stops): the plane's offset comes from them, its normal from all readings
+            (:func:`offset_at_rest`). None: both from all readings (standing spots).
     """
     poses = np.asarray(T_B_H_spots, dtype=float)
     points = laser_points(poses, r, l, distances_mm, range_mm)
@@ -124,6 +130,9 @@ def compute_alignment(
         min_collinearity=min_collinearity,
         sigma_prior_mm=sigma_prior_mm,
     )
+    if at_rest is not None:
+        rest_points = laser_points(np.asarray(at_rest[0], dtype=float).reshape(-1, 4, 4), r, l, at_rest[1], range_mm)
+        wall = offset_at_rest(wall, rest_points, inlier_threshold_mm=inlier_threshold_mm)
     THC = check_pose(T_H_C, "T_H_C (hand-eye)")
     current = check_pose(poses[-1] if T_B_H_current is None else T_B_H_current, "current flange pose")
     z_C_in_H = THC[:3, 2]

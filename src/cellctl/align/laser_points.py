@@ -107,13 +107,16 @@ def plan_spot_poses(
     return np.stack([flange_pose_for_spot(p, R_X_H, r, l, standoff_mm) for p in on_wall])
 
 
-def sweep_route(corners: Sequence[ArrayLike], l: ArrayLike, approach_mm: float, *, timed: bool) -> list[NDArray[np.float64]]:
-    """A sweep's flange poses in order: with ``timed``, in, out and in along the beam l (flange frame) by
-    ``approach_mm`` at the first corner (the moves that time the laser), starting from out; then the corners."""
+def sweep_route(corners: Sequence[ArrayLike], l: ArrayLike, approach_mm: float, *, beam_moves: int) -> list[NDArray[np.float64]]:
+    """A sweep's flange poses in order: ``beam_moves`` moves along the beam l (flange frame) by ``approach_mm``
+    at the first corner, starting from out (3: in, out and in, which time the laser; 1: in, which checks a
+    known latency; 0: none), then the corners."""
+    if beam_moves not in (0, 1, 3):
+        raise ValueError(f"beam_moves must be 0, 1 or 3 (none, in, or in-out-in), got {beam_moves!r}")
     first = np.asarray(corners[0], dtype=float)
     rest = [np.asarray(T, dtype=float) for T in corners[1:]]
-    if not timed:
+    if not beam_moves:
         return [first, *rest]
     back = first.copy()
     back[:3, 3] -= (first[:3, :3] @ np.asarray(l, dtype=float)) * approach_mm
-    return [back, first, back, first, *rest]
+    return [back, *[first, back] * (beam_moves // 2), first, *rest]

@@ -34,6 +34,10 @@ OBSERVABILITY_HINT = (
 )
 
 
+class LatencyAtEdge(ValueError):
+    """The best latency lies at the edge of the searched range: the true one may lie beyond it."""
+
+
 class FlangeTrajectory:
     """The flange pose T_B_H (mm) at any instant between the first and the last feedback sample.
 
@@ -146,6 +150,20 @@ def pair_stored_readings(
         inside &= (t[after] - t[after - 1]) <= max_gap_s
     keep = np.flatnonzero(inside)
     return PairedReadings(trajectory(q[keep]).reshape(-1, 4, 4), d[keep], instants[keep], keep)
+
+
+def standing(samples_t: ArrayLike, samples_T: ArrayLike, t: ArrayLike, *, hold_s: float = 0.03, tol_mm: float = 0.01) -> NDArray[np.bool_]:
+    """(M,) whether the flange stood still at each instant ``t`` (s): its reported position moved at
+    most ``tol_mm`` over the ``hold_s`` before (longer than the servo's lag, so the arm itself stood too).
+    Instants whose window leaves the feedback samples count as moving."""
+    trajectory = FlangeTrajectory(samples_t, samples_T)
+    q = np.atleast_1d(np.asarray(t, dtype=float))
+    inside = (q - hold_s >= trajectory.start_s) & (q <= trajectory.end_s)
+    out = np.zeros(q.size, dtype=bool)
+    if inside.any():
+        now, before = trajectory(q[inside]), trajectory(q[inside] - hold_s)
+        out[inside] = np.linalg.norm(now[:, :3, 3] - before[:, :3, 3], axis=1) <= tol_mm
+    return out
 
 
 @dataclass(frozen=True)
@@ -270,7 +288,7 @@ def estimate_latency(
             f"can absorb is {beam_speed:.3g} mm/s RMS (need {min_beam_speed_mm_s:g}); {OBSERVABILITY_HINT}"
         )
     if i == 0 or i == grid.size - 1:
-        raise ValueError(
+        raise LatencyAtEdge(
             f"the best latency lies at the edge of the search range {lo * 1e3:g}..{hi * 1e3:g} ms "
             f"({grid[i] * 1e3:g} ms); widen search_s"
         )

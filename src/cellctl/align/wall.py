@@ -111,12 +111,14 @@ class WallPlane:
         inliers: indices of the spots used.
         rejected: spots left out, with their residual from the final plane and the reason.
         uncertainty: the normal's predicted angular uncertainty.
+        rest_shift_mm: from :func:`offset_at_rest`, D at rest less D on the move (mm).
     """
 
     plane: PlaneFit
     inliers: tuple[int, ...]
     rejected: tuple[RejectedSpot, ...] = field(default=())
     uncertainty: NormalUncertainty | None = None
+    rest_shift_mm: float | None = None  # on the move: how far the stops moved the plane's offset (see offset_at_rest)
 
     @property
     def normal(self) -> NDArray[np.float64]:
@@ -225,3 +227,30 @@ def _consensus(P: NDArray[np.float64], threshold: float, min_collinearity: float
     score = np.where(within, dist**2, threshold**2).sum(axis=0)
     best = np.lexsort((score, -counts))[0]
     return np.flatnonzero(within[:, best])
+
+
+def offset_at_rest(wall: WallPlane, rest_points: ArrayLike, *, inlier_threshold_mm: float, min_points: int = 10) -> WallPlane:
+    """The wall plane with its normal kept and its offset D taken from points read with the flange at rest.
+
+    On the move the arm leaves its reported path by its speed times a direction fixed per path
+    direction (the servo's deflection), which shifts the moving readings along the normal and so
+    moves D; at rest the deviation is zero. D is the mean of normal . p (eq. 2) over the rest points
+    within ``inlier_threshold_mm`` of the moving plane; ``rest_shift_mm`` says how far D moved.
+
+    Raises:
+        AlignmentError: fewer than ``min_points`` such points.
+    """
+    P = np.asarray(rest_points, dtype=float).reshape(-1, 3)
+    near = P[np.abs(wall.plane.distance(P)) <= inlier_threshold_mm]
+    if near.shape[0] < min_points:
+        raise AlignmentError(
+            f"only {near.shape[0]} of {P.shape[0]} readings taken at rest lie within {inlier_threshold_mm} mm of the "
+            f"wall's plane (need {min_points}): the sweep must stand still at its corners long enough to read"
+        )
+    plane = wall.plane
+    shift = float(np.mean(near @ plane.normal)) - plane.offset
+    moved = PlaneFit(
+        plane.normal, plane.offset + shift, plane.centroid + shift * plane.normal, plane.eigenvalues,
+        plane.eigenvectors, plane.residuals - shift,
+    )  # fmt: skip
+    return WallPlane(moved, wall.inliers, wall.rejected, wall.uncertainty, shift)

@@ -32,6 +32,7 @@ from cellctl.align import (
 )
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.inspect_step import inspect_install
+from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.sweep import sweep_readings, sweep_unavailable
 from cellctl.compensate import (
     CorrectionLimitError,
@@ -171,6 +172,7 @@ class CycleRun:
         process: ProcessConfig,
         vision: VisionConfig,
         recorder: CycleRecorder,
+        laser_timing: LaserTiming | None = None,
     ) -> None:
         self.dev = devices
         self.cal = cal
@@ -179,6 +181,7 @@ class CycleRun:
         self.rec = recorder
         self.motion = process.motion
         self.sweep_latency_s: float | None = None  # this cycle's laser-to-robot latency, once a sweep timed it
+        self.laser_timing = laser_timing if laser_timing is not None else LaserTiming()  # kept from cycle to cycle
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
         self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
 
@@ -209,8 +212,9 @@ class CycleRun:
         await self.rec.step_started(step)
         cfg, cal = self.process.align, self.cal
         unavailable = sweep_unavailable(self) if cfg.mode == "on_the_fly" else None
+        at_rest: tuple[np.ndarray, np.ndarray] | None = None  # on the move: the plane's offset from the sweep's stops
         if cfg.mode == "on_the_fly" and unavailable is None:
-            poses, distances, figures = await sweep_readings(self)
+            poses, distances, figures, at_rest = await sweep_readings(self)
         else:
             poses, distances, figures = await self._spot_readings()
             if unavailable is not None:  # asked for, but these devices cannot: the spots are read, and the record says why
@@ -228,6 +232,7 @@ class CycleRun:
                 inlier_threshold_mm=cfg.inlier_threshold_mm,
                 max_rms_mm=cfg.max_rms_mm,
                 min_collinearity=cfg.min_collinearity,
+                at_rest=at_rest,
             )
         except AlignmentError as err:
             raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
@@ -244,7 +249,7 @@ class CycleRun:
                 "flange_turn_deg": float(np.degrees(result.rotation_rad)),
                 "lm_vs_minimal_axis_rad": result.axis_agreement_rad,
                 "distance_correction_mm": result.distance.delta_d_mm,
-            },
+            } | ({} if wall.rest_shift_mm is None else {"rest_shift_mm": wall.rest_shift_mm}),
         )
         C_Pos_1 = await self.move(step, result.T_B_H_aligned)
         return result, C_Pos_1
@@ -405,13 +410,15 @@ async def run_cycle(
     recorder: CycleRecorder,
     *,
     install_offset: Pose | None = None,
+    laser_timing: LaserTiming | None = None,
 ) -> CycleResult:
     """Run one cycle through align, shoot, compensate (with verification), install and inspect.
 
     ``install_offset`` is the closed loop's estimate of the glass's systematic deviation in T
-    (a small pose); the install target takes it out.
+    (a small pose); the install target takes it out. ``laser_timing`` is the latency the cell keeps
+    between sweeps (None: this cycle times its own).
     """
-    run = CycleRun(devices, cal, process, vision, recorder)
+    run = CycleRun(devices, cal, process, vision, recorder, laser_timing)
     alignment, C_Pos_1 = await run.align()
     T2, shots = await run.shoot_and_compensate(C_Pos_1)
     target, reached = await run.install(T2, install_offset)

@@ -20,6 +20,7 @@ from typing import Any
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
+from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.events import EventHub
 from cellctl.cell.outcome import part_verdict, result_fields
@@ -122,6 +123,7 @@ class CellOrchestrator:
         self._calibration_read: dict[str, Any] = {}  # the running cycle's calibration reference, once read
         self._applied_offset: dict[str, float] = {}
         self._looped = False  # whether the running cycle is one the closed loop follows
+        self.laser_timing = LaserTiming()  # the laser-to-robot latency, kept from sweep to sweep
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
@@ -319,6 +321,8 @@ class CellOrchestrator:
             failure = (f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), AlarmCode.TASK_FAILED)
         finally:
             self._finishing = True
+        if failure is not None:  # a device may have been restarted or swapped: the next sweep times the laser anew
+            self.laser_timing.forget(f"cycle {cycle_id} failed")
         # Recording the outcome must not be cut short by a stop arriving now.
         await asyncio.shield(self._record(rec, cycle_id, started, result, failure))
 
@@ -348,7 +352,9 @@ class CellOrchestrator:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, str(err)) from err
         offset = self.quality.offset_as_pose(self._applied_offset)
         view = self.config.for_recipe(recipe)
-        return await run_cycle(self.devices, cal, view.process, view.vision, rec, install_offset=offset)
+        return await run_cycle(
+            self.devices, cal, view.process, view.vision, rec, install_offset=offset, laser_timing=self.laser_timing
+        )
 
     async def _feed_quality_loop(self, cycle_id: int, result: CycleResult | None) -> tuple[dict[str, Any], Any]:
         """The cycle's measured result into the closed loop (a failed cycle counts as not installed).

@@ -1,25 +1,34 @@
 """Reading the wall on the move (issue 19): the laser stores readings while the flange sweeps a path.
 
-At the path's first corner the flange moves in, out and in along the beam, then follows the path
-at the sweep speed; meanwhile the laser stores a reading every storage cycle and the robot streams
-its pose (supervised: a stale stream stops the robot). The moves along the beam, where the distance
-changes with the motion, time the laser against the feedback (the latency, estimated every cycle);
-every reading is then paired with the flange pose at its instant and the plane is fitted to an
-even selection of those along the legs.
+At the path's first corner the flange moves along the beam (in, out and in when the sweep times
+the laser; in once when it checks the latency kept from an earlier timing, :mod:`cellctl.cell.laser_timing`),
+then follows the path at the sweep speed; meanwhile the laser stores a reading every storage cycle
+and the robot streams its pose (supervised: a stale stream stops the robot). The moves along the
+beam, where the distance changes with the motion, time the laser against the feedback; every
+reading is then paired with the flange pose at its instant and the plane is fitted to an even
+selection of those along the legs.
 """
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Coroutine
-from dataclasses import dataclass
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cellctl.align import plan_spot_poses
 from cellctl.align.laser_points import laser_points, sweep_route
-from cellctl.align.onthefly import LatencyEstimate, estimate_latency, pair_stored_readings, pose_samples_arrays, stored_instants
+from cellctl.align.onthefly import (
+    LatencyAtEdge,
+    LatencyEstimate,
+    estimate_latency,
+    pair_stored_readings,
+    pose_samples_arrays,
+    standing,
+    stored_instants,
+)
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.robots import pose_stream_of
 from cellctl.compensate import shooting_pose_in
@@ -33,6 +42,7 @@ if TYPE_CHECKING:
 
 STEP = CycleStep.ALIGN
 SUPERVISION_PERIOD_S = 0.002  # how often the feedback's freshness is checked while the robot sweeps (host seconds)
+CHECK_WINDOW_S = 0.005  # a check of the kept latency searches this far either side of it before the whole range
 
 
 def sweep_unavailable(run: CycleRun) -> str | None:
@@ -57,18 +67,43 @@ class Swept:
     distances: np.ndarray  # (K,) mm along l from r
     latency_s: float
     figures: dict[str, Any]
+    estimate: LatencyEstimate | None = None  # the sweep's own estimate, where it timed or checked the laser
+    rest_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # readings with the flange standing
+    rest_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """The alignment's sweep (timed every cycle): the readings' flange poses (N, 4, 4), distances (N,) and figures."""
-    cfg, cal = run.process.align.sweep, run.cal
+async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]]:
+    """The alignment's sweep: the legs' flange poses (N, 4, 4), distances (N,), the figures, and the
+    poses and distances of the readings taken with the flange standing (its stops).
+
+    The sweep times the laser, checks the kept latency, or (``fixed_latency_s``) takes the configured one.
+    """
+    cfg, cal, kept = run.process.align.sweep, run.cal, run.laser_timing
     corners = plan_spot_poses(
         cal.taught.T0, cfg.path_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm
     )
-    swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s)
+    laser, robot = run.dev.laser, run.dev.robot
+    if cfg.fixed_latency_s is not None:
+        swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s)
+        timing: dict[str, Any] = {"latency": "fixed (process.align.sweep.fixed_latency_s)"}
+    elif (why := kept.why_time(laser, robot, cfg.retime_every)) is not None:
+        swept = await sweep_path(run, STEP, corners, latency_s=None)
+        assert swept.estimate is not None
+        kept.timed(swept.estimate, laser, robot)
+        timing = {"latency": "timed", "timed_because": why}
+    else:
+        assert kept.latency_s is not None
+        timing = {"latency": "checked"}
+
+        def check(estimate: LatencyEstimate) -> float:
+            used_s, timing["latency_check"] = kept.checked(estimate, cfg.latency_check_tolerance_s)
+            return used_s
+
+        swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check)
     run.sweep_latency_s = swept.latency_s
     keep = _even(len(swept.distances), cfg.max_points)
-    return swept.poses[keep], swept.distances[keep], swept.figures | {"readings_fitted": int(len(keep))}
+    figures = swept.figures | timing | {"readings_fitted": int(len(keep))}
+    return swept.poses[keep], swept.distances[keep], figures, (swept.rest_poses, swept.rest_distances)
 
 
 async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, Any]]:
@@ -97,28 +132,33 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     return flush, figures
 
 
-async def sweep_path(run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None) -> Swept:
+async def sweep_path(
+    run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None, check_s: float | None = None,
+    choose: Callable[[LatencyEstimate], float] | None = None,
+) -> Swept:
     """Sweep the flange through ``corners`` while the laser stores and the robot streams; pair the legs' readings.
 
-    With ``latency_s`` None the sweep first moves in, out and in along the beam at the first corner
-    and the latency is estimated from it; else the given latency (this cycle's estimate) is used.
+    With ``latency_s`` given, the sweep follows the corners and pairs with it. Else it moves along
+    the beam at the first corner and estimates the latency from that: in, out and in (timing), or
+    with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate
+    into the latency the readings are paired with (default: the estimate's).
     """
     cfg, cal = run.process.align.sweep, run.cal
     laser, stream = run.dev.laser, pose_stream_of(run.dev.robot)
     assert isinstance(laser, StoringSensor) and stream is not None, "sweep_unavailable() first"
-    timed = latency_s is None
-    route = sweep_route(corners, cal.laser_l, cfg.approach_mm, timed=timed)
-    timing = route[1:4] if timed else []  # in, out and in along the beam at the first corner
+    beam_moves = 0 if latency_s is not None else 1 if check_s is not None else 3
+    route = sweep_route(corners, cal.laser_l, cfg.approach_mm, beam_moves=beam_moves)
+    timing = route[1 : 1 + beam_moves]
     await run.move(step, route[0], kind="joint")
     timeout = run.motion.read_timeout_s
-    path_s = _path_seconds(corners, cfg.speed_mm_s) + 3.0 * cfg.approach_mm / cfg.speed_mm_s
+    path_s = _path_seconds(corners, cfg.speed_mm_s) + beam_moves * cfg.approach_mm / cfg.speed_mm_s
     count = int(min(65535, np.ceil(3.0 * path_s / cfg.storage_cycle_s) + 100))
     approach: list[float] = []
 
     async def path() -> None:
         # In, out and in again along the beam: the latency shifts the readings one way going in and the
         # other going out, while what depends on where the flange is (the robot's accuracy along the way,
-        # the laser's linearity) is the same both ways, so it does not pass for latency.
+        # the laser's linearity) is the same both ways, so it does not pass for latency. A check moves in once.
         approach.append(run.dev.clock())
         for T in timing:
             await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
@@ -136,8 +176,12 @@ async def sweep_path(run: CycleRun, step: CycleStep, corners: list[Pose], *, lat
         raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
     window = (approach[0], approach[1])
     instants, distances = stored_instants(stored)
-    latency = await asyncio.to_thread(_latency, run, step, instants, distances, samples, window) if timed else None  # plane fits: off the loop
-    lat_s = latency.latency_s if latency is not None else float(latency_s)  # type: ignore[arg-type]
+    latency: LatencyEstimate | None = None
+    if latency_s is None:  # plane fits: off the loop
+        latency = await asyncio.to_thread(_latency, run, step, instants, distances, samples, window, check_s)
+        lat_s = (choose or (lambda e: e.latency_s))(latency)
+    else:
+        lat_s = float(latency_s)
     try:
         paired = await asyncio.to_thread(pair_stored_readings, stored, samples, lat_s, max_gap_s=cfg.max_feedback_gap_s)
     except ValueError as err:
@@ -161,7 +205,12 @@ async def sweep_path(run: CycleRun, step: CycleStep, corners: list[Pose], *, lat
     }
     if latency is not None:
         figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
-    return Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures)
+    t, T = pose_samples_arrays(samples)
+    rest = np.flatnonzero(await asyncio.to_thread(standing, t, T, paired.instants - lat_s))
+    figures["readings_at_rest"] = int(len(rest))
+    return Swept(
+        paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, paired.poses[rest], paired.distances[rest]
+    )
 
 
 async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any, None], stream: PoseStream) -> None:
@@ -205,12 +254,13 @@ def _path_seconds(corners: list[Pose], speed_mm_s: float) -> float:
 
 def _latency(
     run: CycleRun, step: CycleStep, instants: np.ndarray, distances: np.ndarray, samples: tuple[PoseSample, ...],
-    approach: tuple[float, float],
+    approach: tuple[float, float], check_s: float | None,
 ) -> LatencyEstimate:
     """The latency between the laser's and the robot's clocks, from the readings since the approach began.
 
     The approach along the beam is where the latency shows (the distance changes with the motion);
-    the legs after it fix the wall's plane, which a line of spots alone would not.
+    the legs after it fix the wall's plane, which a line of spots alone would not. A check searches
+    within ``CHECK_WINDOW_S`` of the kept latency ``check_s`` first (a fraction of the grid), then the whole range.
     """
     cfg, cal = run.process.align.sweep, run.cal
     since = instants >= approach[0]
@@ -222,8 +272,17 @@ def _latency(
             "the laser against the robot (is the wall in the laser's range at the path's first corner?)",
         )  # fmt: skip
     t, T = pose_samples_arrays(samples)
+    windows = [cfg.latency_search_s]
+    if check_s is not None:
+        windows.insert(0, (check_s - CHECK_WINDOW_S, check_s + CHECK_WINDOW_S))
     try:
-        est = estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=cfg.latency_search_s)
+        for k, window in enumerate(windows):
+            try:
+                est = estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=window)
+                break
+            except LatencyAtEdge:
+                if k == len(windows) - 1:
+                    raise
     except ValueError as err:
         raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, f"the laser could not be timed against the robot: {err}") from err
     if est.sigma_s > cfg.max_latency_sigma_s:

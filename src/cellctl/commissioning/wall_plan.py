@@ -72,7 +72,7 @@ def wall_plan(config: CellConfig) -> WallPlan:
 
     order, fastest = fastest_order(len(spots), between)
     sw = ac.sweep
-    route = sweep_route(list(poses(sw.path_mm)), l, sw.approach_mm, timed=sw.fixed_latency_s is None)
+    route = sweep_route(list(poses(sw.path_mm)), l, sw.approach_mm, beam_moves=0 if sw.fixed_latency_s is not None else 1)
     sweep_s = sum(robot.move_time_s(a, b, sw.speed_mm_s, motion.speed_deg_s) for a, b in zip(route, route[1:]))
     readout_s = sweep_s / sw.storage_cycle_s * readout_s_per_reading(config)  # everything stored from start to stop
     along = sweep_readings(sw.path_mm, sw.speed_mm_s * sw.storage_cycle_s)

@@ -26,24 +26,29 @@ class SweepConfig(StrictModel):
     ``path_mm`` are the corners of the path the laser spot follows on the wall, in T0 like
     ``spots_mm`` (keep every leg on the wall, off the opening). At the first corner the flange
     moves in, out and in again along the beam by ``approach_mm``: those moves time the laser against
-    the robot's feedback (the latency between the two is estimated from them, every cycle). Used
-    when the laser can store readings and the robot streams its position; else the cell reads at
-    standing spots.
+    the robot's feedback (the latency between the two is estimated from them). The service keeps the
+    latency: it times it so in its first sweep, every ``retime_every`` sweeps, after a failed cycle
+    and when a check disagrees; the sweeps between move in once along the beam and check the kept
+    latency against that move (within ``latency_check_tolerance_s``, else that sweep uses what the
+    check found and the next one times anew). Used when the laser can store readings and the robot
+    streams its position; else the cell reads at standing spots.
     """
 
     path_mm: tuple[Vec2, ...] = ((-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0))
-    speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)  # the laser stores every 5 mm at the default cycle
+    speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)  # the laser stores every 10 mm at the default cycle
     approach_mm: Finite = Field(40.0, gt=5, le=200)
     # The LK-G's storage cycle. Each stored reading costs 0.78 ms of read-out at 115200 Bd after the sweep:
-    # at 2 ms that is 39 % of the sweep's time again (8 s a cycle), at 5 ms 16 %, at no cost in accuracy
-    # (cellctl bench cycle-time).
-    storage_cycle_s: Finite = Field(0.005, ge=2e-5, le=1.0)
+    # at 2 ms that is 39 % of the sweep's time again (8 s a cycle), at 5 ms 16 %, at 10 ms 8 %, at no cost in
+    # accuracy (cellctl bench cycle-time): the fit keeps max_points of them, the flush sweep_max_points a surface.
+    storage_cycle_s: Finite = Field(0.01, ge=2e-5, le=1.0)
     max_points: int = Field(400, ge=20, le=20000)  # readings used in the plane fit, spread evenly along the path
     latency_search_s: tuple[Finite, Finite] = (-0.01, 0.05)
     max_latency_sigma_s: Finite = Field(0.0005, gt=0)  # a worse estimate fails the alignment
     # The latency (s) when it is known (from commissioning): the sweep then skips the moves along the beam
-    # and does not estimate it. None (the default) estimates it in every cycle.
+    # and neither estimates nor checks it. None (the default): timed and checked as above.
     fixed_latency_s: float | None = Field(None, ge=-0.1, le=0.5)
+    retime_every: int = Field(25, ge=1, le=100000)  # sweeps from one timing (in, out, in) to the next; 1: every sweep
+    latency_check_tolerance_s: Finite = Field(0.001, gt=0, le=0.05)  # a check further from the kept latency: time anew
     feedback_stale_s: Finite = Field(0.05, gt=0, le=5)  # the robot's feedback older than this: stop the robot, alarm 1402
     max_feedback_gap_s: Finite = Field(0.02, gt=0, le=1)  # no pose is guessed across a longer gap in the feedback
     min_paired_share: Finite = Field(0.9, gt=0, le=1)  # of the legs' readings with a distance, at least this share needs a pose

@@ -4,7 +4,9 @@ The scene comes from callbacks (the simulated cell supplies them): the camera's 
 car body's placement at the moment of the trigger, and optionally the calibration targets in view
 and the glass installed in the opening.
 Rendering is CPU-bound (about 0.1 s for 2048 x 2048), so it runs in a worker thread; ``timeout_s``
-bounds the whole grab. A grab that times out raises DeviceTimeout; its render finishes in the
+bounds the whole grab. Given the twin's time line, a grab spends the camera's frame time on it
+(exposure and transfer) and renders with the clock standing still: the rendering is the twin's
+physics, not a wait of the cell's. A grab that times out raises DeviceTimeout; its render finishes in the
 background and is discarded (a thread cannot be interrupted), and the next grab starts afresh.
 
 Each frame draws its noise from its own generator, spawned in order from the camera's seeded
@@ -15,6 +17,7 @@ thread timing.
 from __future__ import annotations
 
 import asyncio
+import functools
 import time
 from typing import Callable, Sequence
 
@@ -22,10 +25,11 @@ import numpy as np
 
 from cellctl.geometry.pose import Pose
 from cellctl.ports import DeviceDisconnected, DeviceTimeout, Frame
-from cellctl.sim.camera import AppliedDisturbances, CameraRenderer
+from cellctl.sim.camera import AppliedDisturbances, CameraRenderer, RenderedFrame
 from cellctl.sim.devices import check_timeout
 from cellctl.sim.glass import InstalledGlass
 from cellctl.sim.targets import PlacedTarget
+from cellctl.sim.timeline import TwinTimeline
 from cellctl.sim.world import World
 
 
@@ -40,6 +44,8 @@ class SimCamera:
         targets: the calibration targets in view now (default: none).
         glass: the glass installed in the car body's opening now, or None (default: never one).
         name: the device's name in messages.
+        timeline: the twin's time line (None: a grab takes the rendering's real time, no more).
+        frame_time_s: simulated seconds from trigger to frame on ``timeline`` (scaled by its time_scale in real time).
     """
 
     def __init__(
@@ -52,6 +58,8 @@ class SimCamera:
         targets: Callable[[], Sequence[PlacedTarget]] | None = None,
         glass: Callable[[], InstalledGlass | None] | None = None,
         name: str = "camera",
+        timeline: TwinTimeline | None = None,
+        frame_time_s: float = 0.0,
     ) -> None:
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"{name}: rng must be a numpy Generator (np.random.default_rng(seed))")
@@ -62,6 +70,8 @@ class SimCamera:
         self._glass = glass
         self._rng = rng
         self.name = name
+        self._timeline = timeline
+        self._frame_time_s = float(frame_time_s)
         self._frame_id = 0
         self._closed = False
         self.last_applied: AppliedDisturbances | None = None
@@ -92,9 +102,8 @@ class SimCamera:
         frame_rng = self._rng.spawn(1)[0]
         self._frame_id += 1
         frame_id = self._frame_id
-        work = asyncio.to_thread(self._renderer.render, pose, world, targets=targets, rng=frame_rng, glass=glass)
         try:
-            rendered = await asyncio.wait_for(work, timeout_s)
+            rendered = await asyncio.wait_for(self._frame(pose, world, targets, frame_rng, glass), timeout_s)
         except asyncio.TimeoutError:
             raise DeviceTimeout(self.name, f"frame {frame_id} not ready within {timeout_s:g} s") from None
         self._check_open()
@@ -103,6 +112,19 @@ class SimCamera:
         return Frame(
             image=rendered.image, timestamp_s=time.monotonic(), frame_id=frame_id, device_timestamp_ns=trigger_ns
         )
+
+    async def _frame(
+        self, pose: Pose, world: World | None, targets: tuple[PlacedTarget, ...], rng: np.random.Generator,
+        glass: InstalledGlass | None,
+    ) -> RenderedFrame:
+        """Expose and transfer (the frame time on the time line), then render with the cell's clock standing still."""
+        work = functools.partial(self._renderer.render, pose, world, targets=targets, rng=rng, glass=glass)
+        if self._timeline is None:
+            return await asyncio.to_thread(work)
+        self._timeline.waited(self._frame_time_s)
+        await asyncio.sleep(self._frame_time_s * self._timeline.time_scale)
+        with self._timeline.unclocked():
+            return await asyncio.to_thread(work)
 
     async def ping(self, *, timeout_s: float) -> float:
         """A harmless round trip; returns its duration in seconds."""

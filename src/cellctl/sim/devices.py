@@ -205,7 +205,9 @@ class SimRobot(_TwinDevice):
             raise DeviceRejected(self.name, "no feedback stream was started; call start_stream first")
         await self._round_trip(timeout_s)
         t_from, self._stream_from = self._stream_from, None
-        return self._feedback(t_from, self._cell.timeline.now())
+        t_to = self._cell.timeline.now()
+        with self._cell.timeline.unclocked():  # the controller streamed these while the robot moved
+            return self._feedback(t_from, t_to)
 
     def latest(self) -> PoseSample | None:
         """The newest feedback sample since :meth:`start_stream` (its stamp without jitter), or None."""
@@ -311,7 +313,8 @@ class SimDisplacementSensor(_TwinDevice):
         if self._waiting:
             self._waiting = False
             return DistanceReading(None, LaserStatus.NO_VALUE, time.monotonic(), self.head)
-        status, distance = self._cell.laser_reading()
+        with self._cell.timeline.unclocked():
+            status, distance = self._cell.laser_reading()
         return DistanceReading(distance, status, time.monotonic(), self.head)
 
     async def start_storage(self, *, cycle_s: float, count: int, timeout_s: float) -> float:
@@ -356,8 +359,9 @@ class SimDisplacementSensor(_TwinDevice):
         stored = min(count, max(math.floor((self._cell.timeline.now() - started_s) / cycle_s) + 1, 0))
         readout_s = stored * self._cell.config.laser.readout_s_per_reading  # the readings on the serial line
         await self._take(readout_s, timeout_s, f"{stored} stored readings not read out")
-        try:  # thousands of ray casts: the physics runs off the event loop, as the sensor's own readout would
-            distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)
+        try:  # thousands of ray casts: the twin's physics, off the event loop and off the cell's clock
+            with self._cell.timeline.unclocked():
+                distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)
         except LookupError as err:
             raise DeviceError(self.name, f"storage lost: {err}") from None
         return StoredReadings(started_s, cycle_s, distances)

@@ -56,6 +56,7 @@ class SimRig:
         self.camera = SimCamera(
             self.renderer, self.cell.true_camera_pose, self.cell.world, rng_stream(self.cell.seed, CAMERA_NOISE),
             targets=lambda: tuple(self.targets), glass=self.cell.installed_glass_scene,
+            timeline=self.cell.timeline, frame_time_s=config.camera.frame_time_s,
         )
         self.teach_rng = rng_stream(self.cell.seed, TEACH_CAMERA_NOISE)
         self.operator: SimulatedOperator | None = None

@@ -2,14 +2,17 @@
 
 The twin shortens every simulated wait (a move, a device's latency) by ``time_scale``; its time
 line puts the shortened part back, so a cycle timed on it takes the robot time a real cell would,
-while the computing between waits counts at its real duration.
+while the computing between waits counts at its real duration. The twin's own computing (rendering
+a frame, casting the laser's rays) is physics a real cell does not wait for: the clock stands still
+while it runs (:meth:`TwinTimeline.unclocked`), and the device spends its modelled time instead.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 
 class TwinTimeline:
@@ -23,11 +26,31 @@ class TwinTimeline:
         self._clock = clock
         self._ahead_s = 0.0
         self._lock = threading.Lock()
+        self._unclocked = 0  # blocks of the twin's computing under way
+        self._stood_s = 0.0  # the real time when the first of them began
 
     def now(self) -> float:
         """The cell's clock (s)."""
         with self._lock:
-            return self._clock() + self._ahead_s
+            return (self._stood_s if self._unclocked else self._clock()) + self._ahead_s
+
+    @contextmanager
+    def unclocked(self) -> Iterator[None]:
+        """The twin's own computing: the cell's clock stands still while it runs (waits begun meanwhile still count).
+
+        Thread-safe and re-entrant; overlapping blocks stand the clock still once, for their union.
+        """
+        with self._lock:
+            if not self._unclocked:
+                self._stood_s = self._clock()
+            self._unclocked += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._unclocked -= 1
+                if not self._unclocked:
+                    self._ahead_s -= self._clock() - self._stood_s
 
     def waited(self, simulated_s: float) -> None:
         """A wait of ``simulated_s`` simulated seconds begins (negative: the rest of one was cut off)."""

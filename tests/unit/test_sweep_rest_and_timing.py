@@ -1,0 +1,101 @@
+"""Reading on the move (issue 19): the latency kept between sweeps, the stops found in the feedback, and the
+wall's offset taken at rest (the arm's deviation at speed moves a moving flange off its reported path)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellctl.align import AlignmentError, compute_alignment
+from cellctl.align.laser_points import sweep_route
+from cellctl.align.onthefly import LatencyEstimate, standing
+from cellctl.cell.laser_timing import LaserTiming
+from cellctl.geometry.pose import make_pose
+
+
+def _estimate(latency_s: float, sigma_s: float = 2e-5) -> LatencyEstimate:
+    return LatencyEstimate(latency_s, sigma_s, 0.003, 500, 40.0, np.array([1.0, 0.0, 0.0]), 2000.0)
+
+
+def test_the_latency_is_timed_first_then_checked_until_it_is_due_again() -> None:
+    timing, laser, robot = LaserTiming(), object(), object()
+    assert "first sweep" in (timing.why_time(laser, robot, 3) or "")
+    timing.timed(_estimate(0.0073), laser, robot)
+    for _ in range(2):
+        assert timing.why_time(laser, robot, 3) is None
+        used, figures = timing.checked(_estimate(0.0075), 0.001)
+        assert used == 0.0073 and figures["agrees"] is True  # the timed value stays: three moves beat one
+    assert "3 sweeps" in (timing.why_time(laser, robot, 3) or "")
+    assert "another device" in (timing.why_time(object(), robot, 3) or "")  # a swapped laser is timed anew
+
+
+def test_a_check_that_disagrees_is_used_once_and_the_next_sweep_times_anew() -> None:
+    timing, laser, robot = LaserTiming(), object(), object()
+    timing.timed(_estimate(0.0073), laser, robot)
+    used, figures = timing.checked(_estimate(0.0121), 0.001)
+    assert used == 0.0121 and figures["agrees"] is False and figures["off_ms"] == pytest.approx(4.8)
+    assert "12.10 ms against the kept 7.30 ms" in (timing.why_time(laser, robot, 25) or "")
+    timing.timed(_estimate(0.0120), laser, robot)
+    assert timing.why_time(laser, robot, 25) is None
+
+
+def test_a_failed_cycle_makes_the_next_sweep_time_anew() -> None:
+    timing, laser, robot = LaserTiming(), object(), object()
+    timing.forget("cycle 3 failed")  # nothing kept yet: still the first sweep's reason
+    assert "first sweep" in (timing.why_time(laser, robot, 25) or "")
+    timing.timed(_estimate(0.0073), laser, robot)
+    timing.forget("cycle 4 failed")
+    assert timing.why_time(laser, robot, 25) == "cycle 4 failed"
+
+
+def test_the_route_moves_along_the_beam_three_times_to_time_once_to_check_and_not_at_all_when_known() -> None:
+    corners = [make_pose(np.eye(3), [0.0, y, 0.0]) for y in (0.0, 1000.0, 1500.0)]
+    l = np.array([0.0, 0.0, 1.0])  # noqa: E741
+    z = {n: [float(T[2, 3]) for T in sweep_route(corners, l, 40.0, beam_moves=n)] for n in (0, 1, 3)}
+    assert z == {0: [0.0, 0.0, 0.0], 1: [-40.0, 0.0, 0.0, 0.0], 3: [-40.0, 0.0, -40.0, 0.0, 0.0, 0.0]}
+    with pytest.raises(ValueError, match="beam_moves"):
+        sweep_route(corners, l, 40.0, beam_moves=2)
+
+
+def test_standing_finds_the_stops_in_the_feedback() -> None:
+    t = np.arange(0.0, 1.0, 0.004)
+    x = np.clip((t - 0.2) * 1000.0, 0.0, 400.0)  # stands until 0.2 s, moves at 1000 mm/s, stands from 0.6 s
+    T = np.tile(np.eye(4), (t.size, 1, 1))
+    T[:, 0, 3] = x
+    q = np.array([0.1, 0.21, 0.4, 0.61, 0.62, 0.7, 0.95])
+    # 0.61 and 0.62 s: the flange stopped less than hold_s ago (its arm may still trail the reported path)
+    assert standing(t, T, q, hold_s=0.03).tolist() == [True, False, False, False, False, True, True]
+    assert standing(t, T, [0.01], hold_s=0.03).tolist() == [False]  # before the feedback began: not known to stand
+
+
+def _sweep(offsets_mm: tuple[float, float], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Flange poses along an L in front of the wall x = 1000 mm (beam along +x) and the distances read: on
+    leg k the flange truly stands ``offsets_mm[k]`` nearer the wall than reported (a deviation at speed)."""
+    ys = np.r_[np.linspace(-800.0, 0.0, 80), np.zeros(60)]
+    zs = np.r_[np.zeros(80), np.linspace(0.0, 600.0, 60)]
+    legs = np.r_[np.zeros(80, dtype=int), np.ones(60, dtype=int)]
+    poses = np.array([make_pose(np.eye(3), [600.0, y, z]) for y, z in zip(ys, zs)])
+    return poses, 400.0 - np.take(offsets_mm, legs) + rng.normal(0.0, 0.002, ys.size)
+
+
+def test_the_offset_comes_from_the_stops_and_the_normal_from_all_readings() -> None:
+    rng = np.random.default_rng(4)
+    r, l = np.zeros(3), np.array([1.0, 0.0, 0.0])  # noqa: E741
+    moving, d_moving = _sweep((0.1, 0.1), rng)  # as at 1000 mm/s: the moving flange 0.1 mm nearer than reported
+    stops, d_stops = _sweep((0.0, 0.0), rng)
+    rest, d_rest = stops[[0, 79, 139]].repeat(10, axis=0), d_stops[[0, 79, 139]].repeat(10)  # three stops
+    plain = compute_alignment(moving, d_moving, r, l, np.eye(4), 400.0)
+    rested = compute_alignment(moving, d_moving, r, l, np.eye(4), 400.0, at_rest=(rest, d_rest))
+    assert plain.wall.offset == pytest.approx(999.9, abs=0.005)  # the legs alone: the deviation passes into D
+    assert rested.wall.offset == pytest.approx(1000.0, abs=0.005) and rested.wall.rest_shift_mm == pytest.approx(0.1, abs=0.005)
+    assert np.allclose(rested.wall.normal, plain.wall.normal)
+    assert rested.distance.delta_d_mm - plain.distance.delta_d_mm == pytest.approx(0.1, abs=0.005)
+    assert plain.wall.rest_shift_mm is None
+
+
+def test_too_few_readings_at_rest_are_refused_with_the_reason() -> None:
+    rng = np.random.default_rng(5)
+    r, l = np.zeros(3), np.array([1.0, 0.0, 0.0])  # noqa: E741
+    poses, d = _sweep((0.0, 0.0), rng)
+    with pytest.raises(AlignmentError, match="stand still at its corners"):
+        compute_alignment(poses, d, r, l, np.eye(4), 400.0, at_rest=(poses[:4], d[:4]))
