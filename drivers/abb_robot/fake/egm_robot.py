@@ -346,6 +346,7 @@ class EgmRobotSide:
                         reference = ref
                         delayed.append((t_rx + dyn.dead_time_s, ref))
 
+        robot.settle_egm()
         stats.duration_s = time.perf_counter() - t0
         stats.end = end.value
         stats.detail = detail

@@ -173,6 +173,13 @@ class FakeRobot:
             self._flange = flange
             return flange
 
+    def settle_egm(self) -> CartesianPose:
+        """An EGM session has ended: the arm truly stands where it left the flange (the model executes the
+        pose, with its errors), as after a RAPID move."""
+        with self.lock:
+            self.model.execute(self._flange)
+            return self._flange
+
     @property
     def moving(self) -> bool:
         with self.lock:

@@ -31,6 +31,7 @@ from cellctl.align import (
     plan_spot_poses,
 )
 from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.fine_motion import verification_move
 from cellctl.cell.inspect_step import inspect_install
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.sweep import sweep_readings, sweep_unavailable
@@ -309,20 +310,25 @@ class CycleRun:
         shots: list[ShotRecord] = [self._last_shot]
         estimates: list[Pose] = []
         moved_mm = turned_rad = float("nan")
+        moves: list[str] = []  # how each verification move went: by EGM or by RAPID (and why)
         for k in range(1, verify.max_shots + 1):
             here = await self._current_pose(CycleStep.COMPENSATE)
             target = shooting_pose_in(cal.taught, T_est)
             self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=k > 1)
-            reached = await self.move(CycleStep.COMPENSATE, target)
+            reached, how = await verification_move(self, CycleStep.COMPENSATE, target)
+            moves.append(how)
             m, offset = await self._measure(k)
             estimates.append(await self._estimate(k, m, offset, workpiece_frame_after_alignment(cal.taught, reached)))
             shots.append(self._last_shot)
             T_est = mean_pose(np.stack(estimates))
             moved_mm, turned_rad = _offset_size(self._last_shot.offset)
             if k >= verify.min_shots and moved_mm <= verify.residual_mm and turned_rad <= np.radians(verify.residual_deg):
-                await self.rec.step_figures(CycleStep.COMPENSATE, {"converged": True, "averaged_shots": len(estimates)})
+                await self.rec.step_figures(
+                    CycleStep.COMPENSATE, {"converged": True, "averaged_shots": len(estimates), "verification_moves": moves}
+                )
                 await self.annotate_last()
                 return T_est, tuple(shots)
+        await self.rec.step_figures(CycleStep.COMPENSATE, {"verification_moves": moves})
         await self.annotate_last()
         raise CycleFailed(
             CycleStep.COMPENSATE,

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 from cellctl.ports import (
     CartesianPose,
     DeviceRejected,
+    FineCorrection,
     Identified,
     MotionRequest,
     PoseStream,
@@ -63,9 +67,15 @@ class TrackedRobot(RobotProxy):
         return self._moves > 0
 
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
+        with self.in_motion():
+            return await self._robot.move(request, timeout_s=timeout_s)
+
+    @contextlib.contextmanager
+    def in_motion(self) -> Iterator[None]:
+        """Count the robot as moving meanwhile (a move, or an EGM correction, which is not a move() call)."""
         self._moves += 1
         try:
-            return await self._robot.move(request, timeout_s=timeout_s)
+            yield
         finally:
             self._moves -= 1
 
@@ -88,6 +98,13 @@ class ReducedSpeedRobot(RobotProxy):
 
     async def close(self) -> None:
         return None  # the service owns the robot
+
+
+def fine_correction_of(robot: Robot) -> FineCorrection | None:
+    """The robot's streaming fine correction (ABB EGM, through any proxies), or None when its driver has none."""
+    while isinstance(robot, RobotProxy):
+        robot = robot.inner
+    return robot if isinstance(robot, FineCorrection) else None
 
 
 def pose_stream_of(robot: Robot) -> PoseStream | None:

@@ -131,6 +131,12 @@ class MotionConfig(StrictModel):
     move_timeout_s: Finite = Field(60.0, gt=0)
     read_timeout_s: Finite = Field(2.0, gt=0)  # laser reading, pose read-back
     grab_timeout_s: Finite = Field(5.0, gt=0)
+    # The verification moves stream through EGM where the robot's driver offers it (no stop-and-go RAPID
+    # move), until the reported pose is within these; a driver without EGM, or one that refuses the
+    # correction (larger than its egm_max_correction_mm / _deg), takes the RAPID move.
+    verify_by_egm: bool = True
+    egm_tolerance_mm: Finite = Field(0.02, gt=0, le=5)
+    egm_tolerance_deg: Finite = Field(0.005, gt=0, le=1)
 
 
 class VerifyConfig(StrictModel):

@@ -159,6 +159,9 @@ class SimAbbDevice(StrictModel):
     kind: Literal["sim_abb"]
     request_timeout_s: Finite = Field(2.0, gt=0, le=60)
     heartbeat_period_s: Finite = Field(1.0, gt=0, lt=10)
+    # EGM between the driver and the fake on a free loopback UDP port (its loop in a thread: a simulation
+    # needs no isolated process); false: the driver has no EGM, and the cycle moves by RAPID only.
+    egm: bool = True
 
 
 LaserDevice = Annotated[Union[SimLaserDevice, KeyenceLkgDevice, SimKeyenceLkgDevice], Field(discriminator="kind")]

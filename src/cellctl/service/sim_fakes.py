@@ -9,6 +9,7 @@ releases it. The controller reports the belief back, as a real one does.
 
 from __future__ import annotations
 
+import socket
 import time
 from collections.abc import Awaitable, Callable
 from typing import Literal
@@ -33,7 +34,9 @@ class TwinArmModel:
 
     def __init__(self, cell: SimCell) -> None:
         self._cell = cell
-        self._joints = SimpleArmModel(seed=cell.seed)  # joint angles for GETJ only
+        # Joint angles for GETJ and EGM's feedback only: the twin models no joints (its reach is the check), so
+        # no axis limit of the simple arm may refuse a pose the twin reaches.
+        self._joints = SimpleArmModel(seed=cell.seed, limits_deg=((-180.0, 180.0),) * 6)
 
     def reachable(self, target: CartesianPose) -> Unreachable | None:
         try:
@@ -126,8 +129,9 @@ def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice, fakes: dict[str, object
     return driver, close
 
 
-def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeController:
-    """The ABB fake controller (RAPID line server on a free loopback port, no EGM) moving the twin's arm.
+def abb_fake(cell: SimCell, *, time_scale: float | None = None, egm_sensor_port: int | None = None) -> FakeController:
+    """The ABB fake controller (RAPID line server on a free loopback port; EGM to ``egm_sensor_port`` on
+    loopback, if given) moving the twin's arm: where a RAPID move or an EGM session leaves it.
 
     Its GRIP switches the twin's gripper (``SimCell.set_gripper``), called from the fake's thread
     under its robot's lock as the model's ``execute`` is. Not started: :meth:`FakeController.start` (in a loop) or :meth:`FakeController.start_in_thread`.
@@ -137,7 +141,7 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeControlle
     return FakeController(
         FakeControllerConfig(
             rapid_port=0,
-            egm_sensor_port=None,
+            egm_sensor_port=egm_sensor_port,
             time_scale=max(scale, 1e-6),
             home=CartesianPose.from_matrix(cell.belief_flange_pose()),
             seed=cell.seed,
@@ -147,6 +151,13 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None) -> FakeControlle
         ),
         TwinArmModel(cell),
     )
+
+
+def free_udp_port() -> int:
+    """A UDP port free on loopback now (the EGM peer binds it a moment later)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 def _grip(cell: SimCell, hold: bool) -> None:
@@ -163,7 +174,8 @@ def abb_on_fake(
     Also returns the fake's teach-pendant jog (the simulated operator guides the robot with it);
     the fake itself is kept in ``fakes["robot"]`` (faults: drop the client, refuse, delay).
     """
-    fake = abb_fake(cell)
+    egm_port = free_udp_port() if dev.egm else None
+    fake = abb_fake(cell, egm_sensor_port=egm_port)
     if fakes is not None:
         fakes["robot"] = fake
     port = fake.start_in_thread()
@@ -171,7 +183,9 @@ def abb_on_fake(
         AbbRobotSettings(
             host="127.0.0.1",
             rapid_port=port,
-            egm_port=None,
+            egm_port=egm_port,
+            egm_bind_host="127.0.0.1",
+            egm_isolation="thread",
             request_timeout_s=dev.request_timeout_s,
             heartbeat_period_s=dev.heartbeat_period_s,
         )
