@@ -315,6 +315,10 @@ class JobManager:
 
     def _progress(self, run: _Running) -> Callable[[int, int, str], None]:
         def report(done: int, total: int, message: str) -> None:
+            if run.cancel_reason is not None:
+                # The cancel's task.cancel() can be lost when it lands as an awaited driver call completes
+                # (asyncio.wait_for on Python 3.11 may swallow it): the next step of the job ends it instead.
+                raise asyncio.CancelledError(run.cancel_reason)
             elapsed = time.monotonic() - run.started
             plan = run.ctx.plan if run.ctx is not None else None
             left = None
