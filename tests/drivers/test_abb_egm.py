@@ -45,7 +45,8 @@ async def test_five_percent_loss_each_way_is_seen_exactly_and_survived() -> None
         got = await robot.correct_to(target, tolerance_mm=0.1, tolerance_rad=math.radians(0.05), timeout_s=5.0)
         assert math.dist(got.position_mm, target.position_mm) <= 0.1
         stats = fake.last_egm_stats
-        assert stats is not None and stats.end == "converged" and stats.sent > 150
+        # converged after holding 0.6 s: 150 ticks at 250 Hz, fewer sent where a loaded machine made the loop skip some
+        assert stats is not None and stats.end == "converged" and stats.duration_s >= 0.6 and stats.sent > 100
         await asyncio.sleep(0.1)  # the last datagrams of the session reach the peer
         snap = robot.egm.snapshot()  # type: ignore[union-attr]
         peer = robot.egm.stats()  # type: ignore[union-attr]
