@@ -26,6 +26,7 @@ from cellctl.ports import (
 )
 
 Q = DEFAULT_HOME.quaternion_wxyz
+T_LOOPBACK = 5.0  # seconds for a loopback round trip to the fake controller, whatever the load
 
 
 def _target(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0, q: tuple[float, ...] = Q) -> CartesianPose:
@@ -65,20 +66,21 @@ async def test_linear_and_joint_moves_reach_their_targets() -> None:
 
 
 async def test_settings_verbs_and_typed_refusals() -> None:
+    # The refusals are the point, not the round trip: a loaded machine once took over 1 s for the first SPEED.
     async with fake_and_robot() as (fake, robot):
-        await robot.set_speed(250.0, 40.0, timeout_s=1.0)
-        await robot.set_zone(0.0, timeout_s=1.0)
-        await robot.set_tool("tool0", timeout_s=1.0)
-        await robot.set_wobj("wobj0", timeout_s=1.0)
+        await robot.set_speed(250.0, 40.0, timeout_s=T_LOOPBACK)
+        await robot.set_zone(0.0, timeout_s=T_LOOPBACK)
+        await robot.set_tool("tool0", timeout_s=T_LOOPBACK)
+        await robot.set_wobj("wobj0", timeout_s=T_LOOPBACK)
         with pytest.raises(DeviceRejected, match=r"no tooldata tGhost \(code 120 UNKNOWN_TOOL\)") as info:
-            await robot.set_tool("tGhost", timeout_s=1.0)
+            await robot.set_tool("tGhost", timeout_s=T_LOOPBACK)
         assert info.value.code == "120 UNKNOWN_TOOL"
         with pytest.raises(DeviceRejected, match="121 UNKNOWN_WOBJ"):
-            await robot.set_wobj("wGhost", timeout_s=1.0)
+            await robot.set_wobj("wGhost", timeout_s=T_LOOPBACK)
         with pytest.raises(DeviceRejected, match="122 RANGE"):
-            await robot.set_zone(5000.0, timeout_s=1.0)
+            await robot.set_zone(5000.0, timeout_s=T_LOOPBACK)
         with pytest.raises(DeviceRejected, match="122 RANGE"):
-            await robot.set_tool("no good", timeout_s=1.0)
+            await robot.set_tool("no good", timeout_s=T_LOOPBACK)
 
 
 async def test_unreachable_targets_raise_unreachable_target() -> None:
