@@ -68,7 +68,7 @@ class ModeFigures:
 
 def _figures(mode: str, runs: list[AccuracyRun], latencies: list[float], on_the_fly: int) -> ModeFigures:
     installed = [t for r in runs for t in r.installed]
-    modes = Counter(str((t.align or {}).get("latency")) for t in installed if (t.align or {}).get("latency"))
+    modes = Counter(str(a["latency"]) for a in (t.align or {} for t in installed) if a.get("latency"))
     errors = np.array([[t.true_error[a.field] for a in AXES] for t in installed if t.true_error], dtype=float)
     return ModeFigures(
         mode=mode,

@@ -12,8 +12,9 @@ selection of those along the legs.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections.abc import Callable, Coroutine
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,7 +36,7 @@ from cellctl.compensate import shooting_pose_in
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose
 from cellctl.inspection import FlushError, FlushResult, fit_flush
-from cellctl.ports import DeviceError, PoseSample, PoseStream, StoringSensor
+from cellctl.ports import DeviceError, PoseStream, StoringSensor
 
 if TYPE_CHECKING:
     from cellctl.cell.cycle import CycleRun
@@ -84,10 +85,10 @@ async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[st
     )
     laser, robot = run.dev.laser, run.dev.robot
     if cfg.fixed_latency_s is not None:
-        swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s)
+        swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s, stops=True)
         timing: dict[str, Any] = {"latency": "fixed (process.align.sweep.fixed_latency_s)"}
     elif (why := kept.why_time(laser, robot, cfg.retime_every)) is not None:
-        swept = await sweep_path(run, STEP, corners, latency_s=None)
+        swept = await sweep_path(run, STEP, corners, latency_s=None, stops=True)
         assert swept.estimate is not None
         kept.timed(swept.estimate, laser, robot)
         timing = {"latency": "timed", "timed_because": why}
@@ -99,7 +100,7 @@ async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[st
             used_s, timing["latency_check"] = kept.checked(estimate, cfg.latency_check_tolerance_s)
             return used_s
 
-        swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check)
+        swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check, stops=True)
     run.sweep_latency_s = swept.latency_s
     keep = _even(len(swept.distances), cfg.max_points)
     figures = swept.figures | timing | {"readings_fitted": int(len(keep))}
@@ -134,14 +135,15 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
 
 async def sweep_path(
     run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None, check_s: float | None = None,
-    choose: Callable[[LatencyEstimate], float] | None = None,
+    choose: Callable[[LatencyEstimate], float] | None = None, stops: bool = False,
 ) -> Swept:
     """Sweep the flange through ``corners`` while the laser stores and the robot streams; pair the legs' readings.
 
     With ``latency_s`` given, the sweep follows the corners and pairs with it. Else it moves along
     the beam at the first corner and estimates the latency from that: in, out and in (timing), or
     with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate
-    into the latency the readings are paired with (default: the estimate's).
+    into the latency the readings are paired with (default: the estimate's). With ``stops`` the
+    readings taken with the flange standing are kept too (the alignment's distance comes from them).
     """
     cfg, cal = run.process.align.sweep, run.cal
     laser, stream = run.dev.laser, pose_stream_of(run.dev.robot)
@@ -176,9 +178,10 @@ async def sweep_path(
         raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
     window = (approach[0], approach[1])
     instants, distances = stored_instants(stored)
+    t, T = pose_samples_arrays(samples)
     latency: LatencyEstimate | None = None
     if latency_s is None:  # plane fits: off the loop
-        latency = await asyncio.to_thread(_latency, run, step, instants, distances, samples, window, check_s)
+        latency = await asyncio.to_thread(_latency, run, step, instants, distances, (t, T), window, check_s)
         lat_s = (choose or (lambda e: e.latency_s))(latency)
     else:
         lat_s = float(latency_s)
@@ -205,12 +208,12 @@ async def sweep_path(
     }
     if latency is not None:
         figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
-    t, T = pose_samples_arrays(samples)
+    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency)
+    if not stops:
+        return swept
     rest = np.flatnonzero(await asyncio.to_thread(standing, t, T, paired.instants - lat_s))
     figures["readings_at_rest"] = int(len(rest))
-    return Swept(
-        paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, paired.poses[rest], paired.distances[rest]
-    )
+    return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest])
 
 
 async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any, None], stream: PoseStream) -> None:
@@ -253,7 +256,7 @@ def _path_seconds(corners: list[Pose], speed_mm_s: float) -> float:
 
 
 def _latency(
-    run: CycleRun, step: CycleStep, instants: np.ndarray, distances: np.ndarray, samples: tuple[PoseSample, ...],
+    run: CycleRun, step: CycleStep, instants: np.ndarray, distances: np.ndarray, feedback: tuple[np.ndarray, np.ndarray],
     approach: tuple[float, float], check_s: float | None,
 ) -> LatencyEstimate:
     """The latency between the laser's and the robot's clocks, from the readings since the approach began.
@@ -263,26 +266,25 @@ def _latency(
     within ``CHECK_WINDOW_S`` of the kept latency ``check_s`` first (a fraction of the grid), then the whole range.
     """
     cfg, cal = run.process.align.sweep, run.cal
+    t, T = feedback
     since = instants >= approach[0]
     in_approach = int(np.count_nonzero(since & (instants <= approach[1]) & np.isfinite(distances)))
-    if len(samples) < 2 or in_approach < 10:
+    if t.size < 2 or in_approach < 10:
         raise CycleFailed(
             step, AlarmCode.ALIGNMENT_FAILED,
-            f"the approach gave {in_approach} laser readings and the sweep {len(samples)} robot poses: too few to time "
+            f"the approach gave {in_approach} laser readings and the sweep {t.size} robot poses: too few to time "
             "the laser against the robot (is the wall in the laser's range at the path's first corner?)",
         )  # fmt: skip
-    t, T = pose_samples_arrays(samples)
-    windows = [cfg.latency_search_s]
-    if check_s is not None:
-        windows.insert(0, (check_s - CHECK_WINDOW_S, check_s + CHECK_WINDOW_S))
+    def estimate(window: tuple[float, float]) -> LatencyEstimate:
+        return estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=window)
+
     try:
-        for k, window in enumerate(windows):
-            try:
-                est = estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=window)
-                break
-            except LatencyAtEdge:
-                if k == len(windows) - 1:
-                    raise
+        est: LatencyEstimate | None = None
+        if check_s is not None:
+            with contextlib.suppress(LatencyAtEdge):
+                est = estimate((check_s - CHECK_WINDOW_S, check_s + CHECK_WINDOW_S))
+        if est is None:
+            est = estimate(cfg.latency_search_s)
     except ValueError as err:
         raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, f"the laser could not be timed against the robot: {err}") from err
     if est.sigma_s > cfg.max_latency_sigma_s:
