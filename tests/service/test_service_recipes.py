@@ -72,9 +72,9 @@ async def test_a_mix_of_two_recipes_installs_each_glass_in_its_own_opening(tmp_p
             # the car body the twin built for this cycle is the recipe's
             assert rig.cell.world_config.width_mm == (1200.0 if recipe == "door-window" else 2000.0)
             # the laser read where the recipe says (its spots, its flush spots), in the true opening's frame:
-            # the door window's reach 1260 mm left of its corner, the side window's 2060 mm
+            # the door window's reach 1700 mm left of its corner, the side window's 2060 mm
             left = -min(x for x, _ in hits)
-            assert (1100.0 < left < 1400.0) if recipe == "door-window" else (left > 1900.0), (recipe, left)
+            assert (1550.0 < left < 1850.0) if recipe == "door-window" else (left > 1950.0), (recipe, left)
         # over Modbus, the PLC's recipe number 2 chooses the door window
         plc = PlcClient(AsyncModbusTcpClient("127.0.0.1", port=service.plc_server.port, timeout=2, retries=1), config.plc.float_word_order)
         assert await plc.client.connect()
@@ -94,6 +94,18 @@ async def test_a_mix_of_two_recipes_installs_each_glass_in_its_own_opening(tmp_p
         # the cell's own measurement after the install agrees with the twin's truth
         off = {k: rec["measured_deviation"][k] - rec["true_error"][k] for k in AXES_MM + AXES_DEG}
         assert all(abs(off[k]) < 0.06 for k in AXES_MM) and all(abs(off[k]) < 0.02 for k in AXES_DEG), off
+        # the door window's 150 mm corner is measured on its arc, in the shots and in the inspection
+        shots = [s["figures"]["feature"] for s in rec["steps"] if s["step"] == "compensate" and "feature" in s["figures"]]
+        inspect = next(s["figures"] for s in rec["steps"] if s["step"] == "inspect" and "measured_deviation" in s["figures"])
+        arc = rec["recipe"] == "door-window"
+        assert shots and set(shots) == {"arc" if arc else "corner"}, shots
+        if arc:  # the twin's glass lies 5 mm inside the opening's outline, moved by its true error
+            t = rec["true_error"]
+            assert abs(inspect["top_gap_mm"] - (5.0 + t["dy_mm"])) < 0.06, (inspect, t)
+            # at the arc's middle (from its centre towards the corner, (1, -1) / sqrt 2 in T)
+            assert abs(inspect["arc_gap_mm"] - (5.0 - (t["dx_mm"] - t["dy_mm"]) / 2**0.5)) < 0.06, (inspect, t)
+        else:
+            assert "arc_gap_mm" not in inspect
     assert [r["recipe"] for r in records] == [*mix, "door-window"]
     # the closed loop follows the first recipe's installs only
     spc = [r["result"]["spc"] for r in records]

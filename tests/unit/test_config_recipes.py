@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from cellctl.config.feature import ShotFeature, arc_view, feature_kind, shot_aim_mm, shot_feature
 from cellctl.config.loader import ConfigError, parse_config
 from cellctl.config.recipe import RECIPE_SECTIONS, Recipe
 
@@ -58,11 +59,27 @@ def test_a_bad_recipe_field_refuses_the_config_naming_the_recipe_and_the_field()
 
 
 def test_a_recipe_can_break_a_rule_that_spans_tables_and_is_told_which() -> None:
-    # a 150 mm corner radius leaves the line detector too little straight edge: the cell's rule, named for the recipe
-    bad = {**DOOR, "opening": {**DOOR["opening"], "corner_radius_mm": 150.0}, "sim_glass": DOOR["sim_glass"]}
+    # a 150 mm corner radius makes the arc the feature; aimed at the corner, too little arc is in view
+    opening = {**DOOR["opening"], "corner_radius_mm": 150.0}
+    bad = {**DOOR, "opening": opening, "vision": {"shot_aim_mm": [0.0, 0.0]}, "sim_glass": DOOR["sim_glass"]}
     with pytest.raises(ConfigError) as err:
         parse_config(_data(bad))
-    assert "process.recipes[1] (door-window)" in str(err.value) and "corner_radius_mm = 150" in str(err.value)
+    text = str(err.value)
+    assert "process.recipes[1] (door-window)" in text and "corner_radius_mm = 150" in text and "vision.shot_aim_mm" in text
+
+
+def test_a_large_corner_radius_makes_the_arc_the_feature_with_its_own_aim() -> None:
+    config = parse_config(_data({**DOOR, "opening": {**DOOR["opening"], "corner_radius_mm": 150.0}}))
+    side, door = config.for_recipe("side-window"), config.for_recipe("door-window")
+    assert feature_kind(side) == "corner" and shot_feature(side) == ShotFeature()
+    assert feature_kind(door) == "arc"
+    feature = shot_feature(door)
+    assert feature.point_mm == (-150.0, 150.0)  # the arc's centre in T: left of and below the corner
+    assert feature.arc is not None and abs(feature.arc.expected_radius_px - 150.0 * door.layout.camera.fx / 400.0) < 1e-9
+    coverage, straight = arc_view(door)  # the default aim: the arc and the top edge's straight run in view
+    assert coverage >= 48.0 and straight >= 160.0
+    ax, ay = shot_aim_mm(door)
+    assert -150.0 < ax < 0.0 and 0.0 < ay < 150.0
 
 
 def test_unknown_recipe_names_are_refused_with_the_list() -> None:

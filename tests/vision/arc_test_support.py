@@ -1,7 +1,7 @@
 """Disturbances laid over the synthetic corner images of vision_test_support (the arc corner's tests).
 
-Truth of the rounded corner drawn there: the arc's centre lies one radius from both edges, inside
-the opening; an occluder is a soft-edged rectangle (raw px) of one grey over everything.
+Truth of the rounded corner drawn there: the arc's centre lies one radius (square px, fx on both
+axes) from both edges, inside the opening; an occluder is a soft-edged rectangle (raw px) of one grey over everything.
 """
 
 from __future__ import annotations
@@ -9,13 +9,16 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr
+from vision_test_support import SMALL_LENS
+
+from cellctl.vision.lens import Lens
 
 
-def arc_centre(corner: tuple[float, float], angle_rad: float, radius_px: float) -> NDArray[np.float64]:
-    """The arc's centre (ideal px) of ``corner_image(..., corner, angle_rad, radius_px=...)``."""
+def arc_centre(corner: tuple[float, float], angle_rad: float, radius_px: float, lens: Lens = SMALL_LENS) -> NDArray[np.float64]:
+    """The arc's centre (ideal px) of ``corner_image(lens, ..., corner, angle_rad, radius_px=...)``."""
     c, s = np.cos(angle_rad), np.sin(angle_rad)
-    # Local (x, y) = (-R, R): x along the top edge towards +u, y down the right edge.
-    return np.array([corner[0] - radius_px * (c + s), corner[1] + radius_px * (c - s)])
+    # Local (x, y) = (-R, R) in square px: x along the top edge towards +u, y down the right edge.
+    return np.array([corner[0] - radius_px * (c + s), corner[1] + radius_px * (c - s) * lens.fy / lens.fx])
 
 
 def arc_point(centre: NDArray[np.float64], radius_px: float, angle_deg: float) -> tuple[float, float]:

@@ -158,8 +158,11 @@ def test_a_glare_veil_on_the_arc_is_refused(grid: Grid, angle_deg: float, peak: 
         SMALL_LENS, grid, BIG_CORNER, 0.01, radius_px=R150, glare=(u, v, peak, sigma), noise_dn=2.0,
         rng=np.random.default_rng(10),
     )
-    m = detect_arc_corner(img, SMALL_LENS, _config(R150))
+    # At the twin's default (0.1: its real openings' bands leave a few profiles uneven) the first veil
+    # is refused by the arc gap it cuts; at 0.05 by the uneven share, the rule this test is for.
+    m = detect_arc_corner(img, SMALL_LENS, _config(R150, limits=_limits(max_uneven_fraction=0.05)))
     assert m.refusal is Refusal.ARC_MISMATCH and _failed(m) == "max uneven-background share"
+    assert not detect_arc_corner(img, SMALL_LENS, _config(R150)).ok
 
 
 @pytest.mark.parametrize("factor", [0.88, 1.07, 1.12])

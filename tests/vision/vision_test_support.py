@@ -1,8 +1,9 @@
 """Synthetic corner images with known truth, independent of the twin's renderer.
 
-The opening is the quadrant left of and below the corner in the ideal (undistorted) image,
-rounded with radius ``radius_px``; each raw pixel centre is undistorted with the lens, its signed
-distance to the rounded quadrant taken, and the grey level is the Gaussian-blurred step there.
+The opening is the quadrant left of and below the corner, rounded with radius ``radius_px``, in
+square px (the ideal image with v scaled by fx / fy about the corner, where the wall's circle is
+one); each raw pixel centre is undistorted with the lens, its signed distance to the rounded
+quadrant taken, and the grey level is the Gaussian-blurred step there.
 """
 
 from __future__ import annotations
@@ -67,8 +68,10 @@ def corner_image(
     """
     u, v = grid
     c, s = np.cos(angle_rad), np.sin(angle_rad)
-    x = c * (u - corner[0]) + s * (v - corner[1])  # along the top edge (towards +u)
-    y = -s * (u - corner[0]) + c * (v - corner[1])  # along the right edge (down)
+    # The shape is drawn in square px (v scaled by fx / fy), where the wall's circle images as one.
+    dv = (v - corner[1]) * (lens.fx / lens.fy)
+    x = c * (u - corner[0]) + s * dv  # along the top edge (towards +u)
+    y = -s * (u - corner[0]) + c * dv  # along the right edge (down)
     if right_extra_rad != 0.0:
         # Sharp wedge: below the top edge and left of the turned right edge.
         ce, se = np.cos(right_extra_rad), np.sin(right_extra_rad)

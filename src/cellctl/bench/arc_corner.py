@@ -9,8 +9,8 @@ the refusals by reason, and the wrong answers (accepted more than 1 px off), whi
 the issue's bar is median <= 0.1 px and p99 <= 0.3 px.
 
 The renderer is this module's own (independent of the detector and of the tests' one): the
-opening is the rounded quadrant in the ideal image, each raw pixel centre is undistorted with the
-lens and shaded by the Gaussian-blurred step at its signed distance from the outline.
+opening is the rounded quadrant in square px (the ideal image with v scaled by fx / fy), each raw
+pixel centre is undistorted with the lens and shaded by the Gaussian-blurred step at its signed distance from the outline.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ SHARES = (0.55, 0.15, 0.2, 0.1)
 
 @dataclass(frozen=True)
 class Scene:
-    """One render's truth: arc centre (ideal px), radius (px), turn (rad) and the disturbance drawn."""
+    """One render's truth: arc centre and radius (square px), turn (rad) and the disturbance drawn."""
 
     kind: str
     centre: tuple[float, float]
@@ -55,11 +55,12 @@ class Scene:
     detail: str
 
 
-def ideal_coordinates(lens: Lens) -> tuple[F64, F64]:
-    """(u, v) in the ideal image of every raw pixel centre, each (H, W)."""
+def square_coordinates(lens: Lens) -> tuple[F64, F64]:
+    """(u, v) in square px (the ideal image with v scaled by fx / fy, where the wall's circle is
+    one) of every raw pixel centre, each (H, W)."""
     rows, cols = np.indices((lens.height_px, lens.width_px), dtype=np.float64)
-    ideal = lens.undistort(np.column_stack([cols.ravel(), rows.ravel()]))
-    return ideal[:, 0].reshape(rows.shape), ideal[:, 1].reshape(rows.shape)
+    square = lens.to_square(lens.undistort(np.column_stack([cols.ravel(), rows.ravel()])))
+    return square[:, 0].reshape(rows.shape), square[:, 1].reshape(rows.shape)
 
 
 def rounded_corner_distance(u: F64, v: F64, centre: tuple[float, float], radius: float, turn: float) -> F64:
@@ -123,7 +124,7 @@ def run_arc_corner_bench(n: int, seed: int) -> dict[str, object]:
     lens = Lens.from_intrinsics(SimConfig().camera.intrinsics)
     radius_px = RADIUS_MM / MM_PER_PX
     config = ArcCornerConfig(expected_radius_px=radius_px)
-    coords = ideal_coordinates(lens)
+    coords = square_coordinates(lens)
     rng = np.random.default_rng(seed)
     errors: list[float] = []
     clean_errors: list[float] = []
@@ -143,7 +144,7 @@ def run_arc_corner_bench(n: int, seed: int) -> dict[str, object]:
             refusals[reason] += 1
             by_kind[scene.kind]["refused"] += 1
             continue
-        err = float(np.hypot(*(m.centre_px - np.array(scene.centre))))
+        err = float(np.hypot(*(lens.to_square(m.centre_px)[0] - np.array(scene.centre))))
         by_kind[scene.kind]["accepted"] += 1
         errors.append(err)
         if scene.kind == "clean":

@@ -141,9 +141,10 @@ class CalibrationSet(StrictRecord):
         return TaughtPoses(np.asarray(v.T0, dtype=float), np.asarray(v.C_Pos_0, dtype=float), np.asarray(v.g_Pos_0, dtype=float))
 
     def template(self, recipe: str | None = None) -> dict[str, float]:
-        """u_d, v_d, theta_d and the two edge angles of the taught corner (ideal pixels, rad)."""
+        """u_d, v_d, theta_d and the two edge angles of the taught feature (ideal pixels, rad; NaN: not in view)."""
         v = self._ok("teaching", recipe)
-        return {k: float(getattr(v, k)) for k in ("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")}
+        keys = ("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")
+        return {k: float("nan") if getattr(v, k) is None else float(getattr(v, k)) for k in keys}
 
     def with_part(
         self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "", recipe: str | None = None

@@ -29,11 +29,13 @@ from cellctl.calibration.laser import calibrate_laser
 from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
 from cellctl.calibration.summary import summary_lines
 from cellctl.calibration.teach import workpiece_frame_from_corner
+from cellctl.calibration.template_figures import corner_angle_deg, taught_feature
 from cellctl.compensate import deviation_in_frame
+from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
-from cellctl.geometry.pose import invert_pose, mean_pose, pose_error
+from cellctl.geometry.pose import invert_pose, make_pose, mean_pose, pose_error
 from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
-from cellctl.vision.corner import CornerMeasurement, detect_corner
+from cellctl.vision.feature import detect_feature
 from cellctl.vision.ninepoint import NinePointError
 from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
 
@@ -294,13 +296,14 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
     taught = cal.taught(recipe)
     views = ds.manifest["views"]
     corners, poses, quality_px = [], [], []
+    feature = shot_feature(config)
     for v in views:
-        m = detect_corner(ds.image(v["image"]), lens, config.vision)
-        if not m.ok:
-            raise CalibrationRefused("pixel_map", "corner_not_found", f"{v['name']}: the corner detector refused: {m.message}")
+        m = detect_feature(ds.image(v["image"]), lens, config.vision, feature.arc)
+        if m.features is None:
+            raise CalibrationRefused("pixel_map", "corner_not_found", f"{v['name']}: the {m.kind} detector refused: {m.message}")
         corners.append([m.features.u_px, m.features.v_px])
         poses.append(pose_array(v["T_B_H"], f"{v['name']}.T_B_H"))
-        quality_px.append(m.corner_sigma_px)
+        quality_px.append(m.sigma_px)
     offsets = offsets_from_poses(poses, taught.C_Pos_0, taught.T0)
     try:
         amap = nine_point_map(np.asarray(corners), offsets)
@@ -347,21 +350,6 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
 
 
 # -- teaching -----------------------------------------------------------------------------------
-
-
-def _taught_feature(m: CornerMeasurement, config: CellConfig) -> dict[str, Any]:
-    """The recipe's feature rule and, per edge, the steps the template's profile shows and the one it picked."""
-    feature = config.vision.feature
-    out: dict[str, Any] = {"rule": feature.model_dump()}
-    for edge in (m.top, m.right):
-        prof = edge.profile if edge is not None else None
-        if prof is None:
-            continue
-        out[edge.name] = {
-            "steps": [{"offset_px": st.offset_px, "change_dn": st.change_dn, "fraction": st.fraction} for st in prof.steps],
-            "feature": prof.feature,
-        }
-    return out
 
 
 def _taught_install(ds: Dataset, config: CellConfig, T0: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
@@ -420,12 +408,16 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
             "from the aligned shooting pose these laser readings give; the dataset does not belong together",
         )
     lens = cal.lens()
-    m = detect_corner(ds.image(ds.manifest["shooting_image"]), lens, config.vision)
-    if not m.ok:
-        raise CalibrationRefused("teaching", "corner_not_found", f"the corner detector refused the template image: {m.message}")
-    f = m.features
+    feature = shot_feature(config)
+    shot = detect_feature(ds.image(ds.manifest["shooting_image"]), lens, config.vision, feature.arc)
+    if shot.features is None:
+        raise CalibrationRefused("teaching", "corner_not_found", f"the {shot.kind} detector refused the template image: {shot.message}")
+    f = shot.features
     plane = align.wall.plane
-    T0 = workpiece_frame_from_corner(C_Pos_0, T_H_C, cal.camera_matrix(), [f.u_px, f.v_px], f.theta_rad, plane.normal, plane.offset)
+    T_feature = workpiece_frame_from_corner(
+        C_Pos_0, T_H_C, cal.camera_matrix(), [f.u_px, f.v_px], f.theta_rad, plane.normal, plane.offset
+    )
+    T0 = T_feature @ make_pose(np.eye(3), [-feature.point_mm[0], -feature.point_mm[1], 0.0])  # the feature lies at point_mm in T0
     g_Pos_0, installs = _taught_install(ds, config, T0)
     nominal = pose_array(ds.manifest["T0_nominal"], "T0_nominal")
     dn, rn = deviation_in_frame(nominal, T0)
@@ -436,10 +428,11 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         "normal_uncertainty_deg": None if align.wall.uncertainty is None else float(np.degrees(align.wall.uncertainty.rms_rad)),
         "alignment_turn_deg": float(np.degrees(align.rotation_rad)),
         "distance_correction_mm": align.distance.delta_d_mm,
-        "corner_sigma_px": m.corner_sigma_px,
-        "corner_angle_deg": None if m.corner_angle_rad is None else float(np.degrees(m.corner_angle_rad)),
-        "corner_checks": [{"name": c.name, "value": c.value, "limit": c.limit, "ok": c.passed} for c in m.checks],
-        "feature_edge": _taught_feature(m, config),
+        "feature": shot.kind,
+        "corner_sigma_px": shot.sigma_px,
+        "corner_angle_deg": corner_angle_deg(shot.measurement),
+        "corner_checks": [{"name": c.name, "value": c.value, "limit": c.limit, "ok": c.passed} for c in shot.measurement.checks],
+        "feature_edge": taught_feature(shot.measurement, config),
         "T0_from_layout_mm": dn.tolist(),
         "T0_from_layout_deg": np.degrees(rn).tolist(),
         "operator": ds.manifest.get("operator", {}),
@@ -462,8 +455,8 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         "u_d": f.u_px,
         "v_d": f.v_px,
         "theta_d": f.theta_rad,
-        "top_angle_d": f.top_angle_rad,
-        "right_angle_d": f.right_angle_rad,
+        "top_angle_d": f.top_angle_rad if np.isfinite(f.top_angle_rad) else None,  # None: not in view (an arc corner)
+        "right_angle_d": f.right_angle_rad if np.isfinite(f.right_angle_rad) else None,
     }
     return Outcome(
         "teaching",
@@ -473,7 +466,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         quality,
         [],
         ids,
-        (align, m, T0),
+        (align, shot.measurement, T0),
         recipe_slot(ds.manifest.get("recipe"), config.default_recipe),
     )
 

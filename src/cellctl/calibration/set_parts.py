@@ -118,8 +118,8 @@ class TeachingValues(StrictRecord):
     u_d: float
     v_d: float
     theta_d: float
-    top_angle_d: float
-    right_angle_d: float
+    top_angle_d: float | None  # None: that edge is not in view (an arc corner's right edge)
+    right_angle_d: float | None
 
     @field_validator("T0", "C_Pos_0", "g_Pos_0")
     @classmethod
@@ -128,9 +128,9 @@ class TeachingValues(StrictRecord):
 
     @field_validator("u_d", "v_d", "theta_d", "top_angle_d", "right_angle_d")
     @classmethod
-    def _finite(cls, v: float) -> float:
-        if not np.isfinite(v):
-            raise ValueError("must be a finite number")
+    def _finite(cls, v: float | None) -> float | None:
+        if v is not None and not np.isfinite(v):
+            raise ValueError("must be a finite number (or null for an edge not in view)")
         return v
 
 

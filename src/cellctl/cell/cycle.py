@@ -46,6 +46,7 @@ from cellctl.compensate import (
     workpiece_frame_after_alignment,
 )
 from cellctl.config.cell import ProcessConfig
+from cellctl.config.feature import ShotFeature
 from cellctl.config.vision import VisionConfig
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.planar import PlanarOffset
@@ -62,15 +63,10 @@ from cellctl.ports import (
     Robot,
     UnreachableTarget,
 )
-from cellctl.vision import (
-    AffineMap,
-    CornerFeatures,
-    CornerMeasurement,
-    Lens,
-    annotate,
-    detect_corner,
-    offset_from_map,
-)
+from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, offset_from_map
+from cellctl.vision.annotate_arc import annotate_arc
+from cellctl.vision.arc_corner import ArcCornerMeasurement
+from cellctl.vision.feature import FeatureShot, detect_feature, first_shot_limits
 
 
 @dataclass(frozen=True)
@@ -174,8 +170,10 @@ class CycleRun:
         vision: VisionConfig,
         recorder: CycleRecorder,
         laser_timing: LaserTiming | None = None,
+        feature: ShotFeature | None = None,
     ) -> None:
         self.dev = devices
+        self.feature = feature or ShotFeature()  # the corner, or the arc for a large corner radius
         self.cal = cal
         self.process = process
         self.vision = vision
@@ -184,7 +182,7 @@ class CycleRun:
         self.sweep_latency_s: float | None = None  # this cycle's laser-to-robot latency, once a sweep timed it
         self.laser_timing = laser_timing if laser_timing is not None else LaserTiming()  # kept from cycle to cycle
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
-        self._last_image: tuple[int, np.ndarray, CornerMeasurement, PlanarOffset | None] | None = None
+        self._last_image: tuple[int, np.ndarray, FeatureShot, PlanarOffset | None] | None = None
 
     async def move(
         self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False, speed_mm_s: float | None = None
@@ -295,10 +293,10 @@ class CycleRun:
         cal, verify = self.cal, self.process.verify
         T1 = workpiece_frame_after_alignment(cal.taught, C_Pos_1)
         m, offset = await self._measure(0, first=True)
-        if offset is None and m.coarse_corner_px is not None:
+        coarse = getattr(m.measurement, "coarse_corner_px", None)  # the corner method's rough find
+        if offset is None and coarse is not None:
             rough = CornerFeatures(
-                float(m.coarse_corner_px[0]), float(m.coarse_corner_px[1]), cal.template.theta_rad,
-                cal.template.top_angle_rad, cal.template.right_angle_rad,
+                float(coarse[0]), float(coarse[1]), cal.template.theta_rad, cal.template.top_angle_rad, cal.template.right_angle_rad
             )
             aim = offset_from_map(cal.template, rough, cal.nine_point)
             await self.rec.step_figures(CycleStep.COMPENSATE, {"re_aim_mm": [aim.dx_mm, aim.dy_mm], "refusal": m.message})
@@ -307,6 +305,9 @@ class CycleRun:
             T1 = workpiece_frame_after_alignment(cal.taught, await self.move(CycleStep.COMPENSATE, target))
             m, offset = await self._measure(0, first=True)
         T_est = await self._estimate(0, m, offset, T1)
+        # An arc shot without its top edge in view corrected no turn: the first verification shot
+        # measures it, so the move after it may still be a first correction's size.
+        first_turned = m.features is not None and bool(np.isfinite(m.features.theta_rad))
         shots: list[ShotRecord] = [self._last_shot]
         estimates: list[Pose] = []
         moved_mm = turned_rad = float("nan")
@@ -314,7 +315,7 @@ class CycleRun:
         for k in range(1, verify.max_shots + 1):
             here = await self._current_pose(CycleStep.COMPENSATE)
             target = shooting_pose_in(cal.taught, T_est)
-            self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=k > 1)
+            self.limit(CycleStep.COMPENSATE, here, target, "verification shooting pose", verify=k > (1 if first_turned else 2))
             reached, how = await verification_move(self, CycleStep.COMPENSATE, target)
             moves.append(how)
             m, offset = await self._measure(k)
@@ -338,8 +339,8 @@ class CycleRun:
             f"{verify.residual_deg} deg): the robot does not hold its pose or the image is unstable",
         )
 
-    async def _measure(self, index: int, *, first: bool = False) -> tuple[CornerMeasurement, PlanarOffset | None]:
-        """Grab, find the corner and turn it into T' (None when the detector refused)."""
+    async def _measure(self, index: int, *, first: bool = False) -> tuple[FeatureShot, PlanarOffset | None]:
+        """Grab, find the corner (or the arc) and turn it into T' (None when the detector refused)."""
         cal = self.cal
         await self.rec.step_started(CycleStep.SHOOT)
         try:
@@ -347,15 +348,13 @@ class CycleRun:
         except DeviceError as err:
             raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_GRAB_FAILED, f"no image: {err}") from err
         await self.rec.step_started(CycleStep.COMPENSATE)
-        vision = self.vision
+        vision, arc = self.vision, self.feature.arc
         if first:  # the first shot aims the verification shots; they carry the precision
             verify = self.process.verify
-            limits = vision.limits.model_copy(
-                update={"max_corner_sigma_px": verify.first_shot_sigma_px, "min_edge_points": verify.first_shot_min_edge_points}
-            )
-            vision = vision.model_copy(update={"limits": limits})
-        m = await asyncio.to_thread(detect_corner, frame.image, cal.lens, vision)
-        offset = offset_from_map(cal.template, m.features, cal.nine_point) if m.ok else None
+            vision, arc = first_shot_limits(vision, arc, verify.first_shot_sigma_px, verify.first_shot_min_edge_points)
+        m = await asyncio.to_thread(detect_feature, frame.image, cal.lens, vision, arc, need_orientation=not first)
+        point = self.feature.point_mm
+        offset = offset_from_map(cal.template, m.features, cal.nine_point, point) if m.features is not None else None
         self._last_image = (index, frame.image, m, offset)
         if offset is None:  # a refusal is always shown, for whoever has to find out why
             await self.annotate_last()
@@ -367,21 +366,30 @@ class CycleRun:
             return
         index, image, m, offset = self._last_image
         self._last_image = None
-        png = await asyncio.to_thread(annotate, image, m, self.cal.lens, taught=self.cal.template, offset=offset)
+        taught = self.cal.template
+        if isinstance(m.measurement, ArcCornerMeasurement):
+            r = self.vision.roi
+            png = await asyncio.to_thread(
+                annotate_arc, image, m.measurement, self.cal.lens, (r.x_px, r.y_px, r.width_px, r.height_px), taught=taught, offset=offset
+            )  # fmt: skip
+        else:
+            png = await asyncio.to_thread(annotate, image, m.measurement, self.cal.lens, taught=taught, offset=offset)
         await self.rec.image(f"shot{index}", png)
 
-    async def _estimate(self, index: int, m: CornerMeasurement, offset: PlanarOffset | None, T1: Pose) -> Pose:
+    async def _estimate(self, index: int, m: FeatureShot, offset: PlanarOffset | None, T1: Pose) -> Pose:
         """T1 corrected by the shot's offset; a refused shot fails the cycle with the detector's reason."""
         if offset is None:
             raise CycleFailed(CycleStep.COMPENSATE, AlarmCode.CORNER_NOT_FOUND, m.message)
-        self._last_shot = ShotRecord(index, offset, float(m.corner_sigma_px or 0.0))
+        assert m.features is not None
+        self._last_shot = ShotRecord(index, offset, float(m.sigma_px or 0.0))
         await self.rec.step_figures(
             CycleStep.COMPENSATE,
             {
                 "shot": index,
+                "feature": m.kind,
                 "corner_px": [m.features.u_px, m.features.v_px],
-                "theta_deg": float(np.degrees(m.features.theta_rad)),
-                "corner_sigma_px": m.corner_sigma_px,
+                "theta_deg": float(np.degrees(m.features.theta_rad)) if np.isfinite(m.features.theta_rad) else None,
+                "corner_sigma_px": m.sigma_px,
                 "offset_mm": [offset.dx_mm, offset.dy_mm],
                 "offset_deg": float(np.degrees(offset.dtheta_rad)),
             },
@@ -417,14 +425,16 @@ async def run_cycle(
     *,
     install_offset: Pose | None = None,
     laser_timing: LaserTiming | None = None,
+    feature: ShotFeature | None = None,
 ) -> CycleResult:
     """Run one cycle through align, shoot, compensate (with verification), install and inspect.
 
     ``install_offset`` is the closed loop's estimate of the glass's systematic deviation in T
     (a small pose); the install target takes it out. ``laser_timing`` is the latency the cell keeps
-    between sweeps (None: this cycle times its own).
+    between sweeps (None: this cycle times its own). ``feature`` is what the recipe's shots measure
+    (cellctl.config.feature.shot_feature; None: the corner).
     """
-    run = CycleRun(devices, cal, process, vision, recorder, laser_timing)
+    run = CycleRun(devices, cal, process, vision, recorder, laser_timing, feature)
     alignment, C_Pos_1 = await run.align()
     T2, shots = await run.shoot_and_compensate(C_Pos_1)
     target, reached = await run.install(T2, install_offset)

@@ -19,6 +19,8 @@ import numpy as np
 from cellctl.align import AlignmentError, plan_spot_poses
 from cellctl.align.laser_points import laser_points
 from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.inspect_figures import record_measured
+from cellctl.cell.inspect_arc import inspect_arc_corner
 from cellctl.cell.sweep import sweep_flush
 from cellctl.compensate import shooting_pose_in
 from cellctl.domain import AlarmCode, CycleStep
@@ -28,7 +30,6 @@ from cellctl.inspection import (
     FlushResult,
     MeasuredDeviation,
     fit_flush,
-    measured_deviation,
 )
 from cellctl.ports import DeviceError, LaserStatus
 from cellctl.vision.annotate_gap import annotate_gaps
@@ -148,6 +149,8 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
     """Release, back off, measure the gaps and the flush: the installed glass's six figures."""
     await run.rec.step_started(STEP)
     await release_and_back_off(run, T2, reached)
+    if run.feature.arc is not None:  # a large corner radius: the gaps on the arc
+        return await inspect_arc_corner(run, T2, measure_flush)
     image, gaps = await measure_gaps_at_shooting_pose(run, T2)
     try:
         flush, flush_figures = await measure_flush(run, T2)
@@ -167,18 +170,4 @@ async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDev
         run, image, gaps, {"top_gap_mm": plane.top_gap_mm, "right_gap_mm": plane.right_gap_mm, "dx_mm": plane.dx_mm,
               "dy_mm": plane.dy_mm, "drz_rad": plane.drz_rad},
     )  # fmt: skip
-    measured = measured_deviation(
-        plane.dx_mm, plane.dy_mm, plane.drz_rad, flush, top_gap_mm=plane.top_gap_mm, right_gap_mm=plane.right_gap_mm
-    )
-    await run.rec.step_figures(
-        STEP,
-        {
-            "measured_deviation": measured.as_dict(),
-            "top_gap_mm": plane.top_gap_mm,
-            "right_gap_mm": plane.right_gap_mm,
-            **flush_figures,
-            "flush_fit_rms_mm": {"glass": flush.glass_rms_mm, "wall": flush.wall_rms_mm},
-            "dz_sigma_mm": flush.dz_sigma_mm,
-        },
-    )
-    return measured
+    return await record_measured(run, plane, flush, flush_figures)

@@ -36,6 +36,7 @@ from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.sources import CalibrationSource, SimTruth
 from cellctl.cell.tags import TO_EXECUTE
 from cellctl.cell.watchdog import DeviceWatchdog
+from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
 from cellctl.domain import (
     AlarmCode,
@@ -353,8 +354,9 @@ class CellOrchestrator:
         offset = self.quality.offset_as_pose(self._applied_offset)
         view = self.config.for_recipe(recipe)
         return await run_cycle(
-            self.devices, cal, view.process, view.vision, rec, install_offset=offset, laser_timing=self.laser_timing
-        )
+            self.devices, cal, view.process, view.vision, rec, install_offset=offset, laser_timing=self.laser_timing,
+            feature=shot_feature(view),
+        )  # fmt: skip
 
     async def _feed_quality_loop(self, cycle_id: int, result: CycleResult | None) -> tuple[dict[str, Any], Any]:
         """The cycle's measured result into the closed loop (a failed cycle counts as not installed).

@@ -24,6 +24,7 @@ from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
 from cellctl.calibration.poses import plan_board_views, plan_laser_poses
 from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.config.feature import shot_aim_mm
 from cellctl.config.calibration_procedure import BoardConfig
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, pose_in_plane, pose_to_xyz_fixed
@@ -159,6 +160,12 @@ def board_spec(board: BoardConfig) -> BoardSpec:
     return BoardSpec(tuple(board.inner_corners), float(board.square_mm))  # type: ignore[arg-type]
 
 
+def scale_board_at(config: CellConfig) -> tuple[float, float]:
+    """The scale board's first inner corner in T0 (mm): the configured place from the shot's aim."""
+    aim, at = shot_aim_mm(config), config.calibration.procedure.nine_point.scale_board_on_wall_mm
+    return (aim[0] + at[0], aim[1] + at[1])
+
+
 def board_place(config: CellConfig, board: BoardConfig, at_mm: Sequence[float]) -> dict[str, Any]:
     """Where a board goes, for the prompt: its first inner corner in T0 and in the base frame."""
     T_B_P = pose_in_plane(nominal_T0(config), at_mm)
@@ -232,7 +239,7 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
     r, l = cal.laser_ray()  # noqa: E741
     ac = config.process.align
     T0 = nominal_T0(config)
-    shoot = nominal_shooting_pose(T0, T_H_C, config.process.working_distance_mm)
+    shoot = nominal_shooting_pose(T0, T_H_C, config.process.working_distance_mm, shot_aim_mm(config))
     spots = plan_spot_poses(T0, ac.wall_spots_mm(), shoot[:3, :3], r, l, ac.laser_standoff_mm)
     poses, labels, dropped = [], [], []
     check = _reach_check(config)
@@ -263,7 +270,7 @@ def plan_nine_point(
     targets = nine_point_targets(taught.C_Pos_0, taught.T0, offsets)
     labels = [f"offset ({o[0]:+.0f}, {o[1]:+.0f}) mm" for o in offsets]
     details = {"step_mm": npc.step_mm, "offsets_mm": offsets.tolist(),
-               "scale_board": board_place(config, npc.scale_board, npc.scale_board_on_wall_mm)}  # fmt: skip
+               "scale_board": board_place(config, npc.scale_board, scale_board_at(config))}  # fmt: skip
     return make_plan(config, "pixel_map", targets, labels, [], start, details)
 
 

@@ -42,6 +42,7 @@ from cellctl.commissioning.plans import (
     plan_nine_point,
     plan_teaching,
     pose_row,
+    scale_board_at,
 )
 from cellctl.commissioning.prompts import PromptKind
 from cellctl.config.schema import CellConfig
@@ -329,7 +330,7 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
         T0=pose_list(taught.T0),
         scale_image="scale.png",
         scale_board={"inner_corners": list(npc.scale_board.inner_corners), "square_mm": npc.scale_board.square_mm,
-                     "on_wall_mm": list(npc.scale_board_on_wall_mm)},
+                     "on_wall_mm": list(scale_board_at(ctx.config))},
         plan=plan.summary(),
     )  # fmt: skip
     await confirm_start(ctx, plan, "the nine-point map")
@@ -346,7 +347,7 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
         draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "offset_target_mm": list(o)})
         ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
     await move_to(ctx, taught.C_Pos_0)
-    place = board_place(ctx.config, npc.scale_board, npc.scale_board_on_wall_mm)
+    place = board_place(ctx.config, npc.scale_board, scale_board_at(ctx.config))  # where the camera looks
     draft.manifest["scale_board"]["square_mm"] = await place_board(ctx, place, "scale checkerboard")
     frame = await grab(ctx)
     draft.images["scale.png"] = frame.image

@@ -17,6 +17,7 @@ from cellctl.align import plan_spot_poses
 from cellctl.align.laser_points import sweep_route
 from cellctl.align.reading_plan import fastest_order, predicted_plane_error, standing_readings, sweep_readings
 from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.config.feature import shot_aim_mm
 from cellctl.config.devices import KeyenceLkgDevice
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose
@@ -58,7 +59,7 @@ def wall_plan(config: CellConfig) -> WallPlan:
     """The choice of ``[process.align]`` against the nominal layout."""
     ac, layout, motion = config.process.align, config.layout, config.process.motion
     T0 = layout.opening.T_B_T_nominal()
-    shoot = nominal_shooting_pose(T0, layout.camera_mount.T_H_C(), config.process.working_distance_mm)
+    shoot = nominal_shooting_pose(T0, layout.camera_mount.T_H_C(), config.process.working_distance_mm, shot_aim_mm(config))
     r, l = np.asarray(layout.laser_mount.origin_mm, dtype=float), np.asarray(layout.laser_mount.direction, dtype=float)  # noqa: E741
     robot = layout.robot
 

@@ -134,7 +134,7 @@ class NinePointConfig(StrictModel):
     step_mm: Finite = Field(15.0, gt=0, le=50)
     max_rms_mm: Finite = Field(0.1, gt=0)
     scale_board: BoardConfig = BoardConfig()
-    scale_board_on_wall_mm: Vec2 = (-50.0, -35.0)  # first inner corner of the scale board, in T0
+    scale_board_on_wall_mm: Vec2 = (-50.0, -35.0)  # first inner corner of the scale board, in T0 from the shot's aim
 
 
 class TeachConfig(StrictModel):

@@ -18,11 +18,10 @@ from cellctl.config.plc import PlcConfig
 from cellctl.config.recipe import RECIPE_SECTIONS, Recipe, merge_into
 from cellctl.config.sim import SimConfig
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
+from cellctl.config.feature import arc_view_problem, feature_kind
 from cellctl.config.types import StrictModel
 from cellctl.config.vision import VisionConfig
 
-# The corner detector needs this much straight edge on each side of the rounded corner (mm).
-MIN_STRAIGHT_EDGE_MM = 20.0
 
 
 class CellConfig(StrictModel):
@@ -104,17 +103,12 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="after")
     def _corner_visible(self) -> "CellConfig":
-        opening = self.layout.opening
-        fov_w, fov_h = self.layout.camera.field_of_view_mm(self.process.working_distance_mm)
-        straight = min(fov_w, fov_h) / 2.0 - opening.corner_radius_mm
-        if straight < MIN_STRAIGHT_EDGE_MM:
-            raise ValueError(
-                f"layout.opening.corner_radius_mm = {opening.corner_radius_mm:g} leaves {straight:.1f} mm "
-                f"of straight edge beside the corner in the camera's {fov_w:.0f} x {fov_h:.0f} mm view at "
-                f"{self.process.working_distance_mm:g} mm; the corner method needs at least "
-                f"{MIN_STRAIGHT_EDGE_MM:g} mm: reduce corner_radius_mm to at most "
-                f"{min(fov_w, fov_h) / 2.0 - MIN_STRAIGHT_EDGE_MM:.0f} mm or raise the working distance"
-            )
+        """The corner method where both edges run straight in view beside the corner, else the arc must be."""
+        if feature_kind(self) == "arc":
+            problem = arc_view_problem(self)
+            if problem is not None:
+                r = self.layout.opening.corner_radius_mm
+                raise ValueError(f"layout.opening.corner_radius_mm = {r:g} makes the arc the feature, but {problem}")
         return self
 
     @model_validator(mode="after")

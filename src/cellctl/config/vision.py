@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from cellctl.config.arc_settings import ArcSettings
 from cellctl.config.types import Finite, StrictModel
 
 
@@ -180,3 +181,8 @@ class VisionConfig(StrictModel):
     opening_polarity: Literal["darker", "brighter", "auto"] = "darker"
     feature: FeatureConfig = FeatureConfig()
     gap: GapVisionConfig = GapVisionConfig()  # the post-install inspection image (issue 16)
+    arc: ArcSettings = ArcSettings()  # the arc corner, where the recipe's radius needs it (issue 21)
+    # The point of the opening's plane, in T's x and y (mm), on the camera's axis at the shooting
+    # pose. None: the virtual corner for the corner method; for the arc, the place that keeps the
+    # arc and the top edge's straight run in view (cellctl.config.feature).
+    shot_aim_mm: tuple[Finite, Finite] | None = None

@@ -21,13 +21,15 @@ from numpy.typing import NDArray
 from cellctl.align import AlignmentResult, compute_alignment, plan_spot_poses
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.compensate import TaughtPoses
+from cellctl.config.feature import shot_aim_mm, shot_feature
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose, make_pose, mean_pose
 from cellctl.sim.rig import SimRig
 from cellctl.sim.world import World, nominal_world
-from cellctl.vision import CornerFeatures, Lens, detect_corner, fit_affine_map
+from cellctl.vision import CornerFeatures, Lens, fit_affine_map
+from cellctl.vision.feature import detect_feature
 
-# The nine-point target's dots, in the workpiece plane around the corner (mm).
+# The nine-point target's dots, in the workpiece plane around the aim (mm).
 NINE_POINTS_MM = np.array([(x, y) for y in (-50.0, 0.0, 50.0) for x in (-50.0, 0.0, 50.0)])
 
 
@@ -55,13 +57,14 @@ def teaching_alignment(
 
 
 def template_at(rig: SimRig, config: CellConfig, C_Pos_0: Pose, world: World, lens: Lens, repeats: int) -> CornerFeatures:
-    """The mean corner of ``repeats`` shots, each after a fresh move to C_Pos_0, through ``lens``."""
+    """The mean feature (corner or arc) of ``repeats`` shots, each after a fresh move to C_Pos_0, through ``lens``."""
     features = []
+    arc = shot_feature(config).arc
     for _ in range(repeats):
         T_true = rig.cell.execute(C_Pos_0)
         frame = rig.renderer.render(T_true @ rig.cell.T_H_C, world, rng=rig.teach_rng)
-        measured = detect_corner(frame.image, lens, config.vision)
-        if not measured.ok:
+        measured = detect_feature(frame.image, lens, config.vision, arc)
+        if measured.features is None:
             raise RuntimeError(f"teaching: the template shot was refused: {measured.message}")
         features.append(measured.features)
     a = np.array([[f.u_px, f.v_px, f.theta_rad, f.top_angle_rad, f.right_angle_rad] for f in features]).mean(axis=0)
@@ -77,8 +80,9 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
     T_H_C = sim.camera.hand_eye.T_H_C()
     lens = Lens.from_intrinsics(sim.camera.intrinsics)
     T0 = world.T_B_T
-    # The guess: the camera's axes on T's, its optical centre 400 mm in front of the corner.
-    T_B_C0 = T0 @ make_pose(np.eye(3), [0.0, 0.0, -config.process.working_distance_mm])
+    # The guess: the camera's axes on T's, its optical centre 400 mm in front of the aim (the corner, or beside the arc).
+    aim = shot_aim_mm(config)
+    T_B_C0 = T0 @ make_pose(np.eye(3), [aim[0], aim[1], -config.process.working_distance_mm])
     C_guess = cell.robot_model.command_for(T_B_C0 @ invert_pose(T_H_C))
     laser = sim.laser
     ray = {"laser_r": laser.r, "laser_l": laser.l, "T_H_C": T_H_C, "range_mm": (laser.range_min_mm, laser.range_max_mm)}
@@ -92,7 +96,7 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
     finally:
         cell.place_car_body(current)
     K = lens.camera_matrix
-    wall_B = apply_pose(T0, np.column_stack([NINE_POINTS_MM, np.zeros(len(NINE_POINTS_MM))]))
+    wall_B = apply_pose(T0, np.column_stack([NINE_POINTS_MM + np.asarray(aim), np.zeros(len(NINE_POINTS_MM))]))
     in_C = apply_pose(invert_pose(T_B_C), wall_B)
     ideal_px = (in_C[:, :2] / in_C[:, 2:3]) * np.array([K[0, 0], K[1, 1]]) + np.array([K[0, 2], K[1, 2]])
     return CycleCalibration(

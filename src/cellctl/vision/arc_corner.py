@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from cellctl.config.arc_vision import ArcCornerConfig
 from cellctl.vision.arc import arc_crossings, fit_circle, ransac_circle, robust_circle
+from cellctl.vision.arc_profile import arc_profile
 from cellctl.vision.arc_tangent import ArcOrientation, measure_orientation
 from cellctl.vision.edge import background_consistent
 from cellctl.vision.lens import Lens
@@ -35,7 +36,7 @@ from cellctl.vision.quality import Check, Refusal, at_least, at_most
 
 F64 = NDArray[np.float64]
 
-__all__ = ["ArcCornerMeasurement", "detect_arc_corner"]
+__all__ = ["ArcCornerMeasurement", "detect_arc_corner", "measure_circle"]
 
 _COARSE_RADIUS_TOLERANCE = 0.2  # seed circles within this share of the expected radius
 _SPAN_MARGIN_RAD = np.radians(2.0)  # profiles taken this far beyond the seed's ends
@@ -47,7 +48,9 @@ class ArcCornerMeasurement:
 
     ``centre_px`` (u, v) is in the ideal image (camera matrix A, no distortion): the feature point
     (the virtual sharp corner is ``centre + R (1, -1)`` turned by theta for a square corner).
-    ``radius_px`` and the 1-sigmas are ideal px; ``coverage_deg`` the angle the inliers span about
+    ``radius_px`` is in square px (fx on both axes: the arc is an ellipse in the ideal image
+    where fy differs, its vertical half-axis ``radius_px * fy / fx``), the 1-sigmas are px;
+    ``coverage_deg`` the angle the inliers span about
     the centre (90 deg is the whole arc of a square corner). ``orientation`` holds theta or why
     there is none. ``checks`` lists every figure against its limit; ``refusal`` is the reason of
     the first failing one.
@@ -66,6 +69,7 @@ class ArcCornerMeasurement:
     checks: tuple[Check, ...] = ()
     points_ideal: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     inliers: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    edge_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # the image's Canny pixels (ideal px)
 
     @property
     def ok(self) -> bool:
@@ -191,8 +195,6 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
     seed = _seed(img, lens, config, rng)
     if isinstance(seed, str):
         return ArcCornerMeasurement(Refusal.ARC_NOT_SEEN, seed)
-    s, lim = config.search, config.limits
-    search_px = 2.0 * s.downscale + 1.0
     # Step 2: profiles across the seed arc (every 0.5 px of it), ordered along the arc.
     a0, a1 = seed.span[0] - _SPAN_MARGIN_RAD, seed.span[1] + _SPAN_MARGIN_RAD
     t = np.linspace(a0, a1, max(int((a1 - a0) * seed.radius * 2.0), 8))
@@ -202,8 +204,29 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
     keep = _inside_roi(lens, ideal, config)
     if keep.sum() < 10:
         return ArcCornerMeasurement(Refusal.ARC_NOT_SEEN, "the arc lies outside the region of interest")
+    # Step 2a: the recipe's arc among the concentric ones (the seed may be any of them).
+    darker = config.opening_polarity == "darker"
+    profile = arc_profile(img, lens, seed.centre, seed.radius, normals[keep], opening_darker=darker, feature=config.feature)
+    step = profile.feature_step
+    if step is None:
+        why = f"none of the {len(profile.steps)} steps across the arc is the recipe's feature (arc.feature)"
+        return ArcCornerMeasurement(Refusal.ARC_NOT_SEEN, why)
+    return measure_circle(img, lens, config, seed.centre, seed.radius - step.offset_px, normals, seed.mid, seed.pixels, darker, rng)
+
+
+def measure_circle(
+    img: NDArray[np.uint8], lens: Lens, config: ArcCornerConfig, centre: F64, radius: float, normals: F64, mid: F64,
+    pixels: F64, expect_dark: bool, rng: np.random.Generator,
+) -> ArcCornerMeasurement:
+    """Steps 2b-4 on the circle about ``centre`` (ideal px) of ``radius``: crossings, robust fit, checks, orientation."""
+    s, lim = config.search, config.limits
+    search_px = 2.0 * s.downscale + 1.0
+    ideal = centre + radius * normals
+    keep = _inside_roi(lens, ideal, config)
+    if keep.sum() < 10:
+        return ArcCornerMeasurement(Refusal.ARC_NOT_SEEN, "the arc lies outside the region of interest")
     found = arc_crossings(
-        img, lens, ideal[keep], normals[keep], step_px=1, expect_dark=config.opening_polarity == "darker",
+        img, lens, ideal[keep], normals[keep], step_px=1, expect_dark=expect_dark,
         search_px=search_px, level_samples=s.level_samples, max_blur_sigma_px=s.max_blur_sigma_px,
     )
     order = np.argsort(found.order, kind="stable")
@@ -223,19 +246,19 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
         at_most("uneven-background share", uneven / max(n_usable, 1), lim.max_uneven_fraction, Refusal.ARC_MISMATCH),
     ]
     idx = np.flatnonzero(usable)
-    pts = lens.undistort(raw_px[idx]) if len(idx) else np.zeros((0, 2))
-    # Step 3: the robust circle.
+    # Step 3: the robust circle, in square px (fx on both axes), where the wall's circle is one.
+    pts = lens.to_square(lens.undistort(raw_px[idx])) if len(idx) else np.zeros((0, 2))
     fitted = robust_circle(
-        pts, seed.centre, seed.radius, search_px=search_px, ransac_band_px=max(s.min_robust_band_px, 0.5),
+        pts, lens.to_square(centre)[0], radius, search_px=search_px, ransac_band_px=max(s.min_robust_band_px, 0.5),
         robust_k=s.robust_k, min_band_px=s.min_robust_band_px, rng=rng, iterations=s.ransac_iterations,
         radius_tolerance=_COARSE_RADIUS_TOLERANCE,
     ) if len(pts) >= 10 else None
     if fitted is None:
         checks.append(at_least("arc points", 0, lim.min_points, Refusal.ARC_NOT_SEEN))
-        return _refused(checks, pts)
-    c, R, inl = _trim_ends(pts, *fitted, s.robust_k, s.min_robust_band_px, seed.mid)
+        return _refused(checks, lens.from_square(pts))
+    c, R, inl = _trim_ends(pts, *fitted, s.robust_k, s.min_robust_band_px, mid)
     r = np.hypot(*(pts[inl] - c).T) - R
-    ang = np.sort(_angles(pts[inl], c, seed.mid))
+    ang = np.sort(_angles(pts[inl], c, mid))
     coverage = float(np.degrees(ang[-1] - ang[0]))
     gap = float(np.max(np.diff(ang)) * R) if len(ang) > 1 else float("inf")
     # Profiles within the inliers' stretch of the arc: all of them should be inliers.
@@ -252,13 +275,14 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
         at_most("arc gap", gap, lim.max_gap_px, Refusal.ARC_MISMATCH, " px"),
         at_most("predicted centre sigma", sigma_c, lim.max_centre_sigma_px, Refusal.UNCERTAIN, " px"),
     ]
-    orientation = measure_orientation(img, lens, seed.pixels, c, R, config, search_px, rng)
+    centre = lens.from_square(c)[0]
+    orientation = measure_orientation(img, lens, pixels, centre, R, config, search_px, rng)
     failed = next((ch for ch in checks if not ch.passed), None)
     return ArcCornerMeasurement(
         failed.refusal if failed else None,
         f"refused: {failed.describe()}" if failed else "arc corner found",
-        centre_px=c,
-        centre_raw_px=lens.distort(c[None, :])[0],
+        centre_px=centre,
+        centre_raw_px=lens.distort(centre[None, :])[0],
         radius_px=R,
         centre_sigma_px=sigma_c,
         radius_sigma_px=sigma_r,
@@ -266,8 +290,9 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
         rms_px=rms,
         orientation=orientation,
         checks=tuple(checks),
-        points_ideal=pts,
+        points_ideal=lens.from_square(pts),
         inliers=inl,
+        edge_pixels=pixels,
     )
 
 

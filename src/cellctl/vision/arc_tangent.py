@@ -120,7 +120,9 @@ def _edge(
     angle = float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
     span = line.along(pts[inl])
     length = float(span.max() - span.min())
-    gap = abs(float(line.signed_distance(centre[None])[0])) - radius
+    # The arc is an ellipse in the ideal image (half-axes R and R fy / fx): its support along the line's normal.
+    n = line.normal
+    gap = abs(float(line.signed_distance(centre[None])[0])) - radius * float(np.hypot(n[0], n[1] * lens.fy / lens.fx))
     reasons = []
     if int(inl.sum()) < tc.min_points or length < tc.min_length_px:
         reasons.append(f"straight run {length:.0f} px with {int(inl.sum())} points (at least {tc.min_length_px:g} px, {tc.min_points})")

@@ -80,8 +80,8 @@ class InPlaneGaps:
     parallax_scale: float
     foot_mm: F64
 
-    def as_dict(self) -> dict[str, float]:
-        """The scalar figures by name (angles in degrees, named so), for a cycle record."""
+    def as_dict(self) -> dict[str, float | None]:
+        """The scalar figures by name (angles in degrees, named so; None: not measured), for a cycle record."""
         return {
             "dx_mm": self.dx_mm,
             "dy_mm": self.dy_mm,
@@ -89,7 +89,7 @@ class InPlaneGaps:
             "top_gap_mm": self.top_gap_mm,
             "right_gap_mm": self.right_gap_mm,
             "top_angle_deg": math.degrees(self.top_angle_rad),
-            "right_angle_deg": math.degrees(self.right_angle_rad),
+            "right_angle_deg": math.degrees(self.right_angle_rad) if math.isfinite(self.right_angle_rad) else None,
             "reference_along_mm": self.reference_along_mm,
             "parallax_scale": self.parallax_scale,
         }

@@ -130,6 +130,19 @@ class Lens:
     def camera_matrix(self) -> F64:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    def to_square(self, ideal_px: ArrayLike) -> F64:
+        """Ideal px to square px (v scaled by fx / fy about cy): a circle on a wall square to the
+        camera images as a circle only where both axes have the same focal length, fx."""
+        P = np.array(ideal_px, dtype=np.float64).reshape(-1, 2)
+        P[:, 1] = self.cy + (P[:, 1] - self.cy) * (self.fx / self.fy)
+        return P
+
+    def from_square(self, square_px: ArrayLike) -> F64:
+        """The inverse of :meth:`to_square`."""
+        P = np.array(square_px, dtype=np.float64).reshape(-1, 2)
+        P[:, 1] = self.cy + (P[:, 1] - self.cy) * (self.fy / self.fx)
+        return P
+
     @property
     def dist_coeffs(self) -> F64:
         return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])

@@ -62,12 +62,16 @@ def _edge_direction(angle: float, edge: str) -> np.ndarray:
     return _rot(angle) @ base
 
 
-def offset_from_map(taught: CornerFeatures, current: CornerFeatures, nine_point: AffineMap) -> PlanarOffset:
+def offset_from_map(
+    taught: CornerFeatures, current: CornerFeatures, nine_point: AffineMap, feature_mm: tuple[float, float] = (0.0, 0.0)
+) -> PlanarOffset:
     """T' from eq. 16 through the nine-point map (any camera rotation, unequal axis scales).
 
-    Translation: the map's linear part applied to the corner's displacement. Rotation: each edge's
-    taught and current directions are carried into the workpiece plane by the map and the angle
-    between them is taken; the two edges' angles are averaged.
+    Translation: the map's linear part applied to the feature's displacement. Rotation: each edge's
+    taught and current directions (those both shots saw: a finite angle) are carried into the
+    workpiece plane by the map and the angle between them is taken; the edges' angles are averaged
+    (0 when no edge was seen). ``feature_mm`` is where the feature lies in T (the arc's centre for
+    a large corner radius): T' turns about T's origin, so the feature moves by (R - I) c besides t.
     """
     L = nine_point.linear
     d_uv = np.array([current.u_px - taught.u_px, current.v_px - taught.v_px])
@@ -77,7 +81,12 @@ def offset_from_map(taught: CornerFeatures, current: CornerFeatures, nine_point:
         ("top", taught.top_angle_rad, current.top_angle_rad),
         ("right", taught.right_angle_rad, current.right_angle_rad),
     ):
+        if not (np.isfinite(a_d) and np.isfinite(a)):
+            continue
         w_d = L @ _edge_direction(a_d, edge)
         w = L @ _edge_direction(a, edge)
         turns.append(float(np.arctan2(w_d[0] * w[1] - w_d[1] * w[0], w_d @ w)))
-    return PlanarOffset(float(dxy[0]), float(dxy[1]), float(np.mean(turns)))
+    dtheta = float(np.mean(turns)) if turns else 0.0
+    c = np.asarray(feature_mm, dtype=float)
+    t = dxy - (_rot(dtheta) - np.eye(2)) @ c
+    return PlanarOffset(float(t[0]), float(t[1]), dtheta)

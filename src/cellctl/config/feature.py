@@ -1,0 +1,129 @@
+"""Which feature a recipe's shot measures, where the camera aims, and where the feature lies in T.
+
+The corner method (paper 4.2) needs a straight stretch of both edges beside the corner's arc in
+view; where the recipe's corner radius leaves less than ``MIN_STRAIGHT_EDGE_MM`` of it, the arc is
+the feature (issue 21): its centre (u, v), the orientation from the top edge's straight run beyond
+it. At the shooting pose the camera's axes lie along T's (x along the image's u, y along v), its
+optical axis through the aim point ``vision.shot_aim_mm``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from cellctl.config.arc_vision import ArcCornerConfig
+
+if TYPE_CHECKING:
+    from cellctl.config.schema import CellConfig
+
+MIN_STRAIGHT_EDGE_MM = 20.0  # of each edge beside the arc, for the corner method
+# The arc's default aim: the top edge's tangent point at these shares of the image's width and
+# height, so the arc runs from it down to the right and the straight top edge runs on to the left.
+_ARC_TANGENT_AT = (0.22, 0.15)
+_PLACEMENT_MARGIN_DEG = 8.0  # coverage kept beyond the limit for the car body's placement error
+
+FeatureKind = Literal["corner", "arc"]
+
+
+def feature_kind(config: CellConfig) -> FeatureKind:
+    """"arc" when the corner radius leaves less straight edge in view than the corner method needs."""
+    fov_w, fov_h = config.layout.camera.field_of_view_mm(config.process.working_distance_mm)
+    straight = min(fov_w, fov_h) / 2.0 - config.layout.opening.corner_radius_mm
+    return "arc" if straight < MIN_STRAIGHT_EDGE_MM else "corner"
+
+
+def feature_point_mm(config: CellConfig) -> tuple[float, float]:
+    """Where the measured feature lies in T (x, y; mm): the virtual corner, or the arc's centre."""
+    if feature_kind(config) == "corner":
+        return (0.0, 0.0)
+    r = float(config.layout.opening.corner_radius_mm)
+    return (-r, r)
+
+
+def _mm_per_px(config: CellConfig) -> tuple[float, float]:
+    cam, d = config.layout.camera, config.process.working_distance_mm
+    return d / cam.fx, d / cam.fy
+
+
+def shot_aim_mm(config: CellConfig) -> tuple[float, float]:
+    """The T point (x, y; mm) on the camera's axis at the shooting pose."""
+    if config.vision.shot_aim_mm is not None:
+        return (float(config.vision.shot_aim_mm[0]), float(config.vision.shot_aim_mm[1]))
+    if feature_kind(config) == "corner":
+        return (0.0, 0.0)
+    cam, r = config.layout.camera, float(config.layout.opening.corner_radius_mm)
+    sx, sy = _mm_per_px(config)
+    u, v = _ARC_TANGENT_AT[0] * cam.width_px, _ARC_TANGENT_AT[1] * cam.height_px
+    return (-r - (u - cam.cx) * sx, -(v - cam.cy) * sy)
+
+
+def _to_px(config: CellConfig, xy: np.ndarray) -> np.ndarray:
+    """T points (N, 2) to pixels of the nominal shooting image (square to the wall, no distortion)."""
+    cam = config.layout.camera
+    ax, ay = shot_aim_mm(config)
+    sx, sy = _mm_per_px(config)
+    return np.column_stack([cam.cx + (xy[:, 0] - ax) / sx, cam.cy + (xy[:, 1] - ay) / sy])
+
+
+def arc_view(config: CellConfig) -> tuple[float, float]:
+    """At the nominal shooting pose: the arc's angle in the ROI (deg) and the top edge's straight run (px)."""
+    r = float(config.layout.opening.corner_radius_mm)
+    roi, margin = config.vision.roi, float(config.vision.arc.search.border_margin_px)
+    lo = np.array([roi.x_px + margin, roi.y_px + margin])
+    hi = np.array([roi.x_px + roi.width_px - 1 - margin, roi.y_px + roi.height_px - 1 - margin])
+    phi = np.radians(np.arange(0.0, 90.0 + 1e-9, 0.25))
+    arc = np.column_stack([-r + r * np.cos(phi), r - r * np.sin(phi)])
+    seen = np.all((_to_px(config, arc) >= lo) & (_to_px(config, arc) <= hi), axis=1)
+    coverage = 0.25 * float(np.sum(seen))
+    run = np.column_stack([-r - np.arange(0.0, 400.0, 0.5), np.zeros(800)])
+    run_px = _to_px(config, run)
+    inside = np.all((run_px >= lo) & (run_px <= hi), axis=1)
+    straight = float(np.hypot(*(run_px[inside][-1] - run_px[inside][0]))) if inside.sum() > 1 else 0.0
+    return coverage, straight
+
+
+def arc_view_problem(config: CellConfig) -> str | None:
+    """Why the arc cannot be measured at the shooting pose (the aim, the polarity), or None."""
+    if config.vision.opening_polarity == "auto":
+        return "vision.opening_polarity = auto: the arc corner needs darker or brighter (the side its centre lies on)"
+    coverage, straight = arc_view(config)
+    lim, tan = config.vision.arc.limits, config.vision.arc.tangent
+    need = lim.min_coverage_deg + _PLACEMENT_MARGIN_DEG
+    if coverage < need or straight < 2.0 * tan.min_length_px:
+        r = config.layout.opening.corner_radius_mm
+        return (
+            f"vision.shot_aim_mm = {tuple(round(v, 1) for v in shot_aim_mm(config))}: the {r:g} mm corner's arc spans "
+            f"{coverage:.0f} deg of the view (at least {need:g}) and the top edge runs {straight:.0f} px beyond it "
+            f"(at least {2.0 * tan.min_length_px:g}); leave shot_aim_mm out for the default aim or move it"
+        )
+    return None
+
+
+def arc_corner_config(config: CellConfig) -> ArcCornerConfig:
+    """The arc detector's input for this recipe: its radius in square px, ROI, polarity, feature rule, [vision.arc]."""
+    v = config.vision
+    polarity = "brighter" if v.opening_polarity == "brighter" else "darker"
+    radius_px = config.layout.opening.corner_radius_mm * config.layout.camera.fx / config.process.working_distance_mm
+    return ArcCornerConfig(
+        expected_radius_px=radius_px, roi=v.roi, opening_polarity=polarity, search=v.arc.search,
+        limits=v.arc.limits, tangent=v.arc.tangent, feature=v.feature,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ShotFeature:
+    """What a recipe's shots measure: the arc detector's input (None: the corner method) and where
+    the feature lies in T (x, y; mm)."""
+
+    arc: ArcCornerConfig | None = None
+    point_mm: tuple[float, float] = (0.0, 0.0)
+
+
+def shot_feature(config: CellConfig) -> ShotFeature:
+    """The recipe's shot feature (``config`` is a recipe's view, ``config.for_recipe(name)``)."""
+    if feature_kind(config) == "corner":
+        return ShotFeature()
+    return ShotFeature(arc_corner_config(config), feature_point_mm(config))
