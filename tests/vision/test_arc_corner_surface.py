@@ -116,3 +116,23 @@ def test_the_twins_150_mm_corner_is_measured_on_the_wall_edge(twin, seed: int) -
     true_top = _project(T_B_C, apply_pose(world.T_B_T, np.array([[-TWIN_RADIUS_MM - 100.0, 0.0, 0.0]]))[0], K)
     d = _project(T_B_C, edge_B, K) - true_top
     assert abs(np.degrees(m.orientation.theta_rad - np.arctan2(d[1], d[0]))) < 0.02
+
+
+def test_the_arc_shot_is_drawn_for_the_record(twin) -> None:
+    import cv2
+
+    from cellctl.vision.annotate_arc import annotate_arc
+
+    sim, renderer, lens = twin
+    rng = np.random.default_rng(7)
+    world = dataclasses.replace(sample_world(sim.world, rng), width_mm=1200.0, height_mm=900.0, corner_radius_mm=TWIN_RADIUS_MM)
+    R_px = TWIN_RADIUS_MM * lens.fx / 400.0
+    T_B_C = camera_pose_seeing_corner(renderer.camera, world, (450.0 + R_px, 300.0), distance_mm=400.0)
+    image = renderer.render(T_B_C, world, rng=rng).image
+    m = detect_arc_corner(image, lens, ArcCornerConfig(expected_radius_px=R_px))
+    refused = detect_arc_corner(image, lens, ArcCornerConfig(expected_radius_px=0.7 * R_px))
+    for shot in (m, refused):
+        png = annotate_arc(image, shot, lens, (0, 0, 2048, 2048), width_px=512)
+        picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        assert picture.shape == (512, 512, 3)
+    assert m.ok and not refused.ok

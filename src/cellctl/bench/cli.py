@@ -224,9 +224,13 @@ def _cmd_cycle_time(args: argparse.Namespace) -> int:
 
 def _cmd_arc_corner(args: argparse.Namespace) -> int:
     from cellctl.bench.arc_corner import format_arc_corner, run_arc_corner_bench
+    from cellctl.bench.arc_corner_twin import format_arc_corner_twin, run_arc_corner_twin
 
     def body(config: CellConfig) -> Outcome:
         t0 = time.perf_counter()
+        if args.renderer == "twin":
+            twin = run_arc_corner_twin(args.renders, args.seed, args.config)
+            return format_arc_corner_twin(twin, time.perf_counter() - t0), twin, bool(twin["bar_met"])
         figures = run_arc_corner_bench(args.renders, args.seed)
         return format_arc_corner(figures, time.perf_counter() - t0), figures, bool(figures["bar_met"])
 
@@ -471,6 +475,8 @@ def register(subparsers: Any) -> None:
         help="the large-radius corner (the arc as the feature) on renders with known truth: centre error, refusals",
     )
     _options(p, (("--renders", _positive_int, 200, "rendered frames (default 200)"),))
+    p.add_argument("--renderer", choices=("own", "twin"), default="own",
+                   help="own: the bench's clean arcs with glare, occluders, wrong radii; twin: the twin's door window (default own)")
     _seed_option(p, "the renders' seed (default 1)")
     _report_options(p)
 

@@ -53,6 +53,7 @@ def _arc_features(m: ArcCornerMeasurement) -> CornerFeatures | None:
 
 # The first shot only aims the verification shots: the arc may be cut by the car body's placement.
 FIRST_SHOT_MIN_COVERAGE_DEG = 20.0
+FIRST_SHOT_ARC_SIGMA_FACTOR = 2.0  # of the corner's first-shot sigma: a short arc's centre is looser, and only aims
 
 
 def first_shot_limits(
@@ -62,7 +63,7 @@ def first_shot_limits(
     limits = vision.limits.model_copy(update={"max_corner_sigma_px": sigma_px, "min_edge_points": min_edge_points})
     if arc is not None:
         arc_limits = arc.limits.model_copy(
-            update={"max_centre_sigma_px": max(sigma_px, arc.limits.max_centre_sigma_px),
+            update={"max_centre_sigma_px": max(FIRST_SHOT_ARC_SIGMA_FACTOR * sigma_px, arc.limits.max_centre_sigma_px),
                     "min_coverage_deg": min(FIRST_SHOT_MIN_COVERAGE_DEG, arc.limits.min_coverage_deg)}
         )  # fmt: skip
         arc = arc.model_copy(update={"limits": arc_limits})
