@@ -386,7 +386,7 @@ class CycleRun:
             CycleStep.COMPENSATE,
             {
                 "shot": index,
-                "feature": m.kind,
+                **({"feature": "arc"} if m.kind == "arc" else {}),  # the arc's centre for a large corner radius
                 "corner_px": [m.features.u_px, m.features.v_px],
                 "theta_deg": float(np.degrees(m.features.theta_rad)) if np.isfinite(m.features.theta_rad) else None,
                 "corner_sigma_px": m.sigma_px,
