@@ -136,3 +136,18 @@ def test_the_arc_shot_is_drawn_for_the_record(twin) -> None:
         picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
         assert picture.shape == (512, 512, 3)
     assert m.ok and not refused.ok
+
+
+def test_an_arc_without_its_straight_edge_aims_a_first_shot_but_is_refused_after(grid) -> None:
+    from cellctl.config.vision import VisionConfig
+    from cellctl.vision.feature import detect_feature
+
+    # The whole arc in view and no straight edge beyond it (as a body placed far off makes the first shot).
+    img = corner_image(SMALL_LENS, grid, (1000.0, 20.0), 0.01, radius_px=R150, noise_dn=1.0, rng=np.random.default_rng(15))
+    verify = detect_feature(img, SMALL_LENS, VisionConfig(), _config())
+    assert not verify.ok and verify.features is None and "second feature" in verify.message
+    first = detect_feature(img, SMALL_LENS, VisionConfig(), _config(), need_orientation=False)
+    assert first.ok and first.kind == "arc" and first.features is not None
+    assert np.hypot(first.features.u_px - arc_centre((1000.0, 20.0), 0.01, R150)[0],
+                    first.features.v_px - arc_centre((1000.0, 20.0), 0.01, R150)[1]) < 0.1  # fmt: skip
+    assert np.isnan(first.features.theta_rad) and np.isnan(first.features.top_angle_rad)  # it turns nothing

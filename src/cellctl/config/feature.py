@@ -69,14 +69,19 @@ def _to_px(config: CellConfig, xy: np.ndarray) -> np.ndarray:
 
 
 def arc_view(config: CellConfig) -> tuple[float, float]:
-    """At the nominal shooting pose: the arc's angle in the ROI (deg) and the top edge's straight run (px)."""
+    """At the nominal shooting pose: the arc's angle in the ROI (deg) and the top edge's straight run (px).
+
+    Without the lens's distortion: the barrel pulls the image's borders in, so the raw image shows a
+    little more than this counts.
+    """
     r = float(config.layout.opening.corner_radius_mm)
     roi, margin = config.vision.roi, float(config.vision.arc.search.border_margin_px)
     lo = np.array([roi.x_px + margin, roi.y_px + margin])
     hi = np.array([roi.x_px + roi.width_px - 1 - margin, roi.y_px + roi.height_px - 1 - margin])
     phi = np.radians(np.arange(0.0, 90.0 + 1e-9, 0.25))
     arc = np.column_stack([-r + r * np.cos(phi), r - r * np.sin(phi)])
-    seen = np.all((_to_px(config, arc) >= lo) & (_to_px(config, arc) <= hi), axis=1)
+    arc_px = _to_px(config, arc)
+    seen = np.all((arc_px >= lo) & (arc_px <= hi), axis=1)
     coverage = 0.25 * float(np.sum(seen))
     run = np.column_stack([-r - np.arange(0.0, 400.0, 0.5), np.zeros(800)])
     run_px = _to_px(config, run)
