@@ -132,7 +132,7 @@ def test_the_arc_shot_is_drawn_for_the_record(twin) -> None:
     m = detect_arc_corner(image, lens, ArcCornerConfig(expected_radius_px=R_px))
     refused = detect_arc_corner(image, lens, ArcCornerConfig(expected_radius_px=0.7 * R_px))
     for shot in (m, refused):
-        png = annotate_arc(image, shot, lens, (0, 0, 2048, 2048), width_px=512)
+        png = annotate_arc(image, shot, lens, RoiConfig(), width_px=512)
         picture = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
         assert picture.shape == (512, 512, 3)
     assert m.ok and not refused.ok

@@ -30,6 +30,7 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.special import ndtr  # noqa: E402
 
+from cellctl.bench.stats import percentile  # noqa: E402
 from cellctl.config.arc_vision import ArcCornerConfig  # noqa: E402
 from cellctl.config.sim import SimConfig  # noqa: E402
 from cellctl.vision.arc_corner import detect_arc_corner  # noqa: E402
@@ -112,10 +113,6 @@ def draw_scene(rng: np.random.Generator, radius_px: float) -> Scene:
         factor = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.08, 0.15))
         radius, detail = radius_px * (1.0 + factor), f"{factor:+.2f}"
     return Scene(kind, centre, radius, turn, detail)
-
-
-def percentile(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else float("nan")
 
 
 def run_arc_corner_bench(n: int, seed: int) -> dict[str, object]:

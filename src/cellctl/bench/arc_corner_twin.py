@@ -26,6 +26,7 @@ from cellctl.geometry.rotation import rot_z
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.image_truth import camera_pose_seeing_corner
 from cellctl.sim.world import sample_world
+from cellctl.bench.stats import percentile
 from cellctl.vision.arc_corner import detect_arc_corner
 from cellctl.vision.lens import Lens
 
@@ -34,10 +35,6 @@ WRONG_PX = 1.0
 GLARE_SHARE = 0.3
 SHIFT_MM = 10.0
 TURN_DEG = 1.0
-
-
-def _percentile(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else float("nan")
 
 
 def run_arc_corner_twin(n: int, seed: int, config_path: str = "config/sim.toml") -> dict[str, Any]:
@@ -91,14 +88,14 @@ def run_arc_corner_twin(n: int, seed: int, config_path: str = "config/sim.toml")
         "seed": seed,
         "accepted": len(every),
         "accepted_by_kind": {k: len(v) for k, v in errors.items()},
-        "centre_error_px": {"median": _percentile(every, 50), "p95": _percentile(every, 95), "p99": _percentile(every, 99),
+        "centre_error_px": {"median": percentile(every, 50), "p95": percentile(every, 95), "p99": percentile(every, 99),
                             "max": max(every) if every else float("nan")},
-        "clean_centre_error_px": {"median": _percentile(errors["clean"], 50), "p99": _percentile(errors["clean"], 99)},
+        "clean_centre_error_px": {"median": percentile(errors["clean"], 50), "p99": percentile(errors["clean"], 99)},
         "refusals": dict(refusals.most_common()),
         "wrong_answers": wrong,
         "orientation_answers": len(theta_err),
-        "orientation_error_deg": {"median": _percentile(theta_err, 50), "max": max(theta_err) if theta_err else float("nan")},
-        "bar_met": bool(every) and _percentile(every, 50) <= 0.1 and _percentile(every, 99) <= 0.3 and not wrong,
+        "orientation_error_deg": {"median": percentile(theta_err, 50), "max": max(theta_err) if theta_err else float("nan")},
+        "bar_met": bool(every) and percentile(every, 50) <= 0.1 and percentile(every, 99) <= 0.3 and not wrong,
     }
 
 

@@ -368,10 +368,7 @@ class CycleRun:
         self._last_image = None
         taught = self.cal.template
         if isinstance(m.measurement, ArcCornerMeasurement):
-            r = self.vision.roi
-            png = await asyncio.to_thread(
-                annotate_arc, image, m.measurement, self.cal.lens, (r.x_px, r.y_px, r.width_px, r.height_px), taught=taught, offset=offset
-            )  # fmt: skip
+            png = await asyncio.to_thread(annotate_arc, image, m.measurement, self.cal.lens, self.vision.roi, taught=taught, offset=offset)
         else:
             png = await asyncio.to_thread(annotate, image, m.measurement, self.cal.lens, taught=taught, offset=offset)
         await self.rec.image(f"shot{index}", png)

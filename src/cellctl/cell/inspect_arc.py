@@ -30,10 +30,8 @@ _GLASS_SEARCH_MM = 2.0  # the glass's arc is sought this far about the nominal g
 
 async def _record(run: CycleRun, image: Any, m: ArcGapMeasurement, figures: dict[str, Any] | None) -> None:
     """The inspection image: the glass's arc where found (else the opening's), as the cycle's ``inspect`` image."""
-    r = run.vision.roi
     shown = m.glass if m.glass is not None else m.opening
-    png = await asyncio.to_thread(annotate_arc, image, shown, run.cal.lens, (r.x_px, r.y_px, r.width_px, r.height_px),
-                                  taught=run.cal.template)  # fmt: skip
+    png = await asyncio.to_thread(annotate_arc, image, shown, run.cal.lens, run.vision.roi, taught=run.cal.template)
     await run.rec.image("inspect", png)
     if figures is not None:
         await run.rec.step_figures(STEP, {"arc_gaps": figures})

@@ -29,3 +29,14 @@ class PlanarOffset:
     def as_pose(self) -> Pose:
         """T' as a 4x4 pose: ``p_T1 = T' @ p_T2``."""
         return make_pose(rot_z(self.dtheta_rad), [self.dx_mm, self.dy_mm, 0.0])
+
+
+def rot2(angle_rad: float) -> np.ndarray:
+    """The 2 x 2 rotation turning x towards y by ``angle_rad`` (in-plane directions, image or wall)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s], [s, c]])
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """``angle_rad`` in [-pi, pi)."""
+    return float((angle_rad + np.pi) % (2.0 * np.pi) - np.pi)

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.config.vision import RoiConfig
 from cellctl.geometry.planar import PlanarOffset
 from cellctl.vision.annotate import _BLUE, _CYAN, _GREEN, _MAGENTA, _RED, _YELLOW, _cross, _pt, caption_png, shrunk_bgr
 from cellctl.vision.arc_corner import ArcCornerMeasurement
@@ -27,12 +28,12 @@ def _polyline(img: NDArray[np.uint8], ideal: NDArray[np.float64], lens: Lens, k:
 
 
 def annotate_arc(
-    image: NDArray[np.uint8], m: ArcCornerMeasurement, lens: Lens, roi: tuple[int, int, int, int], *,
+    image: NDArray[np.uint8], m: ArcCornerMeasurement, lens: Lens, roi: RoiConfig, *,
     taught: CornerFeatures | None = None, offset: PlanarOffset | None = None, width_px: int = 1024,
 ) -> bytes:
-    """The annotated picture of the arc shot ``m`` on ``image`` (``roi``: x, y, width, height px)."""
+    """The annotated picture of the arc shot ``m`` on ``image``, with the detector's ``roi``."""
     img, k = shrunk_bgr(image, width_px)
-    x, y, w, h = roi
+    x, y, w, h = roi.x_px, roi.y_px, roi.width_px, roi.height_px
     cv2.rectangle(img, _pt(np.array([x, y], float), k), _pt(np.array([x + w - 1, y + h - 1], float), k), _BLUE, 1)
     pts = lens.distort(m.points_ideal) if len(m.points_ideal) else np.zeros((0, 2))
     q = np.rint((pts + 0.5) * k - 0.5).astype(np.int64)

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.config.arc_vision import ArcCornerConfig
+from cellctl.geometry.planar import rot2, wrap_angle
 from cellctl.vision.arc_corner import ArcCornerMeasurement, detect_arc_corner, measure_circle
 from cellctl.vision.arc_profile import arc_profile
 from cellctl.vision.gap_figures import InPlaneGaps, line_to_mm
@@ -96,11 +97,6 @@ def measure_arc_gaps(
     return ArcGapMeasurement(opening, glass, "both arcs found")
 
 
-def _rot(angle: float) -> F64:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
 def in_plane_from_arcs(
     m: ArcGapMeasurement, nine_point: AffineMap, lens: Lens, *, radius_mm: float, dz_mm: float,
     working_distance_mm: float,
@@ -124,18 +120,18 @@ def in_plane_from_arcs(
     o_c = nine_point.apply(m.opening.centre_px[None])[0]
     g_c = foot + (nine_point.apply(glass.centre_px[None])[0] - foot) * scale
     arc_centre = np.array([-radius_mm, radius_mm])
-    O = o_c - _rot(phi_o) @ arc_centre
-    G = g_c - _rot(phi_g) @ arc_centre
-    d = _rot(-phi_o) @ (G - O)
-    tangent = O + _rot(phi_o) @ np.array([-radius_mm, 0.0])  # the opening's top tangent point
-    n = g_top.normal if float(g_top.normal @ (_rot(phi_o) @ np.array([0.0, 1.0]))) >= 0 else -g_top.normal
+    O = o_c - rot2(phi_o) @ arc_centre
+    G = g_c - rot2(phi_g) @ arc_centre
+    d = rot2(-phi_o) @ (G - O)
+    tangent = O + rot2(phi_o) @ np.array([-radius_mm, 0.0])  # the opening's top tangent point
+    n = g_top.normal if float(g_top.normal @ (rot2(phi_o) @ np.array([0.0, 1.0]))) >= 0 else -g_top.normal
     mm_per_px = nine_point.mm_per_px
-    mid = _rot(phi_o) @ np.array([1.0, -1.0]) / math.sqrt(2.0)  # from the arc's centre through its middle, to the corner
+    mid = rot2(phi_o) @ np.array([1.0, -1.0]) / math.sqrt(2.0)  # from the arc's centre through its middle, to the corner
     assert m.opening.radius_px is not None and glass.radius_px is not None
     return InPlaneGaps(
         dx_mm=float(d[0]),
         dy_mm=float(d[1]),
-        drz_rad=float((phi_g - phi_o + math.pi) % (2.0 * math.pi) - math.pi),
+        drz_rad=wrap_angle(phi_g - phi_o),
         top_gap_mm=float((g_top.point - tangent) @ n),
         right_gap_mm=float(m.opening.radius_px * mm_per_px - glass.radius_px * mm_per_px * scale + (o_c - g_c) @ mid),
         top_angle_rad=float(phi_g - phi_o),

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.geometry.planar import rot2, wrap_angle
 from cellctl.vision.lines import Line2D, intersect
 from cellctl.vision.ninepoint import AffineMap
 
@@ -95,15 +96,6 @@ class InPlaneGaps:
         }
 
 
-def _rot(angle: float) -> F64:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
-def _wrap(angle: float) -> float:
-    return float((angle + math.pi) % (2.0 * math.pi) - math.pi)
-
-
 def line_to_mm(line: Line2D, nine_point: AffineMap, *, foot_mm: F64 | None = None, scale: float = 1.0) -> Line2D:
     """A line of the ideal image in the map's mm, optionally scaled by ``scale`` about ``foot_mm`` (parallax)."""
     ends = nine_point.apply(np.vstack([line.point, line.point + 100.0 * line.direction]))
@@ -121,7 +113,7 @@ def _frame(top: Line2D, right: Line2D) -> tuple[F64, float]:
     x_hat, y_hat = -top.direction, right.direction
     a_top = math.atan2(x_hat[1], x_hat[0])
     a_right = math.atan2(-y_hat[0], y_hat[1])
-    return corner, _wrap(a_top + 0.5 * _wrap(a_right - a_top))
+    return corner, wrap_angle(a_top + 0.5 * wrap_angle(a_right - a_top))
 
 
 def _gap(opening: Line2D, glass: Line2D, at_mm: float, corner: F64, inward: F64) -> float:
@@ -179,17 +171,17 @@ def in_plane_from_gaps(
     O, phi_o = _frame(o_top, o_right)
     C, phi_g = _frame(g_top, g_right)
     g = float(nominal_gap_mm)
-    G = C - _rot(phi_g) @ np.array([-g, g])
-    d = _rot(-phi_o) @ (G - O)
+    G = C - rot2(phi_g) @ np.array([-g, g])
+    d = rot2(-phi_o) @ (G - O)
     if reference_along_mm is None and start_px is None:
         raise ValueError("reference_along_mm is needed with bare lines (a measurement gives its window's start)")
     at = float(reference_along_mm) if reference_along_mm is not None else float(start_px) * nine_point.mm_per_px  # type: ignore[arg-type]
-    y_hat = _rot(phi_o) @ np.array([0.0, 1.0])
-    x_hat = _rot(phi_o) @ np.array([1.0, 0.0])
+    y_hat = rot2(phi_o) @ np.array([0.0, 1.0])
+    x_hat = rot2(phi_o) @ np.array([1.0, 0.0])
     return InPlaneGaps(
         dx_mm=float(d[0]),
         dy_mm=float(d[1]),
-        drz_rad=_wrap(phi_g - phi_o),
+        drz_rad=wrap_angle(phi_g - phi_o),
         top_gap_mm=_gap(o_top, g_top, at, O, y_hat),
         right_gap_mm=_gap(o_right, g_right, at, O, -x_hat),
         top_angle_rad=_turn(-o_top.direction, -g_top.direction),

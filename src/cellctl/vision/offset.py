@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cellctl.geometry.planar import PlanarOffset
+from cellctl.geometry.planar import PlanarOffset, rot2
 from cellctl.vision.corner import CornerFeatures
 from cellctl.vision.ninepoint import AffineMap
 
@@ -37,11 +37,6 @@ def deviation(taught: CornerFeatures, current: CornerFeatures) -> Deviation:
     return Deviation(taught.u_px - current.u_px, taught.v_px - current.v_px, taught.theta_rad - current.theta_rad)
 
 
-def _rot(angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
 def offset_from_scale(taught: CornerFeatures, current: CornerFeatures, mm_per_px: float) -> PlanarOffset:
     """T' from eq. 16 and the checkerboard scale s (eq. 15), as the paper converts it.
 
@@ -52,14 +47,14 @@ def offset_from_scale(taught: CornerFeatures, current: CornerFeatures, mm_per_px
     if not np.isfinite(mm_per_px) or mm_per_px <= 0:
         raise ValueError(f"mm_per_px must be a positive number, got {mm_per_px!r}; calibrate the pixel scale")
     dev = deviation(taught, current)
-    dxy = mm_per_px * (_rot(-taught.theta_rad) @ np.array([-dev.du_px, -dev.dv_px]))
+    dxy = mm_per_px * (rot2(-taught.theta_rad) @ np.array([-dev.du_px, -dev.dv_px]))
     return PlanarOffset(float(dxy[0]), float(dxy[1]), -dev.dtheta_rad)
 
 
 def _edge_direction(angle: float, edge: str) -> np.ndarray:
     """The image direction of an edge turned by ``angle``: the top edge along u, the right along v."""
     base = np.array([1.0, 0.0]) if edge == "top" else np.array([0.0, 1.0])
-    return _rot(angle) @ base
+    return rot2(angle) @ base
 
 
 def offset_from_map(
@@ -88,5 +83,5 @@ def offset_from_map(
         turns.append(float(np.arctan2(w_d[0] * w[1] - w_d[1] * w[0], w_d @ w)))
     dtheta = float(np.mean(turns)) if turns else 0.0
     c = np.asarray(feature_mm, dtype=float)
-    t = dxy - (_rot(dtheta) - np.eye(2)) @ c
+    t = dxy - (rot2(dtheta) - np.eye(2)) @ c
     return PlanarOffset(float(t[0]), float(t[1]), dtheta)
