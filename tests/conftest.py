@@ -25,3 +25,41 @@ def _root_logging_restored() -> object:
         root.removeHandler(h)
         h.close()
     root.setLevel(level)
+
+
+def _dump_asyncio_tasks(nodeid: str) -> None:
+    """Print every task of every running event loop with its stack (a hung test then says what it awaits;
+    pytest-timeout's own dump shows threads only, and an idle loop's thread only shows select())."""
+    import asyncio
+    import gc
+
+    out = sys.stderr
+    print(f"\n+++ {nodeid}: asyncio tasks before pytest-timeout fires +++", file=out)
+    loops = [o for o in gc.get_objects() if isinstance(o, asyncio.AbstractEventLoop) and o.is_running()]
+    for loop in loops:
+        try:
+            tasks = list(asyncio.all_tasks(loop))
+        except RuntimeError:  # the set changed meanwhile: one more try
+            tasks = list(asyncio.all_tasks(loop))
+        for task in tasks:
+            print(f"--- {task!r}", file=out)
+            task.print_stack(limit=25, file=out)
+    out.flush()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> object:
+    import threading
+
+    marker = item.get_closest_marker("timeout")
+    limit = float(marker.args[0]) if marker is not None and marker.args else float(item.config.getini("timeout") or 0)
+    timer = None
+    if limit > 30:
+        timer = threading.Timer(limit - 15, _dump_asyncio_tasks, args=(item.nodeid,))
+        timer.daemon = True
+        timer.start()
+    try:
+        yield
+    finally:
+        if timer is not None:
+            timer.cancel()

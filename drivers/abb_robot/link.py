@@ -82,6 +82,13 @@ def quiet(fut: asyncio.Future[object]) -> None:
     fut.add_done_callback(lambda f: f.cancelled() or f.exception())
 
 
+def _answering(conn: _Connection) -> bool:
+    """A request on ``conn`` still waits for its answer. Its own deadline watches the controller then:
+    GRIP reads nothing while the gripper settles (the module's WaitTime), so a PING meanwhile would
+    go unanswered and drop a healthy link."""
+    return any(not p.answer.done() for p in conn.pending.values())
+
+
 def deadline_in(timeout_s: float) -> float:
     """The ``time.monotonic()`` deadline of a call given ``timeout_s``; ValueError for a bad one."""
     if not (timeout_s > 0 and math.isfinite(timeout_s)):
@@ -311,7 +318,8 @@ class RapidLink:
                 quiet(fut)  # type: ignore[arg-type]
 
     async def _heartbeat_loop(self) -> None:
-        """PING a quiet link, drop it when the PONG does not come, reconnect in the background."""
+        """PING a quiet link (nothing waiting for an answer), drop it when the PONG does not come,
+        reconnect in the background."""
         s = self.settings
         delay = s.reconnect_delay_s
         next_attempt = 0.0
@@ -330,7 +338,7 @@ class RapidLink:
                     next_attempt = time.monotonic() + delay
                     delay = min(delay * 2, s.reconnect_max_delay_s)
                 continue
-            if now - conn.last_rx < s.heartbeat_period_s:
+            if now - conn.last_rx < s.heartbeat_period_s or _answering(conn):
                 continue
             try:
                 await self.request("PING", deadline=now + s.heartbeat_timeout_s, reconnect=False)

@@ -172,6 +172,17 @@ async def test_client_release_while_moving_is_refused_clearly() -> None:
         assert calls.values == [False]
 
 
+async def test_a_settle_longer_than_the_heartbeat_keeps_the_link() -> None:
+    # The module reads nothing while the gripper settles; the heartbeat (PING after 0.3 s quiet, PONG
+    # within 0.5 s) must leave the link alone while GRIP waits for its answer, or the settle drops it.
+    async with fake_and_robot(fake_kw={"time_scale": 1.0, "gripper_settle_s": 1.5}) as (fake, robot):
+        for hold in (True, False):
+            await robot.set_gripper(hold, timeout_s=4.0)
+            assert fake.gripper_hold is hold
+        assert robot.connections == 1
+        assert await robot.ping(timeout_s=1.0) >= 0.0
+
+
 async def test_client_timeout_when_the_settle_outlasts_it() -> None:
     async with fake_and_robot(fake_kw={"time_scale": 1.0, "gripper_settle_s": 0.8}) as (fake, robot):
         t0 = time.monotonic()

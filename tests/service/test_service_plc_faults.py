@@ -128,7 +128,7 @@ async def test_a_plc_heartbeat_lost_while_the_robot_moves_aborts_and_the_plc_rea
 
 
 async def test_a_plc_heartbeat_lost_while_the_robot_stands_holds_and_unhold_resumes(tmp_path: Path) -> None:
-    cfg = sim_config(plc={"port": 0, "scan_period_s": 0.005, "heartbeat_alarm": True, "heartbeat_timeout_s": 0.5})
+    cfg = sim_config(plc={"port": 0, "scan_period_s": 0.005, "heartbeat_alarm": True, "heartbeat_timeout_s": 2.0})
     async with running_service(tmp_path, cfg) as service, plc_for(service, cfg) as plc:
         await prepare_calibration(service)
         plc.start_heartbeat(0.05)
