@@ -171,9 +171,11 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     expect(pg.locator("#h-trends")).to_have_text("Install deviation: measured after the install")
     for key, axis in (("dx_mm", "dx_mm"), ("dy_mm", "dy_mm"), ("dz_mm", "dz_mm"), ("drx_deg", "drx_deg")):
         expect(pg.locator(f"#trend-charts [data-axis={axis}] .chart-value")).to_have_text(_signed(md[key]))
-    # The closed loop's panel: one result counted, no offset yet (it needs min_samples).
-    expect(pg.locator("#spc")).to_contain_text("1 result counted")
-    expect(pg.locator("#spc [data-spc=table] tbody tr")).to_have_count(2)
+    # The closed loops' panel, one loop per recipe: the side window's one result counted, no offset yet
+    # (it needs min_samples); the door window's loop has none.
+    expect(pg.locator("#spc")).to_contain_text("side-window: loop on; 1 result counted")
+    expect(pg.locator("#spc")).to_contain_text("door-window: loop on; 0 results counted")
+    expect(pg.locator("#spc [data-spc=table][data-recipe=side-window] tbody tr")).to_have_count(2)
     expect(pg.locator("#cycle-time-chart .chart-value")).to_have_text(f"{rec['result']['cycle_time_s']:.2f}")
     # The simulated cell lands within the paper's tolerance: nothing outside the bands, no colour.
     for axis in ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"):

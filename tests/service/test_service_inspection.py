@@ -134,7 +134,7 @@ async def test_the_loop_takes_out_a_systematic_offset_and_audits_it(tmp_path: Pa
         reset = await client.post("/spc/reset", headers=AUTH)
         assert reset.status_code == 200 and reset.json()["samples"] == 0 and reset.json()["offset"]["dx_mm"] == 0.0
         audit = await service.store.audit_entries(limit=500)
-        assert audit[-1].action == "spc.reset" and audit[-1].params["offset_before"]["dx_mm"] < -0.1
+        assert audit[-1].action == "spc.reset" and audit[-1].params["offset_before"]["side-window"]["dx_mm"] < -0.1  # by recipe
 
 
 async def test_a_drift_beyond_the_limit_raises_the_alarm_and_holds_the_cell(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ the offset nor counts a result twice, the history for the dashboard's chart, and
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import threading
 from dataclasses import replace
@@ -200,6 +201,42 @@ def test_migration_4_adds_the_spc_tables_to_an_existing_database(tmp_path: Path)
         tables = {r[0] for r in store._conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
         assert {"spc_state", "spc_history"} <= tables
         assert store.spc_state() is None
+
+
+def test_each_recipe_keeps_its_own_state_and_history(tmp_path: Path) -> None:
+    first = simulate_loop(BIAS, SIGMA, 6, seed=1, version=3)
+    door = simulate_loop({"dx_mm": -0.2}, SIGMA, 4, seed=2, version=3, first_cycle=100)
+    with CellStore.open(tmp_path / "c.db") as store:
+        for up in first.updates:
+            save(store, up)
+        for up in door.updates:
+            store.save_spc(state_to_dict(up.state), up.record.as_entry(), recipe="door-window")
+    with CellStore.open(tmp_path / "c.db") as store:  # a restart
+        assert load(store) == first.updates[-1].state
+        assert state_from_dict(store.spc_state("door-window")) == door.updates[-1].state
+        assert set(store.spc_states()) == {None, "door-window"}
+        assert [r.cycle_id for r in store.spc_history(recipe="door-window")] == [100, 101, 102, 103]
+        assert [r.recipe for r in store.spc_history(recipe=None)] == [None] * 6  # the first recipe's
+        assert len(store.spc_history()) == 10  # every loop's
+        with pytest.raises(ValueError, match="None names the cell's first recipe"):
+            store.spc_state("")
+
+
+def test_migration_7_gives_the_loop_of_before_to_the_first_recipe(tmp_path: Path) -> None:
+    path = tmp_path / "old.db"
+    raw = sqlite3.connect(path, isolation_level=None)
+    schema.migrate(raw, schema.MIGRATIONS[:6])  # one loop for the cell, as before recipes had their own
+    raw.close()
+    run = simulate_loop(BIAS, SIGMA, 8, seed=4, version=3)
+    with sqlite3.connect(path, isolation_level=None) as raw:
+        raw.execute(
+            "INSERT INTO spc_state (id, state_json, updated_at, history_id) VALUES (1, ?, ?, NULL)",
+            (json.dumps(state_to_dict(run.updates[-1].state)), T0.isoformat()),
+        )
+    with CellStore.open(path) as store:
+        assert store.info().schema_version == len(schema.MIGRATIONS) >= 7
+        assert load(store) == run.updates[-1].state and set(store.spc_states()) == {None}
+        assert store.spc_state("door-window") is None
 
 
 # -- from asyncio -----------------------------------------------------------------------------------

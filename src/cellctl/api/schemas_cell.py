@@ -13,7 +13,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from cellctl.api.schemas_jobs import RunningJob
-from cellctl.api.schemas_quality import SpcView
+from cellctl.api.schemas_quality import SpcStatus
 
 
 class CommandResult(BaseModel):
@@ -122,7 +122,7 @@ class StatusView(BaseModel):
     calibration: CalibrationProblems
     job: RunningJob | None = Field(None, description="the running commissioning job (None: none runs)")
     storage: StorageStatus | None = Field(None, description="disk and retention")
-    spc: SpcView | None = Field(None, description="the closed loop over measured install results")
+    spc: SpcStatus | None = Field(None, description="the closed loops over measured install results (one per recipe)")
 
 
 # -- /alarms ------------------------------------------------------------------------------------

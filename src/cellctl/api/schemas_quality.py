@@ -13,8 +13,9 @@ class SpcDrift(BaseModel):
 
 
 class SpcView(BaseModel):
-    """The loop now: whether it applies its offset, the estimate per axis, the offset the next install takes out."""
+    """A recipe's loop now: whether it applies its offset, the estimate per axis, the offset the next install takes out."""
 
+    recipe: str = Field(description="the recipe whose installs this loop follows (each recipe has its own)")
     enabled: bool = Field(description="false: the loop estimates and watches for drift but applies no offset")
     calibration_version: str | None
     samples: int = Field(description="results counted since the last reset")
@@ -27,9 +28,16 @@ class SpcView(BaseModel):
     updated_at: str | None
 
 
+class SpcStatus(SpcView):
+    """``/status``'s ``spc``: the cell's first recipe's loop, and every recipe's in the configuration's order."""
+
+    recipes: list[SpcView]
+
+
 class SpcHistoryEntry(BaseModel):
     id: int
     recorded_at: str
+    recipe: str = Field(description="the recipe whose loop this row updated")
     cycle_id: int | None
     calibration_version: str | None
     events: list[str]
@@ -41,7 +49,9 @@ class SpcHistoryEntry(BaseModel):
 
 
 class SpcPage(BaseModel):
-    """``GET /spc``: the loop and its latest updates, oldest first."""
+    """``GET /spc``: a recipe's loop (the first recipe's unless asked for another), and the latest updates
+    of that loop (of every loop when no recipe is asked for), oldest first."""
 
     now: SpcView
+    recipes: list[SpcView] = Field(description="every recipe's loop, in the configuration's order")
     history: list[SpcHistoryEntry]

@@ -123,7 +123,7 @@ class CellOrchestrator:
         self.quality = InstallQualityLoop(config, store, alarms, events)
         self._calibration_read: dict[str, Any] = {}  # the running cycle's calibration reference, once read
         self._applied_offset: dict[str, float] = {}
-        self._looped = False  # whether the running cycle is one the closed loop follows
+        self._loop_recipe: str | None = None  # the running cycle's recipe, whose closed loop its result feeds
         self.laser_timing = LaserTiming()  # the laser-to-robot latency, kept from sweep to sweep
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
@@ -300,7 +300,7 @@ class CellOrchestrator:
         started = (clock, clock(), time.monotonic())
         recipe = (await self.store.start_cycle(cycle_id)).request.recipe
         self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
-        self._calibration_read, self._applied_offset, self._looped = {}, self.quality.no_offset(), False
+        self._calibration_read, self._applied_offset, self._loop_recipe = {}, self.quality.no_offset(), None
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
@@ -340,9 +340,8 @@ class CellOrchestrator:
         if problems:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
         reference = self._calibration_read = self.calibration.reference(recipe)
-        self._looped = recipe == self.config.default_recipe  # the closed loop follows the first recipe's installs
-        if self._looped:
-            self._applied_offset = self.quality.offset_for_next(reference.get("version"))
+        self._loop_recipe = recipe  # each recipe's installs feed its own closed loop
+        self._applied_offset = self.quality.offset_for_next(recipe, reference.get("version"))
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
         if self.truth is not None:
             self.truth.new_car_body(recipe)
@@ -368,12 +367,13 @@ class CellOrchestrator:
             # Failed before it read the calibration set: no version to file it under (feeding it
             # under none would read as a new set and reset the loop).
             return {"skipped": "the cycle ended before it read the calibration set"}, None
-        if not self._looped:
-            return {"skipped": f"the closed loop follows the first recipe ({self.config.default_recipe}) only"}, None
+        if self._loop_recipe is None:
+            return {"skipped": "the cycle ended before it named its recipe's loop"}, None
         try:
             return await self.quality.after_cycle(
-                cycle_id, measured, calibration_version=self._calibration_read.get("version"), applied=self._applied_offset
-            )
+                cycle_id, measured, recipe=self._loop_recipe, calibration_version=self._calibration_read.get("version"),
+                applied=self._applied_offset,
+            )  # fmt: skip
         except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
             log.exception("cycle %d: the closed loop could not take its result", cycle_id)
             return {"error": f"{type(err).__name__}: {err}"}, None
@@ -403,7 +403,7 @@ class CellOrchestrator:
                 await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
                 if update is not None:
-                    await self.quality.raise_drift(cycle_id, update)
+                    await self.quality.raise_drift(cycle_id, update, fields["spc"]["recipe"])
             elif failure is not None:
                 reason, code, alarm = failure
                 if alarm is not None:

@@ -1,10 +1,13 @@
-"""The closed loop over measured install results, as the cell runs it (issue 16).
+"""The closed loops over measured install results, as the cell runs them (issue 16), one per recipe.
 
-:class:`cellctl.quality.SpcLoop` is the math; this keeps its state in the store (a restart never
-loses the offset nor applies it twice), gives each cycle the offset its install takes out,
-feeds it the cycle's measured deviation afterwards, writes every change of the offset, every
+:class:`cellctl.quality.SpcLoop` is the math; this keeps each recipe's state in the store (a restart
+never loses an offset nor applies it twice), gives each cycle the offset its recipe's install takes
+out, feeds it the cycle's measured deviation afterwards, writes every change of an offset, every
 reset and the start of a drift to the audit trail, raises alarm 1313 when a drift starts, and
-publishes the loop's state for /status and the dashboard.
+publishes the loops' state for /status and the dashboard.
+
+One loop per recipe because each recipe's install pose (g_Pos_0) is taught on its own: its bias is
+its own, and one loop fed by a mix would average the recipes' biases and fit none of them.
 """
 
 from __future__ import annotations
@@ -35,11 +38,11 @@ ACTOR = "spc"
 
 
 class InstallQualityLoop:
-    """The SPC loop of one cell with its persisted state.
+    """The SPC loops of one cell, one per recipe, with their persisted states.
 
     Args:
-        config: the cell's configuration (``[process.spc]``, ``[process.tolerance]``).
-        store, alarms, events: where the state, the alarm and the live updates go.
+        config: the cell's configuration (``[process.spc]``, ``[process.tolerance]``, the recipes).
+        store, alarms, events: where the states, the alarm and the live updates go.
     """
 
     def __init__(self, config: CellConfig, store: AsyncCellStore, alarms: AlarmManager, events: EventHub) -> None:
@@ -49,22 +52,36 @@ class InstallQualityLoop:
         self.store = store
         self.alarms = alarms
         self.events = events
-        self.state = SpcState()
+        self.recipes = [r.name for r in p.recipes]
+        self.states: dict[str, SpcState] = {name: SpcState() for name in self.recipes}
+
+    @property
+    def first_recipe(self) -> str:
+        return self.recipes[0]
+
+    def _slot(self, recipe: str) -> str | None:
+        """The store's name of ``recipe``'s loop: None for the cell's first recipe (as the calibration set's)."""
+        if recipe not in self.states:
+            raise KeyError(f"no recipe {recipe!r} in [[process.recipes]] (the recipes are: {', '.join(self.recipes)})")
+        return None if recipe == self.first_recipe else recipe
 
     async def load(self) -> None:
-        """Take up the state the store kept (the offset survives a restart)."""
-        saved = await self.store.spc_state()
-        if saved is not None:
-            self.state = state_from_dict(saved)
+        """Take up the states the store kept (the offsets survive a restart); a loop of a recipe no longer
+        configured stays in the store, unused."""
+        saved = await self.store.spc_states()
+        for name in self.recipes:
+            state = saved.get(self._slot(name))
+            if state is not None:
+                self.states[name] = state_from_dict(state)
 
     @staticmethod
     def no_offset() -> dict[str, float]:
         """The offset of an install the loop does not correct: zeros on every axis."""
         return dict.fromkeys(AXES, 0.0)
 
-    def offset_for_next(self, calibration_version: Any) -> dict[str, float]:
-        """The offset (six figures, mm and deg) the next install takes out; zeros when none applies."""
-        return self.loop.offset(self.state, _version(calibration_version))
+    def offset_for_next(self, recipe: str, calibration_version: Any) -> dict[str, float]:
+        """The offset (six figures, mm and deg) the next install of ``recipe`` takes out; zeros when none applies."""
+        return self.loop.offset(self.states[recipe], _version(calibration_version))
 
     @staticmethod
     def offset_as_pose(offset: dict[str, float]) -> Pose | None:
@@ -78,25 +95,29 @@ class InstallQualityLoop:
         cycle_id: int,
         measured: InstallDeviation | None,
         *,
+        recipe: str,
         calibration_version: Any,
         applied: dict[str, float],
     ) -> tuple[dict[str, Any], SpcUpdate]:
-        """Feed one cycle's result; persist, audit and publish. Returns the record's ``spc`` fields.
+        """Feed one cycle's result to its recipe's loop; persist, audit and publish. Returns the record's
+        ``spc`` fields.
 
         Raise the drift alarm with :meth:`raise_drift` once the cycle's record is written.
         """
         now = datetime.now(timezone.utc)
+        slot = self._slot(recipe)
         up = self.loop.update(
-            self.state, measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
+            self.states[recipe], measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
             applied=applied, at=now,
         )  # fmt: skip
         if up.record is not None:
-            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now)
-        self.state = up.state
+            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now, recipe=slot)
+        self.states[recipe] = up.state
         if up.offset_changed or up.reset is not None or up.drift_started:
             await self.store.append_audit(
                 actor=ACTOR, source="cell", action="spc.update", cycle_id=cycle_id,
                 params={
+                    "recipe": recipe,
                     "events": [e.value for e in up.events],
                     "offset_before": dict(up.previous_offset),
                     "offset_after": dict(up.state.offset),
@@ -105,6 +126,7 @@ class InstallQualityLoop:
                 },
             )  # fmt: skip
         fields = {
+            "recipe": recipe,
             "applied_offset": dict(applied),
             "estimate": dict(up.state.estimate),
             "next_offset": dict(up.state.offset) if self.config.enabled else {k: 0.0 for k in applied},
@@ -115,32 +137,45 @@ class InstallQualityLoop:
         self.events.publish("spc", self.snapshot())
         return fields, up
 
-    async def raise_drift(self, cycle_id: int, up: SpcUpdate) -> None:
-        """Alarm 1313 for a drift that started with this cycle (the loop holds its offset at the bound)."""
+    async def raise_drift(self, cycle_id: int, up: SpcUpdate, recipe: str) -> None:
+        """Alarm 1313 for a drift of ``recipe``'s loop that started with this cycle (the loop holds its
+        offset at the bound)."""
         if not up.drift_started:
             return
         what = ", ".join(f"{d.axis} {d.kind.value} {d.value:+.3f} (limit {d.limit:g})" for d in up.drift_started)
         await self.alarms.raise_alarm(
             AlarmCode.SPC_DRIFT, source="spc", cycle_id=cycle_id,
-            detail=f"the install offset drifts: {what}; the loop stops following it. Run `cellctl calibrate verify`, "
-            "recalibrate what it names, then the new calibration set resets the loop",
+            detail=f"{recipe}'s install offset drifts: {what}; the loop stops following it. Run `cellctl calibrate "
+            "verify`, recalibrate what it names, then the new calibration set resets the loop",
         )  # fmt: skip
 
-    async def reset(self, *, actor: str, source: str) -> None:
-        """An operator's reset: forget the estimate and any drift (after a repair that needs no recalibration)."""
-        up = self.loop.reset(self.state, at=datetime.now(timezone.utc))
-        if up.record is not None:
-            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry())
-        self.state = up.state
+    async def reset(self, *, actor: str, source: str, recipe: str | None = None) -> None:
+        """An operator's reset of ``recipe``'s loop (None: every recipe's): forget the estimate and any
+        drift (after a repair that needs no recalibration)."""
+        before: dict[str, dict[str, float]] = {}
+        for name in self.recipes if recipe is None else [recipe]:
+            slot = self._slot(name)
+            up = self.loop.reset(self.states[name], at=datetime.now(timezone.utc))
+            if up.record is not None:
+                await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), recipe=slot)
+            self.states[name] = up.state
+            before[name] = dict(up.previous_offset)
         await self.store.append_audit(
-            actor=actor, source=source, action="spc.reset", params={"offset_before": dict(up.previous_offset)}
+            actor=actor, source=source, action="spc.reset", params={"offset_before": before}  # by recipe
         )
         self.events.publish("spc", self.snapshot())
 
     def snapshot(self) -> dict[str, Any]:
-        """The loop for /status and the dashboard: on or off, estimate, offset, samples, drift."""
-        s = self.state
+        """The loops for /status and the dashboard: the first recipe's at the top level (as when the cell had
+        one loop), every recipe's under ``recipes`` in the configuration's order."""
+        views = [self.view(name) for name in self.recipes]
+        return {**views[0], "recipes": views}
+
+    def view(self, recipe: str) -> dict[str, Any]:
+        """One recipe's loop: on or off, estimate, offset, samples, drift."""
+        s = self.states[recipe]
         return {
+            "recipe": recipe,
             "enabled": self.config.enabled,
             "calibration_version": s.calibration_version,
             "samples": s.n_samples,

@@ -12,9 +12,10 @@ from cellctl.store.jobs import JobRecord, UnknownJob
 from cellctl.store import records
 from cellctl.store.records import *  # noqa: F403 - the records are the package's vocabulary
 from cellctl.store.retention import DatabaseSize, KeptImage
-from cellctl.store.spc import SpcDuplicateCycle, SpcHistoryRow
+from cellctl.store.spc import ALL_RECIPES, SpcDuplicateCycle, SpcHistoryRow
 
 __all__ = [
+    "ALL_RECIPES",
     "AsyncCellStore",
     "CellStore",
     "DatabaseSize",

@@ -140,6 +140,7 @@ class AsyncCellStore:
     # the closed-loop offset (SpcRows)
     save_spc = _on_store_thread(CellStore.save_spc)
     spc_state = _on_store_thread(CellStore.spc_state)
+    spc_states = _on_store_thread(CellStore.spc_states)
     spc_history = _on_store_thread(CellStore.spc_history)
     prune_spc_history = _on_store_thread(CellStore.prune_spc_history)
 

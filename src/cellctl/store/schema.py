@@ -239,7 +239,26 @@ bound. ``mqtt_outbox_state`` holds the message sequence (``seq`` never goes back
 whose result was queued (NULL until publication is first enabled) and the drop counters;
 ``mqtt_retained`` the retained topics the cell has set and not cleared."""
 
-MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX)
+V7_SPC_PER_RECIPE = """
+CREATE TABLE spc_state_by_recipe (
+    recipe      TEXT NOT NULL PRIMARY KEY,
+    state_json  TEXT NOT NULL,
+    updated_at  TEXT NOT NULL,
+    history_id  INTEGER
+);
+INSERT INTO spc_state_by_recipe (recipe, state_json, updated_at, history_id)
+    SELECT '', state_json, updated_at, history_id FROM spc_state;
+DROP TABLE spc_state;
+ALTER TABLE spc_state_by_recipe RENAME TO spc_state;
+ALTER TABLE spc_history ADD COLUMN recipe TEXT;
+CREATE INDEX spc_history_by_recipe ON spc_history (recipe, id);
+"""
+"""One closed loop per recipe (each recipe's install pose is taught on its own, so each has its own
+offset): ``spc_state`` keeps a row per recipe, ``''`` for the cell's first recipe (as the calibration
+set keeps the first recipe's teaching in its common parts) and the loop of before this migration;
+a history row names its recipe (NULL: the first)."""
+
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 

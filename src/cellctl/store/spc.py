@@ -1,10 +1,11 @@
 """The closed-loop offset in the store: its latest state and one history row per update.
 
-Migration 4 of :mod:`cellctl.store.schema`. The state (``spc_state``, one row) is the loop's JSON
-as :func:`cellctl.quality.spc_state.state_to_dict` makes it; the store keeps plain values and
-never imports the loop. :meth:`SpcRows.save_spc` writes the state and its history row in one
-transaction, so after a restart the state reloaded is the one the last row describes, and a
-cycle can feed the loop once only (a unique index on the history's cycle id).
+Migrations 4 and 7 of :mod:`cellctl.store.schema`. The state (``spc_state``, one row per recipe) is
+the loop's JSON as :func:`cellctl.quality.spc_state.state_to_dict` makes it; the store keeps plain
+values and never imports the loop. A recipe is named as the calibration set names its teaching:
+None for the cell's first recipe, else its name. :meth:`SpcRows.save_spc` writes the state and its
+history row in one transaction, so after a restart the state reloaded is the one the last row
+describes, and a cycle can feed the loop once only (a unique index on the history's cycle id).
 
 History rows are pruned with their cycles (:meth:`cellctl.store.retention.RetentionRows.prune_cycles`)
 and by age and count (:meth:`SpcRows.prune_spc_history`, which also covers rows without a cycle,
@@ -26,6 +27,9 @@ from cellctl.store.records import StoreError
 ENTRY_KEYS = frozenset({"cycle_id", "calibration_version", "events", "excluded", "u", "estimate", "offset", "drifting"})
 """The keys of a history entry (:meth:`cellctl.quality.spc_state.SpcRecord.as_entry`)."""
 
+ALL_RECIPES = object()
+"""``spc_history(recipe=ALL_RECIPES)``: the rows of every recipe's loop."""
+
 
 class SpcDuplicateCycle(StoreError):
     """The cycle already fed the loop: nothing was written."""
@@ -46,6 +50,7 @@ class SpcHistoryRow:
     estimate: Mapping[str, float | None]
     offset: Mapping[str, float]
     drifting: tuple[str, ...]
+    recipe: str | None = None  # None: the cell's first recipe
 
 
 def _check_entry(entry: Mapping[str, Any]) -> None:
@@ -62,9 +67,10 @@ class SpcRows(Database):
     """The closed-loop offset methods of :class:`cellctl.store.db.CellStore`."""
 
     def save_spc(
-        self, state: Mapping[str, Any], entry: Mapping[str, Any] | None = None, *, at: datetime | None = None
+        self, state: Mapping[str, Any], entry: Mapping[str, Any] | None = None, *, at: datetime | None = None,
+        recipe: str | None = None,
     ) -> int | None:
-        """Replace the loop's state and append its history ``entry`` (see :data:`ENTRY_KEYS`), in one
+        """Replace ``recipe``'s loop state and append its history ``entry`` (see :data:`ENTRY_KEYS`), in one
         transaction. Returns the history row's id (None without an entry). A cycle id already in the
         history raises :class:`SpcDuplicateCycle` and writes nothing."""
         state_json = to_json("SPC state", dict(state))
@@ -76,7 +82,7 @@ class SpcRows(Database):
                 try:
                     cur = c.execute(
                         "INSERT INTO spc_history (recorded_at, cycle_id, calibration_version, events_json, excluded, "
-                        "u_json, estimate_json, offset_json, drifting_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        "u_json, estimate_json, offset_json, drifting_json, recipe) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         (
                             when, entry["cycle_id"],
                             None if entry["calibration_version"] is None else str(entry["calibration_version"]),
@@ -84,7 +90,7 @@ class SpcRows(Database):
                             None if entry["u"] is None else to_json("SPC deviation", dict(entry["u"])),
                             to_json("SPC estimate", dict(entry["estimate"])),
                             to_json("SPC offset", dict(entry["offset"])),
-                            to_json("SPC drifting axes", list(entry["drifting"])),
+                            to_json("SPC drifting axes", list(entry["drifting"])), recipe,
                         ),
                     )  # fmt: skip
                 except sqlite3.IntegrityError as err:
@@ -95,27 +101,39 @@ class SpcRows(Database):
                     ) from None
                 row_id = int(cur.lastrowid or 0)
             c.execute(
-                "INSERT INTO spc_state (id, state_json, updated_at, history_id) VALUES (1, ?, ?, ?) "
-                "ON CONFLICT (id) DO UPDATE SET state_json = excluded.state_json, updated_at = excluded.updated_at, "
+                "INSERT INTO spc_state (recipe, state_json, updated_at, history_id) VALUES (?, ?, ?, ?) "
+                "ON CONFLICT (recipe) DO UPDATE SET state_json = excluded.state_json, updated_at = excluded.updated_at, "
                 "history_id = excluded.history_id",
-                (state_json, when, row_id),
+                (_key(recipe), state_json, when, row_id),
             )
         return row_id
 
-    def spc_state(self) -> dict[str, Any] | None:
-        """The loop's last saved state (its JSON values), None before the first save."""
-        r = self._conn.execute("SELECT state_json FROM spc_state WHERE id = 1").fetchone()
+    def spc_state(self, recipe: str | None = None) -> dict[str, Any] | None:
+        """``recipe``'s loop as last saved (its JSON values), None before its first save."""
+        r = self._conn.execute("SELECT state_json FROM spc_state WHERE recipe = ?", (_key(recipe),)).fetchone()
         return None if r is None else dict(json.loads(r[0]))
 
-    def spc_history(self, *, limit: int = 200, before_id: int | None = None) -> list[SpcHistoryRow]:
-        """The newest ``limit`` rows (older than ``before_id`` to page back), oldest first (a chart's order)."""
+    def spc_states(self) -> dict[str | None, dict[str, Any]]:
+        """Every recipe's loop as last saved, by recipe (None: the cell's first)."""
+        rows = self._conn.execute("SELECT recipe, state_json FROM spc_state ORDER BY recipe").fetchall()
+        return {(r[0] or None): dict(json.loads(r[1])) for r in rows}
+
+    def spc_history(
+        self, *, limit: int = 200, before_id: int | None = None, recipe: str | None | object = ALL_RECIPES
+    ) -> list[SpcHistoryRow]:
+        """The newest ``limit`` rows (older than ``before_id`` to page back) of one recipe's loop or of all
+        (:data:`ALL_RECIPES`), oldest first (a chart's order)."""
         if limit < 1:
             raise ValueError("limit must be at least 1")
-        sql = f"SELECT {_COLUMNS} FROM spc_history"
+        where: list[str] = []
         args: tuple[Any, ...] = ()
         if before_id is not None:
-            sql += " WHERE id < ?"
-            args = (int(before_id),)
+            where.append("id < ?")
+            args += (int(before_id),)
+        if recipe is not ALL_RECIPES:
+            where.append("recipe IS ?")
+            args += (recipe,)
+        sql = f"SELECT {_COLUMNS} FROM spc_history" + (f" WHERE {' AND '.join(where)}" if where else "")
         rows = self._conn.execute(f"{sql} ORDER BY id DESC LIMIT ?", (*args, int(limit))).fetchall()
         return [_row(r) for r in reversed(rows)]
 
@@ -138,8 +156,15 @@ class SpcRows(Database):
 
 _COLUMNS = (
     "id, recorded_at, cycle_id, calibration_version, events_json, excluded, u_json, estimate_json, offset_json, "
-    "drifting_json"
+    "drifting_json, recipe"
 )
+
+
+def _key(recipe: str | None) -> str:
+    """``spc_state``'s key: '' for the cell's first recipe."""
+    if recipe == "":
+        raise ValueError("a recipe's name cannot be empty; None names the cell's first recipe")
+    return recipe or ""
 
 
 def _row(r: Sequence[Any]) -> SpcHistoryRow:
@@ -154,4 +179,5 @@ def _row(r: Sequence[Any]) -> SpcHistoryRow:
         estimate=from_json(r[7]),
         offset=from_json(r[8]),
         drifting=tuple(from_json(r[9])),
+        recipe=r[10],
     )
