@@ -25,7 +25,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @reads.get("/spc", response_model=SpcPage)
     async def get_spc(limit: int = Query(100, ge=1, le=1000), recipe: str | None = RECIPE) -> SpcPage:
         loops = orch.quality
-        slot = ALL_RECIPES if known(recipe) is None else (None if recipe == loops.first_recipe else recipe)
+        slot = ALL_RECIPES if known(recipe) is None else loops.slot(recipe)  # type: ignore[arg-type]
         rows = await orch.store.spc_history(limit=limit, recipe=slot)
         history = [
             SpcHistoryEntry(

@@ -367,9 +367,8 @@ class CellOrchestrator:
             # Failed before it read the calibration set: no version to file it under (feeding it
             # under none would read as a new set and reset the loop).
             return {"skipped": "the cycle ended before it read the calibration set"}, None
-        if self._loop_recipe is None:
-            return {"skipped": "the cycle ended before it named its recipe's loop"}, None
         try:
+            assert self._loop_recipe is not None  # set with the calibration's reference
             return await self.quality.after_cycle(
                 cycle_id, measured, recipe=self._loop_recipe, calibration_version=self._calibration_read.get("version"),
                 applied=self._applied_offset,
@@ -403,7 +402,7 @@ class CellOrchestrator:
                 await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
                 if update is not None:
-                    await self.quality.raise_drift(cycle_id, update, fields["spc"]["recipe"])
+                    await self.quality.raise_drift(cycle_id, update, self._loop_recipe or "")
             elif failure is not None:
                 reason, code, alarm = failure
                 if alarm is not None:

@@ -16,6 +16,7 @@ import logging
 from datetime import datetime, timezone
 from typing import Any
 
+from cellctl.calibration.calibration_set import recipe_slot
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
 from cellctl.config.schema import CellConfig
@@ -59,18 +60,18 @@ class InstallQualityLoop:
     def first_recipe(self) -> str:
         return self.recipes[0]
 
-    def _slot(self, recipe: str) -> str | None:
-        """The store's name of ``recipe``'s loop: None for the cell's first recipe (as the calibration set's)."""
+    def slot(self, recipe: str) -> str | None:
+        """The store's name of ``recipe``'s loop: the calibration set's slot (None for the cell's first recipe)."""
         if recipe not in self.states:
             raise KeyError(f"no recipe {recipe!r} in [[process.recipes]] (the recipes are: {', '.join(self.recipes)})")
-        return None if recipe == self.first_recipe else recipe
+        return recipe_slot(recipe, self.first_recipe)
 
     async def load(self) -> None:
         """Take up the states the store kept (the offsets survive a restart); a loop of a recipe no longer
         configured stays in the store, unused."""
         saved = await self.store.spc_states()
         for name in self.recipes:
-            state = saved.get(self._slot(name))
+            state = saved.get(self.slot(name))
             if state is not None:
                 self.states[name] = state_from_dict(state)
 
@@ -105,7 +106,7 @@ class InstallQualityLoop:
         Raise the drift alarm with :meth:`raise_drift` once the cycle's record is written.
         """
         now = datetime.now(timezone.utc)
-        slot = self._slot(recipe)
+        slot = self.slot(recipe)
         up = self.loop.update(
             self.states[recipe], measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
             applied=applied, at=now,
@@ -154,7 +155,7 @@ class InstallQualityLoop:
         drift (after a repair that needs no recalibration)."""
         before: dict[str, dict[str, float]] = {}
         for name in self.recipes if recipe is None else [recipe]:
-            slot = self._slot(name)
+            slot = self.slot(name)
             up = self.loop.reset(self.states[name], at=datetime.now(timezone.utc))
             if up.record is not None:
                 await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), recipe=slot)
