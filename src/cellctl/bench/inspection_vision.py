@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from cellctl.bench.vision import one_core_camera, refusal_text  # noqa: E402
 from cellctl.config.sim import SimConfig  # noqa: E402
 from cellctl.config.vision import GapVisionConfig  # noqa: E402
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose, make_pose  # noqa: E402
@@ -177,15 +177,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.renders < 1:
         print("bench inspection_vision: --renders must be at least 1")
         return 2
-    cv2.setNumThreads(1)
-    sim = SimConfig()
-    config = GapVisionConfig()
-    lens = Lens.from_intrinsics(sim.camera.intrinsics)
-    renderer = CameraRenderer(sim.camera.intrinsics, sim.camera.render)
+    sim, lens, renderer = one_core_camera()
     acc = measure_inspection(
-        renderer, sim, lens, config, args.renders, np.random.default_rng(args.seed), offset_mm=args.offset_mm, angle_deg=args.angle_deg
+        renderer, sim, lens, GapVisionConfig(), args.renders, np.random.default_rng(args.seed),
+        offset_mm=args.offset_mm, angle_deg=args.angle_deg,
     )
-    refused = ", ".join(f"{k} {v}" for k, v in sorted(acc.refusals.items())) or "none"
+    refused = refusal_text(acc.refusals)
     print(
         f"inspection image (gaps and in-plane offset), {acc.renders} renders, seed {args.seed}, glass within "
         f"+-{args.offset_mm:g} mm and +-{args.angle_deg:g} deg, default surface: {acc.accepted}/{acc.renders} accepted "

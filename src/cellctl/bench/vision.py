@@ -188,8 +188,7 @@ def measure_accuracy(
 
 def _report(name: str, acc: Accuracy, factor: float, min_accepted: float = 0.0) -> None:
     f = acc.figures()
-    refused = ", ".join(f"{k} {v}" for k, v in sorted(acc.refusals.items())) or "none"
-    print(f"  {name}: {acc.accepted}/{acc.renders} accepted (refused: {refused})")
+    print(f"  {name}: {acc.accepted}/{acc.renders} accepted (refused: {refusal_text(acc.refusals)})")
     print(
         f"    corner error median {f['median']:.4f} px, p99 {f['p99']:.4f} px, max {f['max']:.4f} px; "
         f"edge angle error median {f['angle_median']:.5f} deg, p99 {f['angle_p99']:.5f} deg"
@@ -200,6 +199,18 @@ def _report(name: str, acc: Accuracy, factor: float, min_accepted: float = 0.0) 
         f"{f', at least {min_accepted:.0%} accepted' if min_accepted else ''}): "
         f"{'met' if acc.meets(factor, min_accepted) else 'NOT met'}"
     )
+
+
+def one_core_camera() -> tuple[SimConfig, Lens, CameraRenderer]:
+    """The twin's default settings, its camera's lens and renderer, with OpenCV on one core (the benches' setting)."""
+    cv2.setNumThreads(1)
+    sim = SimConfig()
+    return sim, Lens.from_intrinsics(sim.camera.intrinsics), CameraRenderer(sim.camera.intrinsics, sim.camera.render)
+
+
+def refusal_text(refusals: Counter[str]) -> str:
+    """The refusals counted by reason, as ``reason n, ...`` (``none`` when there are none)."""
+    return ", ".join(f"{k} {v}" for k, v in sorted(refusals.items())) or "none"
 
 
 def _renderer(sim: SimConfig, **update: object) -> CameraRenderer:
@@ -221,14 +232,11 @@ def run(args: argparse.Namespace) -> int:
     if args.runs < 1 or args.renders < 1 or args.disturbed_renders < 0 or args.surface_renders < 0:
         print("bench vision: --runs and --renders must be at least 1, --surface-renders and --disturbed-renders at least 0")
         return 2
-    cv2.setNumThreads(1)
-    sim = SimConfig()
+    sim, lens, renderer = one_core_camera()
     config = VisionConfig()
-    lens = Lens.from_intrinsics(sim.camera.intrinsics)
     rng = np.random.default_rng(args.seed)
     report: dict[str, object] = {"seed": args.seed}
 
-    renderer = CameraRenderer(sim.camera.intrinsics, sim.camera.render)
     times: dict[str, float] = {}
     for label, r in (("default surface", renderer), ("clean opening", _renderer(sim, surface=CLEAN_SURFACE))):
         world, pose = shooting_scene(r, sim, rng)
