@@ -102,3 +102,22 @@ def test_board_not_found_is_refused() -> None:
 def test_board_spec_refuses_a_symmetric_board() -> None:
     with pytest.raises(ValueError, match="180 deg"):
         BoardSpec((9, 7), 10.0)
+
+
+def test_the_calibrated_lens_keeps_lines_straight_out_to_the_image_border() -> None:
+    # The door window's top edge runs near the image's top border (issue 21), beyond the board's
+    # reach: a free k3 trades off against k2 there and bends a straight edge (0.01-0.04 deg).
+    # Lines of the true image, through the true lens, undistorted by the calibrated one.
+    from cellctl.calibration.camera import lens_from_matrix
+    from cellctl.vision.lens import Lens
+
+    o = camera_outcome()
+    lens = lens_from_matrix(np.asarray(o.values["K"]), np.asarray(o.values["dist"]), tuple(o.values["image_size"]))
+    true = Lens.from_intrinsics(config().sim.camera.intrinsics)
+    u = np.linspace(0.0, 450.0, 46)
+    for v in (150.0, 300.0, 1024.0, 1750.0, 1900.0):
+        for us in (u, 2047.0 - u):
+            ideal = np.column_stack([us, np.full_like(us, v)])
+            seen = lens.undistort(true.distort(ideal))
+            slope = np.polyfit(seen[:, 0], seen[:, 1], 1)[0]
+            assert abs(np.degrees(np.arctan(slope))) < 0.005, (v, us[0])  # 0.0024 at most; 0.015 with k3 free

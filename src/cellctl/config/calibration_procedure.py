@@ -45,7 +45,11 @@ class CameraCalibrationConfig(StrictModel):
     spin_deg: Finite = Field(35.0, ge=0, le=180)
     margin_px: Finite = Field(30.0, ge=0)
     refine: Literal["subpix", "sb"] = "subpix"
-    fix_k3: bool = False
+    # k3 held at 0 (OpenCV's CALIB_FIX_K3): the board fills the middle of the view, so a free k3 trades
+    # off against k2 and bends lines beyond the board's reach (0.04 deg along the door window's top edge
+    # near the image's border, issue 21); a fixed industrial lens needs k1, k2 only (the twin's k3 = 0.04
+    # moves a pixel at the image's corner by 0.02 px). Free it only for a wide-angle lens.
+    fix_k3: bool = True
     min_views: int = Field(8, ge=3)
     max_rms_px: Finite = Field(0.5, gt=0)
     reject_factor: Finite = Field(3.0, gt=1)  # a view above this times the median per-view RMS ...

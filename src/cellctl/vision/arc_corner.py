@@ -276,7 +276,7 @@ def measure_circle(
         at_most("predicted centre sigma", sigma_c, lim.max_centre_sigma_px, Refusal.UNCERTAIN, " px"),
     ]
     centre = lens.from_square(c)[0]
-    orientation = measure_orientation(img, lens, pixels, centre, R, config, search_px, rng)
+    orientation = measure_orientation(img, lens, pixels, centre, R, pts[inl], config, search_px, rng)
     failed = next((ch for ch in checks if not ch.passed), None)
     return ArcCornerMeasurement(
         failed.refusal if failed else None,

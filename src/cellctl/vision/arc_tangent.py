@@ -3,14 +3,16 @@ its centre, radius and tangent directions").
 
 Where a straight edge is in view beyond an end of the arc, its sub-pixel points (from the tangent
 point outwards) give a line; it must touch the fitted circle (an occluder's border or a shadow does
-not) and be long and straight enough. theta is the top edge's angle to u and the right edge's to v
-(their mean when both are seen, which must then agree); without such an edge the orientation needs
-a second feature and is None, with the reason.
+not) and be long and straight enough. Its angle then comes from the arc and the edge fitted as one
+outline, the circle and its tangent (:func:`fit_arc_and_tangent`): the tangent point pins the line,
+which halves the angle's scatter of a free line fit. theta is the top edge's angle to u and the right
+edge's to v (their mean when both are seen, which must then agree); without such an edge the
+orientation needs a second feature and is None, with the reason.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
@@ -35,7 +37,11 @@ _SIDES: dict[str, tuple[F64, F64]] = {
 
 @dataclass(frozen=True)
 class TangentEdge:
-    """A straight edge beyond the arc: its line (ideal px), angle (top to u, right to v; rad) and checks."""
+    """A straight edge beyond the arc: its line (ideal px), angle (top to u, right to v; rad) and checks.
+
+    ``line`` and ``angle_rad`` are the tangent of the arc-and-edge fit; ``free_line`` the edge's own
+    line fit, on which the checks (straightness, tangency gap, angle sigma) are made.
+    """
 
     name: str
     line: Line2D
@@ -46,6 +52,8 @@ class TangentEdge:
     rms_px: float
     gap_px: float  # distance of the circle's centre from the line minus the radius
     reason: str  # why it does not give the orientation ("" when it does)
+    points_px: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # the line's inlier points, ideal px
+    free_line: Line2D | None = None
 
     @property
     def ok(self) -> bool:
@@ -62,6 +70,57 @@ class ArcOrientation:
     right: TangentEdge | None
 
 
+def _rot(theta: float) -> F64:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def fit_arc_and_tangent(
+    arc_px: F64, edge_px: F64, centre_px: F64, radius_px: float, towards_edge: F64, theta0_rad: float, iterations: int = 10
+) -> tuple[F64, float, float, float]:
+    """The circle and its tangent at angle theta fitted as one outline (square px; paper 4.2, "derive the
+    lines from its centre, radius and tangent directions").
+
+    Residuals: ``|p - c| - R`` for the arc's points, ``n(theta) . (p - c) - R`` for the edge's, with
+    ``n(theta) = rot(theta) towards_edge`` (the unit vector from the centre to the tangent point at
+    theta = 0). Gauss-Newton from the separate fits. Returns centre, R, theta (rad) and theta's
+    1-sigma from the fit's covariance.
+    """
+    p = np.array([centre_px[0], centre_px[1], radius_px, theta0_rad], dtype=float)
+    e = np.asarray(towards_edge, dtype=float)
+    J = np.zeros((len(arc_px) + len(edge_px), 4))
+    r = np.zeros(len(J))
+    for _ in range(iterations):
+        c, R, th = p[:2], p[2], p[3]
+        d = arc_px - c
+        dist = np.hypot(d[:, 0], d[:, 1])
+        n, dn = _rot(th) @ e, _rot(th + 0.5 * np.pi) @ e
+        q = edge_px - c
+        k = len(arc_px)
+        r[:k], r[k:] = dist - R, q @ n - R
+        J[:k, :2], J[:k, 2], J[:k, 3] = -d / dist[:, None], -1.0, 0.0
+        J[k:, :2], J[k:, 2], J[k:, 3] = -n, -1.0, q @ dn
+        step = np.linalg.lstsq(J, -r, rcond=None)[0]
+        p += step
+        if abs(step[3]) < 1e-12 and np.all(np.abs(step[:3]) < 1e-9):
+            break
+    s2 = float(r @ r) / max(len(r) - 4, 1)
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    return p[:2].copy(), float(p[2]), float(p[3]), float(np.sqrt(max(cov[3, 3], 0.0)))
+
+
+def _tangent_line(lens: Lens, name: str, centre_sq: F64, radius: float, theta_sq: float) -> tuple[Line2D, float]:
+    """The fitted tangent in ideal px and its angle (top to u, right to v; rad)."""
+    e, a = _SIDES[name]
+    foot = centre_sq + radius * (_rot(theta_sq) @ e)
+    ends = lens.from_square(np.vstack([foot, foot + 100.0 * (_rot(theta_sq) @ a)]))
+    d = ends[1] - ends[0]
+    line = Line2D(ends[0], d / float(np.hypot(d[0], d[1])))
+    u = line.oriented([1.0, 0.0] if name == "top" else [0.0, 1.0]).direction
+    angle = float(np.arctan2(u[1], u[0])) if name == "top" else float(np.arctan2(-u[0], u[1]))
+    return line, angle
+
+
 @lru_cache(maxsize=8)
 def _line_fit_config(band_px: float, iterations: int, robust_k: float, min_band_px: float) -> VisionConfig:
     """The straight edges' robust line fit is the corner detector's (cellctl.vision.edge)."""
@@ -69,11 +128,19 @@ def _line_fit_config(band_px: float, iterations: int, robust_k: float, min_band_
     return VisionConfig(fit=fit)
 
 
+def _square_angle(lens: Lens, name: str, line: Line2D) -> float:
+    """The angle (top to u, right to v; rad) of an ideal-px line in square px."""
+    ends = lens.to_square(np.vstack([line.point, line.point + 100.0 * line.direction]))
+    d = ends[1] - ends[0]
+    d = d if float(d @ ([1.0, 0.0] if name == "top" else [0.0, 1.0])) > 0 else -d
+    return float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
+
+
 def _edge(
-    img: NDArray[np.uint8], lens: Lens, name: str, pixels: F64, centre: F64, radius: float,
+    img: NDArray[np.uint8], lens: Lens, name: str, pixels: F64, centre: F64, radius: float, arc_sq: F64,
     config: ArcCornerConfig, search_px: float, rng: np.random.Generator,
 ) -> TangentEdge | str:
-    """The straight edge ``name`` beyond the arc, or why none is seen."""
+    """The straight edge ``name`` beyond the arc (``arc_sq``: the arc's points, square px), or why none is seen."""
     e, a = _SIDES[name]
     tc, s = config.tangent, config.search
     tilt = np.radians(tc.max_tilt_deg)
@@ -133,18 +200,25 @@ def _edge(
     if np.degrees(fit.sigma_angle_rad) > tc.max_angle_sigma_deg:
         reasons.append(f"angle sigma {np.degrees(fit.sigma_angle_rad):.3f} deg (at most {tc.max_angle_sigma_deg:g})")
     why = f"the {name} edge: " + "; ".join(reasons) if reasons else ""
-    return TangentEdge(name, line, angle, fit.sigma_angle_rad, length, int(inl.sum()), fit.rms_px, gap, why)
+    if why:
+        return TangentEdge(name, line, angle, fit.sigma_angle_rad, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
+    c_sq, R_sq, theta_sq, sigma = fit_arc_and_tangent(
+        arc_sq, lens.to_square(pts[inl]), lens.to_square(centre[None])[0], radius, e, _square_angle(lens, name, line)
+    )
+    tangent, angle = _tangent_line(lens, name, c_sq, R_sq, theta_sq)
+    return TangentEdge(name, tangent, angle, sigma, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
 
 
 def measure_orientation(
-    img: NDArray[np.uint8], lens: Lens, pixels: F64, centre: F64, radius: float,
+    img: NDArray[np.uint8], lens: Lens, pixels: F64, centre: F64, radius: float, arc_sq: F64,
     config: ArcCornerConfig, search_px: float, rng: np.random.Generator,
 ) -> ArcOrientation:
-    """theta from the straight edges beyond the arc (``pixels``: Canny pixels, ideal px), or None and why."""
+    """theta from the straight edges beyond the arc (``pixels``: Canny pixels, ideal px; ``arc_sq``: the
+    arc's fitted points, square px), or None and why."""
     edges: dict[str, TangentEdge | None] = {}
     reasons = []
     for name in ("top", "right"):
-        got = _edge(img, lens, name, pixels, centre, radius, config, search_px, rng)
+        got = _edge(img, lens, name, pixels, centre, radius, arc_sq, config, search_px, rng)
         edges[name] = got if isinstance(got, TangentEdge) else None
         if isinstance(got, str):
             reasons.append(f"the {name} edge: {got}")
