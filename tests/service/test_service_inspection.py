@@ -121,7 +121,7 @@ async def test_the_loop_takes_out_a_systematic_offset_and_audits_it(tmp_path: Pa
         await to_execute(client)
         recs = [await _cycle(client, f"b{i}") for i in range(8)]
         true_dx = [r["true_error"]["dx_mm"] for r in recs]
-        assert np.mean(true_dx[:3]) < -0.1  # before the loop applies anything
+        assert true_dx[0] < -0.1  # before the loop has a result
         assert abs(np.mean(true_dx[-3:])) < 0.06, true_dx  # after it: the bias is gone
         spc = (await client.get("/spc", headers=AUTH)).json()
         assert spc["now"]["offset"]["dx_mm"] < -0.1 and spc["now"]["samples"] == 8

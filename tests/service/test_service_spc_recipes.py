@@ -50,7 +50,8 @@ async def test_each_recipe_learns_its_own_offset(tmp_path: Path) -> None:
         for recipe, jolt in JOLT_MM.items():
             mine = [r for r in recs if r["recipe"] == recipe]
             true_dx = [r["true_error"]["dx_mm"] for r in mine]
-            assert np.sign(np.mean(true_dx[:3])) == -np.sign(jolt) and abs(np.mean(true_dx[:3])) > 0.1, (recipe, true_dx)
+            # its first install carries its own jolt alone (a shared loop would add the other recipe's offset)
+            assert np.sign(true_dx[0]) == -np.sign(jolt) and 0.1 < abs(true_dx[0]) < 0.22, (recipe, true_dx)
             assert abs(np.mean(true_dx[-2:])) < 0.06, (recipe, true_dx)  # its own bias taken out
             applied = mine[-1]["result"]["spc"]["applied_offset"]["dx_mm"]
             assert np.sign(applied) == -np.sign(jolt) and abs(applied) > 0.1, (recipe, applied)

@@ -62,8 +62,33 @@ def test_the_estimate_works_on_the_uncompensated_deviation() -> None:
     assert up.record is not None and up.record.u is not None and up.record.u["dx_mm"] == pytest.approx(0.07)
 
 
-def test_no_offset_before_min_samples_then_the_mean_of_them() -> None:
+def test_the_running_mean_is_applied_from_the_first_result() -> None:
+    """Grubbs' harmonic rule: before the estimate starts, the mean of the uncompensated results so far
+    is the offset, so the bias leaves after the first install (not after min_samples)."""
     cfg = SpcConfig(min_samples=7)
+    bias = {"dx_mm": 0.1, "dry_deg": -0.03}
+    run = simulate_loop(bias, SIGMA, 10, cfg, seed=4)
+    for i, up in enumerate(run.updates[:6]):
+        assert up.state.n_samples == i + 1 and not up.state.estimating
+        for a in AXES:
+            u = [run.measured[k][a] + run.applied[k][a] for k in range(i + 1)]
+            mean = float(np.mean(u))
+            dead = cfg.dead_band_mm if a.endswith("_mm") else cfg.dead_band_deg
+            assert up.state.offset[a] == pytest.approx(0.0 if abs(mean) <= dead else mean), (i, a)
+            assert run.applied[i + 1][a] == up.state.offset[a]
+    assert all(run.applied[0][a] == 0.0 for a in AXES)
+    # From the second install on, what is left of the bias is the first results' noise.
+    for a, b in bias.items():
+        left = np.mean([run.measured[k][a] for k in range(1, 7)])
+        assert abs(left) < 0.4 * abs(b), a
+    started = run.updates[6]
+    assert started.events == (SpcEvent.ESTIMATE_STARTED,) and started.state.estimating
+    for a in AXES:  # the estimate starts from the same mean
+        assert started.state.estimate[a] == pytest.approx(np.mean([run.measured[k][a] + run.applied[k][a] for k in range(7)]))
+
+
+def test_no_offset_before_min_samples_then_the_mean_of_them() -> None:
+    cfg = SpcConfig(min_samples=7, warm_up_offset=False)
     run = simulate_loop({"dx_mm": 0.1, "dry_deg": -0.03}, SIGMA, 10, cfg, seed=4)
     for i, up in enumerate(run.updates[:6]):
         assert up.state.n_samples == i + 1 and not up.state.estimating

@@ -19,8 +19,8 @@ class SpcView(BaseModel):
     enabled: bool = Field(description="false: the loop estimates and watches for drift but applies no offset")
     calibration_version: str | None
     samples: int = Field(description="results counted since the last reset")
-    min_samples: int = Field(description="results needed before an offset is applied")
-    estimate: dict[str, float | None] = Field(description="per axis (dx_mm ... drz_deg): the deviation without the loop")
+    min_samples: int = Field(description="results before the EWMA and its outlier gate start (until then the estimate is their running mean)")
+    estimate: dict[str, float | None] = Field(description="per axis (dx_mm ... drz_deg): the deviation without the loop (None before a result)")
     offset: dict[str, float] | None = Field(description="what the next install takes out (None when disabled)")
     excluded: dict[str, int] = Field(description="results not counted, by reason")
     drifting: list[SpcDrift]

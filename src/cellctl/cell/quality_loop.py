@@ -181,7 +181,8 @@ class InstallQualityLoop:
             "calibration_version": s.calibration_version,
             "samples": s.n_samples,
             "min_samples": self.config.min_samples,
-            "estimate": {k: (None if v is None else float(v)) for k, v in s.estimate.items()},
+            # before the EWMA starts: the running mean of the results so far (what the offset applies)
+            "estimate": {a: _figure(x.estimate if x.estimate is not None else x.warm_up_mean) for a, x in s.axes.items()},
             "offset": {k: float(v) for k, v in s.offset.items()} if self.config.enabled else None,
             "excluded": dict(s.excluded),
             "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit} for d in s.drifting],
@@ -197,3 +198,6 @@ def _version(v: Any) -> str:
     """The calibration set's version as the loop keys it (the oracle has none: one fixed name)."""
     return "none" if v is None else str(v)
 
+
+def _figure(v: float | None) -> float | None:
+    return None if v is None else float(v)

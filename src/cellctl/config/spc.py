@@ -20,7 +20,11 @@ class SpcConfig(StrictModel):
 
     enabled: bool = True
     ewma_lambda: Finite = Field(0.1, gt=0, le=1)  # weight of the newest result; 1 = the last result alone
-    min_samples: int = Field(5, ge=3, le=1000)  # results since the last reset before any offset is applied
+    min_samples: int = Field(5, ge=3, le=1000)  # results since the last reset before the estimate (and its gate) starts
+    # Before then: the running mean of the results so far is applied from the first result on (Grubbs'
+    # harmonic rule: the n-th result moves the setting by 1/n of it), within the dead band and max_offset;
+    # false: no offset until min_samples.
+    warm_up_offset: bool = True
     dead_band_mm: Finite = Field(0.02, ge=0)  # an estimate within +-this applies no offset
     dead_band_deg: Finite = Field(0.005, ge=0)
     max_offset_mm: Finite = Field(0.2, gt=0)  # the applied offset is clipped to +-this

@@ -8,12 +8,15 @@ Per axis (the six figures of :class:`cellctl.domain.InstallDeviation`; mm and de
   ``b`` measures ``b - applied``). The estimate never chases its own correction, and the offset is
   a function of the estimate, not an increment: reloading the state after a restart gives the
   same offset, never the offset applied twice.
-- **start**: no offset until ``min_samples`` results since the last reset; then the estimate is
-  their mean and sigma their standard deviation. Before that only the tolerance gate applies: a
-  handful of results cannot tell an outlier from noise (with 5 results on 6 axes, a k-sigma test
-  on their own spread drops a good result in 15 to 70 % of starts). A wild result within
-  tolerance moves the start by at most tolerance / min_samples, which the EWMA forgets as
-  ``(1 - lambda)^n``, and the offset stays within max_offset meanwhile.
+- **start**: the estimate starts at ``min_samples`` results since the last reset, as their mean,
+  sigma their standard deviation. Before that only the tolerance gate applies: a handful of
+  results cannot tell an outlier from noise (with 5 results on 6 axes, a k-sigma test on their own
+  spread drops a good result in 15 to 70 % of starts). Meanwhile (``warm_up_offset``) the running
+  mean of the results so far is the offset, from the first result on: Grubbs' harmonic rule for
+  setting a process with an unknown start offset (the n-th result moves the setting by 1/n of
+  it), so a new recipe's teaching error is gone after its first install rather than its fifth. A
+  wild result within tolerance moves the offset by at most tolerance / n, never past max_offset,
+  and the EWMA forgets it as ``(1 - lambda)^n``.
 - **EWMA**: ``e = lambda * u + (1 - lambda) * e``; its noise is ``sigma * sqrt(lambda / (2 - lambda))``.
 - **offset** for the next install: 0 within the dead band, else ``e`` clipped to +-max_offset.
 - **drift**: the estimate past the drift limit (``trend``), or ``outlier_run`` results in a row
@@ -108,7 +111,9 @@ class SpcLoop:
     def _cfg(self, name: str, axis: str) -> float:
         return float(getattr(self.config, f"{name}_{axis_unit(axis)}"))
 
-    def _offset_of(self, axis: str, estimate: float | None) -> float:
+    def _offset_of(self, axis: str, s: AxisState) -> float:
+        """The offset an axis applies: its estimate, or while it warms up the running mean of its results."""
+        estimate = s.estimate if s.estimate is not None else s.warm_up_mean if self.config.warm_up_offset else None
         if not self.config.enabled or estimate is None or abs(estimate) <= self._cfg("dead_band", axis):
             return 0.0
         bound = self._cfg("max_offset", axis)
@@ -123,11 +128,11 @@ class SpcLoop:
     # -- reading ----------------------------------------------------------------------------------
 
     def offset(self, state: SpcState, calibration_version: str | int | None = None) -> dict[str, float]:
-        """The offset for the next install (zeros while disabled, before the estimate starts, or when
+        """The offset for the next install (zeros while disabled, before the first result, or when
         ``calibration_version`` is not the state's: the offset belongs to the set it was learnt under)."""
         if calibration_version is not None and str(calibration_version) != state.calibration_version:
             return {a: 0.0 for a in AXES}
-        return {a: self._offset_of(a, state.axes[a].estimate) for a in AXES}
+        return {a: self._offset_of(a, state.axes[a]) for a in AXES}
 
     def offset_pose(self, state: SpcState, calibration_version: str | int | None = None) -> Pose:
         """:meth:`offset` as a pose in T (:func:`offset_pose`)."""
@@ -198,7 +203,7 @@ class SpcLoop:
         state, drift_started = self._check_drift(state, u, excluded)
         if drift_started:
             events.append(SpcEvent.DRIFT)
-        axes = {a: replace(s, offset=self._offset_of(a, s.estimate)) for a, s in state.axes.items()}
+        axes = {a: replace(s, offset=self._offset_of(a, s)) for a, s in state.axes.items()}
         state = replace(state, axes=axes)
         record = self._record(state, cycle_id, tuple(events), excluded, u)
         return SpcUpdate(state, record, previous, excluded, drift_started, reset)

@@ -85,6 +85,11 @@ class AxisState:
     warmup: tuple[float, ...] = ()
     run: int = 0
 
+    @property
+    def warm_up_mean(self) -> float | None:
+        """The mean of the results gathered before the estimate starts (None when there are none)."""
+        return sum(self.warmup) / len(self.warmup) if self.warmup else None
+
 
 def _fresh_axes() -> dict[str, AxisState]:
     return {a: AxisState() for a in AXES}

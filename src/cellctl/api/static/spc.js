@@ -36,7 +36,7 @@ function renderLoop(spc, named) {
     );
   const state = spc.enabled ? "on" : "off (watching only)";
   const who = named ? `${spc.recipe}: loop` : "Loop";
-  const note = `${who} ${state}; ${spc.samples} result${spc.samples === 1 ? "" : "s"} counted (offset from ${spc.min_samples}).`;
+  const note = `${who} ${state}; ${spc.samples} result${spc.samples === 1 ? "" : "s"} counted (running mean, EWMA from ${spc.min_samples}).`;
   const parts = [
     el("p", { class: "muted", text: note }),
     el(
