@@ -75,3 +75,22 @@ def test_the_detectors_orientation_is_the_joint_fits() -> None:
         joint.append(m.orientation.theta_rad - angle)
         free.append(float(np.arctan2(d[1], d[0])) - angle)
     assert np.sqrt(np.mean(np.square(joint))) < 0.7 * np.sqrt(np.mean(np.square(free)))
+
+
+def test_an_edge_standing_off_the_arc_keeps_its_own_line() -> None:
+    # The tangent pins the line to the circle: an edge standing 1 px off it would turn the joint fit
+    # by about 0.13 deg, so where the two angles disagree the edge's own line counts.
+    from cellctl.vision.arc_tangent import tangent_of_outline
+    from cellctl.vision.lens import Lens
+
+    lens = Lens(fx=5000.0, fy=5000.0, cx=1024.0, cy=1024.0, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, width_px=2048, height_px=2048)
+    rng = np.random.default_rng(3)
+    centre, radius = np.array([1500.0, 2100.0]), 1970.0
+    for standoff_px, joint in ((0.0, True), (1.0, False)):
+        arc, edge = _outline(0.0, centre, radius, 0.1, rng)
+        edge = edge + [0.0, -standoff_px]
+        fit = fit_line(edge)
+        got = tangent_of_outline(lens, "top", arc, edge, centre, radius, fit.line, fit.sigma_angle_rad)
+        assert (got is not None) == joint, standoff_px
+        if got is not None:
+            assert abs(got[1]) < 3 * got[2]

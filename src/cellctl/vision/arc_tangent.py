@@ -27,6 +27,11 @@ from cellctl.vision.lines import Line2D, fit_line, ransac_line
 
 F64 = NDArray[np.float64]
 
+# The joint fit's angle must agree with the edge's own line within this many of its sigmas (or the
+# floor): otherwise the arc and the edge are not one outline and the edge's own line counts.
+_AGREE_SIGMAS = 5.0
+_AGREE_FLOOR_RAD = np.radians(0.01)
+
 # Per edge: unit vector from the centre to the tangent point and along the edge away from the arc
 # (upright corner, image frame: u right, v down).
 _SIDES: dict[str, tuple[F64, F64]] = {
@@ -116,9 +121,13 @@ def _tangent_line(lens: Lens, name: str, centre_sq: F64, radius: float, theta_sq
     ends = lens.from_square(np.vstack([foot, foot + 100.0 * (_rot(theta_sq) @ a)]))
     d = ends[1] - ends[0]
     line = Line2D(ends[0], d / float(np.hypot(d[0], d[1])))
-    u = line.oriented([1.0, 0.0] if name == "top" else [0.0, 1.0]).direction
-    angle = float(np.arctan2(u[1], u[0])) if name == "top" else float(np.arctan2(-u[0], u[1]))
-    return line, angle
+    return line, _angle(name, line)
+
+
+def _angle(name: str, line: Line2D) -> float:
+    """A line's angle (ideal px; rad): the top edge's to u, the right edge's to v."""
+    d = line.oriented([1.0, 0.0] if name == "top" else [0.0, 1.0]).direction
+    return float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
 
 
 @lru_cache(maxsize=8)
@@ -183,8 +192,7 @@ def _edge(
         return f"no line fits the straight {name} edge's points"
     fit, inl = fitted
     line = fit.line.oriented(a)
-    d = line.oriented([1.0, 0.0] if name == "top" else [0.0, 1.0]).direction
-    angle = float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
+    angle = _angle(name, line)
     span = line.along(pts[inl])
     length = float(span.max() - span.min())
     # The arc is an ellipse in the ideal image (half-axes R and R fy / fx): its support along the line's normal.
@@ -202,11 +210,28 @@ def _edge(
     why = f"the {name} edge: " + "; ".join(reasons) if reasons else ""
     if why:
         return TangentEdge(name, line, angle, fit.sigma_angle_rad, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
+    joint = tangent_of_outline(lens, name, arc_sq, pts[inl], centre, radius, line, fit.sigma_angle_rad)
+    tangent, theta, sigma = joint if joint is not None else (line, angle, fit.sigma_angle_rad)
+    return TangentEdge(name, tangent, theta, sigma, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
+
+
+def tangent_of_outline(
+    lens: Lens, name: str, arc_sq: F64, edge_px: F64, centre_px: F64, radius_sq: float, own: Line2D, own_sigma_rad: float
+) -> tuple[Line2D, float, float] | None:
+    """The edge ``name`` as the tangent of the arc-and-edge fit: its line (ideal px), angle and 1-sigma (rad).
+
+    None where the arc and the edge are not one outline: the tangent's angle more than 5 of the own
+    line's sigmas (at least 0.01 deg) from the own line's (an edge leaving the arc at a kink stays
+    within the tangency gap check, 1970 px x 0.1 deg^2 / 2 = 0.003 px); the edge's own line counts then.
+    """
+    e = _SIDES[name][0]
     c_sq, R_sq, theta_sq, sigma = fit_arc_and_tangent(
-        arc_sq, lens.to_square(pts[inl]), lens.to_square(centre[None])[0], radius, e, _square_angle(lens, name, line)
+        arc_sq, lens.to_square(edge_px), lens.to_square(centre_px[None])[0], radius_sq, e, _square_angle(lens, name, own)
     )
-    tangent, angle = _tangent_line(lens, name, c_sq, R_sq, theta_sq)
-    return TangentEdge(name, tangent, angle, sigma, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
+    tangent, theta = _tangent_line(lens, name, c_sq, R_sq, theta_sq)
+    if not np.isfinite(theta) or abs(theta - _angle(name, own)) > max(_AGREE_SIGMAS * own_sigma_rad, _AGREE_FLOOR_RAD):
+        return None
+    return tangent, theta, sigma
 
 
 def measure_orientation(
