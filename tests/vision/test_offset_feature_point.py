@@ -62,3 +62,16 @@ def test_a_shot_without_an_edge_turns_nothing() -> None:
     blind = CornerFeatures(current.u_px, current.v_px, float("nan"), float("nan"), float("nan"))
     off = offset_from_map(taught, blind, NINE_POINT, ARC_CENTRE_MM)
     assert off.dtheta_rad == 0.0 and abs(off.dx_mm - 0.2) < 1e-6 and abs(off.dy_mm - 0.1) < 1e-6
+
+
+def test_a_shot_seeing_only_an_edge_the_template_lacks_turns_nothing() -> None:
+    # The door's template has its top edge only; a first shot of a body placed far off may see only
+    # the right edge: it measures theta but corrects no turn, and says so (the cycle then lets the
+    # first verification move be a first correction's size).
+    from cellctl.vision.offset import turn_measured
+
+    taught, current = _shot(ARC_CENTRE_MM, np.array([0.2, 0.1]), np.radians(0.4), right_edge=False)
+    right_only = CornerFeatures(current.u_px, current.v_px, np.radians(0.4), float("nan"), np.radians(0.4))
+    off = offset_from_map(taught, right_only, NINE_POINT, ARC_CENTRE_MM)
+    assert off.dtheta_rad == 0.0 and not turn_measured(taught, right_only)
+    assert turn_measured(taught, current) and abs(offset_from_map(taught, current, NINE_POINT, ARC_CENTRE_MM).dtheta_rad) > 0.0

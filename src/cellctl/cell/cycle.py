@@ -67,6 +67,7 @@ from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, offset_fro
 from cellctl.vision.annotate_arc import annotate_arc
 from cellctl.vision.arc_corner import ArcCornerMeasurement
 from cellctl.vision.feature import FeatureShot, detect_feature, first_shot_limits
+from cellctl.vision.offset import turn_measured
 
 
 @dataclass(frozen=True)
@@ -305,9 +306,10 @@ class CycleRun:
             T1 = workpiece_frame_after_alignment(cal.taught, await self.move(CycleStep.COMPENSATE, target))
             m, offset = await self._measure(0, first=True)
         T_est = await self._estimate(0, m, offset, T1)
-        # An arc shot without its top edge in view corrected no turn: the first verification shot
-        # measures it, so the move after it may still be a first correction's size.
-        first_turned = m.features is not None and bool(np.isfinite(m.features.theta_rad))
+        # An arc shot without an edge the template has (top edge out of view, or only the right edge)
+        # corrected no turn: the first verification shot measures it, so the move after it may still
+        # be a first correction's size.
+        first_turned = m.features is not None and turn_measured(cal.template, m.features)
         shots: list[ShotRecord] = [self._last_shot]
         estimates: list[Pose] = []
         moved_mm = turned_rad = float("nan")

@@ -57,6 +57,13 @@ def _edge_direction(angle: float, edge: str) -> np.ndarray:
     return rot2(angle) @ base
 
 
+def turn_measured(taught: CornerFeatures, current: CornerFeatures) -> bool:
+    """Whether an offset turns: an edge whose angle both the template and the shot have (see
+    :func:`offset_from_map`); a shot seeing only an edge the template lacks corrects no turn."""
+    pairs = ((taught.top_angle_rad, current.top_angle_rad), (taught.right_angle_rad, current.right_angle_rad))
+    return any(np.isfinite(a_d) and np.isfinite(a) for a_d, a in pairs)
+
+
 def offset_from_map(
     taught: CornerFeatures, current: CornerFeatures, nine_point: AffineMap, feature_mm: tuple[float, float] = (0.0, 0.0)
 ) -> PlanarOffset:
