@@ -1,7 +1,7 @@
 """The arc and its straight edge fitted as one outline (cellctl.vision.arc_tangent, issue 21).
 
 The tangent point pins the edge's line, so its angle scatters less than a free line fit's over the
-same points (0.68 times with white noise on the twin's geometry, half on the twin's renders); the
+same points (0.68 times with white noise on the twin's geometry, 0.6 times on the twin's renders); the
 detector's orientation is the joint fit's (the tests fail if it goes back to the free line).
 """
 

@@ -5,7 +5,7 @@ Where a straight edge is in view beyond an end of the arc, its sub-pixel points 
 point outwards) give a line; it must touch the fitted circle (an occluder's border or a shadow does
 not) and be long and straight enough. Its angle then comes from the arc and the edge fitted as one
 outline, the circle and its tangent (:func:`fit_arc_and_tangent`): the tangent point pins the line,
-which halves the angle's scatter of a free line fit. theta is the top edge's angle to u and the right
+which narrows the angle's scatter (0.0017 against 0.0028 deg median on the twin's door window). theta is the top edge's angle to u and the right
 edge's to v (their mean when both are seen, which must then agree); without such an edge the
 orientation needs a second feature and is None, with the reason.
 """
@@ -141,8 +141,7 @@ def _square_angle(lens: Lens, name: str, line: Line2D) -> float:
     """The angle (top to u, right to v; rad) of an ideal-px line in square px."""
     ends = lens.to_square(np.vstack([line.point, line.point + 100.0 * line.direction]))
     d = ends[1] - ends[0]
-    d = d if float(d @ ([1.0, 0.0] if name == "top" else [0.0, 1.0])) > 0 else -d
-    return float(np.arctan2(d[1], d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
+    return _angle(name, Line2D(ends[0], d / float(np.hypot(d[0], d[1]))))
 
 
 def _edge(
@@ -221,8 +220,9 @@ def tangent_of_outline(
     """The edge ``name`` as the tangent of the arc-and-edge fit: its line (ideal px), angle and 1-sigma (rad).
 
     None where the arc and the edge are not one outline: the tangent's angle more than 5 of the own
-    line's sigmas (at least 0.01 deg) from the own line's (an edge leaving the arc at a kink stays
-    within the tangency gap check, 1970 px x 0.1 deg^2 / 2 = 0.003 px); the edge's own line counts then.
+    line's sigmas (at least 0.01 deg) from the own line's; the edge's own line counts then. The
+    tangency gap check allows 0.5 px, and an edge standing 1 px off the arc turns the joint fit by
+    about 0.13 deg on a 1970 px radius.
     """
     e = _SIDES[name][0]
     c_sq, R_sq, theta_sq, sigma = fit_arc_and_tangent(
