@@ -94,3 +94,31 @@ def test_an_edge_standing_off_the_arc_keeps_its_own_line() -> None:
         assert (got is not None) == joint, standoff_px
         if got is not None:
             assert abs(got[1]) < 3 * got[2]
+
+
+def test_unequal_focal_lengths_give_the_ideal_images_angles() -> None:
+    # fy = 0.9 fx: the wall's circle is an ellipse in the ideal image; the fit runs in square px and
+    # its tangent comes back as the ideal image's line (either conversion swapped fails this).
+    from cellctl.vision.arc_tangent import tangent_of_outline
+    from cellctl.vision.lens import Lens
+    from cellctl.vision.lines import Line2D
+
+    lens = Lens(fx=5000.0, fy=4500.0, cx=1024.0, cy=1024.0, k1=0.0, k2=0.0, p1=0.0, p2=0.0, k3=0.0, width_px=2048, height_px=2048)
+    centre_sq, radius = np.array([1500.0, 2100.0]), 1970.0
+    for name, theta in (("top", np.radians(0.8)), ("right", np.radians(-0.6))):
+        e = TOP if name == "top" else np.array([1.0, 0.0])
+        a = np.array([-1.0, 0.0]) if name == "top" else np.array([0.0, 1.0])
+        rot = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+        phi = np.radians(np.linspace(0.0, 50.0, 1700)) * (1.0 if name == "top" else -1.0)
+        arc = centre_sq + radius * np.array([rot @ np.array([[np.cos(f), -np.sin(f)], [np.sin(f), np.cos(f)]]) @ e for f in phi])
+        foot = centre_sq + radius * (rot @ e)
+        edge_sq = foot + np.linspace(5.0, 425.0, 421)[:, None] * (rot @ a)
+        edge = lens.from_square(edge_sq)
+        d = edge[-1] - edge[0]
+        own = Line2D(edge[0], d / np.hypot(*d))
+        # the top edge's angle to u (its direction turned to +u), the right edge's to v
+        want = float(np.arctan2(-d[1], -d[0])) if name == "top" else float(np.arctan2(-d[0], d[1]))
+        got = tangent_of_outline(lens, name, arc, edge, lens.from_square(centre_sq[None])[0], radius, own, 1e-5)
+        assert got is not None, name
+        assert abs(got[1] - want) < 1e-9, (name, got[1], want)
+        assert abs(got[1] - theta) > 1e-4  # the ideal image's angle, not the square px one

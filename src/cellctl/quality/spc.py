@@ -16,7 +16,8 @@ Per axis (the six figures of :class:`cellctl.domain.InstallDeviation`; mm and de
   setting a process with an unknown start offset (the n-th result moves the setting by 1/n of
   it), so a new recipe's teaching error is gone after its first install rather than its fifth. A
   wild result within tolerance moves the offset by at most tolerance / n, never past max_offset,
-  and the EWMA forgets it as ``(1 - lambda)^n``.
+  and the EWMA forgets it as ``(1 - lambda)^n``. The drift checks start with the estimate: a
+  bias past the drift limit is compensated up to max_offset meanwhile and alarmed at min_samples.
 - **EWMA**: ``e = lambda * u + (1 - lambda) * e``; its noise is ``sigma * sqrt(lambda / (2 - lambda))``.
 - **offset** for the next install: 0 within the dead band, else ``e`` clipped to +-max_offset.
 - **drift**: the estimate past the drift limit (``trend``), or ``outlier_run`` results in a row
@@ -211,7 +212,7 @@ class SpcLoop:
     # -- the steps --------------------------------------------------------------------------------
 
     def _fresh(self, state: SpcState, version: str | None, reason: SpcEvent, at: datetime | None) -> SpcState:
-        axes = {a: AxisState() for a in AXES}  # offsets are 0 until the estimate starts
+        axes = {a: AxisState() for a in AXES}  # offsets are 0 until the first result
         return SpcState(
             version, axes, last_cycle_id=state.last_cycle_id, updated_at=at, reset_at=at, reset_reason=reason
         )

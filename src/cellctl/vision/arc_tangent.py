@@ -5,7 +5,10 @@ Where a straight edge is in view beyond an end of the arc, its sub-pixel points 
 point outwards) give a line; it must touch the fitted circle (an occluder's border or a shadow does
 not) and be long and straight enough. Its angle then comes from the arc and the edge fitted as one
 outline, the circle and its tangent (:func:`fit_arc_and_tangent`): the tangent point pins the line,
-which narrows the angle's scatter (0.0017 against 0.0028 deg median on the twin's door window). theta is the top edge's angle to u and the right
+which narrows the angle's scatter (0.0017 against 0.0028 deg median on the twin's door window). It
+assumes the edge is the arc's tangent: a standoff too small to see (the twin's gaps scatter by 0.02 px)
+turns it by 0.13 deg per px, so it counts only where the edge's own line stands within
+``tangent.joint_fit_max_gap_px`` of the arc and agrees with it. theta is the top edge's angle to u and the right
 edge's to v (their mean when both are seen, which must then agree); without such an edge the
 orientation needs a second feature and is None, with the reason.
 """
@@ -44,8 +47,10 @@ _SIDES: dict[str, tuple[F64, F64]] = {
 class TangentEdge:
     """A straight edge beyond the arc: its line (ideal px), angle (top to u, right to v; rad) and checks.
 
-    ``line`` and ``angle_rad`` are the tangent of the arc-and-edge fit; ``free_line`` the edge's own
-    line fit, on which the checks (straightness, tangency gap, angle sigma) are made.
+    ``line`` and ``angle_rad`` are the tangent of the arc-and-edge fit where it holds (the own line
+    within ``tangent.joint_fit_max_gap_px`` of the arc, the two angles agreeing), else the edge's own
+    line's; ``free_line`` is the own line fit, on which the checks (straightness, tangency gap, angle
+    sigma) are made.
     """
 
     name: str
@@ -207,9 +212,9 @@ def _edge(
     if np.degrees(fit.sigma_angle_rad) > tc.max_angle_sigma_deg:
         reasons.append(f"angle sigma {np.degrees(fit.sigma_angle_rad):.3f} deg (at most {tc.max_angle_sigma_deg:g})")
     why = f"the {name} edge: " + "; ".join(reasons) if reasons else ""
-    if why:
-        return TangentEdge(name, line, angle, fit.sigma_angle_rad, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
-    joint = tangent_of_outline(lens, name, arc_sq, pts[inl], centre, radius, line, fit.sigma_angle_rad)
+    joint = None
+    if not why and abs(gap) <= tc.joint_fit_max_gap_px:
+        joint = tangent_of_outline(lens, name, arc_sq, pts[inl], centre, radius, line, fit.sigma_angle_rad)
     tangent, theta, sigma = joint if joint is not None else (line, angle, fit.sigma_angle_rad)
     return TangentEdge(name, tangent, theta, sigma, length, int(inl.sum()), fit.rms_px, gap, why, pts[inl], line)
 
