@@ -89,12 +89,20 @@ async def test_a_30_s_broker_outage_during_ten_cycles_loses_none(tmp_path: Path)
                 await asyncio.to_thread(broker.start)  # the same port, its persisted sessions
                 for n in (9, 10):
                     await run_cycle(client, n)
-                got = await asyncio.to_thread(sub.wait_count, t.result, 10, 60.0)
+                distinct = lambda: len({m.json()["msg_id"] for m in sub.on(t.result)})  # noqa: E731
+                await asyncio.to_thread(sub.wait_for, "10 distinct results", lambda: distinct() >= 10, 60.0)
                 status = await mqtt_status(client)
             await asyncio.sleep(0.5)  # a late duplicate would arrive now
-            ids = [m.json()["cycle_id"] for m in sub.on(t.result)]
+            # At least once (docs/mqtt.md): a message whose PUBACK the stopping broker never sent comes
+            # again after the reconnection, the same message (its msg_id); deduplicated, every cycle in order.
+            seen: dict[str, dict] = {}
+            for m in sub.on(t.result):
+                body = m.json()
+                assert seen.setdefault(body["msg_id"], body) == body  # a resend is the same message
+            ids = [b["cycle_id"] for b in seen.values()]
             assert ids == list(range(1, 11)), ids
-            check_envelopes([m.json() for m in got])
+            assert len(sub.on(t.result)) - len(ids) <= 1  # at most the one in flight when the broker stopped
+            check_envelopes(list(seen.values()))
             assert status["connects"] >= 2 and status["dropped"] == 0
     finally:
         broker.close()

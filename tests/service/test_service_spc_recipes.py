@@ -56,20 +56,21 @@ async def test_each_recipe_learns_its_own_offset(tmp_path: Path) -> None:
             applied = mine[-1]["result"]["spc"]["applied_offset"]["dx_mm"]
             assert np.sign(applied) == -np.sign(jolt) and abs(applied) > 0.1, (recipe, applied)
         page = (await client.get("/spc?recipe=door-window", headers=AUTH)).json()
-        assert page["now"]["recipe"] == "door-window" and page["now"]["samples"] == 6
+        # every door result reached the door's loop (a loaded machine's EGM moves may make one an outlier: counted, not absorbed)
+        assert page["now"]["recipe"] == "door-window" and page["now"]["samples"] + sum(page["now"]["excluded"].values()) == 6
         door_ids = [r["id"] for r in recs if r["recipe"] == "door-window"]
         assert [h["cycle_id"] for h in page["history"]] == door_ids
         assert {h["recipe"] for h in page["history"]} == {"door-window"}
         assert [v["recipe"] for v in page["recipes"]] == ["side-window", "door-window"]
         status = (await client.get("/status", headers=AUTH)).json()["spc"]
-        assert status["recipe"] == "side-window" and [v["samples"] for v in status["recipes"]] == [6, 6]
+        assert status["recipe"] == "side-window" and [v["samples"] + sum(v["excluded"].values()) for v in status["recipes"]] == [6, 6]
         assert (await client.get("/spc?recipe=rear-window", headers=AUTH)).status_code == 422
         # resetting one recipe's loop leaves the other's
         reset = await client.post("/spc/reset?recipe=door-window", headers=AUTH)
         assert reset.status_code == 200 and reset.json()["recipe"] == "door-window" and reset.json()["samples"] == 0
         status = (await client.get("/status", headers=AUTH)).json()["spc"]
-        assert [v["samples"] for v in status["recipes"]] == [6, 0] and status["offset"]["dx_mm"] < -0.1
+        assert [v["samples"] + sum(v["excluded"].values()) for v in status["recipes"]] == [6, 0] and status["offset"]["dx_mm"] < -0.1
     # each loop survives a restart on its own
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
         status = (await client.get("/status", headers=AUTH)).json()["spc"]
-        assert [v["samples"] for v in status["recipes"]] == [6, 0] and status["offset"]["dx_mm"] < -0.1
+        assert [v["samples"] + sum(v["excluded"].values()) for v in status["recipes"]] == [6, 0] and status["offset"]["dx_mm"] < -0.1
