@@ -65,8 +65,8 @@ class ArcTangentConfig(StrictModel):
     max_tilt_deg: Finite = Field(5.0, gt=0, le=30)  # an edge may lean this far from the image axes
     max_tangent_gap_px: Finite = Field(0.5, gt=0)  # |distance of the centre from the line - R|
     # The edge's angle from the arc and the edge fitted as one outline only where its own line stands
-    # within this of the arc (else from its own line): a standoff g turns the joint fit by about
-    # g / (0.45 R) rad on the door's 1970 px radius (0.1 px: 0.013 deg); 0 never uses the joint fit.
+    # within this of the arc (else from its own line): a standoff turns the joint fit by about 0.13 deg
+    # per px on the door window (1970 px radius, 425 px of edge; 0.1 px: 0.013 deg); 0: never joint.
     joint_fit_max_gap_px: Finite = Field(0.1, ge=0)
     max_rms_px: Finite = Field(0.3, gt=0)
     max_angle_sigma_deg: Finite = Field(0.05, gt=0)  # predicted 1-sigma of an edge's angle
