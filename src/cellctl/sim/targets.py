@@ -84,6 +84,12 @@ def _dark_on_white(dark_name: str, dark_dn: float, white_dn: float) -> None:
         raise ValueError(f"{dark_name} ({dark_dn}) must be darker than white_dn ({white_dn})")
 
 
+def _grid_P(cols: int, rows: int, pitch_mm: float) -> F64:
+    """Grid points (cols * rows, 3) at (i * pitch_mm, j * pitch_mm, 0) in P, row by row (j), i fastest."""
+    j, i = np.mgrid[0:rows, 0:cols]
+    return np.column_stack([i.ravel() * pitch_mm, j.ravel() * pitch_mm, np.zeros(cols * rows)])
+
+
 def _axis_coverage(dist_mm: F64, jac: Jacobian, axis: int, sigma_px: float) -> F64:
     """Coverage of the half-plane {coordinate > line} for pixels ``dist_mm`` past the line."""
     one = np.ones_like(dist_mm)
@@ -143,10 +149,7 @@ class Checkerboard:
         return self.white_dn
 
     def feature_points_P(self) -> F64:
-        cols, rows = self.inner_corners
-        j, i = np.mgrid[0:rows, 0:cols]
-        s = self.square_mm
-        return np.column_stack([i.ravel() * s, j.ravel() * s, np.zeros(cols * rows)])
+        return _grid_P(*self.inner_corners, self.square_mm)
 
     def plate_rect(self) -> tuple[tuple[float, float], tuple[float, float]]:
         cols, rows = self.inner_corners
@@ -226,8 +229,7 @@ class NinePointTarget:
         return self.white_dn
 
     def feature_points_P(self) -> F64:
-        j, i = np.mgrid[0:3, 0:3]
-        return np.column_stack([i.ravel() * self.pitch_mm, j.ravel() * self.pitch_mm, np.zeros(9)])
+        return _grid_P(3, 3, self.pitch_mm)
 
     def plate_rect(self) -> tuple[tuple[float, float], tuple[float, float]]:
         half = self.pitch_mm + self.border_mm
