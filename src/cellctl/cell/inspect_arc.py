@@ -11,12 +11,10 @@ from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
 from cellctl.cell.cycle_failure import CycleFailed
-from cellctl.cell.inspect_figures import record_measured
-from cellctl.compensate import shooting_pose_in
+from cellctl.cell.inspect_figures import inspection_image, record_measured
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.pose import Pose
 from cellctl.inspection import FlushResult, MeasuredDeviation
-from cellctl.ports import DeviceError
 from cellctl.vision.annotate_arc import annotate_arc
 from cellctl.vision.arc_gap import ArcGapMeasurement, in_plane_from_arcs, measure_arc_gaps
 from cellctl.vision.gap import SUBPIXEL_SEARCH_PX
@@ -43,23 +41,19 @@ async def inspect_arc_corner(
     """The shooting pose of T2, the arcs' image, the flush: the installed glass's six figures."""
     cal, arc = run.cal, run.feature.arc
     assert arc is not None
-    await run.move(STEP, shooting_pose_in(cal.taught, T2), kind="joint")
-    try:
-        frame = await run.dev.camera.grab(timeout_s=run.motion.grab_timeout_s)
-    except DeviceError as err:
-        raise CycleFailed(STEP, AlarmCode.CAMERA_GRAB_FAILED, f"no inspection image: {err}") from err
+    image = await inspection_image(run, T2)
     mm_per_px = cal.nine_point.mm_per_px
     gap_px = run.process.inspect.nominal_gap_mm / mm_per_px
     m = await asyncio.to_thread(
-        measure_arc_gaps, frame.image, cal.lens, arc, gap_px_expected=gap_px, search_px=max(_GLASS_SEARCH_MM / mm_per_px, SUBPIXEL_SEARCH_PX)
+        measure_arc_gaps, image, cal.lens, arc, gap_px_expected=gap_px, search_px=max(_GLASS_SEARCH_MM / mm_per_px, SUBPIXEL_SEARCH_PX)
     )  # fmt: skip
     if not m.ok:
-        await _record(run, frame.image, m, None)
+        await _record(run, image, m, None)
         raise CycleFailed(STEP, AlarmCode.INSPECTION_FAILED, f"the gaps on the arc could not be measured: {m.message}")
     flush, flush_figures = await measure_flush(run, T2)
     radius_mm = -run.feature.point_mm[0]  # the arc's centre lies at (-R, R) in T
     plane = in_plane_from_arcs(
         m, cal.nine_point, cal.lens, radius_mm=radius_mm, dz_mm=flush.dz_mm, working_distance_mm=run.process.working_distance_mm
     )
-    await _record(run, frame.image, m, plane.as_dict())
+    await _record(run, image, m, plane.as_dict())
     return await record_measured(run, plane, flush, flush_figures, arc=True)

@@ -1,15 +1,32 @@
-"""The inspection's six figures from the image's in-plane part and the laser's flush, recorded."""
+"""What both inspections share (a corner's and an arc's): the image at T2's shooting pose, and the
+six figures from its in-plane part and the laser's flush, recorded."""
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from cellctl.domain import CycleStep
+import numpy as np
+
+from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.compensate import shooting_pose_in
+from cellctl.domain import AlarmCode, CycleStep
+from cellctl.geometry.pose import Pose
 from cellctl.inspection import FlushResult, MeasuredDeviation, measured_deviation
+from cellctl.ports import DeviceError
 from cellctl.vision.gap_figures import InPlaneGaps
 
 if TYPE_CHECKING:
     from cellctl.cell.cycle import CycleRun
+
+
+async def inspection_image(run: CycleRun, T2: Pose) -> np.ndarray:
+    """Go to the shooting pose of T2 and grab: the inspection's image."""
+    await run.move(CycleStep.INSPECT, shooting_pose_in(run.cal.taught, T2), kind="joint")
+    try:
+        frame = await run.dev.camera.grab(timeout_s=run.motion.grab_timeout_s)
+    except DeviceError as err:
+        raise CycleFailed(CycleStep.INSPECT, AlarmCode.CAMERA_GRAB_FAILED, f"no inspection image: {err}") from err
+    return frame.image
 
 
 async def record_measured(

@@ -19,7 +19,7 @@ import numpy as np
 from cellctl.align import AlignmentError, plan_spot_poses
 from cellctl.align.laser_points import laser_points
 from cellctl.cell.cycle_failure import CycleFailed
-from cellctl.cell.inspect_figures import record_measured
+from cellctl.cell.inspect_figures import inspection_image, record_measured
 from cellctl.cell.inspect_arc import inspect_arc_corner
 from cellctl.cell.sweep import sweep_flush
 from cellctl.compensate import shooting_pose_in
@@ -61,20 +61,16 @@ async def release_and_back_off(run: CycleRun, T2: Pose, reached: Pose) -> None:
 async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> tuple[np.ndarray, GapMeasurement]:
     """Go to the shooting pose of T2, grab, and find the opening's and the glass's edges: the image and them."""
     cal = run.cal
-    await run.move(STEP, shooting_pose_in(cal.taught, T2), kind="joint")
-    try:
-        frame = await run.dev.camera.grab(timeout_s=run.motion.grab_timeout_s)
-    except DeviceError as err:
-        raise CycleFailed(STEP, AlarmCode.CAMERA_GRAB_FAILED, f"no inspection image: {err}") from err
+    image = await inspection_image(run, T2)
     gap_px = run.process.inspect.nominal_gap_mm / cal.nine_point.mm_per_px
     m = await asyncio.to_thread(
-        measure_gaps, frame.image, cal.lens, cal.template, run.vision.gap, gap_px_expected=gap_px, feature=run.vision.feature,
+        measure_gaps, image, cal.lens, cal.template, run.vision.gap, gap_px_expected=gap_px, feature=run.vision.feature,
         opening_polarity=run.vision.opening_polarity,
     )
     if not m.ok:
-        await record_inspection_image(run, frame.image, m, None)
+        await record_inspection_image(run, image, m, None)
         raise _failed(f"the gaps could not be measured: {m.message}")
-    return frame.image, m
+    return image, m
 
 
 async def record_inspection_image(
