@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cellctl.bench.stats import AXES, axis_stats, error_matrix, within_tolerance_all_axes
+from cellctl.bench.stats import AXES, axis_stats, error_matrix, p99_difference_interval, within_tolerance_all_axes
 
 FIELDS = [a.field for a in AXES]
 
@@ -44,3 +44,25 @@ def test_a_record_without_the_six_figures_is_refused() -> None:
         error_matrix([{k: 0.0 for k in FIELDS[:5]}])
     with pytest.raises(ValueError, match="not finite"):
         error_matrix([_te(0, 0, 0, 0, 0, float("nan"))])
+
+
+def test_the_p99_difference_interval_covers_the_truth_and_sees_a_real_change() -> None:
+    """Against known distributions: two alike samples of 300 give an interval about 0 (in about 95 % of
+    draws); a doubled scatter gives one about the true difference of p99|N(0, 1)| = 2.5758 and far from 0."""
+    rng = np.random.default_rng(7)
+    covered = sum(lo <= 0.0 <= hi for lo, hi in (p99_difference_interval(rng.normal(size=300), rng.normal(size=300), seed=k) for k in range(60)))
+    assert covered >= 52  # 95 % of 60 is 57; binomial p(<= 51) is under 1 %
+    lo, hi = p99_difference_interval(rng.normal(size=400), 2.0 * rng.normal(size=400))
+    assert 0.5 < lo <= 2.5758 <= hi
+
+
+def test_the_p99_difference_interval_pairs_the_same_postures() -> None:
+    """The same cycles in both modes with a small change each: paired, the interval is the change's
+    (narrow); the same values unpaired scatter over the whole spread of p99."""
+    rng = np.random.default_rng(3)
+    before = rng.normal(size=60)
+    after = before + 0.05 * rng.normal(size=60)
+    lo, hi = p99_difference_interval(before, after)
+    ulo, uhi = p99_difference_interval(before, after[:59])  # one cycle fewer: not paired
+    assert hi - lo < 0.3 * (uhi - ulo)
+    assert np.isnan(p99_difference_interval([0.1], [0.2])[0])

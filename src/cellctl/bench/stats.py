@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import scipy.stats
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,25 @@ def within_tolerance_all_axes(true_errors: Sequence[Mapping[str, float]], *, tol
 def percentile(values: Sequence[float], q: float) -> float:
     """The q-th percentile (NaN for no values)."""
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")
+
+
+def p99_difference_interval(
+    before: Sequence[float], after: Sequence[float], *, confidence: float = 0.95, resamples: int = 2000, seed: int = 0
+) -> tuple[float, float]:
+    """The bootstrap percentile interval of ``p99|after| - p99|before|``: what a few dozen cycles can say
+    about a change in p99. Paired by index (the same cells and postures) when both have the same count."""
+    a, b = np.abs(np.asarray(before, dtype=float)), np.abs(np.asarray(after, dtype=float))
+    if len(a) < 2 or len(b) < 2:
+        return float("nan"), float("nan")
+
+    def diff(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+        return np.asarray(np.percentile(y, 99, axis=axis) - np.percentile(x, 99, axis=axis))
+
+    ci = scipy.stats.bootstrap(
+        (a, b), diff, paired=len(a) == len(b), vectorized=True, n_resamples=resamples, method="percentile",
+        confidence_level=confidence, random_state=np.random.default_rng(seed),
+    ).confidence_interval  # fmt: skip
+    return float(ci.low), float(ci.high)
 
 
 def axes_outside(error: Mapping[str, float], *, tolerance_mm: float, tolerance_deg: float) -> list[str]:
