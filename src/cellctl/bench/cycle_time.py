@@ -49,6 +49,7 @@ class ModeFigures:
     on_the_fly: int  # cycles whose alignment really read on the move
     latency_ms: list[float]
     latency_modes: dict[str, int]  # how the sweeps had the latency: timed, checked, fixed
+    failures: list[str]  # each cycle that did not install: its seed, trial, outcome and reason
 
     def summary(self) -> dict[str, Any]:
         steps = sorted({n for s in self.step_s for n in s})
@@ -63,6 +64,7 @@ class ModeFigures:
             "p99_abs": {a.label: percentile(np.abs(self.errors[:, i]).tolist(), 99) for i, a in enumerate(AXES)},
             "latency_ms_median": percentile(self.latency_ms, 50) if self.latency_ms else None,
             "latency_modes": self.latency_modes,
+            "failures": self.failures,
         }
 
 
@@ -80,6 +82,10 @@ def _figures(mode: str, runs: list[AccuracyRun], latencies: list[float], on_the_
         on_the_fly=on_the_fly,
         latency_ms=latencies,
         latency_modes=dict(modes),
+        failures=[
+            f"seed {r.settings.seed} trial {t.index}: {t.outcome}: {t.reason or 'no reason recorded'}"
+            for r in runs for t in r.not_installed
+        ],
     )
 
 
@@ -143,6 +149,8 @@ def format_cycle_time(out: dict[str, Any]) -> str:
             f"p95 {m['cycle_p95_s']:.2f} s; per step (median): "
             + ", ".join(f"{n} {v:.2f}" for n, v in sorted(m["step_median_s"].items(), key=lambda kv: -kv[1]) if v >= 0.005)
         )
+    for m in (slow, fast, out[UNCOMPENSATED]):
+        lines += [f"  {m['mode']} did not install: {f}" for f in m["failures"]]
     lat = fast["latency_ms_median"]
     modes = ", ".join(f"{k} in {v}" for k, v in sorted(fast["latency_modes"].items())) or "-"
     lines.append(
