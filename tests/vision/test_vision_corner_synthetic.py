@@ -8,6 +8,8 @@ from vision_test_support import SMALL_CONFIG, SMALL_LENS, corner_image, ideal_gr
 
 from cellctl.config.vision import LimitsConfig, RoiConfig, VisionConfig
 from cellctl.vision import Refusal, annotate, detect_corner
+from cellctl.vision.coarse import CoarseFailure, find_coarse_corner
+from cellctl.vision.lens import Lens
 
 
 @pytest.fixture(scope="module")
@@ -148,3 +150,16 @@ def test_a_wrong_call_raises_a_clear_error(grid) -> None:
         detect_corner(img[:512], SMALL_LENS, SMALL_CONFIG)
     with pytest.raises(ValueError, match="vision.roi"):
         detect_corner(img, SMALL_LENS, VisionConfig())  # the default ROI is for 2048 px
+
+
+def test_the_coarse_right_angle_is_judged_in_the_ideal_image() -> None:
+    """A square corner near the border of a wide-angle lens's image: its raw edges meet more than
+    3 deg off a right angle, the ideal ones at one; the corner is found there, at its true place."""
+    lens = Lens(fx=1100.0, fy=1100.0, cx=512.0, cy=512.0, k1=-0.3, k2=0.0, p1=0.0, p2=0.0, k3=0.0, width_px=1024, height_px=1024)
+    config = SMALL_CONFIG.model_copy(update={"fit": SMALL_CONFIG.fit.model_copy(update={"arc_exclusion_px": 80.0})})
+    img = corner_image(lens, ideal_grid(lens), (300.0, 700.0), 0.0, radius_px=60.0)
+    raw = find_coarse_corner(img, config.roi, config.coarse, config.opening_polarity)
+    assert isinstance(raw, CoarseFailure) and "right angle" in raw.message  # judged on raw pixels: refused
+    m = detect_corner(img, lens, config)
+    assert m.ok, m.message
+    assert np.linalg.norm(m.corner_px - (300.0, 700.0)) < 0.01

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.config.vision import CoarseConfig, RoiConfig
+from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, fit_line, intersect
 
 F64 = NDArray[np.float64]
@@ -113,10 +114,24 @@ def _side_mean(small: NDArray[np.uint8], cluster: LineCluster, offset_px: float,
     return float(np.mean(small[iy, ix]))
 
 
+def _ideal_direction(cluster: LineCluster, lens: Lens | None) -> F64:
+    """The cluster's unit direction in the ideal image (undistorted, square pixels); the raw line's without a lens."""
+    if lens is None:
+        return np.asarray(cluster.line.direction, dtype=float)
+    ends = lens.to_square(lens.undistort(cluster.segments.reshape(-1, 2)))
+    centred = ends - ends.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    return np.asarray(vt[0], dtype=float)
+
+
 def find_coarse_corner(
-    image: NDArray[np.uint8], roi: RoiConfig, cfg: CoarseConfig, opening_polarity: str
+    image: NDArray[np.uint8], roi: RoiConfig, cfg: CoarseConfig, opening_polarity: str, lens: Lens | None = None
 ) -> CoarseCorner | CoarseFailure:
-    """Canny + probabilistic Hough on the shrunk ROI; the two lines of the upper-right corner."""
+    """Canny + probabilistic Hough on the shrunk ROI; the two lines of the upper-right corner.
+
+    With ``lens`` the right angle is judged in the ideal image: near the border the lens's
+    distortion turns a raw edge by degrees.
+    """
     k = int(cfg.downscale)
     crop = image[roi.y_px : roi.y_px + roi.height_px, roi.x_px : roi.x_px + roi.width_px]
     if k > 1:
@@ -166,15 +181,17 @@ def find_coarse_corner(
     for right in rights:
         oriented = LineCluster(right.segments, right.line.oriented([0.0, 1.0]))  # normal points left (-u)
         right_dark.append(_side_mean(small, oriented, 3.0 * k, k, roi) < _side_mean(small, oriented, -3.0 * k, k, roi))
+    top_dirs = [_ideal_direction(t, lens) for t in tops]
+    right_dirs = [_ideal_direction(r, lens) for r in rights]
     best: tuple[float, LineCluster, LineCluster, F64, bool] | None = None
     reasons: list[str] = []
-    for top, t_dark in zip(tops, top_dark):
-        for right, r_dark in zip(rights, right_dark):
+    for top, t_dark, t_dir in zip(tops, top_dark, top_dirs):
+        for right, r_dark, r_dir in zip(rights, right_dark, right_dirs):
             c = intersect(top.line, right.line)
             if c is None or not (x0 <= c[0] <= x1 and y0 <= c[1] <= y1):
                 reasons.append("lines meet outside the region of interest")
                 continue
-            skew = abs(90.0 - float(np.degrees(np.arccos(np.clip(abs(top.line.direction @ right.line.direction), 0.0, 1.0)))))
+            skew = abs(90.0 - float(np.degrees(np.arccos(np.clip(abs(t_dir @ r_dir), 0.0, 1.0)))))
             if skew > cfg.max_corner_skew_deg:
                 reasons.append(f"no pair of lines meets within {cfg.max_corner_skew_deg:g} deg of a right angle")
                 continue

@@ -172,7 +172,7 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
     config.roi.check_inside(lens.width_px, lens.height_px)
     roi = config.roi
     exclusion = float(config.fit.arc_exclusion_px)
-    coarse = find_coarse_corner(img, roi, config.coarse, config.opening_polarity)
+    coarse = find_coarse_corner(img, roi, config.coarse, config.opening_polarity, lens)
     if isinstance(coarse, CoarseFailure):
         refusal = Refusal.CORNER_NOT_FOUND if coarse.missing == "corner" else Refusal.EDGE_MISSING
         return CornerMeasurement(refusal, coarse.message, roi, exclusion, segments=coarse.segments)
