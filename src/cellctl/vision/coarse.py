@@ -118,7 +118,10 @@ def _ideal_direction(cluster: LineCluster, lens: Lens | None) -> F64:
     """The cluster's unit direction in the ideal image (undistorted, square pixels); the raw line's without a lens."""
     if lens is None:
         return np.asarray(cluster.line.direction, dtype=float)
-    ends = lens.to_square(lens.undistort(cluster.segments.reshape(-1, 2)))
+    try:
+        ends = lens.to_square(lens.undistort(cluster.segments.reshape(-1, 2)))
+    except ValueError:  # a lens that folds over there: the raw direction, as without one
+        return np.asarray(cluster.line.direction, dtype=float)
     centred = ends - ends.mean(axis=0)
     _, _, vt = np.linalg.svd(centred, full_matrices=False)
     return np.asarray(vt[0], dtype=float)
@@ -129,8 +132,8 @@ def find_coarse_corner(
 ) -> CoarseCorner | CoarseFailure:
     """Canny + probabilistic Hough on the shrunk ROI; the two lines of the upper-right corner.
 
-    With ``lens`` the right angle is judged in the ideal image: near the border the lens's
-    distortion turns a raw edge by degrees.
+    With ``lens`` the right angle is judged in the ideal image: near the border distortion turns a
+    raw edge (about 0.1 deg for the twin's lens, degrees for a wide-angle one).
     """
     k = int(cfg.downscale)
     crop = image[roi.y_px : roi.y_px + roi.height_px, roi.x_px : roi.x_px + roi.width_px]
