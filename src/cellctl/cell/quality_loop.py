@@ -24,7 +24,6 @@ from cellctl.domain import AlarmCode, InstallDeviation
 from cellctl.geometry.pose import Pose
 from cellctl.quality import (
     AXES,
-    AxisState,
     SpcLoop,
     SpcState,
     SpcUpdate,
@@ -173,12 +172,6 @@ class InstallQualityLoop:
         views = [self.view(name) for name in self.recipes]
         return {**views[0], "recipes": views}
 
-    def _working(self, axis: AxisState) -> float | None:
-        """What the axis's offset follows: the estimate, or before it starts (warm_up_offset) the running mean."""
-        if axis.estimate is not None or not self.config.warm_up_offset:
-            return axis.estimate
-        return axis.warm_up_mean
-
     def view(self, recipe: str) -> dict[str, Any]:
         """One recipe's loop: on or off, estimate, offset, samples, drift."""
         s = self.states[recipe]
@@ -188,7 +181,7 @@ class InstallQualityLoop:
             "calibration_version": s.calibration_version,
             "samples": s.n_samples,
             "min_samples": self.config.min_samples,
-            "estimate": {a: _figure(self._working(x)) for a, x in s.axes.items()},
+            "estimate": {a: _figure(self.loop.working_estimate(x)) for a, x in s.axes.items()},
             "offset": {k: float(v) for k, v in s.offset.items()} if self.config.enabled else None,
             "excluded": dict(s.excluded),
             "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit} for d in s.drifting],

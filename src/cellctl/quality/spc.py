@@ -112,9 +112,15 @@ class SpcLoop:
     def _cfg(self, name: str, axis: str) -> float:
         return float(getattr(self.config, f"{name}_{axis_unit(axis)}"))
 
+    def working_estimate(self, s: AxisState) -> float | None:
+        """What an axis's offset follows: its estimate, or while it warms up (``warm_up_offset``) the running mean."""
+        if s.estimate is not None or not self.config.warm_up_offset:
+            return s.estimate
+        return s.warm_up_mean
+
     def _offset_of(self, axis: str, s: AxisState) -> float:
-        """The offset an axis applies: its estimate, or while it warms up the running mean of its results."""
-        estimate = s.estimate if s.estimate is not None else s.warm_up_mean if self.config.warm_up_offset else None
+        """The offset an axis applies: its working estimate within the dead band and max_offset."""
+        estimate = self.working_estimate(s)
         if not self.config.enabled or estimate is None or abs(estimate) <= self._cfg("dead_band", axis):
             return 0.0
         bound = self._cfg("max_offset", axis)
