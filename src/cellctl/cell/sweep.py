@@ -35,7 +35,8 @@ from cellctl.cell.robots import pose_stream_of
 from cellctl.compensate import shooting_pose_in
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose
-from cellctl.inspection import FlushError, FlushResult, fit_flush
+from cellctl.inspection import FlushError, FlushResult
+from cellctl.inspection.flush_crossing import flush_from_sweep, surface_at
 from cellctl.ports import DeviceError, PoseStream, StoringSensor
 
 if TYPE_CHECKING:
@@ -71,6 +72,7 @@ class Swept:
     estimate: LatencyEstimate | None = None  # the sweep's own estimate, where it timed or checked the laser
     rest_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # readings with the flange standing
     rest_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    legs: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (K,) leg j runs corners[j] -> corners[j + 1]
 
 
 async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]]:
@@ -111,7 +113,9 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     """The flush on the move: sweep the inspection's path past the installed glass, with this cycle's latency.
 
     Each reading's laser point is taken into T2 and sorted by where it falls: on the glass (inside
-    the glass's edge) or on the wall (outside the opening's), none within the margin of an edge.
+    the glass's edge) or on the wall (outside the opening's), none within the margin of an edge. The
+    legs whose planned ends lie on different surfaces cross an edge; the step at each crossing comes
+    from that leg's readings alone (:mod:`cellctl.inspection.flush_crossing`).
     """
     cal, insp = run.cal, run.process.inspect
     assert run.sweep_latency_s is not None, "the alignment's sweep times the laser first"
@@ -119,17 +123,18 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     corners = plan_spot_poses(T2, insp.sweep_path_mm, R_flange, cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm)
     swept = await sweep_path(run, CycleStep.INSPECT, corners, latency_s=run.sweep_latency_s)
     pts = apply_pose(invert_pose(T2), laser_points(swept.poses, cal.laser_r, cal.laser_l, swept.distances, cal.laser_range_mm))
-    x, y, m, gap = pts[:, 0], pts[:, 1], insp.sweep_margin_mm, insp.nominal_gap_mm
-    on_glass = np.flatnonzero((x < -(gap + m)) & (y > gap + m))
-    on_wall = np.flatnonzero((x > m) | (y < -m))
-    glass = pts[on_glass[_even(len(on_glass), insp.sweep_max_points)]]
-    wall = pts[on_wall[_even(len(on_wall), insp.sweep_max_points)]]
     try:
-        flush = fit_flush(glass, wall, max_rms_mm=insp.max_flush_rms_mm)
+        flush, crossings = await asyncio.to_thread(
+            flush_from_sweep, pts, swept.legs, insp.sweep_path_mm,
+            gap_mm=insp.nominal_gap_mm, margin_mm=insp.sweep_margin_mm, max_rms_mm=insp.max_flush_rms_mm,
+        )  # fmt: skip
     except FlushError as err:
         raise CycleFailed(CycleStep.INSPECT, AlarmCode.INSPECTION_FAILED, str(err)) from err
-    figures = swept.figures | {"glass_readings": int(len(on_glass)), "wall_readings": int(len(on_wall)),
-                               "glass_fitted": int(len(glass)), "wall_fitted": int(len(wall))}  # fmt: skip
+    surface = surface_at(pts[:, :2], insp.nominal_gap_mm, insp.sweep_margin_mm)
+    rows = [{"at_mm": [round(c.x_mm, 1), round(c.y_mm, 1)], "step_mm": c.step_mm, "glass_readings": c.glass_readings,
+             "wall_readings": c.wall_readings} for c in crossings]  # fmt: skip
+    figures = swept.figures | {"glass_readings": int(np.count_nonzero(surface > 0)), "wall_readings": int(np.count_nonzero(surface < 0)),
+                               "crossings": rows}  # fmt: skip
     return flush, figures
 
 
@@ -156,6 +161,7 @@ async def sweep_path(
     path_s = _path_seconds(corners, cfg.speed_mm_s) + beam_moves * cfg.approach_mm / cfg.speed_mm_s
     count = int(min(65535, np.ceil(3.0 * path_s / cfg.storage_cycle_s) + 100))
     approach: list[float] = []
+    leg_starts: list[float] = []
 
     async def path() -> None:
         # In, out and in again along the beam: the latency shifts the readings one way going in and the
@@ -165,7 +171,8 @@ async def sweep_path(
         for T in timing:
             await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
         approach.append(run.dev.clock())
-        for T in route[1 + len(timing):]:
+        for T in route[1 + len(timing):]:  # leg j: corners[j] -> corners[j + 1]
+            leg_starts.append(run.dev.clock())
             await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
 
     try:
@@ -208,7 +215,8 @@ async def sweep_path(
     }
     if latency is not None:
         figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
-    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency)
+    legs = np.searchsorted(leg_starts, paired.instants[on_path] - lat_s, side="right") - 1
+    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0))
     if not stops:
         return swept
     rest = np.flatnonzero(await asyncio.to_thread(standing, t, T, paired.instants - lat_s))

@@ -39,7 +39,7 @@ class SweepConfig(StrictModel):
     approach_mm: Finite = Field(40.0, gt=5, le=200)
     # The LK-G's storage cycle. Each stored reading costs 0.78 ms of read-out at 115200 Bd after the sweep:
     # at 2 ms that is 39 % of the sweep's time again (8 s a cycle), at 5 ms 16 %, at 10 ms 8 %, at no cost in
-    # accuracy (cellctl bench cycle-time): the fit keeps max_points of them, the flush sweep_max_points a surface.
+    # accuracy (cellctl bench cycle-time): the fit keeps max_points of them, the flush every one beside its crossings.
     storage_cycle_s: Finite = Field(0.01, ge=2e-5, le=1.0)
     max_points: int = Field(400, ge=20, le=20000)  # readings used in the plane fit, spread evenly along the path
     latency_search_s: tuple[Finite, Finite] = (-0.01, 0.05)

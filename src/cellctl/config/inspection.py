@@ -6,6 +6,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from cellctl.config.types import Finite, StrictModel, Vec2
+from cellctl.inspection.flush_crossing import crossing_legs, surface_at
 
 # A glass spot and its wall spot further apart than this no longer share the robot's accuracy error.
 MAX_SPOT_PAIR_MM = 100.0
@@ -48,11 +49,13 @@ NEAR_ALONG_MM = (-60.0, -110.0, -160.0, -210.0, -260.0)
 
 
 def _default_spots() -> tuple[FlushSpot, ...]:
-    near_top = tuple(FlushSpot(glass_mm=(x, 20.0), wall_mm=(x, -15.0)) for x in NEAR_ALONG_MM)
+    # In the order the robot visits them: towards the corner along the top, away from it down the side,
+    # the far side, the far top (as the sweep on the move, sweep_path_mm).
+    near_top = tuple(FlushSpot(glass_mm=(x, 20.0), wall_mm=(x, -15.0)) for x in reversed(NEAR_ALONG_MM))
     near_right = tuple(FlushSpot(glass_mm=(-20.0, -x), wall_mm=(15.0, -x)) for x in NEAR_ALONG_MM)
     far = (
-        FlushSpot(glass_mm=(-1700.0, 20.0), wall_mm=(-1700.0, -15.0)),
         FlushSpot(glass_mm=(-20.0, 1200.0), wall_mm=(15.0, 1200.0)),
+        FlushSpot(glass_mm=(-1700.0, 20.0), wall_mm=(-1700.0, -15.0)),
     )
     return near_top + near_right + far
 
@@ -85,15 +88,17 @@ class InspectionConfig(StrictModel):
     max_flush_rms_mm: Finite = Field(0.15, gt=0)
     back_off_mm: Finite = Field(100.0, ge=0)
     # On the move (process.align.mode = "on_the_fly", where the devices can): the laser sweeps these
-    # corners in T instead of standing at the flush spots, along the wall just outside the opening's
-    # top and right edges and along the glass just inside them; readings within sweep_margin_mm of
-    # an edge (the gap) are left out.
+    # corners in T instead of standing at the flush spots. A leg from the glass (inside its edge) to
+    # the wall (outside the opening's top or right edge), or back, is a crossing: its readings either
+    # side of the edge give the flush there (cellctl.inspection.flush_crossing); readings within
+    # sweep_margin_mm of an edge (the gap) are left out. At least three crossings, on both edges.
+    # Default: crossings 200 mm along and 45 mm across an edge, centred on the gap (y = 2.5, x = -2.5), near
+    # and far, in the order that starts beside the corner the camera has just seen (the shooting pose).
     sweep_path_mm: tuple[Vec2, ...] = (
-        (-60.0, -15.0), (-1700.0, -15.0), (-1700.0, 20.0), (-60.0, 20.0),
-        (-20.0, 60.0), (-20.0, 1200.0), (15.0, 1200.0), (15.0, 60.0),
+        (-350.0, -20.0), (-150.0, 25.0), (-25.0, 150.0), (20.0, 350.0),
+        (20.0, 1100.0), (-25.0, 1300.0), (-1800.0, 25.0), (-1600.0, -20.0),
     )  # fmt: skip
     sweep_margin_mm: Finite = Field(6.0, ge=0, le=50)
-    sweep_max_points: int = Field(300, ge=20, le=20000)  # per surface (glass, wall), spread along the path
 
     @model_validator(mode="after")
     def _enough(self) -> "InspectionConfig":
@@ -101,5 +106,19 @@ class InspectionConfig(StrictModel):
             raise ValueError(
                 f"flush_spots has {len(self.flush_spots)} locations but min_flush_spots is {self.min_flush_spots}; "
                 "add spots or lower min_flush_spots (at least 3: the glass's plane)"
+            )
+        legs = crossing_legs(self.sweep_path_mm, self.nominal_gap_mm, self.sweep_margin_mm)
+        middles = np.array([(a + b) / 2 for _, a, b in legs]).reshape(-1, 2)
+        off_gap = [m.tolist() for m in middles if surface_at(m, self.nominal_gap_mm, self.sweep_margin_mm)[0] != 0]
+        if off_gap:
+            raise ValueError(
+                f"sweep_path_mm has crossing legs whose middles {off_gap} lie outside the gap (within sweep_margin_mm "
+                "of the opening's and the glass's edges): centre each leg from the glass to the wall on the gap"
+            )
+        if np.linalg.matrix_rank(np.column_stack([np.ones(len(middles)), middles])) < 3:  # fewer than three, or on one line
+            raise ValueError(
+                f"sweep_path_mm crosses an edge on {len(legs)} legs (a leg from a point on the glass, inside its edge by "
+                f"more than sweep_margin_mm, to one on the wall, or back), not on both edges; the flush on the move "
+                "needs at least three crossings, on the top and on the side edge"
             )
         return self

@@ -31,7 +31,7 @@ class FlushResult:
     Attributes:
         dz_mm: the glass surface's height over the wall plane at T's origin (+ = into the wall).
         drx_rad, dry_rad: the glass plane's tilt against the wall's (XYZ fixed angles, eq. 13).
-        flush_mm: at each glass spot, its height over the wall plane there (the flush a gauge shows).
+        flush_mm: at each glass spot (on the move: each edge crossing), its height over the wall there (the flush a gauge shows).
         glass_rms_mm, wall_rms_mm: the residuals of the two plane fits.
         dz_sigma_mm: the 1-sigma of dz predicted from the fits' residuals and the spots' layout.
     """
