@@ -11,6 +11,7 @@ from cellctl.config.inspection import InspectionConfig
 from cellctl.config.recipe import Recipe
 from cellctl.config.spc import SpcConfig
 from cellctl.config.types import Finite, StrictModel, Vec2, check_unique
+from cellctl.inspection.flush_crossing import crossing_path_problem
 
 
 class ToleranceConfig(StrictModel):
@@ -189,6 +190,16 @@ class ProcessConfig(StrictModel):
     inspect: InspectionConfig = InspectionConfig()
     spc: SpcConfig = SpcConfig()
     recipes: tuple[Recipe, ...] = (Recipe(id=1, name="side-window", description="2000 x 1500 mm side-window glass"),)
+
+    @model_validator(mode="after")
+    def _flush_sweep_crosses_the_edges(self) -> "ProcessConfig":
+        """Where the cell reads on the move and inspects, its flush sweep must cross both edges (checked only then)."""
+        insp = self.inspect
+        if self.align.mode == "on_the_fly" and insp.enabled:
+            problem = crossing_path_problem(insp.sweep_path_mm, insp.nominal_gap_mm, insp.sweep_margin_mm)
+            if problem is not None:
+                raise ValueError(f"inspect.sweep_path_mm: {problem}")
+        return self
 
     @model_validator(mode="after")
     def _unique_recipes(self) -> "ProcessConfig":

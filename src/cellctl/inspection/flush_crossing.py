@@ -5,10 +5,11 @@ the deflection at speed, the accuracy field along the way. Readings on the glass
 taken on *one* leg, a few centimetres either side of the edge, carry nearly the same error, so
 their difference is the flush; read on separate legs they carry the two legs' independent errors.
 
-Per crossing leg, each side's heights (z in T, mm) are fitted with a line in the position ``s``
-along the leg, in windows mirrored about the leg's middle (which lies in the gap), and both are
-taken to that middle: an error linear along the leg cancels exactly, one even about the middle (the
-deflection of a short leg's speed profile, the curvature of the accuracy field) cancels too. The steps at three or
+Per crossing leg, the heights (z in T, mm) on both sides, in windows mirrored about the leg's
+middle (which lies in the gap), are fitted as one model in the position x from that middle: the
+step between the surfaces, the leg's error linear in x, and terms even in x (|x|, x^2) for what is
+symmetric about the middle: the deflection of a short leg's speed profile, the curvature of the
+accuracy field, the surfaces' slopes differing by their tilt. The step is the flush there. The steps at three or
 more crossings then give the glass's plane against the wall's as in :mod:`cellctl.inspection.flush`:
 ``step = dZ - dRy x + dRx y`` at the crossing point (x, y).
 """
@@ -25,6 +26,8 @@ from cellctl.inspection.flush import FlushError, FlushResult
 
 MIN_SIDE_READINGS = 4  # per side of a crossing: a line and its scatter
 MIN_STEP_SIGMA_MM = 0.001  # a crossing's weight is capped here: its lines' scatter does not see every error
+MIN_SPREAD_MM = 100.0  # the crossings span at least this in x and in y: the tilt about each axis needs a base
+MIN_BEYOND_MM = 10.0  # a crossing leg runs at least this far past the gap's margin on both sides (its readings)
 
 
 @dataclass(frozen=True)
@@ -67,14 +70,31 @@ def crossing_legs(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float)
     return [(j, corners[j], corners[j + 1]) for j in range(len(corners) - 1) if surface[j] * surface[j + 1] < 0]
 
 
-def _line_at_zero(s: NDArray[np.float64], z: NDArray[np.float64]) -> tuple[float, float, float]:
-    """Least-squares ``z = a + b s``: a, its 1-sigma from the residual, and the RMS residual."""
-    A = np.column_stack([np.ones(len(s)), s])
-    coef, *_ = np.linalg.lstsq(A, z, rcond=None)
-    residual = z - A @ coef
-    rms = float(np.sqrt(np.sum(residual**2) / max(len(s) - 2, 1)))
-    cov = np.linalg.inv(A.T @ A)
-    return float(coef[0]), rms * float(np.sqrt(cov[0, 0])), rms
+def crossing_path_problem(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float) -> str | None:
+    """What keeps a sweep path from giving the flush on the move, or None: at least three crossing legs,
+    each running from ``MIN_BEYOND_MM`` past the gap's margin on one side to as far on the other with its
+    middle in the gap, spread over both edges."""
+    legs = crossing_legs(path_mm, gap_mm, margin_mm)
+    if len(legs) < 3:
+        return (f"it crosses an edge on {len(legs)} legs (a leg from a point on the glass, inside its edge by more "
+                "than sweep_margin_mm, to one on the wall, or back); the flush needs at least three, on both edges")  # fmt: skip
+    short = [[a.tolist(), b.tolist()] for _, a, b in legs if np.any(surface_at(np.stack([a, b]), gap_mm, margin_mm + MIN_BEYOND_MM) == 0)]
+    if short:
+        return f"the crossing legs {short} end less than {MIN_BEYOND_MM:g} mm past the gap's margin: lengthen them across the edge"
+    middles = np.array([(a + b) / 2 for _, a, b in legs])
+    off_gap = [m.tolist() for m in middles if surface_at(m, gap_mm, margin_mm)[0] != 0]
+    if off_gap:
+        return f"the crossing legs' middles {off_gap} lie outside the gap (and its margins): centre each crossing leg on the gap"
+    return spread_problem(middles)
+
+
+def spread_problem(xy: NDArray[np.float64]) -> str | None:
+    """Why crossings at ``xy`` (N, 2; mm) cannot give both tilts, or None."""
+    span = np.ptp(xy, axis=0)
+    if np.any(span < MIN_SPREAD_MM) or np.linalg.matrix_rank(np.column_stack([np.ones(len(xy)), xy])) < 3:
+        return (f"the edge crossings span {span[0]:.0f} mm in x and {span[1]:.0f} mm in y (at least {MIN_SPREAD_MM:g} each, "
+                "not on one line): cross both the top and the side edge, near the corner and far from it")  # fmt: skip
+    return None
 
 
 def step_across_edge(
@@ -115,37 +135,45 @@ def step_across_edge(
             f"the leg from {a.tolist()} to {b.tolist()} mm does not cross the gap at its middle "
             "(its readings on one surface pass it): centre each crossing leg on the gap"
         )
-    reach = min(s_c - first.min(), second.max() - s_c)  # mirrored windows: what is even about s_c cancels
-    fits: dict[bool, tuple[float, float, float, int]] = {}
+    # Windows mirrored about s_c, inside and out (the gap need not be centred on it).
+    inner = max(s_c - first.max(), second.min() - s_c)
+    reach = min(s_c - first.min(), second.max() - s_c)
+    keep = (np.abs(s - s_c) >= inner - 1e-9) & (np.abs(s - s_c) <= reach + 1e-9)
+    counts = {side: int(np.count_nonzero(keep & (glass == side))) for side in (True, False)}
+    if min(counts.values()) < MIN_SIDE_READINGS:
+        raise FlushError(f"a side of the crossing at {(a + s_c * u).round(1).tolist()} mm keeps too few readings in its mirrored window {counts}")
+    x, on_glass, z = s[keep] - s_c, glass[keep], p[keep, 2]
+    # One model for both sides: the step, the leg's error (linear in x) and what is even about the middle
+    # (|x|: with x it lets the surfaces' slopes differ; x^2: the deflection's and the accuracy field's curvature).
+    A = np.column_stack([on_glass.astype(float), np.ones_like(x), x, np.abs(x), x**2])
+    coef, *_ = np.linalg.lstsq(A, z, rcond=None)
+    residual = z - A @ coef
+    rms = {side: float(np.sqrt(np.mean(residual[on_glass == side] ** 2))) for side in (True, False)}
     for side, what in ((True, "glass"), (False, "wall")):
-        keep = (glass == side) & (np.abs(s - s_c) <= reach + 1e-9)
-        if np.count_nonzero(keep) < MIN_SIDE_READINGS:
-            raise FlushError(f"the {what} side of the crossing at s = {s_c:.1f} mm keeps too few readings in its mirrored window")
-        at, sigma, rms = _line_at_zero(s[keep] - s_c, p[keep, 2])
-        if rms > max_rms_mm:
+        if rms[side] > max_rms_mm:
             raise FlushError(
-                f"the {what} readings beside the crossing at {(a + s_c * u).round(1).tolist()} mm scatter by {rms:.3f} mm "
+                f"the {what} readings beside the crossing at {(a + s_c * u).round(1).tolist()} mm scatter by {rms[side]:.3f} mm "
                 f"(> {max_rms_mm:g} mm): a reading off another surface; check the sweep's legs against the opening"
             )
-        fits[side] = (at, sigma, rms, int(np.count_nonzero(keep)))
-    (zg, sg, rg, ng), (zw, sw, rw, nw) = fits[True], fits[False]
-    x, y = a + s_c * u
-    return EdgeCrossing(float(x), float(y), zg - zw, float(np.hypot(sg, sw)), ng, nw, rg, rw)
+    sigma = float(np.sqrt(residual @ residual / max(len(z) - A.shape[1], 1) * np.linalg.inv(A.T @ A)[0, 0]))
+    px, py = a + s_c * u
+    return EdgeCrossing(float(px), float(py), float(coef[0]), sigma, counts[True], counts[False], rms[True], rms[False])
 
 
 def fit_flush_across_edges(crossings: Sequence[EdgeCrossing], *, max_rms_mm: float) -> FlushResult:
     """The glass's plane against the wall's from the steps at three or more crossings (weighted least squares).
 
-    Raises FlushError when the crossings lie on one line (the tilt across it is unknown) or their
-    steps do not lie on one plane within ``max_rms_mm``.
+    Raises FlushError when the crossings do not span both directions (a tilt would be unknown) or
+    their steps do not lie on one plane within ``max_rms_mm``.
     """
     if len(crossings) < 3:
         raise FlushError(f"{len(crossings)} edge crossings; the flush's plane needs at least 3 (cross both edges)")
     xy = np.array([[c.x_mm, c.y_mm] for c in crossings])
     steps = np.array([c.step_mm for c in crossings])
     A = np.column_stack([np.ones(len(crossings)), -xy[:, 0], xy[:, 1]])  # step = dZ - dRy x + dRx y
-    if np.linalg.matrix_rank(A) < 3:
-        raise FlushError("the edge crossings lie on one line; cross both the top and the side edge")
+    problem = spread_problem(xy)
+    if problem is not None:
+        raise FlushError(problem)
     w = 1.0 / np.maximum([c.sigma_mm for c in crossings], MIN_STEP_SIGMA_MM)
     theta, *_ = np.linalg.lstsq(A * w[:, None], steps * w, rcond=None)
     residual = steps - A @ theta
@@ -175,14 +203,23 @@ def fit_flush_across_edges(crossings: Sequence[EdgeCrossing], *, max_rms_mm: flo
 
 def flush_from_sweep(
     points_T: ArrayLike, legs: ArrayLike, path_mm: Sequence[ArrayLike], *, gap_mm: float, margin_mm: float, max_rms_mm: float
-) -> tuple[FlushResult, list[EdgeCrossing]]:
-    """The flush from a sweep's readings (K, 3) in T, each with its leg j (``path_mm[j]`` -> ``path_mm[j + 1]``):
-    the step at each leg that crosses an edge, then the glass's plane against the wall's from them."""
+) -> tuple[FlushResult, list[EdgeCrossing], list[str]]:
+    """The flush from a sweep's readings (K, 3) in T, each with its leg j (``path_mm[j]`` -> ``path_mm[j + 1]``;
+    -1: none): the step at each leg that crosses an edge, then the glass's plane against the wall's from
+    them. A crossing that cannot give its step is left out with its reason (the third list) while the
+    others still span both edges; else FlushError names them all."""
     p = np.asarray(points_T, dtype=float)
     leg = np.asarray(legs)
     surface = surface_at(p[:, :2], gap_mm, margin_mm)
-    crossings = []
+    crossings: list[EdgeCrossing] = []
+    missing: list[str] = []
     for j, start, end in crossing_legs(path_mm, gap_mm, margin_mm):
         on_leg = (leg == j) & (surface != 0)
-        crossings.append(step_across_edge(p[on_leg], surface[on_leg] > 0, start, end, max_rms_mm=max_rms_mm))
-    return fit_flush_across_edges(crossings, max_rms_mm=max_rms_mm), crossings
+        try:
+            crossings.append(step_across_edge(p[on_leg], surface[on_leg] > 0, start, end, max_rms_mm=max_rms_mm))
+        except FlushError as err:
+            missing.append(f"leg {j}: {err}")
+    try:
+        return fit_flush_across_edges(crossings, max_rms_mm=max_rms_mm), crossings, missing
+    except FlushError as err:
+        raise FlushError("; ".join([str(err), *missing])) from None
