@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.inspection.flush import FlushError, FlushResult
 
-MIN_SIDE_READINGS = 4  # per side of a crossing: a line and its scatter
+MIN_SIDE_READINGS = 4  # per side of a crossing (the model has five terms)
 MIN_STEP_SIGMA_MM = 0.001  # a crossing's weight is capped here: its lines' scatter does not see every error
 MIN_SPREAD_MM = 100.0  # the crossings span at least this in x and in y: the tilt about each axis needs a base
 MIN_BEYOND_MM = 10.0  # a crossing leg runs at least this far past the gap's margin on both sides (its readings)
@@ -37,9 +37,9 @@ class EdgeCrossing:
     Attributes:
         x_mm, y_mm: the crossing point (the leg's middle, in the gap).
         step_mm: the glass's height over the wall's there (+ = into the wall, as dZ).
-        sigma_mm: the step's 1-sigma from the two lines' residuals.
+        sigma_mm: the step's 1-sigma from the fit's residual.
         glass_readings, wall_readings: readings fitted on each side (mirrored windows).
-        glass_rms_mm, wall_rms_mm: the two lines' residuals.
+        glass_rms_mm, wall_rms_mm: the fit's RMS residual on each side.
     """
 
     x_mm: float
@@ -104,8 +104,8 @@ def step_across_edge(
 
     ``points_T`` (N, 3) are the leg's readings in T, ``on_glass`` (N,) True for the glass's and False
     for the wall's (readings in the gap already left out). Raises FlushError when a side has too few
-    readings, the sides overlap along the leg (it crosses more than one edge), or a line's residual
-    exceeds ``max_rms_mm``.
+    readings, the sides overlap along the leg (it crosses more than one edge), the leg's middle is not
+    in the gap, or a side's RMS residual exceeds ``max_rms_mm``.
     """
     p = np.asarray(points_T, dtype=float)
     glass = np.asarray(on_glass, dtype=bool)
