@@ -121,7 +121,8 @@ def test_crossings_on_one_edge_alone_leave_the_tilt_across_it_unknown() -> None:
         fit_flush_across_edges(c, max_rms_mm=0.15)
     with pytest.raises(FlushError, match="at least 3"):
         fit_flush_across_edges(c[:2], max_rms_mm=0.15)
-    bent = [*c[:2], EdgeCrossing(-2.5, 250.0, 0.1, 0.001, 10, 10, 0.002, 0.002), EdgeCrossing(-2.5, 1200.0, 0.9, 0.001, 10, 10, 0.002, 0.002)]
+    side = [EdgeCrossing(-2.5, y, step, 0.001, 10, 10, 0.002, 0.002) for y, step in ((250.0, 0.1), (1200.0, 0.9))]
+    bent = [*c[:2], *side]
     with pytest.raises(FlushError, match="do not lie on one plane"):
         fit_flush_across_edges([*bent, EdgeCrossing(-2.5, 700.0, 0.1, 0.001, 10, 10, 0.002, 0.002)], max_rms_mm=0.15)
 

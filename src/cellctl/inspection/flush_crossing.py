@@ -62,7 +62,10 @@ def surface_at(xy: ArrayLike, gap_mm: float, margin_mm: float) -> NDArray[np.int
     return glass.astype(int) - wall.astype(int)
 
 
-def crossing_legs(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+Leg = tuple[int, NDArray[np.float64], NDArray[np.float64]]  # (j, start, end): corners j -> j + 1 of a path, mm in T
+
+
+def crossing_legs(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float) -> list[Leg]:
     """The legs of a sweep path (corners in T, mm) that run from one surface to the other: (j, start, end), leg j
     being corners j -> j + 1."""
     corners = np.asarray(path_mm, dtype=float)
@@ -141,7 +144,9 @@ def step_across_edge(
     keep = (np.abs(s - s_c) >= inner - 1e-9) & (np.abs(s - s_c) <= reach + 1e-9)
     counts = {side: int(np.count_nonzero(keep & (glass == side))) for side in (True, False)}
     if min(counts.values()) < MIN_SIDE_READINGS:
-        raise FlushError(f"a side of the crossing at {(a + s_c * u).round(1).tolist()} mm keeps too few readings in its mirrored window {counts}")
+        raise FlushError(
+            f"a side of the crossing at {(a + s_c * u).round(1).tolist()} mm keeps too few readings in its mirrored window {counts}"
+        )
     x, on_glass, z = s[keep] - s_c, glass[keep], p[keep, 2]
     # One model for both sides: the step, the leg's error (linear in x) and what is even about the middle
     # (|x|: with x it lets the surfaces' slopes differ; x^2: the deflection's and the accuracy field's curvature).
