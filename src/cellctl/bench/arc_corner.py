@@ -60,7 +60,7 @@ def square_coordinates(lens: Lens) -> tuple[F64, F64]:
     """(u, v) in square px (the ideal image with v scaled by fx / fy, where the wall's circle is
     one) of every raw pixel centre, each (H, W)."""
     rows, cols = np.indices((lens.height_px, lens.width_px), dtype=np.float64)
-    square = lens.to_square(lens.undistort(np.column_stack([cols.ravel(), rows.ravel()])))
+    square = lens.square_of_raw(np.column_stack([cols.ravel(), rows.ravel()]))
     return square[:, 0].reshape(rows.shape), square[:, 1].reshape(rows.shape)
 
 

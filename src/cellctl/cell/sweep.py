@@ -219,11 +219,11 @@ async def sweep_path(
     # Each reading's leg: the moves end at fine points (the next starts after this one's settle), so a
     # reading belongs to the last move started before its pose's instant.
     legs = np.searchsorted(leg_starts, paired.instants[on_path] - lat_s, side="right") - 1
-    moving = ~await asyncio.to_thread(standing, t, T, paired.instants[on_path] - lat_s)
-    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0), moving=moving)
+    at_rest = await asyncio.to_thread(standing, t, T, paired.instants - lat_s)  # once for every paired reading
+    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0), moving=~at_rest[on_path])
     if not stops:
         return swept
-    rest = np.flatnonzero(await asyncio.to_thread(standing, t, T, paired.instants - lat_s))
+    rest = np.flatnonzero(at_rest)
     figures["readings_at_rest"] = int(len(rest))
     return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest])
 

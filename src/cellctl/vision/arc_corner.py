@@ -247,7 +247,7 @@ def measure_circle(
     ]
     idx = np.flatnonzero(usable)
     # Step 3: the robust circle, in square px (fx on both axes), where the wall's circle is one.
-    pts = lens.to_square(lens.undistort(raw_px[idx])) if len(idx) else np.zeros((0, 2))
+    pts = lens.square_of_raw(raw_px[idx]) if len(idx) else np.zeros((0, 2))
     fitted = robust_circle(
         pts, lens.to_square(centre)[0], radius, search_px=search_px, ransac_band_px=max(s.min_robust_band_px, 0.5),
         robust_k=s.robust_k, min_band_px=s.min_robust_band_px, rng=rng, iterations=s.ransac_iterations,

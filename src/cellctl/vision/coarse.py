@@ -119,7 +119,7 @@ def _ideal_direction(cluster: LineCluster, lens: Lens | None) -> F64:
     if lens is None:
         return np.asarray(cluster.line.direction, dtype=float)
     try:
-        ends = lens.to_square(lens.undistort(cluster.segments.reshape(-1, 2)))
+        ends = lens.square_of_raw(cluster.segments.reshape(-1, 2))
     except ValueError:  # a lens that folds over there: the raw direction, as without one
         return np.asarray(cluster.line.direction, dtype=float)
     centred = ends - ends.mean(axis=0)

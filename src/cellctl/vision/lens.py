@@ -176,6 +176,10 @@ class Lens:
                 raise ValueError("undistorting points did not converge; check the distortion coefficients")
         return np.column_stack([self.fx * x + self.cx, self.fy * y + self.cy])
 
+    def square_of_raw(self, raw_px: ArrayLike) -> F64:
+        """Raw image positions (N, 2) in the ideal image with square pixels: :meth:`undistort`, then :meth:`to_square`."""
+        return self.to_square(self.undistort(raw_px))
+
     def check_size(self, image: NDArray[np.generic]) -> None:
         """Raise ValueError unless the image has this lens's size."""
         if image.shape[:2] != (self.height_px, self.width_px):
