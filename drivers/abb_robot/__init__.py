@@ -5,10 +5,11 @@
 - :mod:`abb_robot.protocol`: the line protocol, defined once (codec, limits, error codes, the
   README's table).
 - :class:`AbbRobot` (:mod:`abb_robot.client`): implements ``cellctl.ports.Robot`` over the line
-  protocol and ``cellctl.ports.FineCorrection`` through EGM. It composes the layers:
-  :mod:`abb_robot.link` (connection, framing, request multiplexing, heartbeat, reconnection),
-  :mod:`abb_robot.verbs` (the robot commands), :mod:`abb_robot.egm_session` (EGM sessions) and
-  :mod:`abb_robot.settings` (:class:`AbbRobotSettings`).
+  protocol, ``cellctl.ports.FineCorrection`` and ``cellctl.ports.PoseStream`` through EGM. It
+  composes the layers: :mod:`abb_robot.link` (connection, framing, request multiplexing,
+  heartbeat, reconnection), :mod:`abb_robot.verbs` (the robot commands),
+  :mod:`abb_robot.egm_session` (EGM sessions), :mod:`abb_robot.egm_stream` (the position stream)
+  and :mod:`abb_robot.settings` (:class:`AbbRobotSettings`).
 - :mod:`abb_robot.unit_quaternion`: the wire's quaternion convention (unit, w >= 0) and the angle
   between two orientations; conversions to and from matrices are the ports'.
 - :mod:`abb_robot.egm`: the EGM schema (``egm.proto``, compiled to ``egm_pb2``) and the

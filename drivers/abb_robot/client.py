@@ -1,6 +1,6 @@
 """The asyncio client of the RAPID server module: :class:`AbbRobot` implements
 :class:`cellctl.ports.Robot`, :class:`cellctl.ports.Identified` and, through EGM,
-:class:`cellctl.ports.FineCorrection`.
+:class:`cellctl.ports.FineCorrection` and :class:`cellctl.ports.PoseStream`.
 
 It is the composition of the driver's layers, kept apart as ABB keeps its own:
 
@@ -10,6 +10,8 @@ It is the composition of the driver's layers, kept apart as ABB keeps its own:
   moves, queries);
 - :mod:`abb_robot.egm_session`: EGM sessions started on the link and streamed by the
   sensor-side :class:`~abb_robot.egm.peer.EgmPeer`;
+- :mod:`abb_robot.egm_stream`: EGM's position stream (the robot's feedback every 4 ms while it
+  moves), collected by the same peer;
 - :mod:`abb_robot.settings`: :class:`AbbRobotSettings`.
 
 Every call has a deadline (its ``timeout_s``) that covers everything it does, reconnecting
@@ -20,14 +22,16 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 
 from abb_robot import protocol as P
 from abb_robot.egm.peer import EgmPeer
 from abb_robot.egm_session import EgmSession, egm_peer_for
+from abb_robot.egm_stream import EgmStream, PoseStreamRecords, PoseStreamStats
 from abb_robot.link import ControllerInfo, RapidLink
 from abb_robot.settings import AbbRobotSettings
 from abb_robot.verbs import RobotVerbs
-from cellctl.ports import CartesianPose, MotionRequest, RobotState
+from cellctl.ports import CartesianPose, MotionRequest, PoseSample, RobotState
 
 __all__ = ["AbbRobot", "AbbRobotSettings", "ControllerInfo"]
 
@@ -38,15 +42,20 @@ class AbbRobot:
     Args:
         settings: connection and motion settings.
         name: the device's name in errors and logs.
+        clock: the clock the position stream's samples are given on (s; the cell's clock, which must
+            run at the rate of ``time.monotonic``; on hardware it is ``time.monotonic``).
     """
 
-    def __init__(self, settings: AbbRobotSettings, *, name: str = "robot") -> None:
+    def __init__(
+        self, settings: AbbRobotSettings, *, name: str = "robot", clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self.settings = settings
         self.name = name
         self._link = RapidLink(settings, name=name, on_connect=lambda deadline: self._verbs.resync(deadline))
         self._verbs = RobotVerbs(self._link, settings)
         self._peer = egm_peer_for(settings, name)
-        self._egm = EgmSession(self._link, self._verbs, self._peer, settings)
+        self._egm = EgmSession(self._link, self._verbs, self._peer, settings, streaming=lambda: self._stream.active)
+        self._stream = EgmStream(self._link, self._peer, clock=clock, guidance_active=lambda: self._egm.active)
 
     # ------------------------------------------------------------------------------------------
     # connection
@@ -97,6 +106,7 @@ class AbbRobot:
         """Say BYE, close the link and the EGM port, stop the heartbeat. Safe to call twice."""
         if self._link.closed:
             return
+        self._stream.discard()  # BYE ends the stream on the controller
         await self._link.close()
         if self._peer is not None:
             await self._peer.close()
@@ -176,3 +186,33 @@ class AbbRobot:
         (see :meth:`EgmSession.correct_to`)."""
         return await self._egm.correct_to(target, tolerance_mm=tolerance_mm, tolerance_rad=tolerance_rad,
                                           timeout_s=timeout_s)
+
+    # ------------------------------------------------------------------------------------------
+    # PoseStream (EGM position stream)
+
+    def stream_unavailable(self) -> str | None:
+        """Why the position stream cannot run (None: it can): it needs EGM (``egm_port``)."""
+        return None if self._peer is not None else "EGM is not configured (egm_port in the robot's settings)"
+
+    async def start_stream(self, *, timeout_s: float) -> None:
+        """Start the position stream (``STREAM 1``; the EGM peer starts on demand); the previous
+        collection is dropped. Refused while the robot moves, during an EGM guidance session, and
+        without ``egm_port`` (see :mod:`abb_robot.egm_stream`)."""
+        await self._stream.start(timeout_s=timeout_s)
+
+    async def stop_stream(self, *, timeout_s: float) -> tuple[PoseSample, ...]:
+        """Stop the position stream (``STREAM 0``); its samples (TCP pose, instant on the driver's clock) in time order."""
+        return await self._stream.stop(timeout_s=timeout_s)
+
+    def latest(self) -> PoseSample | None:
+        """The newest sample of the running position stream (None before its first, and when none runs)."""
+        return self._stream.latest()
+
+    @property
+    def stream_stats(self) -> PoseStreamStats:
+        """What the running (or last) position stream delivered: samples, lost datagrams, the tm mapping."""
+        return self._stream.stats()
+
+    def stream_records(self) -> PoseStreamRecords:
+        """The running (or last) position stream's datagrams: seqno, tm, feedBack.time, receive time, pose."""
+        return self._stream.records()

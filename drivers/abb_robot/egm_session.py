@@ -5,7 +5,8 @@ stayed within a band for a while; the sensor-side :class:`~abb_robot.egm.peer.Eg
 the reference meanwhile and watches what comes back. :class:`EgmSession` joins the two: it
 refuses corrections too large for EGM, starts the session on the link, supervises the peer's
 data (none arriving, a fault, no convergence in time: the session is stopped), and checks the
-reported pose once the controller says it converged.
+reported pose once the controller says it converged. A session is refused while a position
+stream (:mod:`abb_robot.egm_stream`) runs: one EGM user at a time on the controller's device.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections.abc import Callable
 
 from abb_robot import protocol as P
 from abb_robot import unit_quaternion
@@ -55,14 +57,32 @@ class EgmSession:
         verbs: for reading the pose before a correction.
         peer: the sensor-side peer (None: EGM is not configured, every call is refused).
         settings: the correction limits, convergence time and receive timeout.
+        streaming: whether a position stream runs (sessions are refused meanwhile).
     """
 
-    def __init__(self, link: RapidLink, verbs: RobotVerbs, peer: EgmPeer | None, settings: AbbRobotSettings) -> None:
+    def __init__(
+        self, link: RapidLink, verbs: RobotVerbs, peer: EgmPeer | None, settings: AbbRobotSettings,
+        streaming: Callable[[], bool] = lambda: False,
+    ) -> None:
         self.link = link
         self.verbs = verbs
         self.peer = peer
         self.settings = settings
         self.name = link.name
+        self._streaming = streaming
+        self._running = 0  # corrections and started sessions that have not ended
+
+    @property
+    def active(self) -> bool:
+        """A correction or a started session runs."""
+        return self._running > 0
+
+    def _refuse_while_streaming(self) -> None:
+        if self._streaming():
+            raise DeviceRejected(
+                self.name, "EGM guidance refused: the position stream runs; stop it first (stop_stream)",
+                f"{int(P.ErrorCode.BUSY)} BUSY",
+            )
 
     async def start(self, *, band_mm: float, band_deg: float, cond_s: float, timeout_s: float) -> asyncio.Future[None]:
         """Start an EGM pose session (``EGM`` request) and return once it is acknowledged.
@@ -73,12 +93,23 @@ class EgmSession:
         """
         if self.peer is None:
             raise DeviceRejected(self.name, "EGM needs egm_port in the robot's settings")
+        self._refuse_while_streaming()
         deadline = deadline_in(timeout_s)
-        await self.link.ensure_connected(deadline)
-        await self.peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
-        final = await self.link.start_motion("EGM", band_mm, band_deg, cond_s, deadline=deadline)
+        self._running += 1
+        try:
+            await self.link.ensure_connected(deadline)
+            await self.peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
+            final = await self.link.start_motion("EGM", band_mm, band_deg, cond_s, deadline=deadline)
+        except BaseException:
+            self._running -= 1
+            raise
         loop = asyncio.get_running_loop()
         outcome: asyncio.Future[None] = loop.create_future()
+
+        def ended(_: asyncio.Future[None]) -> None:
+            self._running -= 1
+
+        outcome.add_done_callback(ended)
 
         def settle(f: asyncio.Future[P.Reply]) -> None:
             if outcome.done():
@@ -110,8 +141,19 @@ class EgmSession:
         if self.peer is None:
             raise DeviceRejected(self.name, "fine correction needs EGM: set egm_port in the robot's settings")
         check_tolerances(tolerance_mm, tolerance_rad)
+        self._refuse_while_streaming()
+        self._running += 1
+        try:
+            return await self._correct(target, tolerance_mm, tolerance_rad, timeout_s)
+        finally:
+            self._running -= 1
+
+    async def _correct(
+        self, target: CartesianPose, tolerance_mm: float, tolerance_rad: float, timeout_s: float
+    ) -> CartesianPose:
         s = self.settings
         peer = self.peer
+        assert peer is not None
         deadline = deadline_in(timeout_s)
         await self.link.ensure_connected(deadline)
         await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))

@@ -74,7 +74,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.TOO_LONG: "line longer than 80 bytes (reply id 0); the rest up to the newline is dropped",
     ErrorCode.VERSION: "the client's protocol version is not the server's",
     ErrorCode.NO_HELLO: "a request before the HELLO handshake",
-    ErrorCode.BUSY: "a motion or EGM session is running; settings and motions must wait",
+    ErrorCode.BUSY: "a motion or EGM session is running; settings and motions must wait (EGM also while a position stream runs)",
     ErrorCode.NO_TARGET: "MOVEL/MOVEJ without a staged POS and ORI",
     ErrorCode.SEQUENCE: "ORI without a POS before it",
     ErrorCode.UNKNOWN_TOOL: "no tooldata of that name in the motion task",
@@ -85,7 +85,7 @@ ERROR_DESCRIPTIONS: dict[ErrorCode, str] = {
     ErrorCode.STOPPED: "the motion or EGM session was stopped (STOP, or the link was lost)",
     ErrorCode.MOTION: "the motion failed on the controller",
     ErrorCode.EGM_COMM: "EGM session ended: no data from the sensor within CommTimeout (ERR_UDPUC_COMM, elog 41822)",
-    ErrorCode.EGM_SETUP: "EGM could not be set up (UdpUc device or ExtMotionData profile)",
+    ErrorCode.EGM_SETUP: "EGM could not be set up for a session or a position stream (UdpUc device or ExtMotionData profile)",
     ErrorCode.EGM_STATE: "EGM session ended on an EGM error (reference out of bounds, supervision)",
     ErrorCode.GRIPPER: "the gripper output could not be set (no signal of the configured name, or an I/O error)",
     ErrorCode.INTERNAL: "unexpected error in the server module",
@@ -107,7 +107,7 @@ TERMINAL = frozenset({Status.OK, Status.DONE, Status.ERR, Status.PONG})
 """A line with one of these ends the answer to a request (ACK is followed by DONE or ERR)."""
 
 ArgKind = Literal["int", "num", "name"]
-VerbKind = Literal["session", "setting", "staging", "motion", "query", "io"]
+VerbKind = Literal["session", "setting", "staging", "motion", "query", "io", "stream"]
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,8 @@ class Verb:
     Attributes:
         name: the verb as it appears on the wire.
         args: its arguments in order.
-        kind: session, setting, staging, motion, query or io (switches an output of the cell).
+        kind: session, setting, staging, motion, query, io (switches an output of the cell) or stream
+            (the robot's position feedback over EGM).
         reply: the reply lines, in the README's notation.
         doc: what it does.
         while_moving: whether it is accepted while a motion or EGM session runs.
@@ -167,7 +168,8 @@ VERBS: dict[str, Verb] = {
              "run an EGM pose session (EGMRunPose) until every axis stays within the band for cond_s (> 0)",
              False),
         Verb("STOP", (), "query", "OK was_moving",
-             "stop the running motion or EGM session; it then ends with ERR 140", True),
+             "stop the running motion or EGM session (it then ends with ERR 140) and end a position stream; "
+             "was_moving: 1 if a motion or EGM session ran", True),
         Verb("GETC", (), "query", "DATA POS x y z; OK ORI q1 q2 q3 q4",
              "current TCP pose in the current tool and work object", True),
         Verb("GETJ", (), "query", "OK j1 j2 j3 j4 j5 j6", "current joint angles in degrees", True),
@@ -176,11 +178,21 @@ VERBS: dict[str, Verb] = {
         Verb("GRIP", (Arg("hold", "int"),), "io", "OK hold",
              "gripper vacuum: 1 on (hold the glass), 0 off (release it); sets the gripper output, waits its "
              "settle time, then answers; refused while moving, so the glass is never released mid-motion", False),
+        Verb("STREAM", (Arg("on", "int"),), "stream", "OK on",
+             "EGM position stream: 1 starts it (EGMStreamStart: an EgmRobot with the TCP pose in the current tool "
+             "and work object every 4 ms to the EGM device's remote port; the sensor sends nothing back; "
+             "a running stream restarts at seqno 0), 0 stops it; moves run while it streams; STOP, BYE and a "
+             "lost link end it; refused while moving (start it before the moves, stop it after them), and EGM "
+             "is refused while it streams", False),
     )
 }
 
 GRIP_VALUES = (0, 1)
 """``GRIP`` takes 1 (vacuum on, hold) or 0 (vacuum off, release); other integers are ``ERR 122``."""
+STREAM_VALUES = (0, 1)
+"""``STREAM`` takes 1 (start the position stream) or 0 (stop it); other integers are ``ERR 122``."""
+STREAM_SAMPLE_MS = 4
+"""The position stream's sample rate (``EGMStreamStart \\SampleRate``, ms; the module's CELLCTL_EGM_STREAM_RATE)."""
 
 
 class ProtocolError(ValueError):

@@ -17,7 +17,7 @@ class AbbRobotSettings:
         host: controller address (its WAN/LAN port, not the service port).
         rapid_port: TCP port of the RAPID server module.
         egm_port: UDP port this PC binds for EGM (the controller's UDPUC remote port);
-            None disables fine correction.
+            None disables fine correction and the position stream.
         egm_bind_host: local address the EGM port is bound on.
         connect_timeout_s: longest wait for the TCP connection itself.
         request_timeout_s: deadline of the handshake and of the settings sent after connecting.

@@ -10,19 +10,18 @@ call has an overall deadline. What makes it safe on a real serial line:
   every earlier one is settled (answered already, or lost). A reply is taken as the answer to the
   current command only if no older command that could produce the same reply is still
   outstanding. Before sending a command while such an older one is outstanding (after a lost or
-  garbled reply) the driver sends a *barrier*: a harmless read with a different main command,
-  and waits for its reply, which settles everything before it. So a late reply with the right
-  echo but a stale value is never taken as the current reading.
-- **Garbage.** A line that is not a valid reply is dropped, the input is flushed and the command
-  is retried (behind a barrier). Three garbled replies in a row end the call with
-  DeviceProtocolError naming the last problem (a wrong baud rate or display unit shows up here).
+  garbled reply) the driver sends a *barrier* (a harmless read with a different main command)
+  and waits for its reply, which settles everything before it: a late reply with the right echo
+  but a stale value is never taken as the current reading.
+- **Garbage.** A line that is not a valid reply is dropped, the input flushed and the command
+  retried (behind a barrier). Three garbled replies in a row end the call with DeviceProtocolError
+  naming the last problem (a wrong baud rate or display unit shows up here).
 - **A vanished port.** End of file or EIO on the port closes it; the call then reopens the same
   path as the reconnect policy allows (attempts, interval) within its deadline, resynchronises
   and carries on; when the policy gives up: DeviceDisconnected.
 - **Modes.** A measurement refused with the status error (the controller was left in
-  communication mode) is followed by ``R0`` and one retry. Settings are changed inside
-  :meth:`KeyenceLkgSensor.communication_mode` (``Q0`` ... ``R0``); ``ER`` on ``Q0``/``R0`` with the
-  status error means "already in that mode".
+  communication mode) is followed by ``R0`` and one retry. Settings change inside
+  :meth:`KeyenceLkgSensor.communication_mode` (``Q0`` ... ``R0``); ``ER`` on ``Q0``/``R0`` with the status error means "already in that mode".
 
 Over range and no value are statuses of the reading, never exceptions.
 """
@@ -35,7 +34,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, AsyncIterator, Final, Literal, Mapping, Sequence
+from typing import Any, AsyncIterator, Callable, Final, Literal, Mapping, Sequence
 
 from cellctl.ports import (
     DeviceDisconnected,
@@ -133,8 +132,7 @@ class KeyenceLkgSensor(LkgStorage):
     """A Keyence LK-G controller (LK-G3001 or LK-G5001) on a serial port; it stores readings on the move (LkgStorage).
 
     Args:
-        port: the serial device path (a stable udev name such as /dev/serial/by-id/..., or a
-            pseudo-terminal for the fake).
+        port: the serial device path (a udev name /dev/serial/by-id/..., or the fake's pseudo-terminal).
         dialect: "LK-G3001" or "LK-G5001"; never guessed.
         display_unit: the controller's minimum display unit (the reply does not carry it).
         reference_distance_mm: distance along the laser from its origin r at which the OUT reads 0.
@@ -142,10 +140,10 @@ class KeyenceLkgSensor(LkgStorage):
         output: the OUT number of the head on the alignment laser (1-based).
         baud: the controller's RS-232C baud rate.
         exchange_timeout_s: the longest wait for one reply to a measurement or setting command.
-        mode_change_timeout_s: the longest wait for a reply to Q0/R0 (R0 takes 600 ms and more
-            on an LK-G5001).
+        mode_change_timeout_s: the longest wait for a reply to Q0/R0 (R0: 600 ms and more on an LK-G5001).
         reconnect: how to reopen a vanished port.
         name: the device's name in errors.
+        clock: the cell's clock (s): the storage's start is on it (:class:`cellctl.ports.StoredReadings`).
     """
 
     def __init__(
@@ -162,6 +160,7 @@ class KeyenceLkgSensor(LkgStorage):
         mode_change_timeout_s: float = 3.0,
         reconnect: ReconnectPolicy | None = None,
         name: str = "laser",
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if not port:
             raise ValueError("port must name the serial device, e.g. /dev/serial/by-id/usb-...")
@@ -185,6 +184,7 @@ class KeyenceLkgSensor(LkgStorage):
         self.exchange_timeout_s = float(exchange_timeout_s)
         self.mode_change_timeout_s = float(mode_change_timeout_s)
         self.reconnect = reconnect or ReconnectPolicy()
+        self.clock = clock
         self._line = SerialLine(port, baud)
         self._lock = asyncio.Lock()
         self._outstanding: list[_Pending] = []
@@ -196,13 +196,15 @@ class KeyenceLkgSensor(LkgStorage):
         self.stats = LinkStats()
 
     @classmethod
-    def from_config(cls, config: Mapping[str, Any], *, name: str = "laser") -> "KeyenceLkgSensor":
+    def from_config(
+        cls, config: Mapping[str, Any], *, name: str = "laser", clock: Callable[[], float] = time.monotonic
+    ) -> "KeyenceLkgSensor":
         """Build from a ``[devices.laser]`` mapping (``kind = "keyence_lkg"``, e.g. ``model_dump()``)."""
         cfg = dict(config)
         cfg.pop("kind", None)
         reconnect = cfg.pop("reconnect", None)
         policy = ReconnectPolicy(**reconnect) if isinstance(reconnect, Mapping) else reconnect
-        return cls(**cfg, reconnect=policy, name=name)
+        return cls(**cfg, reconnect=policy, name=name, clock=clock)
 
     @property
     def dialect(self) -> str:

@@ -114,7 +114,7 @@ class LkgStorage:
     async def start_storage(self: KeyenceLkgSensor, *, cycle_s: float, count: int, timeout_s: float) -> float:
         """Clear the storage and store the configured OUT every ``cycle_s`` (at most ``count``).
 
-        Returns the instant of the first reading on ``time.monotonic()``: the controller starts when it
+        Returns the instant of the first reading on the driver's ``clock``: the controller starts when it
         has ``AS``, so its echo's arrival less the echo's own time on the wire (the host's delay in
         noticing the echo is part of the latency the cell estimates).
         """
@@ -134,7 +134,8 @@ class LkgStorage:
         self._storage_asked = count
         await self._run(self._measure, storage_command("AQ"), timeout_s=left())
         answer = await self._run(self._measure, storage_command("AS"), timeout_s=left())
-        self._storage_started_s = answer.arrived_s - 10.0 * len(b"AS\r") / self._line.baud  # 8N1
+        started_mono = answer.arrived_s - 10.0 * len(b"AS\r") / self._line.baud  # 8N1, on time.monotonic()
+        self._storage_started_s = self.clock() - (time.monotonic() - started_mono)
         return self._storage_started_s
 
     async def stop_storage(self: KeyenceLkgSensor, *, timeout_s: float) -> StoredReadings:

@@ -311,6 +311,10 @@ class PoseSample:
 class PoseStream(Protocol):
     """The robot's position feedback while it moves (ABB: the EGM feedback stream, every 4 ms)."""
 
+    def stream_unavailable(self) -> str | None:
+        """Why this robot cannot stream its pose (its feedback channel is not configured), or None."""
+        ...
+
     async def start_stream(self, *, timeout_s: float) -> None:
         """Start collecting feedback samples (the previous collection is dropped)."""
         ...

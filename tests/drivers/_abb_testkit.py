@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
+import time
 from collections.abc import AsyncIterator, Callable
 
 from abb_robot import AbbRobot, AbbRobotSettings
@@ -47,16 +48,17 @@ def settings_for(fake: FakeController, egm_port: int | None = None, **overrides:
 
 @contextlib.asynccontextmanager
 async def fake_and_robot(
-    *, egm: bool = False, fake_kw: dict[str, object] | None = None, robot_kw: dict[str, object] | None = None
+    *, egm: bool = False, fake_kw: dict[str, object] | None = None, robot_kw: dict[str, object] | None = None,
+    clock: Callable[[], float] = time.monotonic,
 ) -> AsyncIterator[tuple[FakeController, AbbRobot]]:
-    """A fake controller (fast moves) and a connected client; both torn down afterwards."""
+    """A fake controller (fast moves) and a connected client (its stream on ``clock``); both torn down afterwards."""
     egm_port = free_udp_port() if egm else None
     kw: dict[str, object] = dict(time_scale=0.05, egm=EgmDynamics(comm_timeout_s=0.5))
     if egm_port is not None:
         kw["egm_sensor_port"] = egm_port
     kw.update(fake_kw or {})
     fake = start_fake(**kw)
-    robot = AbbRobot(settings_for(fake, egm_port, **(robot_kw or {})))
+    robot = AbbRobot(settings_for(fake, egm_port, **(robot_kw or {})), clock=clock)
     try:
         await robot.connect(timeout_s=3.0)
         yield fake, robot

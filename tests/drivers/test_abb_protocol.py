@@ -15,7 +15,7 @@ def test_request_round_trip_for_every_verb() -> None:
     samples: dict[str, tuple[object, ...]] = {
         "HELLO": (1,), "TOOL": ("tGripper_2",), "WOBJ": ("wobj0",), "SPEED": (250.5, 45.0), "ZONE": (0.0,),
         "POS": (-99999.0, 12345.678, 0.0), "ORI": (-0.7071068, 0.0, 0.7071068, -0.0000001),
-        "EGM": (0.29, 0.33, 0.1), "GRIP": (1,),
+        "EGM": (0.29, 0.33, 0.1), "GRIP": (1,), "STREAM": (1,),
     }
     for verb, spec in P.VERBS.items():
         args = samples.get(verb, ())

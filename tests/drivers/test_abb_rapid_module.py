@@ -101,3 +101,58 @@ def test_grip_sets_the_configured_output_waits_and_answers_as_the_fake_does() ->
     assert '"hold is not an integer"' in SERVER
     with pytest.raises(P.ProtocolError, match="^hold is not an integer$"):
         P.parse_request("7 GRIP 1.0")
+
+
+def _routine(text: str, head: str) -> str:
+    """One PROC, FUNC or TRAP of a module, from its head to its end."""
+    start = text.index(head)
+    end = min(text.index(word, start) for word in ("ENDPROC", "ENDFUNC", "ENDTRAP") if word in text[start:])
+    return text[start:end]
+
+
+def test_stream_runs_egm_position_stream_in_the_motion_task() -> None:
+    assert "CASE CMD_STREAM:\n                RunStream;" in MOTION
+    run = _routine(MOTION, "PROC RunStream")
+    body, error = run.split("    ERROR\n")
+    # A running stream is ended first (STREAM 1 restarts it at seqno 0); STREAM 0 only ends it.
+    steps = ["IF cellctl_stream_on StopStream;", "IF cellctl_cmd_args{1}=0 THEN", "EGMGetId cellctl_stream_id;",
+             "EGMSetupUC ROB_1,cellctl_stream_id,CELLCTL_EGM_PROFILE,CELLCTL_EGM_DEVICE\\Pose;",
+             "EGMActPose cellctl_stream_id\\Tool:=cellctl_tool\\WObj:=cellctl_wobj,",  # the frame of MoveL and GETC
+             "EGMStreamStart cellctl_stream_id\\SampleRate:=CELLCTL_EGM_STREAM_RATE;", "cellctl_stream_on:=TRUE;"]
+    positions = [body.index(step) for step in steps]
+    assert positions == sorted(positions)
+    assert "EGMRunPose" not in body and "CommTimeout" not in body  # streaming only: the sensor sends nothing back
+    assert "Report CELLCTL_E_EGM_SETUP" in error and "StopStream;" in error
+    assert _consts(MOTION, "CELLCTL_EGM_STREAM_RATE") == {"CELLCTL_EGM_STREAM_RATE": float(P.STREAM_SAMPLE_MS)}
+    stop = _routine(MOTION, "PROC StopStream")
+    assert stop.index("cellctl_stream_on:=FALSE;") < stop.index("EGMStreamStop cellctl_stream_id;") \
+        < stop.index("EGMReset cellctl_stream_id;") and "TRYNEXT;" in stop
+    # A STOP (or the client's going away) ends the stream, with or without a motion to stop.
+    trap = _routine(MOTION, "TRAP StopTrap")
+    assert trap.index("IF cellctl_stream_on StopStream;") < trap.index("IF cellctl_cmd_seq=cellctl_done_seq THEN")
+    assert "StopStream;" in _routine(MOTION, "PROC CellctlInit")  # none left over from before a restart
+    assert "VAR egmident cellctl_stream_id;" in MOTION  # apart from the guidance session's identity
+
+
+def test_server_hands_stream_over_ends_it_on_stop_bye_and_lost_link_and_refuses_egm_meanwhile() -> None:
+    do = _routine(SERVER, "PROC DoStream")
+    assert do.index('"STREAM needs 1 (start) or 0 (stop)"') < do.index("Forward id,CMD_STREAM;")
+    assert "cellctl_cmd_args:=[arg{1},0,0];" in do
+    finished = _routine(SERVER, "PROC ReportFinished")
+    assert 'ELSEIF active_kind=CMD_STREAM THEN\n                Reply active_id,"OK "+NumToStr(cellctl_cmd_args{1},0);' \
+        in finished
+    stop = _routine(SERVER, "PROC DoStop")
+    assert "IF Busy() OR cellctl_stream_on THEN" in stop and "cellctl_stop_seq:=cellctl_stop_seq+1;" in stop
+    assert "IF Busy() was_moving:=\"1\";" in stop  # was_moving is about motions only
+    gone = _routine(SERVER, "PROC StopIfBusy")  # BYE, idle timeout and a closed socket all come here
+    assert "IF Busy() OR cellctl_stream_on THEN" in gone and "WaitUntil NOT Busy() AND NOT cellctl_stream_on" in gone
+    client = _routine(SERVER, "PROC ServeClient")
+    assert client.count("StopIfBusy;") == 3
+    egm = _routine(SERVER, "PROC DoEgm")
+    assert egm.index("IF cellctl_stream_on THEN") < egm.index("ReplyErr id,CELLCTL_E_BUSY,") < egm.index("Forward")
+    # The texts the fake answers with (tests/drivers/test_abb_egm_stream.py) are the module's.
+    assert '"EGM refused: a position stream runs"' in SERVER
+    assert '"on is not an integer"' in SERVER
+    with pytest.raises(P.ProtocolError, match="^on is not an integer$"):
+        P.parse_request("7 STREAM 1.0")
+    assert P.VERBS["STREAM"].args == (P.Arg("on", "int"),) and not P.VERBS["STREAM"].while_moving

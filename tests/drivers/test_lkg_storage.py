@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -44,10 +44,10 @@ def fake(request: pytest.FixtureRequest) -> Iterator[FakeLkgController]:
         yield controller
 
 
-def make_sensor(fake: FakeLkgController) -> KeyenceLkgSensor:
+def make_sensor(fake: FakeLkgController, clock: Callable[[], float] = time.monotonic) -> KeyenceLkgSensor:
     return KeyenceLkgSensor(
         port=fake.path, dialect=fake.dialect, display_unit="0.001mm", reference_distance_mm=REF_MM,
-        displacement_positive="away_from_head", exchange_timeout_s=1.0, mode_change_timeout_s=1.0,
+        displacement_positive="away_from_head", exchange_timeout_s=1.0, mode_change_timeout_s=1.0, clock=clock,
     )  # fmt: skip
 
 
@@ -147,3 +147,22 @@ def test_the_fake_refuses_the_read_out_while_it_stores() -> None:
         assert status[:2] == ["AN", "0"] and int(status[2]) >= 1
         assert fake._handle("AO,01")[0].startswith("AO,+000.000")
         assert fake._handle("AO,02")[0].startswith("ER,AO,")  # OUT2 was not stored
+
+
+async def test_the_storage_start_is_given_on_the_cells_clock(fake: FakeLkgController) -> None:
+    # The cell pairs the stored readings with the robot's feedback on its own clock (the simulated cell's
+    # runs ahead of the host's); the driver gives the first reading's instant on the clock it was handed.
+    ahead_s = 1234.5
+    sensor = make_sensor(fake, clock=lambda: time.monotonic() + ahead_s)
+    try:
+        await set_sampling_200us(sensor)
+        before = time.monotonic()
+        started = await sensor.start_storage(cycle_s=0.002, count=500, timeout_s=5.0)
+        after = time.monotonic()
+        stored = await sensor.stop_storage(timeout_s=10.0)
+    finally:
+        await sensor.close()
+    assert stored.started_s == started
+    assert before + ahead_s <= started <= after + ahead_s
+    # the controller's own start (the fake's record, on the host's clock) less the AS echo's time on the wire
+    assert abs(started - ahead_s - fake.storage.started_at) < 0.005

@@ -73,8 +73,8 @@ async def test_on_the_move_installs_as_well_as_stop_and_go_in_less_robot_time(tm
 
 
 async def test_on_the_move_falls_back_to_the_spots_when_the_robot_streams_no_pose(tmp_path: Path) -> None:
-    # the ABB driver over its fake: no position feedback stream in this build, so the spots are read
-    rec = (await _cycles(tmp_path, "on_the_fly", 1, devices={"laser": {"kind": "sim"}}))[0]
+    # the ABB driver over its fake without EGM: no position feedback stream, so the spots are read
+    rec = (await _cycles(tmp_path, "on_the_fly", 1, devices={"laser": {"kind": "sim"}, "robot": {"kind": "sim_abb", "egm": False}}))[0]
     assert rec["state"] == "done", rec.get("error")
     a = _align(rec)
     assert a["mode"] == "stop_and_go" and "position feedback" in a["on_the_fly_unavailable"], a

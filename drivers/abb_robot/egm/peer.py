@@ -24,6 +24,11 @@ Before a reference is set, the peer answers with the pose the robot had when the
 so the robot holds still. Poses are TCP poses in the frame the RAPID side gave to EGMActPose
 (cellctl's module uses the current tool and work object, as for MoveL).
 
+For EGM's Position Stream (the controller sends, the sensor answers nothing) the owner turns
+collecting on with :meth:`EgmPeer.begin_stream`: the loop then replies to nothing and keeps every
+accepted datagram as a record (seqno, ``header.tm``, ``feedBack.time``, receive time, pose) in a
+ring (shared memory with process isolation), which :meth:`EgmPeer.stream_records` drains.
+
 :meth:`EgmPeer.correct_to` implements :class:`cellctl.ports.FineCorrection` on its own, for a
 controller whose RAPID program runs the EGM session; :class:`abb_robot.AbbRobot` uses the peer
 together with its RAPID link, which starts the session itself.
@@ -50,16 +55,22 @@ import numpy as np
 
 from abb_robot import unit_quaternion
 from abb_robot.egm.peer_core import (
+    F_RX,
     R_HAS_REF,
     R_POS,
     R_QUAT,
+    R_STREAM_GEN,
+    R_STREAM_ON,
     REF_LEN,
     S_STATS,
+    S_STREAM_COUNT,
     STAT_NAMES,
     STATUS_LEN,
+    STREAM_WIDTH,
     Hooks,
     LatencySink,
     PeerCore,
+    StreamSink,
     empty_status,
     reference_vector,
     serve,
@@ -74,6 +85,7 @@ from abb_robot.egm.peer_process import (
     TOTAL,
     SeqBlock,
     command,
+    stream_rows,
 )
 from abb_robot.egm.peer_types import (
     EgmPeerSettings,
@@ -123,6 +135,8 @@ class EgmPeer:
         self._running = False
         self._port: int | None = None
         self._generation = 0
+        self._stream_gen = 0
+        self._stream_on = False
         self._reference_vec = reference_vector(0, None, 0.0, 0.0)
         self._core_status = empty_status()
         # thread isolation
@@ -136,6 +150,7 @@ class EgmPeer:
         self._ref_block: SeqBlock | None = None
         self._status_block: SeqBlock | None = None
         self._ring: np.ndarray | None = None
+        self._stream_rows: np.ndarray | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -186,7 +201,8 @@ class EgmPeer:
         self._sock = sock
         self._port = int(sock.getsockname()[1])
         self._core = PeerCore(controller_host=s.controller_host, receive_timeout_s=s.receive_timeout_s,
-                              latency=LatencySink())
+                              latency=LatencySink(), stream=StreamSink())
+        self._core.apply_reference(self._reference_vec)
         self._thread = threading.Thread(target=self._thread_main, name=f"egm-peer-{self._port}", daemon=True)
         self._thread.start()
 
@@ -209,6 +225,7 @@ class EgmPeer:
         self._ref_block = SeqBlock(array, REF_AT, REF_LEN)
         self._status_block = SeqBlock(array, STATUS_AT, STATUS_LEN)
         self._ring = array[RING_AT : RING_AT + RING]
+        self._stream_rows = stream_rows(array)
         self._status_block.write(empty_status())  # "nothing yet" until the child publishes
         self._ref_block.write(self._reference_vec)
         process = subprocess.Popen(command(s, shm.name), stdin=subprocess.PIPE, stdout=subprocess.PIPE)
@@ -264,6 +281,8 @@ class EgmPeer:
         self._read_status_block()  # the last status and latencies stay readable after the process is gone
         if self._ring is not None:
             self._ring = self._ring.copy()
+        if self._stream_rows is not None:
+            self._stream_rows = self._stream_rows.copy()
         self._ref_block = self._status_block = None
         if self._shm is not None:
             try:
@@ -293,6 +312,7 @@ class EgmPeer:
         self._publish_reference(reference_vector(self._generation, None, 0.0, 0.0))
 
     def _publish_reference(self, vec: list[float]) -> None:
+        vec[R_STREAM_GEN], vec[R_STREAM_ON] = float(self._stream_gen), 1.0 if self._stream_on else 0.0
         self._reference_vec = vec
         if self.settings.isolation == "thread":
             if self._core is not None:
@@ -300,6 +320,68 @@ class EgmPeer:
                     self._core.apply_reference(vec)
         elif self._ref_block is not None:
             self._ref_block.write(vec)
+
+    # -- position stream ----------------------------------------------------------------------
+
+    def begin_stream(self) -> int:
+        """Collect a new position stream from the next datagram on (and answer none); returns its generation.
+
+        The next datagram starts a new session (the controller starts a stream at seqno 0).
+        """
+        self._stream_gen += 1
+        self._stream_on = True
+        self._publish_reference(list(self._reference_vec))
+        return self._stream_gen
+
+    def end_stream(self) -> None:
+        """Stop collecting; the loop answers datagrams again (guidance)."""
+        self._stream_on = False
+        self._publish_reference(list(self._reference_vec))
+
+    @property
+    def streaming(self) -> bool:
+        """A position stream is being collected."""
+        return self._stream_on
+
+    def stream_count(self) -> int:
+        """Stream records written so far (all streams): where a reader of the next stream starts."""
+        if self.settings.isolation == "thread":
+            if self._core is None:
+                return 0
+            with self._lock:
+                return self._core.stream.count
+        return int(self._status()[S_STREAM_COUNT])
+
+    def stream_records(self, since: int) -> tuple[np.ndarray, int, int]:
+        """The stream records written from absolute index ``since`` on, still in the ring.
+
+        Returns ``(rows, count, overwritten)``: rows of :data:`~abb_robot.egm.peer_core.STREAM_WIDTH`
+        floats (layout ``F_*`` in :mod:`abb_robot.egm.peer_core`; ``F_RX`` converted to
+        ``time.monotonic()`` seconds), the count written so far (the next ``since``), and how many
+        records after ``since`` the ring had overwritten before they were read.
+        """
+        if self.settings.isolation == "thread":
+            if self._core is None or self._core.stream.count <= since:
+                return np.zeros((0, STREAM_WIDTH)), since, 0
+            with self._lock:
+                count, ring = self._core.stream.count, self._core.stream.rows
+                first = max(since, count - ring.shape[0])
+                rows = ring[np.arange(first, count) % ring.shape[0]].copy()
+        else:
+            ring = self._stream_rows
+            count = int(self._status()[S_STREAM_COUNT])
+            if ring is None or count <= since:
+                return np.zeros((0, STREAM_WIDTH)), max(since, count), 0
+            cap = ring.shape[0]
+            first = max(since, count - cap)
+            rows = ring[np.arange(first, count) % cap].copy()
+            # The child may have written on meanwhile (a batch ahead of its status): drop what it may have overwritten.
+            safe_from = int(self._status()[S_STREAM_COUNT]) + 256 - cap
+            if safe_from > first:
+                rows = rows[safe_from - first :]
+                first = min(safe_from, count)
+        rows[:, F_RX] += time.monotonic() - time.perf_counter()
+        return rows, count, first - since
 
     def _status(self) -> np.ndarray:
         if self.settings.isolation == "thread":

@@ -6,6 +6,12 @@
 it shares no interpreter lock with the cell's own code. The state leaves the core as a flat
 vector of floats (:data:`STATUS_LEN`, NaN for "none"), so that both ways of running it publish
 exactly the same thing.
+
+While the owner has a position stream on (:func:`reference_vector`'s ``stream``), the core
+answers nothing (in EGM's Position Stream the sensor sends nothing back) and appends every
+accepted datagram as one record of :data:`STREAM_WIDTH` floats to a :class:`StreamSink`:
+the stream's generation, seqno, ``header.tm`` (ms), ``feedBack.time`` (s), the receive time
+(``time.perf_counter()``, s) and the feedback pose (x y z mm, qw qx qy qz).
 """
 
 from __future__ import annotations
@@ -44,18 +50,29 @@ STAT_NAMES = (
     "received", "replied", "sessions", "lost", "gap_events", "duplicates", "stale", "superseded",
     "foreign", "bad", "rate_limited", "max_interarrival_s", "latency_samples",
 )
-STATUS_LEN = S_STATS + len(STAT_NAMES)
+S_STREAM_COUNT = S_STATS + len(STAT_NAMES)  # stream records written so far (all generations)
+STATUS_LEN = S_STREAM_COUNT + 1
 
 # Reference vector layout (written by the owner of the peer, read by the loop).
 R_GENERATION, R_HAS_REF, R_POS, R_QUAT, R_TOL_MM, R_TOL_RAD = 0, 1, 2, 5, 9, 10
-REF_LEN = 11
+R_STREAM_GEN, R_STREAM_ON = 11, 12
+REF_LEN = 13
+
+# Stream record layout (one accepted datagram while a stream is on).
+F_GEN, F_SEQNO, F_TM, F_FB_TIME, F_RX, F_POS, F_QUAT = 0, 1, 2, 3, 4, 5, 8
+STREAM_WIDTH = 12
+STREAM_RING = 1 << 16
+"""Records the stream ring holds (262 s at 4 ms); the owner drains it whenever it looks."""
 
 
 def reference_vector(
-    generation: int, pose: tuple[Sequence[float], Sequence[float]] | None, tol_mm: float, tol_rad: float
+    generation: int, pose: tuple[Sequence[float], Sequence[float]] | None, tol_mm: float, tol_rad: float,
+    stream: tuple[int, bool] = (0, False),
 ) -> list[float]:
-    """The reference vector the loop reads: a pose and its tolerances, or None to hold the start pose."""
-    v = [float(generation), 0.0, NAN, NAN, NAN, NAN, NAN, NAN, NAN, tol_mm, tol_rad]
+    """The reference vector the loop reads: a pose and its tolerances, or None to hold the start pose;
+    ``stream``: the position stream's generation and whether it is on (collect, do not answer)."""
+    v = [float(generation), 0.0, NAN, NAN, NAN, NAN, NAN, NAN, NAN, tol_mm, tol_rad,
+         float(stream[0]), 1.0 if stream[1] else 0.0]
     if pose is not None:
         v[R_HAS_REF] = 1.0
         v[R_POS : R_POS + 3] = [float(c) for c in pose[0]]
@@ -79,6 +96,19 @@ class LatencySink:
         return self.values[:n].copy()
 
 
+class StreamSink:
+    """Where stream records go: a ring of :data:`STREAM_WIDTH`-float rows and the count written so far
+    (a numpy ring here; a shared-memory ring in the child)."""
+
+    def __init__(self, capacity: int = STREAM_RING) -> None:
+        self.rows = np.zeros((capacity, STREAM_WIDTH))
+        self.count = 0
+
+    def append(self, row: Sequence[float]) -> None:
+        self.rows[self.count % self.rows.shape[0]] = row
+        self.count += 1
+
+
 class PeerCore:
     """One EGM sensor peer's state: lock-on, sequence supervision, convergence, the reply."""
 
@@ -88,10 +118,15 @@ class PeerCore:
         controller_host: str | None,
         receive_timeout_s: float,
         latency: LatencySink,
+        stream: StreamSink | None = None,
     ) -> None:
         self.controller_host = controller_host
         self.receive_timeout_s = receive_timeout_s
         self.latency = latency
+        self.stream = stream if stream is not None else StreamSink(1)
+        self.stream_gen = 0
+        self.streaming = False
+        self.restart = False  # the next datagram starts a new session (a new stream was asked for)
         self.t0 = time.perf_counter()
         self.msg = pb.EgmRobot()
         self.out = pb.EgmSensor()
@@ -116,7 +151,12 @@ class PeerCore:
     # -- reference ----------------------------------------------------------------------------
 
     def apply_reference(self, v: Sequence[float]) -> None:
-        """Take a reference vector (see :func:`reference_vector`) if it is a new generation."""
+        """Take a reference vector (see :func:`reference_vector`): a new stream generation, a new reference."""
+        stream_gen = int(v[R_STREAM_GEN])
+        if stream_gen != self.stream_gen:
+            self.stream_gen = stream_gen
+            self.restart = True  # the controller starts the stream at seqno 0: a new session
+        self.streaming = v[R_STREAM_ON] > 0.5
         generation = int(v[R_GENERATION])
         if generation == self.generation:
             return
@@ -140,7 +180,8 @@ class PeerCore:
         if self.controller_host is not None and addr[0] != self.controller_host:
             st["foreign"] += 1
             return False
-        if self.controller is not None and addr != self.controller and not (silent and addr[0] == self.controller[0]):
+        fresh = silent or self.restart  # a new sender port of the same controller may take over
+        if self.controller is not None and addr != self.controller and not (fresh and addr[0] == self.controller[0]):
             st["foreign"] += 1
             return False
         msg = self.msg
@@ -161,7 +202,8 @@ class PeerCore:
             st["bad"] += 1
             return False
         seq = msg.header.seqno
-        new_session = self.controller is None or silent or seq == 0 or addr != self.controller
+        new_session = self.controller is None or silent or seq == 0 or addr != self.controller or self.restart
+        self.restart = False
         if not new_session and self.last_seq is not None:
             diff = (seq - self.last_seq) & 0xFFFFFFFF
             if diff == 0:
@@ -191,6 +233,12 @@ class PeerCore:
         self.mci = msg.mciState.state if msg.HasField("mciState") else 0
         self.rapid = msg.rapidExecState.state if msg.HasField("rapidExecState") else 0
         self.convergence_met = bool(msg.mciConvergenceMet)
+        if self.streaming:
+            h, fb = msg.header, msg.feedBack
+            self.stream.append((
+                self.stream_gen, seq, h.tm if h.HasField("tm") else NAN,
+                fb.time.sec + 1e-6 * fb.time.usec if fb.HasField("time") else NAN, t_rx, *pos, *q,
+            ))
         ref = self.reference
         if ref is not None:
             dp = math.dist(pos, ref[0])
@@ -249,6 +297,7 @@ class PeerCore:
         for i, name in enumerate(STAT_NAMES):
             v[S_STATS + i] = self.stats[name]
         v[S_STATS + STAT_NAMES.index("latency_samples")] = self.latency.count
+        v[S_STREAM_COUNT] = self.stream.count
 
 
 @dataclass
@@ -295,10 +344,12 @@ def serve(sock: socket.socket, core: PeerCore, max_rate_hz: float, hooks: Hooks)
                 except OSError:
                     break
                 read += 1
-                if core.accept(data, addr, t_rx):
+                # Each datagram's own receive time, taken once it is read: never before it came (a
+                # datagram that came while this batch was being drained is not stamped with its start).
+                if core.accept(data, addr, time.perf_counter()):
                     accepted += 1
                     newest = addr
-            if accepted:
+            if accepted and not core.streaming:  # in a Position Stream the sensor answers nothing
                 if accepted > 1:
                     core.stats["superseded"] += accepted - 1
                 tokens = min(BURST, tokens + (t_rx - last_token_t) * max_rate_hz)
@@ -337,13 +388,19 @@ def warm_up() -> None:
     c.orient.u0, c.orient.u1, c.orient.u2, c.orient.u3 = 1.0, 0.0, 0.0, 0.0
     msg.feedBack.joints.joints.extend([0.0] * 6)
     msg.mciState.state = pb.EgmMCIState.MCI_RUNNING
-    core = PeerCore(controller_host=None, receive_timeout_s=1.0, latency=LatencySink(4))
+    core = PeerCore(controller_host=None, receive_timeout_s=1.0, latency=LatencySink(4), stream=StreamSink(4))
     core.apply_reference(reference_vector(1, ((1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)), 0.1, 0.01))
     data = msg.SerializeToString()
     for seq in (0, 1):
         msg.header.seqno = seq
         core.accept(msg.SerializeToString() if seq else data, ("127.0.0.1", 1), time.perf_counter())
     core.reply_bytes(time.perf_counter())
+    core.apply_reference(reference_vector(1, None, 0.0, 0.0, stream=(1, True)))
+    msg.header.tm = 8
+    msg.feedBack.time.sec, msg.feedBack.time.usec = 1, 8000
+    for seq in (0, 1):
+        msg.header.seqno = seq
+        core.accept(msg.SerializeToString(), ("127.0.0.1", 1), time.perf_counter())
     core.export(np.zeros(STATUS_LEN))
     core.latency.append(0.0)
 

@@ -2,10 +2,11 @@
 
 Layout of the shared block (float64): a reference block (:data:`~abb_robot.egm.peer_core.REF_LEN`
 values after a sequence word, written by the owner), a status block
-(:data:`~abb_robot.egm.peer_core.STATUS_LEN` values after a sequence word, written by the child)
-and a ring of reply latencies. Each block is guarded by a sequence lock: the writer makes the
-word odd, writes, makes it even again; a reader retries until it reads the same even word
-before and after copying.
+(:data:`~abb_robot.egm.peer_core.STATUS_LEN` values after a sequence word, written by the child),
+a ring of reply latencies and a ring of position-stream records (written by the child, whose
+status says how many it has written). Each of the two blocks is guarded by a sequence lock: the
+writer makes the word odd, writes, makes it even again; a reader retries until it reads the same
+even word before and after copying.
 
 The child is a fresh interpreter, ``python -m abb_robot.egm._peer_child <settings-json>
 <shm-name>`` (not multiprocessing, which would re-run the owner's main script). It reports
@@ -29,9 +30,12 @@ import numpy as np
 from abb_robot.egm.peer_core import (
     REF_LEN,
     STATUS_LEN,
+    STREAM_RING,
+    STREAM_WIDTH,
     Hooks,
     LatencySink,
     PeerCore,
+    StreamSink,
     no_lock,
     serve,
     set_realtime_priority,
@@ -42,7 +46,8 @@ RING = 1 << 17
 REF_AT = 0
 STATUS_AT = REF_AT + 1 + REF_LEN
 RING_AT = STATUS_AT + 1 + STATUS_LEN
-TOTAL = RING_AT + RING
+STREAM_AT = RING_AT + RING
+TOTAL = STREAM_AT + STREAM_RING * STREAM_WIDTH
 
 
 class SeqBlock:
@@ -85,6 +90,19 @@ class SharedRing(LatencySink):
         self.count = 0
 
 
+class SharedStream(StreamSink):
+    """Position-stream records in the shared block (the child writes, the owner reads)."""
+
+    def __init__(self, array: np.ndarray) -> None:
+        self.rows = stream_rows(array)
+        self.count = 0
+
+
+def stream_rows(array: np.ndarray) -> np.ndarray:
+    """The stream ring of the shared block as (STREAM_RING, STREAM_WIDTH) rows."""
+    return array[STREAM_AT:TOTAL].reshape(STREAM_RING, STREAM_WIDTH)
+
+
 def attach(name: str) -> tuple[SharedMemory, np.ndarray]:
     shm = SharedMemory(name=name)
     return shm, np.ndarray((TOTAL,), dtype=np.float64, buffer=shm.buf)
@@ -119,6 +137,7 @@ def child_main(settings: Any, shm_name: str) -> None:
         controller_host=settings.controller_host,
         receive_timeout_s=settings.receive_timeout_s,
         latency=SharedRing(array),
+        stream=SharedStream(array),
     )
     vector = np.zeros(STATUS_LEN)
     last_ref_word = -1.0
@@ -148,6 +167,7 @@ def child_main(settings: Any, shm_name: str) -> None:
         sock.close()
         del ref, status, vector, array
         core.latency = LatencySink(1)
+        core.stream = StreamSink(1)
         try:
             shm.close()
         except BufferError:

@@ -2,9 +2,11 @@
 
 It serves the same line protocol as ``rapid/CellctlServer.mod`` on TCP and plays the robot side
 of EGM over UDP (``EgmRobot`` every 4 ms, seqno from 0, the last reference held, the session
-ended after the communication timeout). Its robot moves with lag and repeatability noise and
-refuses unreachable targets; the physics comes from a :class:`RobotModel` (default
-:class:`SimpleArmModel`), so the composition root can plug in the twin's robot::
+ended after the communication timeout; or, after ``STREAM 1``, the Position Stream: the TCP
+pose every 4 ms while RAPID moves run, nothing read back). Its robot moves with lag and
+repeatability noise and refuses unreachable targets; the physics comes from a
+:class:`RobotModel` (default :class:`SimpleArmModel`), so the composition root can plug in the
+twin's robot::
 
     FakeController(FakeControllerConfig(egm_sensor_port=6511), model=twin_robot_model)
 
@@ -17,6 +19,7 @@ Run it in its own process: ``python -m abb_robot.fake --rapid-port P --egm-port 
 
 from abb_robot.fake.controller import DEFAULT_HOME, FakeController, FakeControllerConfig
 from abb_robot.fake.egm_robot import EgmDynamics, EgmEnd, EgmSessionStats
+from abb_robot.fake.egm_stream import EgmStreamStats
 from abb_robot.fake.model import ArmGeometry, RobotModel, SimpleArmModel, Unreachable
 from abb_robot.fake.rapid_server import ServerIdentity
 
@@ -26,6 +29,7 @@ __all__ = [
     "EgmDynamics",
     "EgmEnd",
     "EgmSessionStats",
+    "EgmStreamStats",
     "FakeController",
     "FakeControllerConfig",
     "RobotModel",

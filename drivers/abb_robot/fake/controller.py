@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 from abb_robot.fake.egm_robot import EgmDynamics, EgmRobotSide, EgmSessionStats
+from abb_robot.fake.egm_stream import EgmStreamStats
 from abb_robot.fake.model import RobotModel, SimpleArmModel
 from abb_robot.fake.rapid_server import RapidLineServer, ServerIdentity
 from abb_robot.fake.robot import FakeRobot
@@ -36,7 +37,11 @@ class FakeControllerConfig:
         egm_sensor_host, egm_sensor_port: the sensor (PC) address EGM datagrams go to, like the
             controller's UDPUC "Remote Address" and "Remote Port Number"; None disables EGM.
         egm: EGM timing and following behaviour.
-        egm_loss_out, egm_loss_in: seeded drop rates of outgoing EgmRobot and incoming EgmSensor.
+        egm_loss_out, egm_loss_in: seeded drop rates of outgoing EgmRobot (sessions and the position
+            stream) and incoming EgmSensor.
+        egm_stream_jitter_s: each position-stream datagram leaves up to this long after its sample
+            (s, uniform, seeded): transport jitter for tests.
+        egm_uptime_ms: the controller's uptime clock (``header.tm``, ms) at start; None: a seeded random one.
         seed: seed of the loss generator (the model has its own).
         idle_timeout_s: a client that sends nothing for this long is dropped.
         time_scale: motion durations are multiplied by this.
@@ -60,6 +65,8 @@ class FakeControllerConfig:
     egm: EgmDynamics = field(default_factory=EgmDynamics)
     egm_loss_out: float = 0.0
     egm_loss_in: float = 0.0
+    egm_stream_jitter_s: float = 0.0
+    egm_uptime_ms: int | None = None
     seed: int = 0
     idle_timeout_s: float = 10.0
     time_scale: float = 1.0
@@ -187,6 +194,16 @@ class FakeController:
     def gripper_hold(self) -> bool:
         """The gripper's vacuum output as GRIP last set it (True: on, holding; thread-safe)."""
         return self.robot.gripper_hold
+
+    def cut_egm_stream(self) -> None:
+        """The network or the controller's EGM dies mid-stream: no more datagrams, RAPID still streams (thread-safe)."""
+        if self.egm is not None:
+            self.egm.stream.cut()
+
+    @property
+    def egm_stream_stats(self) -> EgmStreamStats | None:
+        """The running or last position stream's statistics (None: none yet)."""
+        return None if self.egm is None else self.egm.stream.stats
 
     @property
     def last_egm_stats(self) -> EgmSessionStats | None:

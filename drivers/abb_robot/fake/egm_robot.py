@@ -15,6 +15,9 @@ the robot, which is what the feedback reports). The session ends
 
 The last datagram of a session carries MCI_STOPPED (converged, stopped) or MCI_ERROR.
 Optional seeded loss drops outgoing datagrams and incoming replies at the given rates.
+
+The same thread and socket run the Position Stream (:mod:`abb_robot.fake.egm_stream`) between
+sessions: one EGM user at a time, as the RAPID module allows.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import numpy as np
 from abb_robot import unit_quaternion
 from abb_robot.egm import egm_pb2 as pb
 from abb_robot.egm.peer_core import set_realtime_priority
+from abb_robot.fake.egm_stream import StreamRunner
 from abb_robot.fake.model import rot_x, rot_y, rot_z
 from abb_robot.fake.robot import FakeRobot, interpolate
 from cellctl.ports import CartesianPose
@@ -145,6 +149,7 @@ class EgmRobotSide:
         self._pending: tuple[EgmSessionParams, Callable[[EgmOutcome], None]] | None = None
         self._active = False
         self.last_stats: EgmSessionStats | None = None
+        self.stream = StreamRunner(robot, config, self._sock, self.sensor_address, self._rng, self._wake)
         self._thread = threading.Thread(target=self._run, name="fake-egm-robot", daemon=True)
         self._thread.start()
 
@@ -157,11 +162,17 @@ class EgmRobotSide:
         with self._lock:
             return self._active or self._pending is not None
 
+    def start_stream(self) -> None:
+        """Start (or restart, at seqno 0) the position stream in the EGM thread; refused while a session runs."""
+        if self.active:
+            raise RuntimeError("an EGM session is running")
+        self.stream.start()
+
     def begin(self, params: EgmSessionParams, on_end: Callable[[EgmOutcome], None]) -> None:
         """Start a session; ``on_end`` is called from the EGM thread when it ends."""
         with self._lock:
-            if self._active or self._pending is not None:
-                raise RuntimeError("an EGM session is already running")
+            if self._active or self._pending is not None or self.stream.running:
+                raise RuntimeError("an EGM session or a position stream is already running")
             self._stop_request.clear()
             self._pending = (params, on_end)
         self._wake.set()
@@ -172,6 +183,7 @@ class EgmRobotSide:
     def close(self) -> None:
         self._closed = True
         self._stop_request.set()
+        self.stream.stop(timeout_s=0.0)
         self._wake.set()
         self._thread.join(timeout=2.0)
         self._sock.close()
@@ -190,6 +202,7 @@ class EgmRobotSide:
                 job = self._pending
                 self._pending = None
                 self._active = job is not None
+            self.stream.run_pending()  # in this thread, until it is stopped
             if job is None:
                 continue
             params, on_end = job

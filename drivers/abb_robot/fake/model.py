@@ -16,6 +16,7 @@ equal to, what a real IRB 7600 reports.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
@@ -55,6 +56,33 @@ class RobotModel(Protocol):
 
     def joints(self, pose: CartesianPose) -> tuple[float, ...]:
         """The six joint angles (rad) at ``pose`` (which is reachable)."""
+        ...
+
+
+@dataclass(frozen=True)
+class TimedMove:
+    """A move a :class:`MovingRobotModel` has begun: its duration and the reported pose along it."""
+
+    duration_s: float  # seconds of the move on the model's time (settling included)
+    t_start: float  # when it began, on the fake's clock
+    reported_at: Callable[[float], CartesianPose]  # the flange pose the controller reports at a clock instant
+
+
+@runtime_checkable
+class MovingRobotModel(RobotModel, Protocol):
+    """A model whose robot moves in time itself (the twin's arm): the fake reports its path, not its own.
+
+    Without it the fake interpolates a move by itself and the model only says where it ends.
+    """
+
+    def begin(
+        self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, time_scale: float
+    ) -> TimedMove:
+        """Start moving from ``start`` to ``target`` (reachable) now, ``time_scale`` real seconds per model second."""
+        ...
+
+    def halt(self) -> CartesianPose:
+        """Stop the running move where the robot is; the reported pose there."""
         ...
 
 

@@ -9,9 +9,12 @@ It behaves as the RAPID module does, verb for verb and error for error:
   motions get ``ERR 110`` (BUSY) meanwhile;
 - GRIP switches the robot's gripper output, then waits the gripper's settle time before it
   answers, reading nothing meanwhile (the module's ``WaitTime``);
+- STREAM 1/0 starts or stops the EGM position stream (refused while a motion runs; moves run
+  while it streams; EGM is refused with BUSY meanwhile); STOP ends it as well;
 - a line longer than 80 bytes gets ``0 ERR 101`` and is dropped up to its newline;
 - a client that sends nothing for ``idle_timeout_s`` is dropped; when the client goes away
-  during a motion, the motion is stopped (the module does the same: no motion without its client).
+  (or says BYE) during a motion or a stream, they are stopped (the module does the same: no
+  motion and no stream without its client).
 
 For tests it can also go silent (read and answer nothing) and drop its client on request.
 """
@@ -86,6 +89,7 @@ class RapidLineServer:
             self._server.close()
         self.drop_client()
         await self._halt_motion()
+        await self._end_stream()
         if self._server is not None:
             try:
                 await asyncio.wait_for(self._server.wait_closed(), 1.0)
@@ -117,6 +121,7 @@ class RapidLineServer:
                 if self.busy:
                     log.info("client gone during a motion: stopping it")
                     await self._halt_motion()
+                await self._end_stream()
                 writer.close()
 
     async def _session(self, reader: asyncio.StreamReader, session: _Session) -> None:
@@ -300,6 +305,9 @@ class RapidLineServer:
             pass
 
     async def _do_egm(self, s: _Session, rid: int, band_mm: float, band_deg: float, cond_s: float) -> None:
+        if self.streaming:  # one EGM user at a time on the UdpUc device
+            await self._err(s, rid, P.ErrorCode.BUSY, "EGM refused: a position stream runs")
+            return
         if not (band_mm > 0 and band_deg > 0 and 0 < cond_s <= 3600):
             await self._err(s, rid, P.ErrorCode.RANGE, "EGM needs band_mm>0, band_deg>0, 0<cond_s<=3600")
             return
@@ -335,7 +343,35 @@ class RapidLineServer:
         was = self.busy
         if was and self._stop_event is not None:
             self._stop_event.set()
+        await self._end_stream()
         await self._ok(s, rid, "1" if was else "0")
+
+    # -- position stream ------------------------------------------------------------------------
+
+    @property
+    def streaming(self) -> bool:
+        """The EGM position stream runs (as far as the RAPID side knows)."""
+        return self.egm is not None and self.egm.stream.running
+
+    async def _do_stream(self, s: _Session, rid: int, on: int) -> None:
+        # _line has refused STREAM while a motion runs (BUSY), as the module's HandleLine does.
+        if on not in P.STREAM_VALUES:
+            await self._err(s, rid, P.ErrorCode.RANGE, "STREAM needs 1 (start) or 0 (stop)")
+            return
+        if on == 1:
+            if self.egm is None:  # EGMSetupUC fails without the UdpUc device
+                await self._err(s, rid, P.ErrorCode.EGM_SETUP, "EGM stream setup failed: no UdpUc device")
+                return
+            await asyncio.to_thread(self.egm.start_stream)
+        else:
+            await self._end_stream()
+        await self._ok(s, rid, str(on))
+
+    async def _end_stream(self) -> None:
+        """EGMStreamStop: returns once the last datagram has left."""
+        if self.streaming:
+            assert self.egm is not None
+            await asyncio.to_thread(self.egm.stream.stop)
 
     async def _halt_motion(self) -> None:
         if self._motion_task is None or self._motion_task.done():

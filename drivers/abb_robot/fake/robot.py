@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from abb_robot import unit_quaternion
-from abb_robot.fake.model import RobotModel, Unreachable
+from abb_robot.fake.model import MovingRobotModel, RobotModel, Unreachable
 from cellctl.ports import CartesianPose
 
 IDENTITY = CartesianPose((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
@@ -56,8 +56,11 @@ class Motion:
     end: CartesianPose
     t0: float
     duration_s: float
+    reported_at: Callable[[float], CartesianPose] | None = None  # the model's own path (a moving model), else smoothstep
 
     def pose_at(self, now: float) -> CartesianPose:
+        if self.reported_at is not None:
+            return self.reported_at(now)
         if self.duration_s <= 0:
             return self.end
         u = min(1.0, max(0.0, (now - self.t0) / self.duration_s))
@@ -212,9 +215,17 @@ class FakeRobot:
         return flange_target, self.model.reachable(flange_target)
 
     def begin_motion(self, flange_target: CartesianPose, linear: bool) -> Motion:
-        """Start a move to a (reachable) flange target; returns it with its duration."""
+        """Start a move to a (reachable) flange target; returns it with its duration.
+
+        A :class:`MovingRobotModel` moves by itself and the motion reports its path; any other
+        model says where the move ends and the fake interpolates to it.
+        """
         with self.lock:
             start = self.flange()
+            if isinstance(self.model, MovingRobotModel):
+                timed = self.model.begin(start, flange_target, self.speed[0], self.speed[1], self.time_scale)
+                self._motion = Motion(start, flange_target, timed.t_start, timed.duration_s * self.time_scale, timed.reported_at)
+                return self._motion
             end = self.model.execute(flange_target)
             duration = self.model.motion_time(start, flange_target, self.speed[0], self.speed[1], linear)
             self._motion = Motion(start, end, self.clock(), duration * self.time_scale)
@@ -231,6 +242,9 @@ class FakeRobot:
         with self.lock:
             if self._motion is None:
                 return False
-            self._flange = self._motion.pose_at(self.clock())
+            if isinstance(self.model, MovingRobotModel):
+                self._flange = self.model.halt()
+            else:
+                self._flange = self._motion.pose_at(self.clock())
             self._motion = None
             return True

@@ -8,7 +8,10 @@ MODULE CellctlMotion
     ! task executes it, writes cellctl_result_code/_text and sets cellctl_done_seq to
     ! cellctl_cmd_seq. A STOP arrives as a change of cellctl_stop_seq; the trap StopTrap
     ! stops the robot, reports STOPPED and restarts this task's main routine, because the
-    ! program pointer is blocked inside MoveL/MoveJ/EGMRunPose.
+    ! program pointer is blocked inside MoveL/MoveJ/EGMRunPose. STREAM starts or stops EGM's
+    ! Position Stream here too (EGMStreamStart/EGMStreamStop); the stream then goes on while
+    ! later commands (moves) run, until STREAM 0, a STOP or the client's going away
+    ! (CellctlServer.mod raises cellctl_stop_seq, and the trap ends the stream).
     !
     ! Keep the numbers in step with drivers/abb_robot/protocol.py (a test checks them).
     !***********************************************************************************
@@ -27,6 +30,8 @@ MODULE CellctlMotion
     PERS zonedata cellctl_zone:=[TRUE,0,0,0,0,0,0];
     PERS tooldata cellctl_tool:=[TRUE,[[0,0,0],[1,0,0,0]],[0.001,[0,0,0.001],[1,0,0,0],0,0,0]];
     PERS wobjdata cellctl_wobj:=[FALSE,TRUE,"",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+    ! TRUE while the position stream runs (written here, read by the server task).
+    PERS bool cellctl_stream_on:=FALSE;
 
     ! ---- command kinds (same numbers in CellctlServer.mod) ----
     CONST num CMD_MOVEL:=1;
@@ -34,6 +39,7 @@ MODULE CellctlMotion
     CONST num CMD_TOOL:=3;
     CONST num CMD_WOBJ:=4;
     CONST num CMD_EGM:=5;
+    CONST num CMD_STREAM:=6;
 
     ! ---- result codes (abb_robot.protocol.ErrorCode; 0 = done) ----
     CONST num CELLCTL_E_OK:=0;
@@ -59,9 +65,12 @@ MODULE CellctlMotion
     ! Low-pass filter on the references (Hz) and the largest deviation EGM accepts (mm).
     CONST num CELLCTL_EGM_LP_FILTER:=20;
     CONST num CELLCTL_EGM_MAX_DEV:=50;
+    ! Position stream: an EgmRobot every CELLCTL_EGM_STREAM_RATE ms (4 = every EGM cycle).
+    CONST num CELLCTL_EGM_STREAM_RATE:=4;
 
     VAR intnum cellctl_stop_int;
     VAR egmident cellctl_egm_id;
+    VAR egmident cellctl_stream_id;
     VAR bool cellctl_egm_active:=FALSE;
     VAR num cellctl_egm_step:=0;
     VAR pose cellctl_egm_frame:=[[0,0,0],[1,0,0,0]];
@@ -81,6 +90,8 @@ MODULE CellctlMotion
                 SelectWobj;
             CASE CMD_EGM:
                 RunEgm;
+            CASE CMD_STREAM:
+                RunStream;
             DEFAULT:
                 Report CELLCTL_E_INTERNAL,"unknown command kind "+NumToStr(cellctl_cmd_kind,0);
             ENDTEST
@@ -94,6 +105,8 @@ MODULE CellctlMotion
         SingArea\Wrist;
         cellctl_egm_active:=FALSE;
         ResetEgm;
+        ! A stream left over from before a restart is ended.
+        StopStream;
         IDelete cellctl_stop_int;
         CONNECT cellctl_stop_int WITH StopTrap;
         IPers cellctl_stop_seq,cellctl_stop_int;
@@ -203,7 +216,41 @@ MODULE CellctlMotion
         RETURN;
     ENDPROC
 
+    PROC RunStream()
+        ! STREAM 1: (re)start the Position Stream, STREAM 0: stop it. The controller then sends
+        ! an EgmRobot (feedback: the TCP in the current tool and work object, as EGMActPose
+        ! sets the frames; header.tm in ms) every CELLCTL_EGM_STREAM_RATE ms to the UdpUc
+        ! device's remote port, while RAPID moves run; the sensor sends nothing back.
+        IF cellctl_stream_on StopStream;
+        IF cellctl_cmd_args{1}=0 THEN
+            Report CELLCTL_E_OK,"";
+            RETURN;
+        ENDIF
+        EGMGetId cellctl_stream_id;
+        EGMSetupUC ROB_1,cellctl_stream_id,CELLCTL_EGM_PROFILE,CELLCTL_EGM_DEVICE\Pose;
+        EGMActPose cellctl_stream_id\Tool:=cellctl_tool\WObj:=cellctl_wobj,cellctl_egm_frame,EGM_FRAME_WOBJ,
+            cellctl_egm_frame,EGM_FRAME_WOBJ;
+        EGMStreamStart cellctl_stream_id\SampleRate:=CELLCTL_EGM_STREAM_RATE;
+        cellctl_stream_on:=TRUE;
+        Report CELLCTL_E_OK,"";
+    ERROR
+        Report CELLCTL_E_EGM_SETUP,"EGM stream setup failed, error "+NumToStr(ERRNO,0);
+        StopStream;
+        RETURN;
+    ENDPROC
+
+    PROC StopStream()
+        ! End the position stream and free its EGM identity (an error: nothing streamed).
+        cellctl_stream_on:=FALSE;
+        EGMStreamStop cellctl_stream_id;
+        EGMReset cellctl_stream_id;
+    ERROR
+        TRYNEXT;
+    ENDPROC
+
     TRAP StopTrap
+        ! A STOP, or the client's going away, ends the position stream first.
+        IF cellctl_stream_on StopStream;
         IF cellctl_cmd_seq=cellctl_done_seq THEN
             ! Nothing running: nothing to stop.
             RETURN;

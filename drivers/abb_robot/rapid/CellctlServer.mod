@@ -8,7 +8,9 @@ MODULE CellctlServer
     ! "<id> <VERB> [args]" in, "<id> <STATUS> [data]" out, every reply carrying the id of
     ! its request. Motions are handed to the motion task; this task stays free meanwhile,
     ! so PING, GETC, GETJ, STATE and STOP are answered while the robot moves. GRIP switches
-    ! the gripper's vacuum output here, and only while the robot stands still.
+    ! the gripper's vacuum output here, and only while the robot stands still. STREAM 1/0
+    ! has the motion task start or stop EGM's Position Stream; the stream goes on while
+    ! later moves run, and STOP, BYE or the client's going away end it.
     !
     ! The verbs, replies and error codes are listed in drivers/abb_robot/README.md, which
     ! is generated from drivers/abb_robot/protocol.py; keep the numbers in step (a test
@@ -62,6 +64,7 @@ MODULE CellctlServer
     CONST num CMD_TOOL:=3;
     CONST num CMD_WOBJ:=4;
     CONST num CMD_EGM:=5;
+    CONST num CMD_STREAM:=6;
 
     ! ---- task-global persistents; their initial values are in CellctlMotion.mod ----
     PERS num cellctl_cmd_seq;
@@ -77,6 +80,7 @@ MODULE CellctlServer
     PERS zonedata cellctl_zone;
     PERS tooldata cellctl_tool;
     PERS wobjdata cellctl_wobj;
+    PERS bool cellctl_stream_on;
 
     VAR socketdev server_sock;
     VAR socketdev client_sock;
@@ -183,9 +187,10 @@ MODULE CellctlServer
     ENDFUNC
 
     PROC StopIfBusy()
-        IF Busy() THEN
+        ! No motion and no position stream goes on without its client.
+        IF Busy() OR cellctl_stream_on THEN
             cellctl_stop_seq:=cellctl_stop_seq+1;
-            WaitUntil NOT Busy()\MaxTime:=5;
+            WaitUntil NOT Busy() AND NOT cellctl_stream_on\MaxTime:=5;
         ENDIF
         active_id:=0;
     ERROR
@@ -202,6 +207,8 @@ MODULE CellctlServer
                 ReplyErr active_id,cellctl_result_code,cellctl_result_text;
             ELSEIF active_kind=CMD_TOOL OR active_kind=CMD_WOBJ THEN
                 Reply active_id,"OK "+cellctl_cmd_name;
+            ELSEIF active_kind=CMD_STREAM THEN
+                Reply active_id,"OK "+NumToStr(cellctl_cmd_args{1},0);
             ELSE
                 Reply active_id,"DONE";
             ENDIF
@@ -334,7 +341,7 @@ MODULE CellctlServer
     FUNC num Arity(string verb)
         ! Number of arguments of a verb; -1 if the verb is unknown.
         TEST verb
-        CASE "HELLO","TOOL","WOBJ","ZONE","GRIP":
+        CASE "HELLO","TOOL","WOBJ","ZONE","GRIP","STREAM":
             RETURN 1;
         CASE "PING","BYE","MOVEL","MOVEJ","STOP","GETC","GETJ","STATE":
             RETURN 0;
@@ -413,6 +420,10 @@ MODULE CellctlServer
                 ReplyErr id,CELLCTL_E_SYNTAX,"hold is not an integer";
                 RETURN FALSE;
             ENDIF
+            IF verb="STREAM" AND StrFind(tok{3},1,STR_DIGIT+"+-"\NotInSet)<=StrLen(tok{3}) THEN
+                ReplyErr id,CELLCTL_E_SYNTAX,"on is not an integer";
+                RETURN FALSE;
+            ENDIF
         ENDIF
         IF NOT hello_done AND verb<>"HELLO" AND verb<>"BYE" THEN
             ReplyErr id,CELLCTL_E_NO_HELLO,"send HELLO first";
@@ -460,6 +471,8 @@ MODULE CellctlServer
             DoState id;
         CASE "GRIP":
             DoGrip id;
+        CASE "STREAM":
+            DoStream id;
         ENDTEST
         RETURN FALSE;
     ENDFUNC
@@ -560,6 +573,11 @@ MODULE CellctlServer
     ENDPROC
 
     PROC DoEgm(num id)
+        IF cellctl_stream_on THEN
+            ! One EGM user at a time on the UdpUc device: the stream or a guidance session.
+            ReplyErr id,CELLCTL_E_BUSY,"EGM refused: a position stream runs";
+            RETURN;
+        ENDIF
         IF arg{1}<=0 OR arg{2}<=0 OR arg{3}<=0 OR arg{3}>3600 THEN
             ReplyErr id,CELLCTL_E_RANGE,"EGM needs band_mm>0, band_deg>0, 0<cond_s<=3600";
             RETURN;
@@ -570,13 +588,28 @@ MODULE CellctlServer
     ENDPROC
 
     PROC DoStop(num id)
-        IF Busy() THEN
-            ! The motion task's trap stops the robot; ReportFinished then answers ERR 140.
+        VAR string was_moving:="0";
+
+        IF Busy() was_moving:="1";
+        IF Busy() OR cellctl_stream_on THEN
+            ! The motion task's trap ends the position stream and stops the robot;
+            ! ReportFinished then answers the stopped motion with ERR 140.
             cellctl_stop_seq:=cellctl_stop_seq+1;
-            Reply id,"OK 1";
-        ELSE
-            Reply id,"OK 0";
         ENDIF
+        Reply id,"OK "+was_moving;
+    ENDPROC
+
+    PROC DoStream(num id)
+        ! STREAM 1 starts (or restarts) EGM's Position Stream, STREAM 0 stops it; the motion
+        ! task runs it (RunStream) and ReportFinished answers "OK 1" or "OK 0". HandleLine has
+        ! refused it while a motion runs (BUSY): the cell starts the stream before its moves
+        ! and stops it after them.
+        IF arg{1}<>0 AND arg{1}<>1 THEN
+            ReplyErr id,CELLCTL_E_RANGE,"STREAM needs 1 (start) or 0 (stop)";
+            RETURN;
+        ENDIF
+        cellctl_cmd_args:=[arg{1},0,0];
+        Forward id,CMD_STREAM;
     ENDPROC
 
     PROC DoGetc(num id)

@@ -51,8 +51,11 @@ def sweep_unavailable(run: CycleRun) -> str | None:
     """Why this cell cannot read the wall on the move (its laser cannot store, or its robot streams no pose), or None."""
     if not isinstance(run.dev.laser, StoringSensor):
         return "the laser driver cannot store readings"
-    if pose_stream_of(run.dev.robot) is None:
+    stream = pose_stream_of(run.dev.robot)
+    if stream is None:
         return "the robot driver streams no position feedback"
+    if (why := stream.stream_unavailable()) is not None:
+        return f"the robot driver streams no position feedback: {why}"
     return None
 
 

@@ -16,7 +16,7 @@ from typing import Literal
 
 from abb_robot import AbbRobot, AbbRobotSettings
 from abb_robot.fake.controller import FakeController, FakeControllerConfig
-from abb_robot.fake.model import SimpleArmModel, Unreachable
+from abb_robot.fake.model import SimpleArmModel, TimedMove, Unreachable
 from keyence_lkg import KeyenceLkgSensor
 from keyence_lkg.fake import FakeLkgController
 
@@ -30,7 +30,7 @@ Closer = Callable[[], Awaitable[None]]
 
 
 class TwinArmModel:
-    """The ABB fake's RobotModel over the twin's robot (reach, timing, accuracy field and noise)."""
+    """The ABB fake's robot model over the twin's arm (reach, timing, accuracy field and noise), which moves in time."""
 
     def __init__(self, cell: SimCell) -> None:
         self._cell = cell
@@ -56,6 +56,30 @@ class TwinArmModel:
     def execute(self, target: CartesianPose) -> CartesianPose:
         self._cell.execute(target.to_matrix())  # the twin's arm now truly stands there (with its errors)
         return target  # the controller reports its belief
+
+    def begin(
+        self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, time_scale: float
+    ) -> TimedMove:
+        """A RAPID move on the twin's arm in time: the laser reads where the arm truly is along it, the
+        controller reports the arm's belief (both on the fake's clock, time.monotonic, as the arm's).
+
+        The arm moves at the fake's ``time_scale`` (a test may change the fake's). Only the target's
+        reach is checked, as the fake checks a MoveL's. A move the fake's timer ended a hair before
+        the arm's settling is let finish first.
+        """
+        arm = self._cell.arm
+        deadline = time.monotonic() + 0.05
+        while arm.moving() and time.monotonic() < deadline:
+            time.sleep(0.0005)
+        if arm.moving():
+            arm.stop()
+        if not (arm.time_scale == 0.0 and time_scale <= 1e-6):  # the fake's floor for an instant twin
+            arm.time_scale = time_scale
+        motion = arm.start(target.to_matrix(), speed_mm_s, speed_deg_s, linear=False)
+        return TimedMove(motion.duration_s, motion.t_start, lambda now: CartesianPose.from_matrix(motion.belief_at(now)))
+
+    def halt(self) -> CartesianPose:
+        return CartesianPose.from_matrix(self._cell.arm.stop())
 
     def joints(self, pose: CartesianPose) -> tuple[float, ...]:
         return self._joints.joints(pose)
@@ -119,7 +143,8 @@ def lkg_on_fake(cell: SimCell, dev: SimKeyenceLkgDevice, fakes: dict[str, object
             "reference_distance_mm": lkg_reference_mm(cell),
             "displacement_positive": LKG_DISPLACEMENT_POSITIVE,
             "exchange_timeout_s": dev.exchange_timeout_s,
-        }
+        },
+        clock=cell.timeline.now,  # the cell's clock: the storage's start on it, as the cell pairs on it
     )
 
     async def close() -> None:
@@ -188,7 +213,8 @@ def abb_on_fake(
             egm_isolation="thread",
             request_timeout_s=dev.request_timeout_s,
             heartbeat_period_s=dev.heartbeat_period_s,
-        )
+        ),
+        clock=cell.timeline.now,  # the cell's clock: the position stream's samples on it, as the cell pairs on it
     )
 
     async def close() -> None:

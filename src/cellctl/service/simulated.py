@@ -65,6 +65,24 @@ def _devices(
     return laser, camera, robot, jog
 
 
+def fakes_out_of_time(config: CellConfig) -> str | None:
+    """Why the drivers' fakes cannot serve reading on the move at this ``sim.time_scale``, or None.
+
+    The LK-G fake stores and the ABB fake streams EGM feedback on the host's clock, so a sweep
+    through them needs the twin to move in real time.
+    """
+    fakes = ["laser"] if isinstance(config.devices.laser, SimKeyenceLkgDevice) else []
+    fakes += ["robot"] if isinstance(config.devices.robot, SimAbbDevice) and config.devices.robot.egm else []
+    moving = [r.name for r in config.process.recipes if config.for_recipe(r.name).process.align.mode == "on_the_fly"]
+    if not fakes or not (moving or config.process.align.mode == "on_the_fly") or config.sim.time_scale == 1.0:
+        return None
+    return (
+        f'process.align.mode = "on_the_fly" (recipes: {", ".join(moving) or "none"}) with devices {fakes} on their '
+        f"protocol fakes, which store and stream in real time, needs sim.time_scale = 1.0 (it is "
+        f'{config.sim.time_scale:g}); or give those devices kind = "sim" (the twin\'s own keep the twin\'s time)'
+    )
+
+
 async def _auto_commission(service: Service) -> None:
     needed = parts_needed(service.jobs)
     if not needed:
@@ -77,6 +95,8 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     """The simulated cell (``mode = "sim"``): the twin, its devices, its operator; ``seed`` overrides ``sim.seed``."""
     if config.mode != "sim":
         raise ServiceError('the simulated cell root builds mode = "sim" only; a real cell uses the hardware root')
+    if (why := fakes_out_of_time(config)) is not None:
+        raise ServiceError(why)
     import asyncio
 
     rig = SimRig(config.sim, seed=seed, recipes=recipe_twins(config))

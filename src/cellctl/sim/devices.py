@@ -209,6 +209,10 @@ class SimRobot(_TwinDevice):
         with self._cell.timeline.unclocked():  # the controller streamed these while the robot moved
             return self._feedback(t_from, t_to)
 
+    def stream_unavailable(self) -> str | None:
+        """None: the twin's robot always streams its feedback."""
+        return None
+
     def latest(self) -> PoseSample | None:
         """The newest feedback sample since :meth:`start_stream` (its stamp without jitter), or None."""
         if self._stream_from is None:

@@ -1,0 +1,317 @@
+"""The robot's position feedback over EGM's Position Stream: :class:`EgmStream` implements
+:class:`cellctl.ports.PoseStream` for :class:`abb_robot.AbbRobot`.
+
+``STREAM 1`` has the controller send an ``EgmRobot`` every 4 ms (feedback: the TCP in the current
+tool and work object, as GETC reports it; ``header.tm``: ms on the controller's uptime-like clock)
+while RAPID moves run; the sensor-side :class:`~abb_robot.egm.peer.EgmPeer` keeps every datagram
+with its host receive time; ``STREAM 0`` ends it.
+
+Timestamps: ``tm`` is put on the host's clock by the lower envelope of (receive time - tm) over
+the stream: the least-delayed datagram bounds the transport delay, so a sample's instant is
+``tm + min(receive - tm)``. The receive jitter is gone; the least transport delay stays in, a
+constant the cell's laser-to-robot latency estimate absorbs. The instant is then put on the clock
+the driver was given (its offset from ``time.monotonic``, measured when the stream starts; the
+clock must run at the host's rate). Without ``tm`` the stream uses ``feedBack.time`` (same clock,
+s), without either the receive times.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from abb_robot import protocol as P
+from abb_robot.egm.peer import EgmPeer
+from abb_robot.egm.peer_core import F_FB_TIME, F_GEN, F_POS, F_QUAT, F_RX, F_SEQNO, F_TM, STREAM_WIDTH
+from abb_robot.link import RapidLink, deadline_in
+from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceRejected, PoseSample
+
+MAX_SAMPLES = 262_144
+"""A stream keeps its newest samples, at most this many (about 17 min at 4 ms)."""
+STOP_POLL_S = 0.004
+"""After STREAM 0, the peer is looked at this often until no more datagrams come (s)."""
+STOP_POLLS = 12
+BUSY_TAG = f"{int(P.ErrorCode.BUSY)} BUSY"
+_CTL = STREAM_WIDTH  # the record's stamp on the controller's clock (s since the stream's first sample)
+_U32 = float(1 << 32)
+
+
+@dataclass(frozen=True)
+class PoseStreamStats:
+    """What a position stream delivered (the running one, or the last one stopped).
+
+    Attributes:
+        received: datagrams collected (duplicates and stale ones are the peer's, see ``EgmPeer.stats``).
+        lost: datagrams missing: seqno gaps between those received, and before the first (a stream
+            starts at seqno 0); losses after the last one received cannot be seen.
+        gap_events: gaps of one or more datagrams.
+        overwritten: datagrams the peer's ring dropped before they were read.
+        stamp: what timed the samples: "tm", "feedBack.time" or "receive".
+        offset_s: host ``time.monotonic`` minus controller time at the stream's first sample (s):
+            the lower envelope of (receive - tm).
+        delay_p50_s, delay_max_s: receive time minus mapped instant (s): the receive jitter the mapping removed.
+        max_interval_s: longest time between two samples received (s, controller clock).
+        clock_offset_s: the driver's clock minus ``time.monotonic`` (s).
+    """
+
+    received: int
+    lost: int
+    gap_events: int
+    overwritten: int
+    stamp: str
+    offset_s: float
+    delay_p50_s: float
+    delay_max_s: float
+    max_interval_s: float
+    clock_offset_s: float
+
+
+@dataclass(frozen=True)
+class PoseStreamRecords:
+    """Every sample of a stream as received, in time order (for inspection and tests).
+
+    Attributes:
+        seqno: the header's sequence numbers.
+        tm_ms: ``header.tm`` as sent (ms, the controller's clock, wraps at 2**32; NaN if absent).
+        feedback_time_s: ``feedBack.time`` (s, the controller's clock; NaN if absent).
+        received_s: host receive times (``time.monotonic``, s).
+        t_s: the samples' instants on the driver's clock (s), as :class:`PoseSample` has them.
+        position_mm, quaternion_wxyz: the feedback poses (TCP in the current tool and work object).
+    """
+
+    seqno: np.ndarray
+    tm_ms: np.ndarray
+    feedback_time_s: np.ndarray
+    received_s: np.ndarray
+    t_s: np.ndarray
+    position_mm: np.ndarray
+    quaternion_wxyz: np.ndarray
+
+
+class EgmStream:
+    """The position stream on one controller. See the module docstring.
+
+    Args:
+        link: the link the ``STREAM`` requests go over.
+        peer: the sensor-side peer (None: EGM is not configured, every call is refused).
+        clock: the clock the samples' instants are given on (s; the cell's, ``time.monotonic`` on hardware).
+        guidance_active: whether an EGM guidance session runs (a stream is refused meanwhile).
+    """
+
+    def __init__(
+        self, link: RapidLink, peer: EgmPeer | None, *, clock: Callable[[], float], guidance_active: Callable[[], bool]
+    ) -> None:
+        self.link = link
+        self.peer = peer
+        self.name = link.name
+        self.clock = clock
+        self._guidance_active = guidance_active
+        self._gen: int | None = None  # the peer's generation of the running stream (None: none runs)
+        self._since = 0
+        self._chunks: list[np.ndarray] = []
+        self._count = 0
+        self._overwritten = 0
+        self._stamp = ""
+        self._stamp0 = math.nan
+        self._offset = math.inf
+        self._clock_offset = 0.0
+        self._last: np.ndarray | None = None
+        self._latest: PoseSample | None = None  # built from _last when asked (latest() is polled every few ms)
+
+    @property
+    def active(self) -> bool:
+        """A stream was started and not stopped."""
+        return self._gen is not None
+
+    # -- the port -------------------------------------------------------------------------------
+
+    async def start(self, *, timeout_s: float) -> None:
+        """Start the stream (``STREAM 1``); the previous collection is dropped. The peer starts on demand."""
+        if self.peer is None:
+            raise DeviceRejected(
+                self.name, "the position stream needs EGM: set egm_port in the robot's settings (the controller's "
+                "UDPUC remote port)",
+            )
+        if self._guidance_active():
+            raise DeviceRejected(
+                self.name, "position stream refused: an EGM guidance session (fine correction) runs; start the "
+                "stream when it has ended", BUSY_TAG,
+            )
+        peer = self.peer
+        deadline = deadline_in(timeout_s)
+        await self.link.ensure_connected(deadline)
+        await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
+        if self._gen is not None:  # not stopped: end it first, so no datagram of it passes for the new one
+            await self._request(0, deadline)
+            peer.end_stream()
+        since = peer.stream_count()  # before the new generation: none of its records comes earlier
+        m0 = time.monotonic()
+        c = self.clock()
+        self._reset(peer.begin_stream(), since, c - 0.5 * (m0 + time.monotonic()))
+        try:
+            await self._request(1, deadline)
+        except BaseException:
+            peer.end_stream()
+            self._gen = None
+            raise
+
+    async def stop(self, *, timeout_s: float) -> tuple[PoseSample, ...]:
+        """Stop the stream (``STREAM 0``); the samples since :meth:`start`, in time order.
+
+        A link that is down already ended the stream on the controller: the samples come all the
+        same. Any other error (refused while the robot moves, no answer) is raised and the stream
+        goes on, collected as before: stop it again.
+        """
+        if self._gen is None or self.peer is None:
+            raise DeviceRejected(self.name, "no position stream was started; call start_stream first")
+        deadline = deadline_in(timeout_s)
+        try:
+            await self._request(0, deadline, reconnect=False)
+        except DeviceDisconnected:
+            pass
+        for _ in range(STOP_POLLS):  # datagrams sent before the stop may still be on their way
+            if time.monotonic() + STOP_POLL_S > deadline:
+                break
+            await asyncio.sleep(STOP_POLL_S)
+            if not self._drain():
+                break
+        self._drain()
+        self.peer.end_stream()
+        self._gen = None
+        return self.samples()
+
+    def latest(self) -> PoseSample | None:
+        """The newest sample of the running stream (None before its first, and when none runs).
+
+        Its instant uses the envelope so far, which later samples can only lower (by the jitter at most).
+        """
+        if self._gen is None:
+            return None
+        self._drain()
+        if self._latest is None and self._last is not None and math.isfinite(self._last[_CTL]):
+            self._latest = PoseSample(float(self._to_clock(self._last[_CTL])), _pose(self._last))
+        return self._latest
+
+    def discard(self) -> None:
+        """Forget a running stream without a request (the robot is being closed; BYE ends it)."""
+        if self._gen is not None and self.peer is not None:
+            self.peer.end_stream()
+        self._gen = None
+
+    async def _request(self, on: int, deadline: float, *, reconnect: bool = True) -> None:
+        try:
+            lines = await self.link.request("STREAM", on, deadline=deadline, reconnect=reconnect)
+        except DeviceRejected as exc:
+            if exc.code == BUSY_TAG:
+                raise DeviceRejected(
+                    self.name, f"STREAM {on} refused: the robot is moving; start the position stream before the "
+                    "moves and stop it after them", exc.code,
+                ) from None
+            raise
+        if lines[-1].fields != (str(on),):
+            raise DeviceRejected(self.name, f"bad STREAM answer: {' '.join(lines[-1].fields)!r} (expected {on})")
+
+    # -- collection -----------------------------------------------------------------------------
+
+    def _reset(self, gen: int, since: int, clock_offset: float) -> None:
+        self._gen, self._since = gen, since
+        self._chunks, self._count, self._overwritten, self._last, self._latest = [], 0, 0, None, None
+        self._stamp, self._stamp0, self._offset = "", math.nan, math.inf
+        self._clock_offset = clock_offset
+
+    def _drain(self) -> int:
+        """Take the peer's new records of this stream; how many came."""
+        if self.peer is None or self._gen is None:
+            return 0
+        rows, self._since, overwritten = self.peer.stream_records(self._since)
+        self._overwritten += overwritten
+        rows = rows[rows[:, F_GEN] == self._gen]
+        if not len(rows):
+            return 0
+        if not self._stamp:
+            first = rows[0]
+            self._stamp = "tm" if math.isfinite(first[F_TM]) else (
+                "feedBack.time" if math.isfinite(first[F_FB_TIME]) else "receive")
+            self._stamp0 = float(first[F_TM] if self._stamp == "tm" else first[F_FB_TIME] if self._stamp != "receive"
+                                 else first[F_RX])
+        ctl = self._controller_seconds(rows)
+        chunk = np.column_stack([rows, ctl])
+        ok = np.isfinite(ctl)
+        if ok.any():
+            self._offset = min(self._offset, float(np.min(rows[ok, F_RX] - ctl[ok])))
+        self._chunks.append(chunk)
+        self._count += len(chunk)
+        self._last, self._latest = chunk[-1], None
+        if self._count > MAX_SAMPLES + 4096:
+            kept = np.concatenate(self._chunks)[-MAX_SAMPLES:]
+            self._chunks, self._count = [kept], len(kept)
+        return len(rows)
+
+    def _controller_seconds(self, rows: np.ndarray) -> np.ndarray:
+        """The records' stamps as seconds since the stream's first sample, on the controller's clock."""
+        if self._stamp == "tm":  # u32 ms: across a wrap of the counter too
+            return (np.mod(rows[:, F_TM] - self._stamp0 + _U32 / 2, _U32) - _U32 / 2) / 1000.0
+        if self._stamp == "feedBack.time":
+            return rows[:, F_FB_TIME] - self._stamp0
+        return rows[:, F_RX] - self._stamp0
+
+    def _to_clock(self, ctl_s: float | np.ndarray) -> float | np.ndarray:
+        return ctl_s + self._offset + self._clock_offset
+
+    def _rows(self) -> np.ndarray:
+        """This stream's records with a stamp, in time order."""
+        if not self._chunks:
+            return np.zeros((0, STREAM_WIDTH + 1))
+        rows = np.concatenate(self._chunks)
+        rows = rows[np.isfinite(rows[:, _CTL])]
+        return rows[np.argsort(rows[:, _CTL], kind="stable")]
+
+    # -- results --------------------------------------------------------------------------------
+
+    def samples(self) -> tuple[PoseSample, ...]:
+        """The current (or last) stream's samples, in time order."""
+        rows = self._rows()
+        t = self._to_clock(rows[:, _CTL])
+        return tuple(PoseSample(float(ti), _pose(row)) for ti, row in zip(t, rows))
+
+    def records(self) -> PoseStreamRecords:
+        """The current (or last) stream's records as received, in time order."""
+        rows = self._rows()
+        return PoseStreamRecords(
+            seqno=rows[:, F_SEQNO].astype(np.int64), tm_ms=rows[:, F_TM].copy(), feedback_time_s=rows[:, F_FB_TIME].copy(),
+            received_s=rows[:, F_RX].copy(), t_s=np.asarray(self._to_clock(rows[:, _CTL])),
+            position_mm=rows[:, F_POS : F_POS + 3].copy(), quaternion_wxyz=rows[:, F_QUAT : F_QUAT + 4].copy(),
+        )
+
+    def stats(self) -> PoseStreamStats:
+        """What the current (or last) stream delivered: counts, losses, the mapping."""
+        rows = np.concatenate(self._chunks) if self._chunks else np.zeros((0, STREAM_WIDTH + 1))
+        seq = rows[:, F_SEQNO].astype(np.int64)
+        lost, gaps = 0, 0
+        if len(seq):
+            steps = np.mod(np.diff(seq), 1 << 32)
+            missing = steps[steps > 1] - 1
+            lost, gaps = int(seq[0] + missing.sum()), int((seq[0] > 0) + missing.size)
+        ok = np.isfinite(rows[:, _CTL])
+        ctl = np.sort(rows[ok, _CTL])
+        delay = rows[ok, F_RX] - (rows[ok, _CTL] + self._offset)
+        return PoseStreamStats(
+            received=len(rows), lost=lost, gap_events=gaps, overwritten=self._overwritten, stamp=self._stamp,
+            offset_s=self._offset if math.isfinite(self._offset) else math.nan,
+            delay_p50_s=float(np.median(delay)) if delay.size else math.nan,
+            delay_max_s=float(delay.max()) if delay.size else math.nan,
+            max_interval_s=float(np.diff(ctl).max()) if ctl.size > 1 else math.nan,
+            clock_offset_s=self._clock_offset,
+        )
+
+
+def _pose(row: np.ndarray) -> CartesianPose:
+    q = row[F_QUAT : F_QUAT + 4]
+    q = q / math.sqrt(float(q @ q))
+    return CartesianPose((float(row[F_POS]), float(row[F_POS + 1]), float(row[F_POS + 2])),
+                         (float(q[0]), float(q[1]), float(q[2]), float(q[3])))

@@ -1,0 +1,56 @@
+"""The ABB fake moving the twin's arm in time (issue 19, on the move through the drivers): the arm is
+truly on its way while the fake's move runs (the LK-G fake reads it there), the fake reports the arm's
+own belief along the path (what the EGM stream sends), and a halt leaves both where the arm stopped."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from abb_robot.fake.robot import FakeRobot
+
+from cellctl.config.sim import SimConfig
+from cellctl.ports import CartesianPose
+from cellctl.service.sim_fakes import TwinArmModel
+from cellctl.sim.cell import SimCell
+
+pytestmark = pytest.mark.timeout(30)
+SPEED_MM_S = 100.0
+
+
+def _start(move_mm: float) -> tuple[SimCell, np.ndarray, FakeRobot, np.ndarray, float]:
+    cell = SimCell(SimConfig(time_scale=1.0), seed=3)
+    home = cell.belief_flange_pose()
+    robot = FakeRobot(TwinArmModel(cell), CartesianPose.from_matrix(home), time_scale=1.0)
+    robot.speed = (SPEED_MM_S, 30.0)
+    target = home.copy()
+    target[:3, 3] += [0.0, move_mm, 0.0]
+    motion = robot.begin_motion(CartesianPose.from_matrix(target), linear=True)
+    return cell, home, robot, target, motion.duration_s
+
+
+def test_the_arm_is_on_its_way_while_the_fakes_move_runs() -> None:
+    cell, home, robot, target, duration_s = _start(120.0)
+    assert duration_s == pytest.approx(cell.motion_time(home, target, SPEED_MM_S, 30.0), rel=0.01)
+    time.sleep(0.4 * duration_s)
+    reported = robot.flange().to_matrix()
+    belief, true = cell.belief_flange_pose(), cell.true_flange_pose()
+    # The fake reports the arm's own belief (the same instant to within a few ms at 100 mm/s).
+    assert np.linalg.norm(reported[:3, 3] - belief[:3, 3]) < 1.0
+    # Both are truly on the way: far from either end, where a move executed at once would stand.
+    for pose in (reported, true):
+        assert 20.0 < np.linalg.norm(pose[:3, 3] - target[:3, 3]) < 100.0
+    time.sleep(0.7 * duration_s)
+    assert np.allclose(cell.belief_flange_pose(), target, atol=1e-9) and not cell.arm.moving()
+
+
+def test_a_halt_stops_the_arm_where_the_fake_says_it_stands() -> None:
+    cell, home, robot, target, duration_s = _start(120.0)
+    time.sleep(0.3 * duration_s)
+    assert robot.halt() and not cell.arm.moving()
+    stood = robot.flange().to_matrix()
+    assert np.allclose(stood, cell.belief_flange_pose(), atol=1e-9)
+    assert np.linalg.norm(stood[:3, 3] - target[:3, 3]) > 40.0  # stopped mid-path, not at the target
+    time.sleep(0.8 * duration_s)  # past the move's planned end: nothing moves on
+    assert np.allclose(cell.belief_flange_pose(), stood, atol=1e-9)
