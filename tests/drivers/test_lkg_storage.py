@@ -166,3 +166,23 @@ async def test_the_storage_start_is_given_on_the_cells_clock(fake: FakeLkgContro
     assert before + ahead_s <= started <= after + ahead_s
     # the controller's own start (the fake's record, on the host's clock) less the AS echo's time on the wire
     assert abs(started - ahead_s - fake.storage.started_at) < 0.005
+
+
+async def test_a_storage_left_running_is_stopped_before_the_next_one_starts(fake: FakeLkgController) -> None:
+    # A sweep cut short (the robot's feedback lost, the cell stopped) may leave the controller storing,
+    # which refuses AQ; the next sweep's start stops it (AP) and clears, instead of failing until it is full.
+    sensor = make_sensor(fake)
+    try:
+        await set_sampling_200us(sensor)
+        await sensor.start_storage(cycle_s=0.002, count=5000, timeout_s=5.0)
+        await asyncio.sleep(0.1)
+        assert fake.storage.storing
+        started = await sensor.start_storage(cycle_s=0.002, count=5000, timeout_s=5.0)
+        await asyncio.sleep(0.2)
+        stored = await sensor.stop_storage(timeout_s=10.0)
+    finally:
+        await sensor.close()
+    tail = sent(fake)
+    i = len(tail) - 1 - tail[::-1].index("AS")
+    assert tail[i - 3 : i + 1] == ["AQ", "AP", "AQ", "AS"], tail[-10:]
+    assert stored.started_s == started and 80 <= len(stored.distances_mm) <= 200  # the second storage's 0.2 s only

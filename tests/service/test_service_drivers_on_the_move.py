@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
 
+from cellctl.cell.robots import pose_stream_of
 from cellctl.domain import AlarmCode
 from cellctl.service.simulated import fakes_out_of_time
 
@@ -25,6 +26,22 @@ DRIVERS = {
     "sim": {"seed": 7, "time_scale": 1.0}, "process.align": {"mode": "on_the_fly"},
     "process.align.sweep": {"feedback_stale_s": 0.25}, "plc": {"port": 0},
 }
+
+
+async def _back_to_execute(client: Any) -> None:
+    """The operator's way back to Execute after a fault: the alarms acknowledged, then the commands the state asks for."""
+    r = await client.post("/alarms/acknowledge-all", headers=AUTH)
+    assert r.status_code == 200, r.text
+    state = (await client.get("/status")).json()["state"]
+    for cmd in {"ABORTED": ["clear", "reset", "start"], "STOPPED": ["reset", "start"], "HELD": ["unhold"]}.get(state, []):
+        r = await client.post(f"/commands/{cmd}", headers=AUTH)
+        assert r.status_code == 200, r.text
+        for _ in range(500):
+            state = (await client.get("/status")).json()["state"]
+            if not state.endswith("ING"):
+                break
+            await asyncio.sleep(0.01)
+    assert state == "EXECUTE", state
 
 
 def _step(rec: dict[str, Any], name: str) -> dict[str, Any]:
@@ -86,6 +103,12 @@ async def test_the_stream_cut_mid_path_stops_the_robot_with_an_alarm_and_fits_no
         status = (await client.get("/status")).json()
         standing = not arm.moving()
         held = service.orchestrator.truth.cell.glass_on_gripper
+        # the failed sweep left no stream behind, on either side (EGM guidance would wait for its end)
+        stream = pose_stream_of(service.orchestrator.devices.robot)
+        assert stream is not None and stream.latest() is None and not fake.egm.stream.running
+        # and the cell is not stuck: the operator's clear, reset and start, then a cycle on the move again
+        await _back_to_execute(client)
+        again = await _cycle(client, "after-the-cut")
     assert moving_at_cut == [True], rec
     assert rec["state"] == "failed" and rec["result"]["error_code"] == int(AlarmCode.POSITION_FEEDBACK_LOST), rec
     assert "position feedback stopped mid-path" in rec["error"] and "robot was stopped" in rec["error"]
@@ -94,6 +117,7 @@ async def test_the_stream_cut_mid_path_stops_the_robot_with_an_alarm_and_fits_no
     assert not any(s["step"] == "install" for s in rec["steps"])
     assert standing and held  # the robot stands, the glass is still in the gripper
     assert status["stop_reason"]["code"] == int(AlarmCode.POSITION_FEEDBACK_LOST)
+    assert again["state"] == "done" and _step(again, "align")["figures"]["mode"] == "on_the_fly", again.get("error")
 
 
 def test_the_fakes_need_real_time_to_read_on_the_move() -> None:

@@ -185,7 +185,13 @@ async def sweep_path(
         await _supervised(run, step, path(), stream)
         stored = await laser.stop_storage(timeout_s=timeout + path_s)  # the read-out is on the serial line: up to as long as the path
         samples = await stream.stop_stream(timeout_s=timeout)
-    except DeviceError as err:
+    except (DeviceError, CycleFailed) as err:
+        with contextlib.suppress(DeviceError):  # a failed sweep leaves no stream behind (EGM guidance waits for its end)
+            await stream.stop_stream(timeout_s=timeout)
+        with contextlib.suppress(DeviceError):  # nor a laser storing (its read-out: what it stored so far)
+            await laser.stop_storage(timeout_s=timeout + path_s)
+        if isinstance(err, CycleFailed):
+            raise
         raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
     window = (approach[0], approach[1])
     instants, distances = stored_instants(stored)
