@@ -57,18 +57,34 @@ async def api_client(service: Service) -> AsyncIterator[httpx.AsyncClient]:
         yield client
 
 
-async def to_execute(client: httpx.AsyncClient) -> None:
-    """Clear, reset and start the cell over REST, waiting out the acting states."""
+async def _command(client: httpx.AsyncClient, cmd: str) -> str:
+    """One PackML command over REST; the state once the acting state (Clearing, Resetting, ...) is over."""
     import asyncio
 
+    r = await client.post(f"/commands/{cmd}", headers=AUTH)
+    assert r.status_code == 200, r.text
+    for _ in range(200):
+        state = (await client.get("/status")).json()["state"]
+        if not state.endswith("ING"):
+            break
+        await asyncio.sleep(0.01)
+    return str(state)
+
+
+async def to_execute(client: httpx.AsyncClient) -> None:
+    """Clear, reset and start the cell over REST, waiting out the acting states."""
     for cmd in ("clear", "reset", "start"):
-        r = await client.post(f"/commands/{cmd}", headers=AUTH)
-        assert r.status_code == 200, r.text
-        for _ in range(200):
-            state = (await client.get("/status")).json()["state"]
-            if not state.endswith("ING"):
-                break
-            await asyncio.sleep(0.01)
+        state = await _command(client, cmd)
+    assert state == "EXECUTE", state
+
+
+async def back_to_execute(client: httpx.AsyncClient) -> None:
+    """The operator's way back to Execute after a fault: the alarms acknowledged, then what the state asks for."""
+    r = await client.post("/alarms/acknowledge-all", headers=AUTH)
+    assert r.status_code == 200, r.text
+    state = (await client.get("/status")).json()["state"]
+    for cmd in {"ABORTED": ["clear", "reset", "start"], "STOPPED": ["reset", "start"], "HELD": ["unhold"]}.get(state, []):
+        state = await _command(client, cmd)
     assert state == "EXECUTE", state
 
 

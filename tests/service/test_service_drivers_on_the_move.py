@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
+from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
 
 from cellctl.cell.robots import pose_stream_of
 from cellctl.domain import AlarmCode
@@ -26,22 +26,6 @@ DRIVERS = {
     "sim": {"seed": 7, "time_scale": 1.0}, "process.align": {"mode": "on_the_fly"},
     "process.align.sweep": {"feedback_stale_s": 0.25}, "plc": {"port": 0},
 }
-
-
-async def _back_to_execute(client: Any) -> None:
-    """The operator's way back to Execute after a fault: the alarms acknowledged, then the commands the state asks for."""
-    r = await client.post("/alarms/acknowledge-all", headers=AUTH)
-    assert r.status_code == 200, r.text
-    state = (await client.get("/status")).json()["state"]
-    for cmd in {"ABORTED": ["clear", "reset", "start"], "STOPPED": ["reset", "start"], "HELD": ["unhold"]}.get(state, []):
-        r = await client.post(f"/commands/{cmd}", headers=AUTH)
-        assert r.status_code == 200, r.text
-        for _ in range(500):
-            state = (await client.get("/status")).json()["state"]
-            if not state.endswith("ING"):
-                break
-            await asyncio.sleep(0.01)
-    assert state == "EXECUTE", state
 
 
 def _step(rec: dict[str, Any], name: str) -> dict[str, Any]:
@@ -107,7 +91,7 @@ async def test_the_stream_cut_mid_path_stops_the_robot_with_an_alarm_and_fits_no
         stream = pose_stream_of(service.orchestrator.devices.robot)
         assert stream is not None and stream.latest() is None and not fake.egm.stream.running
         # and the cell is not stuck: the operator's clear, reset and start, then a cycle on the move again
-        await _back_to_execute(client)
+        await back_to_execute(client)
         again = await _cycle(client, "after-the-cut")
     assert moving_at_cut == [True], rec
     assert rec["state"] == "failed" and rec["result"]["error_code"] == int(AlarmCode.POSITION_FEEDBACK_LOST), rec
