@@ -154,8 +154,10 @@ class AbbRobot:
         return await self._verbs.state(timeout_s=timeout_s)
 
     async def stop(self, *, timeout_s: float) -> None:
-        """Stop whatever motion runs (harmless when none does)."""
+        """Stop whatever motion runs (harmless when none does); a position stream ends with it (the
+        module's STOP ends it, and STREAM is refused while the robot decelerates)."""
         await self._verbs.stop(timeout_s=timeout_s)
+        self._stream.ended_by_controller()
 
     async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
         """Vacuum on (``hold``) or off (release); refused while the robot moves (see

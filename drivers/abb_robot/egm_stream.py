@@ -18,6 +18,7 @@ s), without either the receive times.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -122,11 +123,12 @@ class EgmStream:
         self._clock_offset = 0.0
         self._last: np.ndarray | None = None
         self._latest: PoseSample | None = None  # built from _last when asked (latest() is polled every few ms)
+        self._ended = False  # the controller ended the stream (a STOP); its samples wait for stop()
 
     @property
     def active(self) -> bool:
-        """A stream was started and not stopped."""
-        return self._gen is not None
+        """A stream runs on the controller as far as the driver knows (started, not stopped, not ended by a STOP)."""
+        return self._gen is not None and not self._ended
 
     # -- the port -------------------------------------------------------------------------------
 
@@ -147,7 +149,8 @@ class EgmStream:
         await self.link.ensure_connected(deadline)
         await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
         if self._gen is not None:  # not stopped: end it first, so no datagram of it passes for the new one
-            await self._request(0, deadline)
+            if not self._ended:
+                await self._request(0, deadline)
             peer.end_stream()
         since = peer.stream_count()  # before the new generation: none of its records comes earlier
         m0 = time.monotonic()
@@ -158,6 +161,8 @@ class EgmStream:
         except BaseException:
             peer.end_stream()
             self._gen = None
+            with contextlib.suppress(Exception):  # its answer lost: the controller may stream; stop it, best effort
+                await asyncio.wait_for(self._request(0, deadline_in(1.0), reconnect=False), 1.0)
             raise
 
     async def stop(self, *, timeout_s: float) -> tuple[PoseSample, ...]:
@@ -170,19 +175,20 @@ class EgmStream:
         if self._gen is None or self.peer is None:
             raise DeviceRejected(self.name, "no position stream was started; call start_stream first")
         deadline = deadline_in(timeout_s)
-        try:
-            await self._request(0, deadline, reconnect=False)
-        except DeviceDisconnected:
-            pass
-        for _ in range(STOP_POLLS):  # datagrams sent before the stop may still be on their way
-            if time.monotonic() + STOP_POLL_S > deadline:
-                break
-            await asyncio.sleep(STOP_POLL_S)
-            if not self._drain():
-                break
-        self._drain()
-        self.peer.end_stream()
-        self._gen = None
+        if not self._ended:  # a STOP has ended it already (and STREAM is refused while the robot decelerates)
+            try:
+                await self._request(0, deadline, reconnect=False)
+            except DeviceDisconnected:
+                pass
+            for _ in range(STOP_POLLS):  # datagrams sent before the stop may still be on their way
+                if time.monotonic() + STOP_POLL_S > deadline:
+                    break
+                await asyncio.sleep(STOP_POLL_S)
+                if not self._drain():
+                    break
+            self._drain()
+            self.peer.end_stream()
+        self._gen, self._ended = None, False
         return self.samples()
 
     def latest(self) -> PoseSample | None:
@@ -190,18 +196,26 @@ class EgmStream:
 
         Its instant uses the envelope so far, which later samples can only lower (by the jitter at most).
         """
-        if self._gen is None:
+        if self._gen is None or self._ended:
             return None
         self._drain()
         if self._latest is None and self._last is not None and math.isfinite(self._last[_CTL]):
             self._latest = PoseSample(float(self._to_clock(self._last[_CTL])), _pose(self._last))
         return self._latest
 
+    def ended_by_controller(self) -> None:
+        """The controller has ended the stream (a STOP): what came is kept for :meth:`stop`, which then sends
+        nothing; the peer answers guidance again."""
+        if self.active and self.peer is not None:
+            self._drain()
+            self.peer.end_stream()
+            self._ended = True
+
     def discard(self) -> None:
         """Forget a running stream without a request (the robot is being closed; BYE ends it)."""
         if self._gen is not None and self.peer is not None:
             self.peer.end_stream()
-        self._gen = None
+        self._gen, self._ended = None, False
 
     async def _request(self, on: int, deadline: float, *, reconnect: bool = True) -> None:
         try:
@@ -219,7 +233,7 @@ class EgmStream:
     # -- collection -----------------------------------------------------------------------------
 
     def _reset(self, gen: int, since: int, clock_offset: float) -> None:
-        self._gen, self._since = gen, since
+        self._gen, self._since, self._ended = gen, since, False
         self._chunks, self._count, self._overwritten, self._last, self._latest = [], 0, 0, None, None
         self._stamp, self._stamp0, self._offset = "", math.nan, math.inf
         self._clock_offset = clock_offset

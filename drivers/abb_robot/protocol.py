@@ -182,8 +182,8 @@ VERBS: dict[str, Verb] = {
              "EGM position stream: 1 starts it (EGMStreamStart: an EgmRobot with the TCP pose in the current tool "
              "and work object every 4 ms to the EGM device's remote port; the sensor sends nothing back; "
              "a running stream restarts at seqno 0), 0 stops it; moves run while it streams; STOP, BYE and a "
-             "lost link end it; refused while moving (start it before the moves, stop it after them), and EGM "
-             "is refused while it streams", False),
+             "lost link end it; refused while moving (start it before the moves, stop it after them); EGM, TOOL "
+             "and WOBJ are refused while it streams (its frame was fixed at STREAM 1)", False),
     )
 }
 

@@ -132,12 +132,12 @@ class LkgStorage:
                     await self._run(self._setting, command, timeout_s=left())
             self._storage_setup, self._storage_cycle_s = (self.output, count, code), actual_s
         self._storage_asked = count
-        try:
-            await self._run(self._measure, storage_command("AQ"), timeout_s=left())
+        try:  # not _measure: its R0 would take a storage that runs for communication mode
+            await self._run(self._setting, storage_command("AQ"), timeout_s=left())
         except DeviceRejected as err:  # a storage left running (a sweep cut short) refuses AQ: stop it, then clear
             if err.code != self._dialect.status_error_code:
                 raise
-            await self._run(self._measure, storage_command("AP"), timeout_s=left())
+            await self._run(self._measure, storage_command("AP"), timeout_s=left())  # (or R0 first, if in communication mode)
             await self._run(self._measure, storage_command("AQ"), timeout_s=left())
         answer = await self._run(self._measure, storage_command("AS"), timeout_s=left())
         started_mono = answer.arrived_s - 10.0 * len(b"AS\r") / self._line.baud  # 8N1, on time.monotonic()

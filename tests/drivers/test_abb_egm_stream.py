@@ -11,6 +11,7 @@ import asyncio
 import math
 import socket
 import time
+from pathlib import Path
 from collections.abc import Callable
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 
 from _abb_testkit import LOOPBACK, fake_and_robot, start_fake
 from abb_robot import EgmPeer, EgmPeerSettings
+from abb_robot import protocol as P
 from abb_robot.egm import egm_pb2 as pb
 from abb_robot.egm.peer_core import F_FB_TIME, F_GEN, F_POS, F_RX, F_SEQNO, F_TM
 from abb_robot.fake import DEFAULT_HOME, EgmDynamics, FakeController
@@ -212,9 +214,20 @@ async def test_stop_and_a_lost_link_end_the_stream() -> None:
         assert server is not None
         await robot.start_stream(timeout_s=3.0)
         await _wait_until(lambda: robot.latest() is not None)
+        # The module refuses STREAM (BUSY) until the motion task has decelerated after a STOP: the driver
+        # knows STOP ended the stream and sends no STREAM 0 (here every STREAM after the STOP is refused).
+        refused: list[int] = []
+
+        async def decelerating(s: object, rid: int, on: int) -> None:
+            refused.append(on)
+            await server._err(s, rid, P.ErrorCode.BUSY, "motion running")  # type: ignore[arg-type]
+
         await robot.stop(timeout_s=1.0)  # STOP ends the stream too
-        assert not server.streaming
+        assert not server.streaming and robot.latest() is None
+        server._do_stream = decelerating  # type: ignore[method-assign]
         samples = await robot.stop_stream(timeout_s=1.0)
+        assert refused == []
+        del server._do_stream
         assert samples and len(samples) == fake.egm_stream_stats.sent  # type: ignore[union-attr]
         await robot.start_stream(timeout_s=3.0)
         await _wait_until(lambda: robot.latest() is not None)
@@ -409,3 +422,17 @@ async def test_fake_serves_stream_as_the_module_does() -> None:
     finally:
         no_egm.stop_thread()
 
+
+
+async def test_the_frame_stays_fixed_while_streaming() -> None:
+    # EGMActPose fixed the feedback's frame at STREAM 1: TOOL and WOBJ wait for STREAM 0 (module and fake).
+    async with fake_and_robot(egm=True, robot_kw={"egm_isolation": "thread"}) as (fake, robot):
+        await robot.start_stream(timeout_s=3.0)
+        for select in (robot.set_tool, robot.set_wobj):
+            with pytest.raises(DeviceRejected, match="position stream runs"):
+                await select("tool0" if select == robot.set_tool else "wobj0", timeout_s=2.0)
+        await robot.stop_stream(timeout_s=2.0)
+        await robot.set_tool("tool0", timeout_s=2.0)
+    module = (Path(__file__).parents[2] / "drivers" / "abb_robot" / "rapid" / "CellctlServer.mod").read_text()
+    handle = module[module.index("FUNC bool HandleLine") :]
+    assert handle.index('IF cellctl_stream_on AND (verb="TOOL" OR verb="WOBJ") THEN') < handle.index("Forward id,CMD_TOOL;")

@@ -104,6 +104,35 @@ async def test_the_stream_cut_mid_path_stops_the_robot_with_an_alarm_and_fits_no
     assert again["state"] == "done" and _step(again, "align")["figures"]["mode"] == "on_the_fly", again.get("error")
 
 
+async def test_an_operators_stop_mid_sweep_leaves_no_stream_and_no_storage_running(tmp_path: Path) -> None:
+    # The operator's Stop halts the robot on the path: its STOP ends the robot's stream (the driver knows it),
+    # and the failed sweep's clean-up ends the laser's storage (else the LK-G stores on until it is full).
+    config = sim_config(**DRIVERS, **{"process.inspect": {"enabled": False}})
+    async with running_service(tmp_path, config) as service, api_client(service) as client:
+        await to_execute(client)
+        robot_fake, laser_fake = service.extras["fakes"]["robot"], service.extras["fakes"]["laser"]
+        r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "stopped"},
+                              headers={**AUTH, "Idempotency-Key": "stopped"})  # fmt: skip
+        assert r.status_code in (200, 201, 202), r.text
+        for _ in range(3000):  # 300 datagrams: 1.2 s into the stream, the laser storing
+            if (st := robot_fake.egm_stream_stats) is not None and st.sent >= 300:
+                break
+            await asyncio.sleep(0.01)
+        assert laser_fake.storage.storing and robot_fake.egm.stream.running
+        r = await client.post("/commands/stop", headers=AUTH)
+        assert r.status_code == 200, r.text
+        stream = pose_stream_of(service.orchestrator.devices.robot)
+        assert stream is not None
+        for _ in range(500):
+            if not (robot_fake.egm.stream.running or laser_fake.storage.storing or stream.latest() is not None):
+                break
+            await asyncio.sleep(0.01)
+        left = (robot_fake.egm.stream.running, laser_fake.storage.storing, stream.latest())
+        state = (await client.get("/status")).json()["state"]
+    assert left == (False, False, None), left
+    assert state in ("STOPPING", "STOPPED"), state
+
+
 def test_the_fakes_need_real_time_to_read_on_the_move() -> None:
     assert fakes_out_of_time(sim_config(**DRIVERS)) is None
     why = fakes_out_of_time(sim_config(**{**DRIVERS, "sim": {"seed": 7, "time_scale": 0.001}}))

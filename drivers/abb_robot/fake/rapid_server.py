@@ -213,7 +213,11 @@ class RapidLineServer:
         return True
 
     async def _select_frame(self, kind: str, s: _Session, rid: int, name: str) -> None:
-        """TOOL and WOBJ: make the named tooldata or wobjdata the current one."""
+        """TOOL and WOBJ: make the named tooldata or wobjdata the current one (not while a position stream
+        runs: its feedback's frame was fixed at STREAM 1)."""
+        if self.streaming:
+            await self._err(s, rid, P.ErrorCode.BUSY, f"{kind.upper()} refused: a position stream runs (STREAM 0 first)")
+            return
         if name not in getattr(self.robot, f"{kind}s"):
             await self._err(s, rid, _UNKNOWN_FRAME[kind], f"no {kind}data {name}")
             return

@@ -433,6 +433,11 @@ MODULE CellctlServer
             ReplyErr id,CELLCTL_E_BUSY,verb+" refused: a motion is running";
             RETURN FALSE;
         ENDIF
+        IF cellctl_stream_on AND (verb="TOOL" OR verb="WOBJ") THEN
+            ! The stream's feedback frame was fixed by EGMActPose at STREAM 1.
+            ReplyErr id,CELLCTL_E_BUSY,verb+" refused: a position stream runs (STREAM 0 first)";
+            RETURN FALSE;
+        ENDIF
         TEST verb
         CASE "HELLO":
             DoHello id;

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
@@ -42,6 +43,7 @@ from cellctl.ports import DeviceError, PoseStream, StoringSensor
 if TYPE_CHECKING:
     from cellctl.cell.cycle import CycleRun
 
+log = logging.getLogger(__name__)
 STEP = CycleStep.ALIGN
 SUPERVISION_PERIOD_S = 0.002  # how often the feedback's freshness is checked while the robot sweeps (host seconds)
 CHECK_WINDOW_S = 0.005  # a check of the kept latency searches this far either side of it before the whole range
@@ -185,14 +187,11 @@ async def sweep_path(
         await _supervised(run, step, path(), stream)
         stored = await laser.stop_storage(timeout_s=timeout + path_s)  # the read-out is on the serial line: up to as long as the path
         samples = await stream.stop_stream(timeout_s=timeout)
-    except (DeviceError, CycleFailed) as err:
-        with contextlib.suppress(DeviceError):  # a failed sweep leaves no stream behind (EGM guidance waits for its end)
-            await stream.stop_stream(timeout_s=timeout)
-        with contextlib.suppress(DeviceError):  # nor a laser storing (its read-out: what it stored so far)
-            await laser.stop_storage(timeout_s=timeout + path_s)
-        if isinstance(err, CycleFailed):
-            raise
-        raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
+    except BaseException as err:  # failed, or cancelled (the operator's Stop): leave nothing running
+        await asyncio.shield(_leave_nothing_running(stream, laser, timeout, path_s))
+        if isinstance(err, DeviceError):
+            raise CycleFailed(step, AlarmCode.LASER_READ_FAILED, f"reading the wall on the move failed: {err}") from err
+        raise
     window = (approach[0], approach[1])
     instants, distances = stored_instants(stored)
     t, T = pose_samples_arrays(samples)
@@ -265,6 +264,19 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
         f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s): "
         "the robot was stopped and no wall plane was fitted",
     )  # fmt: skip
+
+
+async def _leave_nothing_running(stream: PoseStream, laser: StoringSensor, timeout_s: float, path_s: float) -> None:
+    """After a sweep cut short: no stream (EGM guidance waits for its end), no laser storing (its read-out: what it
+    stored so far). Best effort: a device that fails here has already failed the sweep."""
+    stops: tuple[Callable[[], Coroutine[Any, Any, object]], ...] = (
+        lambda: stream.stop_stream(timeout_s=timeout_s), lambda: laser.stop_storage(timeout_s=timeout_s + path_s),
+    )
+    for stop in stops:
+        try:
+            await stop()
+        except DeviceError as err:
+            log.info("after the sweep: %s", err)
 
 
 def _failed_code(step: CycleStep) -> AlarmCode:

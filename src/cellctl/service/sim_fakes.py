@@ -65,12 +65,9 @@ class TwinArmModel:
 
         The arm moves at the fake's ``time_scale`` (a test may change the fake's). Only the target's
         reach is checked, as the fake checks a MoveL's. A move the fake's timer ended a hair before
-        the arm's settling is let finish first.
+        the arm's settling is ended where it stands (on its target: the path is done while it settles).
         """
         arm = self._cell.arm
-        deadline = time.monotonic() + 0.05
-        while arm.moving() and time.monotonic() < deadline:
-            time.sleep(0.0005)
         if arm.moving():
             arm.stop()
         if not (arm.time_scale == 0.0 and time_scale <= 1e-6):  # the fake's floor for an instant twin
