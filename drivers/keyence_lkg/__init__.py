@@ -9,9 +9,10 @@
 """
 
 from keyence_lkg.codec import Command, ErrorReply, GarbledReply, LkgDialect, Reply, dialect_for
-from keyence_lkg.driver import KeyenceLkgSensor, LinkStats, ReconnectPolicy
+from keyence_lkg.driver import KeyenceLkgSensor
 from keyence_lkg.errors import DIALECTS, ERROR_CODES, Dialect, describe_error
 from keyence_lkg.fake import FakeExchange, FakeLkgController
+from keyence_lkg.link import LinkStats, ReconnectPolicy
 from keyence_lkg.units import DISPLAY_UNITS, DisplayUnit, ValueKind, WireValue
 
 __all__ = [

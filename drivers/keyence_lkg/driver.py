@@ -21,7 +21,8 @@ call has an overall deadline. What makes it safe on a real serial line:
   and carries on; when the policy gives up: DeviceDisconnected.
 - **Modes.** A measurement refused with the status error (the controller was left in
   communication mode) is followed by ``R0`` and one retry. Settings change inside
-  :meth:`KeyenceLkgSensor.communication_mode` (``Q0`` ... ``R0``); ``ER`` on ``Q0``/``R0`` with the status error means "already in that mode".
+  :meth:`KeyenceLkgSensor.communication_mode` (``Q0`` ... ``R0``); ``ER`` on ``Q0``/``R0`` with the
+  status error means "already in that mode".
 
 Over range and no value are statuses of the reading, never exceptions.
 """
@@ -57,7 +58,7 @@ from keyence_lkg.codec import (
     parse_line,
     payload_of,
 )
-from keyence_lkg.link import LinkLost, LinkTimeout, SerialLine
+from keyence_lkg.link import LinkLost, LinkStats, LinkTimeout, ReconnectPolicy, SerialLine
 from keyence_lkg.storage import LkgStorage
 from keyence_lkg.units import UnitFormat, ValueKind, WireValue, unit_format
 
@@ -67,34 +68,6 @@ DisplacementPositive = Literal["away_from_head", "toward_head"]
 BAUD_RATES: Final = (9600, 19200, 38400, 57600, 115200)
 MAX_GARBLED_IN_A_ROW: Final = 3
 MAX_OUTSTANDING: Final = 64  # a command unanswered for 64 exchanges is forgotten
-
-
-@dataclass(frozen=True)
-class ReconnectPolicy:
-    """How a call reopens a port that vanished: up to ``attempts`` opens, ``interval_s`` apart."""
-
-    attempts: int = 5
-    interval_s: float = 0.5
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.attempts, int) or self.attempts < 1:
-            raise ValueError(f"reconnect attempts must be an integer >= 1, got {self.attempts!r}")
-        if not (math.isfinite(self.interval_s) and self.interval_s > 0):
-            raise ValueError(f"reconnect interval_s must be a positive number, got {self.interval_s!r}")
-
-
-@dataclass
-class LinkStats:
-    """Counters for diagnostics (and for tests to see which recovery path ran)."""
-
-    exchanges: int = 0
-    timeouts: int = 0
-    garbled_lines: int = 0
-    late_replies: int = 0
-    unsolicited_lines: int = 0
-    resyncs: int = 0
-    reconnects: int = 0
-    mode_recoveries: int = 0
 
 
 @dataclass(frozen=True)

@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import math
 import os
 import termios
 import time
+from dataclasses import dataclass
 from typing import Final
 
 import serial
@@ -27,6 +29,34 @@ from keyence_lkg.codec import MAX_REPLY_CHARS
 
 CR: Final = b"\r"
 _READ_CHUNK: Final = 4096
+
+
+@dataclass(frozen=True)
+class ReconnectPolicy:
+    """How a call reopens a port that vanished: up to ``attempts`` opens, ``interval_s`` apart."""
+
+    attempts: int = 5
+    interval_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.attempts, int) or self.attempts < 1:
+            raise ValueError(f"reconnect attempts must be an integer >= 1, got {self.attempts!r}")
+        if not (math.isfinite(self.interval_s) and self.interval_s > 0):
+            raise ValueError(f"reconnect interval_s must be a positive number, got {self.interval_s!r}")
+
+
+@dataclass
+class LinkStats:
+    """Counters for diagnostics (and for tests to see which recovery path ran)."""
+
+    exchanges: int = 0
+    timeouts: int = 0
+    garbled_lines: int = 0
+    late_replies: int = 0
+    unsolicited_lines: int = 0
+    resyncs: int = 0
+    reconnects: int = 0
+    mode_recoveries: int = 0
 
 
 class LinkLost(Exception):
