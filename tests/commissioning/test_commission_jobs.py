@@ -14,7 +14,7 @@ from typing import Any
 
 import httpx
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, running_service, sim_config, slow_moves
 
 from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.dataset import read_dataset
@@ -139,13 +139,6 @@ async def test_a_prompt_waits_for_the_engineer_and_the_answer_is_audited(tmp_pat
         assert ds.manifest["source"]["laser"]["dialect"] == "LK-G5001"
 
 
-def _slow_moves(service: Any, factor: float) -> None:
-    """Make the twin's moves take ``factor`` times longer (the ABB fake times its moves by the twin)."""
-    cell = service.extras["twin"].cell
-    original = cell.motion_time
-    cell.motion_time = lambda *a, **k: factor * original(*a, **k)
-
-
 async def test_cancel_stops_the_robot_at_once_keeps_the_partial_dataset_and_the_set(tmp_path: Path) -> None:
     cfg = _config(answers="all")
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
@@ -154,7 +147,7 @@ async def test_cancel_stops_the_robot_at_once_keeps_the_partial_dataset_and_the_
         assert (await _wait_done(client, first["id"], timeout_s=120))["state"] == "done"
         store = CalibrationStore(service.jobs.calibration_store.root)
         version = store.current().version
-        _slow_moves(service, 200.0)  # 0.2 of real time per simulated second
+        slow_moves(service, 200.0)  # 0.2 of real time per simulated second
         job = await _start(client, "laser", poses=200)
         while True:
             progress = ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0)
@@ -183,7 +176,7 @@ async def test_a_cancel_whose_task_cancellation_is_lost_still_ends_the_job_at_it
     # completes, and a stop that lands between two moves interrupts none: here the job's task is hidden
     # from the cancel and the robot's stop does nothing, the worst such case.
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
-        _slow_moves(service, 200.0)
+        slow_moves(service, 200.0)
         await _command(client, "clear")
         job = await _start(client, "laser", poses=200)
         while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < 3:
@@ -201,9 +194,40 @@ async def test_a_cancel_whose_task_cancellation_is_lost_still_ends_the_job_at_it
         assert done["progress"]["done"] < 200
 
 
+async def test_a_cancel_landing_while_the_job_writes_its_end_answers_with_the_ended_job(tmp_path: Path) -> None:
+    # The job sees the cancel at its next step (the robot's stop ends its move) and starts writing its
+    # record; the cancel's task.cancel() lands then. The answer must still be the ended job.
+    async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
+        slow_moves(service, 200.0)
+        await _command(client, "clear")
+        job = await _start(client, "laser", poses=200)
+        while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < 3:
+            await asyncio.sleep(0.02)
+        jobs = service.jobs
+        writing = asyncio.Event()
+        update_job, stop = jobs.store.update_job, jobs.devices.robot.stop
+
+        async def slow_end(job_id: int, **fields: Any) -> Any:
+            if fields.get("state") == "cancelled":
+                writing.set()
+                await asyncio.sleep(0.5)
+            return await update_job(job_id, **fields)
+
+        async def stop_then_let_the_job_end(*, timeout_s: float) -> None:
+            await stop(timeout_s=timeout_s)
+            await asyncio.wait_for(writing.wait(), 20.0)
+
+        jobs.store.update_job = slow_end
+        jobs.devices.robot.stop = stop_then_let_the_job_end
+        r = await client.post(f"/jobs/{job['id']}/cancel", headers=AUTH)
+        assert r.status_code == 200 and r.json()["state"] == "cancelled", r.text
+        assert "cancelled by operator" in r.json()["error"]
+        assert (await client.get("/status")).json().get("job") is None
+
+
 async def test_a_packml_stop_cancels_the_job(tmp_path: Path) -> None:
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
-        _slow_moves(service, 200.0)
+        slow_moves(service, 200.0)
         await _command(client, "clear")
         assert await _command(client, "reset") == "IDLE"
         job = await _start(client, "laser", poses=200)

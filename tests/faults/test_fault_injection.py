@@ -20,7 +20,7 @@ from typing import Any
 
 import httpx
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, running_service, sim_config, slow_moves
 
 from cellctl.cell.alarms import AlarmCode
 
@@ -120,12 +120,6 @@ async def _installs_once(client: httpx.AsyncClient) -> None:
     assert len(started) == len(set(started))
 
 
-def _slow_moves(service: Any, factor: float) -> None:
-    cell = service.extras["twin"].cell
-    original = cell.motion_time
-    cell.motion_time = lambda *a, **k: factor * original(*a, **k)
-
-
 async def _while_moving(service: Any) -> None:
     robot = service.orchestrator.robot
 
@@ -203,7 +197,7 @@ async def test_a_camera_grab_timeout_holds_then_recovers(tmp_path: Path) -> None
 
 async def test_the_robot_link_dropped_mid_move_aborts_then_recovers(tmp_path: Path) -> None:
     async with running_service(tmp_path, _config()) as service, api_client(service) as client:
-        _slow_moves(service, 300.0)
+        slow_moves(service, 300.0)
         await _to_execute(client)
         cid = await _submit(client, "drop")
         await _while_moving(service)
@@ -213,7 +207,7 @@ async def test_the_robot_link_dropped_mid_move_aborts_then_recovers(tmp_path: Pa
         assert rec["install_started_at"] is None
         assert await _settled(client) == "ABORTED"
         assert (await _alarms(client))["stop_reason"]["code"] == int(AlarmCode.ROBOT_FAULT)
-        _slow_moves(service, 1.0 / 300.0)
+        slow_moves(service, 1.0 / 300.0)
         await _eventually("the robot link is back", lambda: _device_up(client, "robot"))
         await _recover(client)
         await _installs_once(client)
@@ -230,7 +224,7 @@ async def test_a_command_during_motion_ends_in_its_state_with_the_cycle_stopped_
     tmp_path: Path, command: str, state: str, code: AlarmCode
 ) -> None:
     async with running_service(tmp_path, _config()) as service, api_client(service) as client:
-        _slow_moves(service, 300.0)
+        slow_moves(service, 300.0)
         await _to_execute(client)
         cid = await _submit(client, command)
         await _while_moving(service)
@@ -242,6 +236,6 @@ async def test_a_command_during_motion_ends_in_its_state_with_the_cycle_stopped_
         al = await _alarms(client)
         assert int(AlarmCode.ROBOT_FAULT) not in _codes(al) and int(AlarmCode.TASK_FAILED) not in _codes(al), al
         assert not service.extras["fakes"]["robot"].robot.moving  # the controller's own view: it stands
-        _slow_moves(service, 1.0 / 300.0)
+        slow_moves(service, 1.0 / 300.0)
         await _recover(client)
         await _installs_once(client)

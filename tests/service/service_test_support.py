@@ -88,6 +88,13 @@ async def back_to_execute(client: httpx.AsyncClient) -> None:
     assert state == "EXECUTE", state
 
 
+def slow_moves(service: Service, factor: float) -> None:
+    """Make the robot's moves take ``factor`` times longer in real time (the ABB fake's time scale, which the
+    twin's arm follows as each move begins); ``1 / factor`` undoes it."""
+    robot = service.extras["fakes"]["robot"].robot
+    robot.time_scale *= factor
+
+
 def sim_toml(port: int, *, oracle: bool = True, auto_calibrate: bool = True, time_scale: float | None = None) -> str:
     """config/sim.toml for a `cellctl serve` subprocess: REST on ``port``, the PLC off, the calibration as asked."""
     import re

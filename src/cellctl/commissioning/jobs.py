@@ -410,7 +410,17 @@ class JobManager:
         except Exception as err:  # noqa: BLE001 - any bug still ends the job with a record
             log.exception("commissioning job %d failed", rec.id)
             fields.update(state="failed", error=f"software fault: {type(err).__name__}: {err}")
-        await asyncio.shield(self._finish(run, ctx, fields))
+        # The record is written before the task ends: a cancel landing while it is written (the job saw
+        # the cancel at its next step first) waits for it rather than answer with the job still running.
+        finishing = asyncio.ensure_future(self._finish(run, ctx, fields))
+        cancelled = False
+        while not finishing.done():
+            try:
+                await asyncio.shield(finishing)
+            except asyncio.CancelledError:
+                cancelled = True
+        if cancelled:
+            raise asyncio.CancelledError
 
     async def _conclude(
         self, rec: JobRecord, proc: Procedure, outcome: Outcome, ds: Dataset, config: CellConfig, opts: Mapping[str, Any], when: datetime

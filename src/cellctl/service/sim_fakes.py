@@ -48,10 +48,8 @@ class TwinArmModel:
     def motion_time(
         self, start: CartesianPose, target: CartesianPose, speed_mm_s: float, speed_deg_s: float, linear: bool
     ) -> float:
-        """The move's simulated seconds; the fake asks as it begins the move, so they go on the twin's time line."""
-        duration = self._cell.motion_time(start.to_matrix(), target.to_matrix(), speed_mm_s, speed_deg_s)
-        self._cell.timeline.waited(duration)
-        return duration
+        """The move's simulated seconds (a question only: :meth:`begin` puts a move on the twin's time line)."""
+        return self._cell.motion_time(start.to_matrix(), target.to_matrix(), speed_mm_s, speed_deg_s)
 
     def execute(self, target: CartesianPose) -> CartesianPose:
         self._cell.execute(target.to_matrix())  # the twin's arm now truly stands there (with its errors)
