@@ -12,7 +12,8 @@ from abb_robot.fake.robot import FakeRobot
 
 from cellctl.config.sim import SimConfig
 from cellctl.ports import CartesianPose
-from cellctl.service.sim_fakes import TwinArmModel
+from cellctl.geometry.pose import make_pose
+from cellctl.service.sim_fakes import TwinArmModel, TwinLaserSource
 from cellctl.sim.cell import SimCell
 
 pytestmark = pytest.mark.timeout(30)
@@ -54,3 +55,30 @@ def test_a_halt_stops_the_arm_where_the_fake_says_it_stands() -> None:
     assert np.linalg.norm(stood[:3, 3] - target[:3, 3]) > 40.0  # stopped mid-path, not at the target
     time.sleep(0.8 * duration_s)  # past the move's planned end: nothing moves on
     assert np.allclose(cell.belief_flange_pose(), stood, atol=1e-9)
+
+
+def test_the_lkg_fake_reads_the_arm_at_a_past_instant_though_the_time_line_stood_still_since() -> None:
+    # The LK-G fake asks for a stored reading's distance after its instant; the twin's time line may
+    # have stood still meanwhile (rendering), so the arm is looked up by its own clock (the fakes').
+    cell = SimCell(SimConfig(time_scale=1.0), seed=3)
+    sim, world = cell.config, cell.world()
+    R = world.T_B_T[:3, :3] @ cell.T_H_C[:3, :3].T
+    spot = world.T_B_T[:3, :3] @ np.array([100.0, 600.0, 0.0]) + world.T_B_T[:3, 3]
+    start = make_pose(R, spot - R @ (sim.laser.r + 350.0 * sim.laser.l))
+    target = make_pose(R, start[:3, 3] + 60.0 * (R @ sim.laser.l))  # 60 mm along the beam, toward the wall
+    cell.execute(start)
+    robot = FakeRobot(TwinArmModel(cell), CartesianPose.from_matrix(start), time_scale=1.0)
+    robot.speed = (SPEED_MM_S, 30.0)
+    source = TwinLaserSource(cell)
+    before = source()
+    duration_s = robot.begin_motion(CartesianPose.from_matrix(target), linear=True).duration_s
+    time.sleep(0.4 * duration_s)
+    t_a = time.monotonic()
+    then = source()  # the distance now, read as the laser would
+    t_b = time.monotonic()
+    assert isinstance(before, float) and isinstance(then, float) and before - then > 10.0  # truly on its way
+    with cell.timeline.unclocked():  # the twin computes: its clock stands still for 0.3 s
+        time.sleep(0.3)
+    later = source.at(0.5 * (t_a + t_b))
+    assert isinstance(later, float)
+    assert later == pytest.approx(then, abs=0.2 + SPEED_MM_S * (t_b - t_a))  # + the laser's noise

@@ -10,7 +10,6 @@ releases it. The controller reports the belief back, as a real one does.
 from __future__ import annotations
 
 import socket
-import time
 from collections.abc import Awaitable, Callable
 from typing import Literal
 
@@ -100,9 +99,8 @@ class TwinLaserSource:
         return self._distance(self._cell.laser_reading())
 
     def at(self, t: float) -> float | LaserStatus:
-        line_t = t + (self._cell.timeline.now() - time.monotonic())  # the same instant on the twin's time line
-        try:
-            return self._distance(self._cell.laser_reading(self._cell.arm.true_at_line(line_t)))
+        try:  # the arm's clock is time.monotonic (the fakes'): the twin's time line may have stood still since t
+            return self._distance(self._cell.laser_reading(self._cell.arm.true_at_clock(t)))
         except LookupError:  # older than the arm remembers
             return self()
 

@@ -361,6 +361,7 @@ class RobotArm:
         self._waited = waited
         self._legs: list[Motion] = []
         self._starts: list[float] = []
+        self._clock_starts: list[float] = []
         self._forgot = False
         home = model.config.T_B_H_home()
         true = model.deform(home)
@@ -376,21 +377,27 @@ class RobotArm:
             motion = replace(motion, line_start=self._starts[-1])
         self._legs.append(motion)
         self._starts.append(motion.line_start)
+        self._clock_starts.append(max(motion.t_start, self._clock_starts[-1]) if self._clock_starts else motion.t_start)
         if len(self._legs) > HISTORY_LEGS:
-            del self._legs[0], self._starts[0]
+            del self._legs[0], self._starts[0], self._clock_starts[0]
             self._forgot = True
         self._motion = motion
         return motion
 
-    def _leg_at(self, t: float) -> Motion:
-        i = bisect.bisect_right(self._starts, t) - 1
+    def _leg_at(self, t: float, starts: list[float] | None = None) -> Motion:
+        i = bisect.bisect_right(self._starts if starts is None else starts, t) - 1
         if i < 0:
             if self._forgot:
-                raise LookupError(
-                    f"time-line instant {t:.6f} s is older than the arm's history (its last {HISTORY_LEGS} moves)"
-                )
+                raise LookupError(f"instant {t:.6f} s is older than the arm's history (its last {HISTORY_LEGS} moves)")
             i = 0
         return self._legs[i]
+
+    def true_at_clock(self, t: float) -> Pose:
+        """The true flange pose at instant ``t`` of the arm's clock (s), deviation at speed included; or LookupError.
+
+        For a device reading the arm by its own clock: the time line may stand still meanwhile, this clock does not.
+        """
+        return self._leg_at(t, self._clock_starts).true_at(t)
 
     def belief_at_line(self, t: float) -> Pose:
         """The flange pose the controller reports at time-line instant ``t`` (s); LookupError if forgotten."""
