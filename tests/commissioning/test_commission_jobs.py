@@ -139,6 +139,14 @@ async def test_a_prompt_waits_for_the_engineer_and_the_answer_is_audited(tmp_pat
         assert ds.manifest["source"]["laser"]["dialect"] == "LK-G5001"
 
 
+async def _laser_job_under_way(client: httpx.AsyncClient, done: int = 3) -> dict[str, Any]:
+    """A 200-pose laser job, once ``done`` poses are read (call slow_moves first: it must not end meanwhile)."""
+    job = await _start(client, "laser", poses=200)
+    while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < done:
+        await asyncio.sleep(0.02)
+    return job
+
+
 async def test_cancel_stops_the_robot_at_once_keeps_the_partial_dataset_and_the_set(tmp_path: Path) -> None:
     cfg = _config(answers="all")
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
@@ -148,12 +156,7 @@ async def test_cancel_stops_the_robot_at_once_keeps_the_partial_dataset_and_the_
         store = CalibrationStore(service.jobs.calibration_store.root)
         version = store.current().version
         slow_moves(service, 200.0)  # 0.2 of real time per simulated second
-        job = await _start(client, "laser", poses=200)
-        while True:
-            progress = ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0)
-            if progress >= 5:
-                break
-            await asyncio.sleep(0.02)
+        job = await _laser_job_under_way(client, done=5)
         robot = service.orchestrator.devices.robot
         t0 = time.monotonic()
         r = await client.post(f"/jobs/{job['id']}/cancel", headers=AUTH)
@@ -178,9 +181,7 @@ async def test_a_cancel_whose_task_cancellation_is_lost_still_ends_the_job_at_it
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
         slow_moves(service, 200.0)
         await _command(client, "clear")
-        job = await _start(client, "laser", poses=200)
-        while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < 3:
-            await asyncio.sleep(0.02)
+        job = await _laser_job_under_way(client)
         service.jobs._running.task = None  # the cancel can neither cancel nor await it
 
         async def stop_between_moves(*, timeout_s: float) -> None:
@@ -200,9 +201,7 @@ async def test_a_cancel_landing_while_the_job_writes_its_end_answers_with_the_en
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
         slow_moves(service, 200.0)
         await _command(client, "clear")
-        job = await _start(client, "laser", poses=200)
-        while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < 3:
-            await asyncio.sleep(0.02)
+        job = await _laser_job_under_way(client)
         jobs = service.jobs
         writing = asyncio.Event()
         update_job, stop = jobs.store.update_job, jobs.devices.robot.stop
@@ -230,9 +229,7 @@ async def test_a_packml_stop_cancels_the_job(tmp_path: Path) -> None:
         slow_moves(service, 200.0)
         await _command(client, "clear")
         assert await _command(client, "reset") == "IDLE"
-        job = await _start(client, "laser", poses=200)
-        while ((await client.get(f"/jobs/{job['id']}")).json().get("progress") or {}).get("done", 0) < 3:
-            await asyncio.sleep(0.02)
+        job = await _laser_job_under_way(client)
         assert await _command(client, "stop") == "STOPPED"
         done = await _wait_done(client, job["id"], timeout_s=10)
         assert done["state"] == "cancelled" and "stop" in done["error"], done
