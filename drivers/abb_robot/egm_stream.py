@@ -150,7 +150,7 @@ class EgmStream:
         await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
         if self._gen is not None:  # not stopped: end it first, so no datagram of it passes for the new one
             if not self._ended:
-                await self._request(0, deadline)
+                await self._end_on_controller(deadline)
             peer.end_stream()
         since = peer.stream_count()  # before the new generation: none of its records comes earlier
         m0 = time.monotonic()
@@ -176,20 +176,25 @@ class EgmStream:
             raise DeviceRejected(self.name, "no position stream was started; call start_stream first")
         deadline = deadline_in(timeout_s)
         if not self._ended:  # a STOP has ended it already (and STREAM is refused while the robot decelerates)
-            try:
-                await self._request(0, deadline, reconnect=False)
-            except DeviceDisconnected:
-                pass
-            for _ in range(STOP_POLLS):  # datagrams sent before the stop may still be on their way
-                if time.monotonic() + STOP_POLL_S > deadline:
-                    break
-                await asyncio.sleep(STOP_POLL_S)
-                if not self._drain():
-                    break
-            self._drain()
+            await self._end_on_controller(deadline)
             self.peer.end_stream()
         self._gen, self._ended = None, False
         return self.samples()
+
+    async def _end_on_controller(self, deadline: float) -> None:
+        """``STREAM 0`` (a link that is down has ended it already), then collect the datagrams sent before
+        it that are still on their way: until the peer has had none for a poll (bounded)."""
+        try:
+            await self._request(0, deadline, reconnect=False)
+        except DeviceDisconnected:
+            pass
+        for _ in range(STOP_POLLS):
+            if time.monotonic() + STOP_POLL_S > deadline:
+                break
+            await asyncio.sleep(STOP_POLL_S)
+            if not self._drain():
+                break
+        self._drain()
 
     def latest(self) -> PoseSample | None:
         """The newest sample of the running stream (None before its first, and when none runs).
