@@ -10,6 +10,7 @@ from cellctl.geometry.pose import Pose, invert_pose, make_pose, pose_error
 from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, xyz_fixed_to_matrix
 from cellctl.geometry.motion import TrapezoidProfile, interpolate_pose
 from cellctl.sim.robot import ISO_9283_RP_PER_SIGMA, ReachError, RobotArm, RobotBusy, RobotModel
+from cellctl.sim.timeline import TwinTimeline
 
 R_DOWN = xyz_fixed_to_matrix(0.0, 0.0, np.pi)  # flange z down, x towards the wall (+x of the base)
 
@@ -161,3 +162,24 @@ def test_determinism_and_independent_streams() -> None:
     # ...and switching repeatability off leaves the accuracy field unchanged.
     no_rep = RobotModel(RobotSimConfig(repeatability_mm=0.0, repeatability_orientation_deg=0.0), seed=7)
     np.testing.assert_array_equal(no_rep.deform(X), ref.deform(X))
+
+
+def test_the_time_line_says_what_each_move_was_spent_on_and_a_stop_takes_back_the_rest() -> None:
+    now = [0.0]
+    cell_line = TwinTimeline(1.0, clock=lambda: now[0])
+    arm = RobotArm(RobotModel(RobotSimConfig(), seed=5), time_scale=1.0, clock=lambda: now[0],
+                   waited=cell_line.waited, line=cell_line.now)  # fmt: skip
+    A = arm.belief_pose()
+    along = make_pose(A[:3, :3], A[:3, 3] + [0.0, 400.0, 0.0])
+    first = arm.start(along, 800.0, 30.0).duration_s
+    now[0] += first
+    turned = make_pose(along[:3, :3] @ xyz_fixed_to_matrix(0.0, 0.0, np.radians(90.0)), along[:3, 3])
+    second = arm.start(turned, 800.0, 45.0).duration_s
+    # 400 mm at 800 mm/s: 0.5 s plus the ramps; 90 deg at 45 deg/s: 2 s plus the ramps
+    assert first == pytest.approx(0.5 + 800.0 / RobotSimConfig().acceleration_mm_s2 + RobotSimConfig().settle_time_s)
+    assert second > 2.0
+    now[0] += 0.5  # a stop half a second into the turn takes the rest back
+    arm.stop()
+    spent = cell_line.spent()
+    assert set(spent) == {"moves at 800 mm/s", "turns at 45 deg/s"}
+    assert spent["moves at 800 mm/s"] == pytest.approx(first) and spent["turns at 45 deg/s"] == pytest.approx(0.5)

@@ -5,7 +5,9 @@ Each cell (one twin per seed) runs ``trials`` install cycles through the orchest
 latency not estimated but taken 10 ms off the twin's (what leaving it uncompensated costs); the
 same seed each time (so the same car-body postures and error sources) and the twin's own devices,
 which can store laser readings and stream the robot's pose. The cycle time is the record's, on the cell's clock: the
-robot time a real cell would take. The accuracy is the true install error per axis.
+robot time a real cell would take, and where it goes (the twin's time line's ledger around each cycle:
+moves by speed, turns, the laser's read-out, frames, the gripper; the rest is the cell's own computing).
+The accuracy is the true install error per axis.
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from cellctl.bench.accuracy import AccuracyRun, RunSettings, run_accuracy
+from cellctl.bench.accuracy import AccuracyRun, RunHooks, RunSettings, Trial, run_accuracy
 from cellctl.bench.stats import AXES, p99_difference_interval, percentile
 from cellctl.config import CellConfig
+from cellctl.service.compose import Service
 
 AlignMode = Literal["stop_and_go", "on_the_fly"]
 # The issue's bar: on the move takes at most half the stop-and-go time, its p99 no worse by more than these.
@@ -36,6 +39,31 @@ def with_align_mode(config: CellConfig, mode: AlignMode, **sweep: Any) -> CellCo
     return config.model_copy(update={"process": process})
 
 
+COMPUTING = "the rest: the cell's own computing and waits"
+
+
+class SpentPerCycle(RunHooks):
+    """What each cycle's time on the twin's time line was spent on (simulated seconds, by ledger entry)."""
+
+    def __init__(self) -> None:
+        self.by_trial: dict[int, dict[str, float]] = {}
+        self._before: dict[str, float] = {}
+
+    @staticmethod
+    def _ledger(service: Service) -> dict[str, float]:
+        return dict(service.extras["twin"].cell.timeline.spent())
+
+    def before_cycle(self, k: int, service: Service) -> None:
+        self._before = self._ledger(service)
+
+    def after_cycle(self, k: int, service: Service, trial: Trial) -> None:
+        after = self._ledger(service)
+        spent = {n: s - self._before.get(n, 0.0) for n, s in after.items() if abs(s - self._before.get(n, 0.0)) > 1e-9}
+        if trial.cycle_time_s is not None:
+            spent[COMPUTING] = trial.cycle_time_s - sum(spent.values())
+        self.by_trial[k] = spent
+
+
 @dataclass(frozen=True)
 class ModeFigures:
     """One mode's cycles over every cell."""
@@ -50,9 +78,11 @@ class ModeFigures:
     latency_ms: list[float]
     latency_modes: dict[str, int]  # how the sweeps had the latency: timed, checked, fixed
     failures: list[str]  # each cycle that did not install: its seed, trial, outcome and reason
+    spent_s: list[dict[str, float]]  # each installed cycle's time by what it was spent on (SpentPerCycle)
 
     def summary(self) -> dict[str, Any]:
         steps = sorted({n for s in self.step_s for n in s})
+        spent_on = sorted({n for s in self.spent_s for n in s})
         return {
             "mode": self.mode,
             "installed": self.installed,
@@ -61,6 +91,7 @@ class ModeFigures:
             "cycle_median_s": percentile(self.cycle_s, 50),
             "cycle_p95_s": percentile(self.cycle_s, 95),
             "step_median_s": {n: percentile([s.get(n, 0.0) for s in self.step_s], 50) for n in steps},
+            "spent_median_s": {n: percentile([s.get(n, 0.0) for s in self.spent_s], 50) for n in spent_on},
             "p99_abs": {a.label: percentile(np.abs(self.errors[:, i]).tolist(), 99) for i, a in enumerate(AXES)},
             "latency_ms_median": percentile(self.latency_ms, 50) if self.latency_ms else None,
             "latency_modes": self.latency_modes,
@@ -68,7 +99,9 @@ class ModeFigures:
         }
 
 
-def _figures(mode: str, runs: list[AccuracyRun], latencies: list[float], on_the_fly: int) -> ModeFigures:
+def _figures(
+    mode: str, runs: list[AccuracyRun], latencies: list[float], on_the_fly: int, spent: list[SpentPerCycle]
+) -> ModeFigures:
     installed = [t for r in runs for t in r.installed]
     modes = Counter(str(a["latency"]) for a in (t.align or {} for t in installed) if a.get("latency"))
     errors = np.array([[t.true_error[a.field] for a in AXES] for t in installed if t.true_error], dtype=float)
@@ -86,6 +119,8 @@ def _figures(mode: str, runs: list[AccuracyRun], latencies: list[float], on_the_
             f"seed {r.settings.seed} trial {t.index}: {t.outcome}: {t.reason or 'no reason recorded'}"
             for r in runs for t in r.not_installed
         ],
+        spent_s=[ledger.by_trial[t.index] for r, ledger in zip(runs, spent, strict=True) for t in r.installed
+                 if t.index in ledger.by_trial],
     )
 
 
@@ -105,14 +140,16 @@ def run_cycle_time(config: CellConfig, *, cells: int, trials: int, seed: int, pr
         runs: list[AccuracyRun] = []
         latencies: list[float] = []
         swept = 0
+        ledgers: list[SpentPerCycle] = []
         for s in range(seed, seed + cells):
             settings = RunSettings(trials=trials, seed=s, calibration="oracle", devices="twin", label=f"{mode} seed {s}")
-            run = run_accuracy(variant, settings, progress=progress)
+            ledgers.append(SpentPerCycle())
+            run = run_accuracy(variant, settings, progress=progress, hooks=ledgers[-1])
             runs.append(run)
             aligns = [t.align or {} for t in run.installed]
             swept += sum(1 for a in aligns if a.get("mode") == "on_the_fly")
             latencies += [float(a["latency_ms"]) for a in aligns if a.get("latency_ms") is not None]
-        figures[mode] = _figures(mode, runs, latencies, swept)
+        figures[mode] = _figures(mode, runs, latencies, swept, ledgers)
         out[mode] = figures[mode].summary()
     slow, fast = out["stop_and_go"], out["on_the_fly"]
     ratio = fast["cycle_median_s"] / slow["cycle_median_s"] if slow["cycle_median_s"] else float("nan")
@@ -166,6 +203,7 @@ def format_cycle_time(out: dict[str, Any]) -> str:
         f"  per step (median ratio): {steps}; the other steps take {shared:.2f} s in both modes, so the bar leaves "
         f"align and inspect on the move {room:.2f} s together (now {fast['cycle_median_s'] - shared:.2f} s)"
     )
+    lines += _spent_table(slow, fast)
     bad = out[UNCOMPENSATED]
     lines.append(
         f"  (the twin's latency is {out['true_latency_ms']:.2f} ms; the third run pairs with it {1e3 * LATENCY_ERROR_S:g} ms off, "
@@ -184,3 +222,12 @@ def format_cycle_time(out: dict[str, Any]) -> str:
         )
     lines.append(f"  bar: {'met' if out['bar_met'] else 'NOT met'}")
     return "\n".join(lines)
+
+
+def _spent_table(slow: dict[str, Any], fast: dict[str, Any]) -> list[str]:
+    """Where each mode's cycle time goes (median seconds per ledger entry, largest first)."""
+    a, b = slow["spent_median_s"], fast["spent_median_s"]
+    names = sorted(set(a) | set(b), key=lambda n: -max(a.get(n, 0.0), b.get(n, 0.0)))
+    lines = [f"  {'where the time goes (median s)':46s} stop and go   on the move"]
+    lines += [f"    {n:44s} {a.get(n, 0.0):11.2f} {b.get(n, 0.0):13.2f}" for n in names if max(a.get(n, 0.0), b.get(n, 0.0)) >= 0.005]
+    return lines

@@ -181,7 +181,7 @@ def free_udp_port() -> int:
 def _grip(cell: SimCell, hold: bool) -> None:
     """The fake's GRIP on the twin: the gripper switches, and its settling goes on the twin's time line."""
     cell.set_gripper(hold)
-    cell.timeline.waited(cell.config.robot.gripper_settle_s)
+    cell.timeline.waited(cell.config.robot.gripper_settle_s, "gripper")
 
 
 def abb_on_fake(

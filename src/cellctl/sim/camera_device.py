@@ -121,7 +121,7 @@ class SimCamera:
         work = functools.partial(self._renderer.render, pose, world, targets=targets, rng=rng, glass=glass)
         if self._timeline is None:
             return await asyncio.to_thread(work)
-        self._timeline.waited(self._frame_time_s)
+        self._timeline.waited(self._frame_time_s, "camera frames")
         await asyncio.sleep(self._frame_time_s * self._timeline.time_scale)
         with self._timeline.unclocked():
             return await asyncio.to_thread(work)

@@ -75,14 +75,15 @@ class _TwinDevice:
             raise DeviceDisconnected(self.name, self._closed_message)
 
     async def _round_trip(self, timeout_s: float) -> None:
-        await self._take(self._latency_sim_s, timeout_s, "no answer")
+        await self._take(self._latency_sim_s, timeout_s, "no answer", "device round trips")
 
-    async def _take(self, simulated_s: float, timeout_s: float, what: str) -> None:
-        """Spend ``simulated_s`` of the cell's time (scaled in real time), or DeviceTimeout saying ``what`` after ``timeout_s``."""
+    async def _take(self, simulated_s: float, timeout_s: float, what: str, spent_on: str) -> None:
+        """Spend ``simulated_s`` of the cell's time on ``spent_on`` (scaled in real time), or DeviceTimeout
+        saying ``what`` after ``timeout_s``."""
         if simulated_s * self._cell.time_scale > timeout_s:
             await asyncio.sleep(timeout_s)
             raise DeviceTimeout(self.name, f"{what} within {timeout_s:g} s")
-        self._cell.timeline.waited(simulated_s)
+        self._cell.timeline.waited(simulated_s, spent_on)
         await asyncio.sleep(simulated_s * self._cell.time_scale)
 
     async def ping(self, *, timeout_s: float) -> float:
@@ -267,7 +268,7 @@ class SimRobot(_TwinDevice):
             raise DeviceRejected(self.name, f"gripper {what} refused: the robot is moving; the gripper keeps its state")
         self._cell.set_gripper(hold)
         settle_s = self._cell.config.robot.gripper_settle_s
-        self._cell.timeline.waited(settle_s)
+        self._cell.timeline.waited(settle_s, "gripper")
         await asyncio.sleep(settle_s * self._cell.time_scale)
 
     async def close(self) -> None:
@@ -362,7 +363,7 @@ class SimDisplacementSensor(_TwinDevice):
         (started_s, cycle_s, count), self._storage = self._storage, None
         stored = min(count, max(math.floor((self._cell.timeline.now() - started_s) / cycle_s) + 1, 0))
         readout_s = stored * self._cell.config.laser.readout_s_per_reading  # the readings on the serial line
-        await self._take(readout_s, timeout_s, f"{stored} stored readings not read out")
+        await self._take(readout_s, timeout_s, f"{stored} stored readings not read out", "laser read-out")
         try:  # thousands of ray casts: the twin's physics, off the event loop and off the cell's clock
             with self._cell.timeline.unclocked():
                 distances = await asyncio.to_thread(self._stored_distances, started_s, cycle_s, stored)

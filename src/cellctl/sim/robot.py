@@ -318,14 +318,25 @@ class Motion:
         return self.true_at_tau(self.tau(now), deviate=deviate)
 
 
-def _tell_both(first: Callable[[float], None], second: Callable[[float], None]) -> Callable[[float], None]:
+Waited = Callable[[float, str], None]
+"""Told the simulated seconds of a wait as it begins, and what they are spent on."""
+
+
+def _tell_both(first: Waited, second: Waited) -> Waited:
     """One ``waited`` callback that tells both."""
 
-    def waited(simulated_s: float) -> None:
-        first(simulated_s)
-        second(simulated_s)
+    def waited(simulated_s: float, spent_on: str) -> None:
+        first(simulated_s, spent_on)
+        second(simulated_s, spent_on)
 
     return waited
+
+
+def spent_on_move(timing: PathTiming, speed_mm_s: float, speed_deg_s: float) -> str:
+    """What a move's time goes to, by what leads it: the translation at its speed, or the reorientation at its."""
+    if timing.rotation.duration > timing.translation.duration:
+        return f"turns at {speed_deg_s:g} deg/s"
+    return f"moves at {speed_mm_s:g} mm/s"
 
 
 class RobotArm:
@@ -335,7 +346,8 @@ class RobotArm:
         model: the robot's physics.
         time_scale: real seconds per simulated second (0: moves complete instantly).
         clock: monotonic real time in seconds.
-        waited: told the simulated seconds of each move as it starts (and, negative, the part a stop cut off).
+        waited: told the simulated seconds of each move as it starts (and, negative, the part a stop cut off),
+            with what they are spent on (:func:`spent_on_move`).
         line: the twin's time line (s), read as each move starts; None: the arm keeps its own
             (:class:`TwinTimeline` on ``clock``). Given, ``waited`` must advance it.
     """
@@ -346,7 +358,7 @@ class RobotArm:
         *,
         time_scale: float,
         clock: Callable[[], float] = time.monotonic,
-        waited: Callable[[float], None] = lambda _s: None,
+        waited: Waited = lambda _s, _on: None,
         line: Callable[[], float] | None = None,
     ) -> None:
         if not np.isfinite(time_scale) or time_scale < 0:
@@ -363,6 +375,7 @@ class RobotArm:
         self._starts: list[float] = []
         self._clock_starts: list[float] = []
         self._forgot = False
+        self._spent_on = "moves"  # what the current move's time is spent on
         home = model.config.T_B_H_home()
         true = model.deform(home)
         self._motion = self._record(Motion(home, home, true, true, None, clock(), self.time_scale, line()))
@@ -445,7 +458,12 @@ class RobotArm:
             self.model.deform,
         )
         self._record(motion)
-        self._waited(timing.duration_s)
+        c = self.model.config
+        self._spent_on = spent_on_move(
+            timing, c.max_speed_mm_s if speed_mm_s is None else min(float(speed_mm_s), c.max_speed_mm_s),
+            c.max_speed_deg_s if speed_deg_s is None else min(float(speed_deg_s), c.max_speed_deg_s),
+        )
+        self._waited(timing.duration_s, self._spent_on)
         return motion
 
     def stop(self) -> Pose:
@@ -456,7 +474,7 @@ class RobotArm:
         now = self._clock()
         m = self._motion
         if m.timing is not None and now < m.t_end and self.time_scale > 0:
-            self._waited(-(m.t_end - now) / self.time_scale)
+            self._waited(-(m.t_end - now) / self.time_scale, self._spent_on)
             line = m.line_start + m.tau(now)
         else:
             line = self._line()

@@ -28,6 +28,7 @@ class TwinTimeline:
         self._lock = threading.Lock()
         self._unclocked = 0  # blocks of the twin's computing under way
         self._stood_s = 0.0  # the real time when the first of them began
+        self._spent: dict[str, float] = {}  # simulated seconds waited, by what they were spent on
 
     def now(self) -> float:
         """The cell's clock (s)."""
@@ -52,7 +53,14 @@ class TwinTimeline:
                 if not self._unclocked:
                     self._ahead_s -= self._clock() - self._stood_s
 
-    def waited(self, simulated_s: float) -> None:
-        """A wait of ``simulated_s`` simulated seconds begins (negative: the rest of one was cut off)."""
+    def waited(self, simulated_s: float, spent_on: str = "other") -> None:
+        """A wait of ``simulated_s`` simulated seconds begins (negative: the rest of one was cut off),
+        spent on ``spent_on`` (e.g. "moves at 1000 mm/s", "laser read-out")."""
         with self._lock:
             self._ahead_s += float(simulated_s) * (1.0 - self.time_scale)
+            self._spent[spent_on] = self._spent.get(spent_on, 0.0) + float(simulated_s)
+
+    def spent(self) -> dict[str, float]:
+        """The simulated seconds waited so far, by what they were spent on (a copy)."""
+        with self._lock:
+            return dict(self._spent)

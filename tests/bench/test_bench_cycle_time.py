@@ -1,0 +1,44 @@
+"""``cellctl bench cycle-time``: both modes on one cell, and where their robot time goes, against the configured path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellctl.bench.cycle_time import COMPUTING, format_cycle_time, run_cycle_time
+from cellctl.config import load_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _length_mm(corners: tuple[tuple[float, float], ...]) -> float:
+    return float(np.sum(np.linalg.norm(np.diff(np.asarray(corners, dtype=float), axis=0), axis=1)))
+
+
+def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_their_paths() -> None:
+    config = load_config(ROOT / "config" / "sim.toml")
+    out = run_cycle_time(config, cells=1, trials=1, seed=2, progress=False)
+    slow, fast = out["stop_and_go"], out["on_the_fly"]
+    assert slow["installed"] == fast["installed"] == 1 and fast["aligned_on_the_fly"] == 1
+    align, inspect, twin = config.process.align, config.process.inspect, config.sim
+    sweep = f"moves at {align.sweep.speed_mm_s:g} mm/s"
+    for mode in (slow, fast):
+        spent = mode["spent_median_s"]
+        assert spent[COMPUTING] >= 0.0  # every wait the ledger holds fell within the cycle
+        assert sum(spent.values()) == pytest.approx(mode["cycle_median_s"])
+        assert spent["gripper"] == pytest.approx(twin.robot.gripper_settle_s)  # the glass comes held; let go once
+    # On the move the laser spot runs the alignment's path (after the moves along the beam that time the
+    # laser) and the inspection's at the sweep speed: at least their lengths at that speed, ramps and
+    # settling on top. Stop and go never moves at it and reads nothing out.
+    path_mm = _length_mm(align.sweep.path_mm) + 3 * align.sweep.approach_mm + _length_mm(inspect.sweep_path_mm)
+    assert path_mm / align.sweep.speed_mm_s < fast["spent_median_s"][sweep] < 2.0 * path_mm / align.sweep.speed_mm_s
+    assert sweep not in slow["spent_median_s"] and "laser read-out" not in slow["spent_median_s"]
+    # The storage, read out over the serial line: a reading every storage cycle along the sweeps.
+    readings = path_mm / align.sweep.speed_mm_s / align.sweep.storage_cycle_s
+    assert fast["spent_median_s"]["laser read-out"] > readings * twin.laser.readout_s_per_reading
+    # The install's and the inspection's moves are the same in both modes.
+    shared = [n for n in slow["spent_median_s"] if n.startswith("turns at") or n == f"moves at {config.process.motion.fine_speed_mm_s:g} mm/s"]
+    assert shared and all(slow["spent_median_s"][n] == pytest.approx(fast["spent_median_s"][n], abs=0.05) for n in shared)
+    assert "where the time goes" in format_cycle_time(out)
