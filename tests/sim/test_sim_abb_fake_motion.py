@@ -35,10 +35,12 @@ def test_the_arm_is_on_its_way_while_the_fakes_move_runs() -> None:
     cell, home, robot, target, duration_s = _start(120.0)
     assert duration_s == pytest.approx(cell.motion_time(home, target, SPEED_MM_S, 30.0), rel=0.01)
     time.sleep(0.4 * duration_s)
+    t0 = time.monotonic()
     reported = robot.flange().to_matrix()
     belief, true = cell.belief_flange_pose(), cell.true_flange_pose()
-    # The fake reports the arm's own belief (the same instant to within a few ms at 100 mm/s).
-    assert np.linalg.norm(reported[:3, 3] - belief[:3, 3]) < 1.0
+    read_s = time.monotonic() - t0  # the two reads' instants lie within this (a loaded machine may stretch it)
+    # The fake reports the arm's own belief: the same to within the arm's travel between the two reads.
+    assert np.linalg.norm(reported[:3, 3] - belief[:3, 3]) < 0.2 + SPEED_MM_S * read_s
     # Both are truly on the way: far from either end, where a move executed at once would stand.
     for pose in (reported, true):
         assert 20.0 < np.linalg.norm(pose[:3, 3] - target[:3, 3]) < 100.0
