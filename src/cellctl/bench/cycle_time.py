@@ -51,7 +51,7 @@ class SpentPerCycle(RunHooks):
 
     @staticmethod
     def _ledger(service: Service) -> dict[str, float]:
-        return dict(service.extras["twin"].cell.timeline.spent())
+        return service.extras["twin"].cell.timeline.spent()  # a copy
 
     def before_cycle(self, k: int, service: Service) -> None:
         self._before = self._ledger(service)

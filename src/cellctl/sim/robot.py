@@ -195,13 +195,19 @@ class RobotModel:
 
     # -- motion time ----------------------------------------------------------------------------
 
+    def speeds(self, speed_mm_s: float | None, speed_deg_s: float | None) -> tuple[float, float]:
+        """The TCP speed (mm/s) and reorientation speed (deg/s) a move runs at: as requested, capped at the robot's limits."""
+        c = self.config
+        v = c.max_speed_mm_s if speed_mm_s is None else min(float(speed_mm_s), c.max_speed_mm_s)
+        w = c.max_speed_deg_s if speed_deg_s is None else min(float(speed_deg_s), c.max_speed_deg_s)
+        return v, w
+
     def timing(
         self, X_from: ArrayLike, X_to: ArrayLike, speed_mm_s: float | None = None, speed_deg_s: float | None = None
     ) -> PathTiming:
         """The timing of a move; the requested speeds are capped at the robot's limits."""
         c = self.config
-        v = c.max_speed_mm_s if speed_mm_s is None else min(float(speed_mm_s), c.max_speed_mm_s)
-        w = c.max_speed_deg_s if speed_deg_s is None else min(float(speed_deg_s), c.max_speed_deg_s)
+        v, w = self.speeds(speed_mm_s, speed_deg_s)
         return path_timing(
             X_from,
             X_to,
@@ -458,11 +464,7 @@ class RobotArm:
             self.model.deform,
         )
         self._record(motion)
-        c = self.model.config
-        self._spent_on = spent_on_move(
-            timing, c.max_speed_mm_s if speed_mm_s is None else min(float(speed_mm_s), c.max_speed_mm_s),
-            c.max_speed_deg_s if speed_deg_s is None else min(float(speed_deg_s), c.max_speed_deg_s),
-        )
+        self._spent_on = spent_on_move(timing, *self.model.speeds(speed_mm_s, speed_deg_s))
         self._waited(timing.duration_s, self._spent_on)
         return motion
 
