@@ -142,3 +142,34 @@ def test_nine_point_map_and_pixel_scale_match_the_camera() -> None:
     assert abs(amap[0, 1]) < 1e-3 and abs(amap[1, 0]) < 1e-3
     # Every part present, computed from the current ones, in date: the cell may produce.
     assert check_ready(store.current(), NOW) == []
+
+
+def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_walls_offset_at_its_corners() -> None:
+    # The cycle on the move fits the wall's normal along its path and its offset where the flange stands, at the
+    # path's corners; the robot's accuracy differs between the two. Teaching measures the same way, so it cancels.
+    store = _taught()[0]
+    base = config()
+    align = base.process.align.model_copy(update={"mode": "on_the_fly"})
+    cfg = base.model_copy(update={"process": base.process.model_copy(update={"align": align})})
+
+    async def go() -> Dataset:
+        twin = TwinCommissioning(cfg, seed=SEED)
+        try:
+            return await twin.collect("teaching", store.current(), scratch("teach-on-the-move") / "ds")
+        finally:
+            await twin.close()
+
+    ds = asyncio.run(go())
+    spots = ds.manifest["spots"]
+    along = align.sweep.points_along_mm()
+    assert len(spots) == len(along) and [k for k, s in enumerate(spots) if s.get("stop")] == [0, 16, 29]
+    assert [along[k] for k in (0, 16, 29)] == [tuple(c) for c in align.sweep.path_mm]
+    teach = compute_teaching(ds, store.current(), cfg)
+    assert teach.quality["offset_from_stops"] == 3
+    plane = teach.detail[0].wall.plane
+    r, l = store.current().laser_ray()  # noqa: E741
+    points = np.array([np.asarray(s["T_B_H"]) @ np.r_[r + s["distance_mm"] * l, 1.0] for s in spots])[:, :3]
+    corners = points[[0, 16, 29]] @ plane.normal
+    assert plane.offset == pytest.approx(float(corners.mean()), abs=1e-6)  # eq. 2 at the corners, not over the path
+    assert abs(plane.offset - float((points @ plane.normal).mean())) > 1e-4  # which differs here
+    assert np.degrees(angle_between_vectors(plane.normal, nominal_world(cfg.sim.world).normal_B)) < 0.05

@@ -8,8 +8,9 @@ import pytest
 
 from cellctl.align import AlignmentError, compute_alignment
 from cellctl.align.laser_points import sweep_route
-from cellctl.align.onthefly import LatencyEstimate, standing
+from cellctl.align.onthefly import LatencyEstimate, at_corners, even_along_path, standing
 from cellctl.cell.laser_timing import LaserTiming
+from cellctl.config.cell import AlignConfig
 from cellctl.geometry.pose import make_pose
 
 
@@ -99,3 +100,51 @@ def test_too_few_readings_at_rest_are_refused_with_the_reason() -> None:
     poses, d = _sweep((0.0, 0.0), rng)
     with pytest.raises(AlignmentError, match="stand still at its corners"):
         compute_alignment(poses, d, r, l, np.eye(4), 400.0, at_rest=(poses[:4], d[:4]))
+
+
+def test_each_stop_weighs_the_same_in_the_offset_however_long_the_flange_stood_there() -> None:
+    # The robot's accuracy puts the wall 0.03 mm nearer at one corner and 0.03 mm farther at the other; the sweep
+    # stood at the first five times as long (it timed the laser there). Teaching reads each corner once.
+    rng = np.random.default_rng(6)
+    r, l = np.zeros(3), np.array([1.0, 0.0, 0.0])  # noqa: E741
+    poses, d = _sweep((0.0, 0.0), rng)
+    rest = np.r_[poses[[0] * 50], poses[[139] * 10]]
+    d_rest = np.r_[np.full(50, 400.0 - 0.03), np.full(10, 400.0 + 0.03)]
+    stops = np.r_[np.zeros(50, dtype=int), np.ones(10, dtype=int)]
+    pooled = compute_alignment(poses, d, r, l, np.eye(4), 400.0, at_rest=(rest, d_rest))
+    by_stop = compute_alignment(poses, d, r, l, np.eye(4), 400.0, at_rest=(rest, d_rest, stops))
+    assert pooled.wall.offset == pytest.approx(1000.0 - 0.02, abs=0.002)  # the long stop outweighs the short
+    assert by_stop.wall.offset == pytest.approx(1000.0, abs=0.002)
+    once = compute_alignment(poses, d, r, l, np.eye(4), 400.0, at_rest=(rest[[0, 50]], d_rest[[0, 50]], [0, 1]), min_rest_points=2)
+    assert once.wall.offset == pytest.approx(by_stop.wall.offset, abs=1e-9)  # one reading a stop: the same offset
+
+
+def test_the_fitted_readings_spread_evenly_along_the_path_not_in_time() -> None:
+    # One reading a storage cycle while the arm ramps up from a corner, cruises and stands at the next corner.
+    t = np.arange(0.0, 2.0, 0.01)
+    x = np.where(t < 0.5, 1000.0 * t**2, np.minimum(250.0 + 1000.0 * (t - 0.5), 1250.0))
+    poses = np.tile(np.eye(4), (t.size, 1, 1))
+    poses[:, 0, 3] = x
+    keep = even_along_path(poses, 50)
+    gaps = np.diff(x[keep])
+    assert 45 <= keep.size <= 50 and gaps.max() < 2.0 * 1250.0 / 49  # no stretch of the path left out
+    assert np.count_nonzero(x[keep] >= 1249.9) <= 1  # the standing readings count once, not for every cycle
+    assert np.array_equal(even_along_path(poses[:40], 50), np.arange(40))  # fewer than asked: all of them
+
+
+def test_the_readings_at_rest_count_at_the_corner_they_were_read_at_and_not_out_along_the_beam() -> None:
+    corners = [make_pose(np.eye(3), [0.0, y, 0.0]) for y in (0.0, 1000.0, 1500.0)]
+    back = make_pose(np.eye(3), [-40.0, 0.0, 0.0])  # standing 40 mm out along the beam while timing the laser
+    poses = np.array([back, corners[0], back, corners[1], corners[1], corners[2], make_pose(np.eye(3), [0.0, 500.0, 0.0])])
+    poses[4, :3, 3] += [0.0, 0.5, 0.3]  # the reported pose at a stop: within a millimetre of the corner
+    moving = np.array([False, False, False, False, False, False, True])
+    idx, corner = at_corners(poses, ~moving, corners, 2.0)
+    assert idx.tolist() == [1, 3, 4, 5] and corner.tolist() == [0, 1, 1, 2]
+
+
+def test_teaching_on_the_move_reads_the_paths_corners_as_its_stops() -> None:
+    align = AlignConfig(mode="on_the_fly", sweep={"path_mm": [[-1500.0, -60.0], [60.0, -60.0], [60.0, 1200.0]]})
+    spots, stops = align.wall_spots_mm(), align.wall_stops()
+    assert [spots[k] for k in stops] == [(-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0)]
+    assert max(np.hypot(*np.subtract(a, b)) for a, b in zip(spots, spots[1:])) <= 100.0
+    assert AlignConfig().wall_stops() == ()  # stop and go: the plane's offset from all its spots

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -51,6 +52,7 @@ __all__ = [
     "orient_normal_into_wall",
     "plan_spot_poses",
     "predict_normal_uncertainty",
+    "readings_at_stops",
     "solve_orientation_lm",
     "solve_orientation_minimal",
 ]
@@ -86,6 +88,17 @@ class AlignmentResult:
     T_B_H_aligned: Pose
 
 
+def readings_at_stops(
+    T_B_H_spots: ArrayLike, distances_mm: ArrayLike, stops: Sequence[int]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]] | None:
+    """Among spots read standing, those at a sweep's stops (``stops``: their indices), each its own stop, as
+    :func:`compute_alignment`'s ``at_rest``; None without stops (the plane's offset then comes from all spots)."""
+    if not len(stops):
+        return None
+    k = np.asarray(stops, dtype=int)
+    return np.asarray(T_B_H_spots, dtype=float)[k], np.asarray(distances_mm, dtype=float)[k], np.arange(k.size)
+
+
 def compute_alignment(
     T_B_H_spots: ArrayLike,
     distances_mm: ArrayLike,
@@ -101,7 +114,8 @@ def compute_alignment(
     min_collinearity: float = 1e-3,
     sigma_prior_mm: float | None = None,
     orientation: Literal["lm", "minimal"] = "minimal",
-    at_rest: tuple[ArrayLike, ArrayLike] | None = None,
+    at_rest: tuple[ArrayLike, ArrayLike] | tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+    min_rest_points: int = 10,
 ) -> AlignmentResult:
     """Laser spots in, aligned shooting pose out (paper section 3).
 
@@ -117,8 +131,9 @@ def compute_alignment(
         working_distance_mm: the camera-to-wall distance to reach (400 mm in the paper).
         T_B_H_current: the flange pose to correct; default the pose at the last spot (as the paper).
         at_rest: flange poses (M, 4, 4) and distances (M,) of readings a sweep took with the flange
-            standing (its stops): the plane's offset comes from them, its normal from all readings
-            (:func:`offset_at_rest`). None: both from all readings (standing spots).
+            standing (its stops), and optionally (M,) the stop each was read at (each stop then weighs
+            the same): the plane's offset comes from them, its normal from all readings
+            (:func:`offset_at_rest`, at least ``min_rest_points`` of them). None: both from all readings (standing spots).
     """
     poses = np.asarray(T_B_H_spots, dtype=float)
     points = laser_points(poses, r, l, distances_mm, range_mm)
@@ -132,7 +147,8 @@ def compute_alignment(
     )
     if at_rest is not None:
         rest_points = laser_points(np.asarray(at_rest[0], dtype=float).reshape(-1, 4, 4), r, l, at_rest[1], range_mm)
-        wall = offset_at_rest(wall, rest_points, inlier_threshold_mm=inlier_threshold_mm)
+        stops = at_rest[2] if len(at_rest) == 3 else None
+        wall = offset_at_rest(wall, rest_points, inlier_threshold_mm=inlier_threshold_mm, min_points=min_rest_points, stops=stops)
     THC = check_pose(T_H_C, "T_H_C (hand-eye)")
     current = check_pose(poses[-1] if T_B_H_current is None else T_B_H_current, "current flange pose")
     z_C_in_H = THC[:3, 2]

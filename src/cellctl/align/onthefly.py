@@ -309,3 +309,28 @@ def estimate_latency(
         normal=normal,
         offset_mm=offset,
     )
+
+
+def even_along_path(poses: ArrayLike, keep: int) -> NDArray[np.intp]:
+    """Indices of at most ``keep`` of the flange poses (N, 4, 4) spread evenly along the path by distance
+    travelled, not by time: readings crowd where the arm ramps its speed and pile up where it stands."""
+    p = np.asarray(poses, dtype=float)[:, :3, 3]
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    if len(p) <= keep or travelled[-1] <= 0.0:
+        return np.arange(len(p))
+    return np.unique(np.searchsorted(travelled, np.linspace(0.0, travelled[-1], keep)).clip(0, len(p) - 1))
+
+
+def at_corners(
+    poses: ArrayLike, at_rest: ArrayLike, corners: Sequence[ArrayLike], within_mm: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The readings taken standing (``at_rest``, (N,) bool) with the flange within ``within_mm`` of a corner's
+    position (not out along the beam while the laser is timed), and the corner of each: (M,) indices, (M,) corners."""
+    rest = np.flatnonzero(np.asarray(at_rest, dtype=bool))
+    if not len(corners) or not rest.size:
+        return rest[:0], rest[:0]
+    at = np.array([np.asarray(T, dtype=float)[:3, 3] for T in corners])
+    gaps = np.linalg.norm(np.asarray(poses, dtype=float)[rest, None, :3, 3] - at[None], axis=2)
+    nearest = np.argmin(gaps, axis=1)
+    keep = gaps[np.arange(rest.size), nearest] <= within_mm
+    return rest[keep], nearest[keep]

@@ -229,26 +229,36 @@ def _consensus(P: NDArray[np.float64], threshold: float, min_collinearity: float
     return np.flatnonzero(within[:, best])
 
 
-def offset_at_rest(wall: WallPlane, rest_points: ArrayLike, *, inlier_threshold_mm: float, min_points: int = 10) -> WallPlane:
+def offset_at_rest(
+    wall: WallPlane, rest_points: ArrayLike, *, inlier_threshold_mm: float, min_points: int = 10, stops: ArrayLike | None = None
+) -> WallPlane:
     """The wall plane with its normal kept and its offset D taken from points read with the flange at rest.
 
     On the move the arm leaves its reported path by its speed times a direction fixed per path
     direction (the servo's deflection), which shifts the moving readings along the normal and so
     moves D; at rest the deviation is zero. D is the mean of normal . p (eq. 2) over the rest points
     within ``inlier_threshold_mm`` of the moving plane; ``rest_shift_mm`` says how far D moved.
+    ``stops`` (M,) names the stop each point was read at: each stop then weighs the same in D, however
+    long the flange stood there (the robot's accuracy differs from stop to stop, and teaching reads each once).
 
     Raises:
         AlignmentError: fewer than ``min_points`` such points.
     """
     P = np.asarray(rest_points, dtype=float).reshape(-1, 3)
-    near = P[np.abs(wall.plane.distance(P)) <= inlier_threshold_mm]
+    labels = np.zeros(P.shape[0], dtype=int) if stops is None else np.asarray(stops, dtype=int).reshape(-1)
+    if labels.shape[0] != P.shape[0]:
+        raise AlignmentError(f"{labels.shape[0]} stop labels for {P.shape[0]} readings taken at rest")
+    is_near = np.abs(wall.plane.distance(P)) <= inlier_threshold_mm
+    near, labels = P[is_near], labels[is_near]
     if near.shape[0] < min_points:
         raise AlignmentError(
             f"only {near.shape[0]} of {P.shape[0]} readings taken at rest lie within {inlier_threshold_mm} mm of the "
-            f"wall's plane (need {min_points}): the sweep must stand still at its corners long enough to read"
+            f"wall's plane (need {min_points}): the sweep must stand still at its corners long enough to read, "
+            "with the laser on the plain wall there"
         )
     plane = wall.plane
-    shift = float(np.mean(near @ plane.normal)) - plane.offset
+    along = near @ plane.normal
+    shift = float(np.mean([along[labels == s].mean() for s in np.unique(labels)])) - plane.offset
     moved = PlaneFit(
         plane.normal, plane.offset + shift, plane.centroid + shift * plane.normal, plane.eigenvalues,
         plane.eigenvectors, plane.residuals - shift,

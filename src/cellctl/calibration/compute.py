@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.align import AlignmentError, compute_alignment
+from cellctl.align import AlignmentError, compute_alignment, readings_at_stops
 from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
 from cellctl.calibration.calibration_set import CalibrationSet, recipe_slot
 from cellctl.calibration.camera import ViewCorners, calibrate_camera
@@ -391,11 +391,13 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     H = np.array([pose_array(s["T_B_H"], "spot.T_B_H") for s in spots])
     d = np.array([s["distance_mm"] for s in spots], dtype=float)
     start = pose_array(ds.manifest["shooting_start"], "shooting_start")
+    stops = [k for k, s in enumerate(spots) if s.get("stop")]  # taught for the cycle on the move: its corners
     try:
         align = compute_alignment(
             H, d, r, l, T_H_C, config.process.working_distance_mm,
             T_B_H_current=start, range_mm=tuple(ds.manifest["sensor_range_mm"]),
             inlier_threshold_mm=ac.inlier_threshold_mm, max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
+            at_rest=readings_at_stops(H, d, stops), min_rest_points=len(stops),
         )
     except AlignmentError as err:
         raise CalibrationRefused("teaching", "alignment", str(err)) from None
@@ -424,6 +426,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     quality: dict[str, Any] = {
         "wall_rms_mm": plane.rms,
         "spots_used": int(len(align.wall.inliers)),
+        "offset_from_stops": len(stops),  # 0: the wall's offset from all spots; else from the sweep's corners, as on the move
         "spots_rejected": [{"index": s.index, "reason": s.reason} for s in align.wall.rejected],
         "normal_uncertainty_deg": None if align.wall.uncertainty is None else float(np.degrees(align.wall.uncertainty.rms_rad)),
         "alignment_turn_deg": float(np.degrees(align.rotation_rad)),

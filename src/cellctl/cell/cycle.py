@@ -212,7 +212,7 @@ class CycleRun:
         await self.rec.step_started(step)
         cfg, cal = self.process.align, self.cal
         unavailable = sweep_unavailable(self) if cfg.mode == "on_the_fly" else None
-        at_rest: tuple[np.ndarray, np.ndarray] | None = None  # on the move: the plane's offset from the sweep's stops
+        at_rest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # on the move: the plane's offset from the sweep's stops
         if cfg.mode == "on_the_fly" and unavailable is None:
             poses, distances, figures, at_rest = await sweep_readings(self)
         else:

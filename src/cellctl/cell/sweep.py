@@ -25,7 +25,9 @@ from cellctl.align.laser_points import laser_points, sweep_route
 from cellctl.align.onthefly import (
     LatencyAtEdge,
     LatencyEstimate,
+    at_corners,
     estimate_latency,
+    even_along_path,
     pair_stored_readings,
     pose_samples_arrays,
     standing,
@@ -46,6 +48,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 STEP = CycleStep.ALIGN
 SUPERVISION_PERIOD_S = 0.002  # how often the feedback's freshness is checked while the robot sweeps (host seconds)
+AT_CORNER_MM = 2.0  # a reading at rest this near a corner's commanded position was read standing at that corner
 CHECK_WINDOW_S = 0.005  # a check of the kept latency searches this far either side of it before the whole range
 
 
@@ -61,11 +64,6 @@ def sweep_unavailable(run: CycleRun) -> str | None:
     return None
 
 
-def _even(n: int, keep: int) -> np.ndarray:
-    """Indices of ``keep`` items spread evenly over ``n``."""
-    return np.unique(np.linspace(0, n - 1, min(n, keep)).round().astype(int))
-
-
 @dataclass(frozen=True)
 class Swept:
     """The readings of one sweep along its legs, each with its flange pose, and how they were taken."""
@@ -77,13 +75,16 @@ class Swept:
     estimate: LatencyEstimate | None = None  # the sweep's own estimate, where it timed or checked the laser
     rest_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))  # readings with the flange standing
     rest_distances: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rest_stops: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (M,) the corner each was read at
     legs: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (K,) leg j runs corners[j] -> corners[j + 1]
     moving: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (K,) the flange moved (not settling at a corner)
 
 
-async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray]]:
+async def sweep_readings(
+    run: CycleRun,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The alignment's sweep: the legs' flange poses (N, 4, 4), distances (N,), the figures, and the
-    poses and distances of the readings taken with the flange standing (its stops).
+    poses, distances and stops of the readings taken with the flange standing (at the path's corners).
 
     The sweep times the laser, checks the kept latency, or (``fixed_latency_s``) takes the configured one.
     """
@@ -110,9 +111,9 @@ async def sweep_readings(run: CycleRun) -> tuple[np.ndarray, np.ndarray, dict[st
 
         swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check, stops=True)
     run.sweep_latency_s = swept.latency_s
-    keep = _even(len(swept.distances), cfg.max_points)
+    keep = even_along_path(swept.poses, cfg.max_points)
     figures = swept.figures | timing | {"readings_fitted": int(len(keep))}
-    return swept.poses[keep], swept.distances[keep], figures, (swept.rest_poses, swept.rest_distances)
+    return swept.poses[keep], swept.distances[keep], figures, (swept.rest_poses, swept.rest_distances, swept.rest_stops)
 
 
 async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, Any]]:
@@ -231,9 +232,9 @@ async def sweep_path(
     swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0), moving=~at_rest[on_path])
     if not stops:
         return swept
-    rest = np.flatnonzero(at_rest)
+    rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM)
     figures["readings_at_rest"] = int(len(rest))
-    return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest])
+    return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest], rest_stops=corner_of)
 
 
 async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any, None], stream: PoseStream) -> None:

@@ -254,7 +254,7 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
     if dropped:
         raise PlanError("teaching: " + "; ".join(dropped) + "; move process.align.spots_mm or the layout's opening")
     details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.wall_spots_mm()],
-               "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
+               "stops": list(ac.wall_stops()), "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
     return make_plan(config, "teaching", poses, labels, dropped, start, details)
 
 

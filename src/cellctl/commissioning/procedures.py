@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.align import AlignmentError, compute_alignment
+from cellctl.align import AlignmentError, compute_alignment, readings_at_stops
 from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
@@ -233,6 +233,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
     tc = config.calibration.procedure.teach
     ac = config.process.align
     shoot = plan.details["shooting_start"]
+    stops = plan.details["stops"]  # on the move: the spots at the sweep's corners give the plane's offset, as in the cycle
     await car_body_in_place(
         ctx,
         "Bring the reference car body into the cell and clamp it at its nominal place: its opening defines the "
@@ -266,7 +267,9 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
             )  # fmt: skip
         spots_H.append(reported)
         spots_d.append(float(reading.distance_mm))
-        draft.manifest["spots"].append({"T_B_H": pose_list(reported), "distance_mm": float(reading.distance_mm)})
+        draft.manifest["spots"].append(
+            {"T_B_H": pose_list(reported), "distance_mm": float(reading.distance_mm)} | ({"stop": True} if k in stops else {})
+        )
         ctx.progress(k + 1, n_steps, f"laser spot {k}: {reading.distance_mm:.3f} mm")
     start = np.asarray(shoot, dtype=float)
     draft.manifest["shooting_start"] = pose_list(start)
@@ -275,6 +278,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
             np.array(spots_H), np.array(spots_d), r, l, T_H_C, config.process.working_distance_mm, T_B_H_current=start,
             range_mm=(head.range_min_mm, head.range_max_mm), inlier_threshold_mm=ac.inlier_threshold_mm,
             max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
+            at_rest=readings_at_stops(spots_H, spots_d, stops), min_rest_points=len(stops),
         )  # fmt: skip
     except AlignmentError as err:
         raise CalibrationRefused("teaching", "alignment", str(err)) from None

@@ -54,14 +54,21 @@ class SweepConfig(StrictModel):
     max_feedback_gap_s: Finite = Field(0.02, gt=0, le=1)  # no pose is guessed across a longer gap in the feedback
     min_paired_share: Finite = Field(0.9, gt=0, le=1)  # of the legs' readings with a distance, at least this share needs a pose
 
+    def _leg_steps(self, step_mm: float) -> list[int]:
+        corners = np.asarray(self.path_mm, dtype=float)
+        return [max(1, int(np.ceil(np.linalg.norm(b - a) / step_mm))) for a, b in zip(corners[:-1], corners[1:])]
+
     def points_along_mm(self, step_mm: float = 100.0) -> tuple[tuple[float, float], ...]:
         """Points on the path every ``step_mm`` or less (its corners included), in T0 (mm)."""
         corners = np.asarray(self.path_mm, dtype=float)
         out = [corners[0]]
-        for a, b in zip(corners[:-1], corners[1:]):
-            n = max(1, int(np.ceil(np.linalg.norm(b - a) / step_mm)))
+        for a, b, n in zip(corners[:-1], corners[1:], self._leg_steps(step_mm)):
             out += [a + (b - a) * k / n for k in range(1, n + 1)]
         return tuple((float(p[0]), float(p[1])) for p in out)
+
+    def corners_along(self, step_mm: float = 100.0) -> tuple[int, ...]:
+        """The indices of the path's corners (where the sweep stands) in :meth:`points_along_mm`."""
+        return tuple(int(k) for k in np.concatenate([[0], np.cumsum(self._leg_steps(step_mm))]))
 
     @model_validator(mode="after")
     def _path(self) -> "SweepConfig":
@@ -105,6 +112,13 @@ class AlignConfig(StrictModel):
         cycles measure (the robot's accuracy errors there then cancel between the two).
         """
         return self.spots_mm if self.mode == "stop_and_go" else self.sweep.points_along_mm()
+
+    def wall_stops(self) -> tuple[int, ...]:
+        """The indices in :meth:`wall_spots_mm` where a sweep stands (its path's corners); none at stop and go.
+
+        Teaching takes the plane's offset from these, as the cycle on the move takes it from its stops.
+        """
+        return () if self.mode == "stop_and_go" else self.sweep.corners_along()
 
     @model_validator(mode="after")
     def _standoff_in_range(self) -> "AlignConfig":

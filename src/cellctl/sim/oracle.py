@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.align import AlignmentResult, compute_alignment, plan_spot_poses
+from cellctl.align import AlignmentResult, compute_alignment, plan_spot_poses, readings_at_stops
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.compensate import TaughtPoses
 from cellctl.config.feature import shot_aim_mm, shot_feature
@@ -49,9 +49,11 @@ def teaching_alignment(
         if d is None:
             raise RuntimeError(f"teaching: laser spot {k} gave no distance ({status.value})")
         distances.append(d)
+    stops = align.wall_stops()  # on the move: the plane's offset from the path's corners, as the cycle's from its stops
     result = compute_alignment(
         planned, np.array(distances), laser_r, laser_l, T_H_C, config.process.working_distance_mm,
-        T_B_H_current=C_guess, range_mm=range_mm,
+        T_B_H_current=C_guess, range_mm=range_mm, at_rest=readings_at_stops(planned, distances, stops),
+        min_rest_points=len(stops),
     )  # fmt: skip
     return result
 
