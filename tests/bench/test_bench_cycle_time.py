@@ -41,4 +41,7 @@ def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_t
     # The install's and the inspection's moves are the same in both modes.
     shared = [n for n in slow["spent_median_s"] if n.startswith("turns at") or n == f"moves at {config.process.motion.fine_speed_mm_s:g} mm/s"]
     assert shared and all(slow["spent_median_s"][n] == pytest.approx(fast["spent_median_s"][n], abs=0.05) for n in shared)
-    assert "where the time goes" in format_cycle_time(out)
+    text = format_cycle_time(out)
+    assert "where the time goes" in text and "RMS e stop and go / on the move" in text
+    for mode in (slow, fast):  # one cycle a mode: its error is its own mean, RMS and p99
+        assert all(mode["rms"][k] == pytest.approx(abs(mode["mean"][k])) == pytest.approx(mode["p99_abs"][k]) for k in mode["rms"])

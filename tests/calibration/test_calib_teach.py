@@ -166,6 +166,7 @@ def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_
     assert [along[k] for k in (0, 16, 29)] == [tuple(c) for c in align.sweep.path_mm]
     teach = compute_teaching(ds, store.current(), cfg)
     assert teach.quality["offset_from_stops"] == 3
+    assert "its distance at the sweep's 3 corners" in teach.summary[0]
     plane = teach.detail[0].wall.plane
     r, l = store.current().laser_ray()  # noqa: E741
     points = np.array([np.asarray(s["T_B_H"]) @ np.r_[r + s["distance_mm"] * l, 1.0] for s in spots])[:, :3]

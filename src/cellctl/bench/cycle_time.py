@@ -93,6 +93,9 @@ class ModeFigures:
             "step_median_s": {n: percentile([s.get(n, 0.0) for s in self.step_s], 50) for n in steps},
             "spent_median_s": {n: percentile([s.get(n, 0.0) for s in self.spent_s], 50) for n in spent_on},
             "p99_abs": {a.label: percentile(np.abs(self.errors[:, i]).tolist(), 99) for i, a in enumerate(AXES)},
+            # The bulk beside the tail: p99 of a few dozen cycles is near their largest and moves with one of them.
+            "mean": {a.label: float(np.mean(self.errors[:, i])) for i, a in enumerate(AXES)},
+            "rms": {a.label: float(np.sqrt(np.mean(self.errors[:, i] ** 2))) for i, a in enumerate(AXES)},
             "latency_ms_median": percentile(self.latency_ms, 50) if self.latency_ms else None,
             "latency_modes": self.latency_modes,
             "failures": self.failures,
@@ -220,6 +223,12 @@ def format_cycle_time(out: dict[str, Any]) -> str:
             f"{out['p99_worse'][a.label]:+11.4f} ({lo:+.4f} .. {hi:+.4f})   <= {P99_SLACK[a.unit]:g}  "
             f"{bad['p99_abs'][a.label]:14.4f} {a.unit}"
         )
+    lines.append("  axis   mean e stop and go / on the move   RMS e stop and go / on the move")
+    lines += [
+        f"  {a.label:4s} {slow['mean'][a.label]:+12.4f} / {fast['mean'][a.label]:+.4f} {a.unit:3s}     "
+        f"{slow['rms'][a.label]:12.4f} / {fast['rms'][a.label]:.4f} {a.unit}"
+        for a in AXES
+    ]
     lines.append(f"  bar: {'met' if out['bar_met'] else 'NOT met'}")
     return "\n".join(lines)
 
