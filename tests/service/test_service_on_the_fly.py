@@ -214,6 +214,8 @@ async def test_the_walls_distance_comes_from_the_sweeps_stops_not_from_the_arm_d
     assert rec["state"] == "done", rec.get("error")
     a = _align(rec)
     assert a["readings_at_rest"] >= 30 and abs(a["rest_shift_mm"]) > 0.15, a  # the cell saw the deflection
+    corners = a["readings_at_rest_per_corner"]  # read standing at every corner of the path, each weighing the same
+    assert len(corners) == len(config.process.align.sweep.path_mm) and min(corners) >= 3 and sum(corners) == a["readings_at_rest"], a
     assert abs(rec["true_error"]["dz_mm"]) < 0.12, rec["true_error"]  # and it did not reach the install
     off = {k: rec["measured_deviation"][k] - rec["true_error"][k] for k in ("dz_mm", "drx_deg", "dry_deg")}
     assert abs(off["dz_mm"]) < 0.02 and abs(off["drx_deg"]) < 0.005 and abs(off["dry_deg"]) < 0.005, off

@@ -234,6 +234,7 @@ async def sweep_path(
         return swept
     rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM)
     figures["readings_at_rest"] = int(len(rest))
+    figures["readings_at_rest_per_corner"] = np.bincount(corner_of, minlength=len(corners)).tolist()  # each weighs the same
     return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest], rest_stops=corner_of)
 
 
