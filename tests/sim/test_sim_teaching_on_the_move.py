@@ -3,7 +3,7 @@
 The cycle on the move takes the wall's normal along its sweep and the offset at the sweep's corners, where
 the robot's absolute-accuracy error differs from the mean over the path. Taught the same way (the oracle's
 teaching, as the commissioning procedure's), that error cancels between teaching and cycle; taught from all
-spots, it put every install about 0.03 mm deep on three twins (session 17's measurements).
+spots, it put every install about 0.03 mm deep on three twins.
 """
 
 from __future__ import annotations
