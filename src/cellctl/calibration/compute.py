@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.align import AlignmentError, compute_alignment, readings_at_stops
+from cellctl.align import AlignmentError, AlignmentResult, compute_alignment, readings_at_stops
 from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
 from cellctl.calibration.calibration_set import CalibrationSet, recipe_slot
 from cellctl.calibration.camera import ViewCorners, calibrate_camera
@@ -380,27 +380,35 @@ def _taught_install(ds: Dataset, config: CellConfig, T0: np.ndarray) -> tuple[np
     return g_Pos_0, {"count": len(installs), "spread_mm": spread_mm, "spread_deg": spread_deg}
 
 
+def align_for_teaching(
+    H: np.ndarray, d: np.ndarray, stops: list[int], cal: CalibrationSet, config: CellConfig, start: np.ndarray,
+    range_mm: tuple[float, float],
+) -> AlignmentResult:
+    """Teaching's laser alignment (paper 3) from spots read standing, from the flange pose ``start``; the spots
+    ``stops`` (a sweep path's corners) give the wall's distance, as the cycle on the move takes it at its stops."""
+    ac = config.process.align
+    r, l = cal.laser_ray()  # noqa: E741
+    try:
+        return compute_alignment(
+            H, d, r, l, cal.T_H_C(), config.process.working_distance_mm, T_B_H_current=start, range_mm=range_mm,
+            inlier_threshold_mm=ac.inlier_threshold_mm, max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
+            at_rest=readings_at_stops(H, d, stops), min_rest_points=len(stops),
+        )  # fmt: skip
+    except AlignmentError as err:
+        raise CalibrationRefused("teaching", "alignment", str(err)) from None
+
+
 def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) -> Outcome:
     """T0, C_Pos_0, the template and g_Pos_0 from a teaching dataset and the calibrated sensors."""
     ids = {n: _need(cal, "teaching", n) for n in ("camera", "hand_eye", "laser")}
     assert cal is not None
-    ac = config.process.align
     T_H_C = cal.T_H_C()
-    r, l = cal.laser_ray()  # noqa: E741
     spots = ds.manifest["spots"]
     H = np.array([pose_array(s["T_B_H"], "spot.T_B_H") for s in spots])
     d = np.array([s["distance_mm"] for s in spots], dtype=float)
     start = pose_array(ds.manifest["shooting_start"], "shooting_start")
     stops = [k for k, s in enumerate(spots) if s.get("stop")]  # taught for the cycle on the move: its corners
-    try:
-        align = compute_alignment(
-            H, d, r, l, T_H_C, config.process.working_distance_mm,
-            T_B_H_current=start, range_mm=tuple(ds.manifest["sensor_range_mm"]),
-            inlier_threshold_mm=ac.inlier_threshold_mm, max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
-            at_rest=readings_at_stops(H, d, stops), min_rest_points=len(stops),
-        )
-    except AlignmentError as err:
-        raise CalibrationRefused("teaching", "alignment", str(err)) from None
+    align = align_for_teaching(H, d, stops, cal, config, start, tuple(ds.manifest["sensor_range_mm"]))
     C_Pos_0 = pose_array(ds.manifest["C_Pos_0"], "C_Pos_0")
     moved_mm, moved_rad = pose_error(align.T_B_H_aligned, C_Pos_0)
     if np.linalg.norm(moved_mm) > 1.0 or np.linalg.norm(moved_rad) > np.radians(0.05):

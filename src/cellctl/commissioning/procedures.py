@@ -17,12 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.align import AlignmentError, compute_alignment, readings_at_stops
 from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
     Outcome,
+    align_for_teaching,
     compute_camera,
     compute_hand_eye,
     compute_laser,
@@ -227,11 +227,8 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
     cal = _need(ctx.calibration, "teaching", "camera", "hand_eye", "laser")
     config = ctx.config
     plan = await asyncio.to_thread(plan_teaching, config, cal, start=await current_pose(ctx))
-    T_H_C = cal.T_H_C()
-    r, l = cal.laser_ray()  # noqa: E741
     head = config.layout.laser_mount
     tc = config.calibration.procedure.teach
-    ac = config.process.align
     shoot = plan.details["shooting_start"]
     stops = plan.details["stops"]  # on the move: the spots at the sweep's corners give the plane's offset, as in the cycle
     await car_body_in_place(
@@ -273,15 +270,9 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         ctx.progress(k + 1, n_steps, f"laser spot {k}: {reading.distance_mm:.3f} mm")
     start = np.asarray(shoot, dtype=float)
     draft.manifest["shooting_start"] = pose_list(start)
-    try:
-        align = compute_alignment(
-            np.array(spots_H), np.array(spots_d), r, l, T_H_C, config.process.working_distance_mm, T_B_H_current=start,
-            range_mm=(head.range_min_mm, head.range_max_mm), inlier_threshold_mm=ac.inlier_threshold_mm,
-            max_rms_mm=ac.max_rms_mm, min_collinearity=ac.min_collinearity,
-            at_rest=readings_at_stops(spots_H, spots_d, stops), min_rest_points=len(stops),
-        )  # fmt: skip
-    except AlignmentError as err:
-        raise CalibrationRefused("teaching", "alignment", str(err)) from None
+    align = await asyncio.to_thread(
+        align_for_teaching, np.array(spots_H), np.array(spots_d), stops, cal, config, start, (head.range_min_mm, head.range_max_mm)
+    )
     C_Pos_0 = await move_to(ctx, align.T_B_H_aligned)
     frame = await grab(ctx)
     draft.manifest["C_Pos_0"] = pose_list(C_Pos_0)
