@@ -17,7 +17,7 @@ from cellctl.cell.robots import pose_stream_of
 from cellctl.domain import AlarmCode
 from cellctl.service.simulated import fakes_out_of_time
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.timeout(240), pytest.mark.realtime]
 AXES_MM = ("dx_mm", "dy_mm", "dz_mm")
 AXES_DEG = ("drx_deg", "dry_deg", "drz_deg")
 # The fakes' threads share this process with the cell's and the test's: a loaded CI host can stall them for

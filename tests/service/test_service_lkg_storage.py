@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.timeout(180), pytest.mark.realtime]
 AXES_MM = ("dx_mm", "dy_mm", "dz_mm")
 AXES_DEG = ("drx_deg", "dry_deg", "drz_deg")
 
