@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -140,11 +141,14 @@ def test_nine_point_map_and_pixel_scale_match_the_camera() -> None:
     # Moving right in the image (u) is moving along T0's x; down (v) along T0's y.
     assert amap[0, 0] > 0 and amap[1, 1] > 0
     assert abs(amap[0, 1]) < 1e-3 and abs(amap[1, 0]) < 1e-3
-    # Every part present, computed from the current ones, in date: the cell may produce.
-    assert check_ready(store.current(), NOW) == []
+    # Every part present, computed from the current ones, in date: the cell may produce (reading the wall as taught).
+    assert check_ready(store.current(), NOW) == [] and check_ready(store.current(), NOW, config=config()) == []
+    assert store.current().part("teaching").values.wall_read.mode == "stop_and_go"  # type: ignore[union-attr]
 
 
-def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_walls_offset_at_its_corners() -> None:
+def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_walls_offset_at_its_corners(
+    tmp_path: Path,
+) -> None:
     # The cycle on the move fits the wall's normal along its path and its offset where the flange stands, at the
     # path's corners; the robot's accuracy differs between the two. Teaching measures the same way, so it cancels.
     store = _taught()[0]
@@ -174,3 +178,12 @@ def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_
     assert plane.offset == pytest.approx(float(corners.mean()), abs=1e-6)  # eq. 2 at the corners, not over the path
     assert abs(plane.offset - float((points @ plane.normal).mean())) > 1e-4  # which differs here
     assert np.degrees(angle_between_vectors(plane.normal, nominal_world(cfg.sim.world).normal_B)) < 0.05
+    # The teaching records how and where it read the wall; a cell back to reading standing must teach again.
+    assert teach.values["wall_read"] == {"mode": "on_the_fly", "spots_mm": [list(p) for p in along]}
+    shutil.copytree(store.root, tmp_path / "set")
+    mine = CalibrationStore(tmp_path / "set")
+    record(mine, teach, ds, cfg, NOW)
+    teaching = lambda c: [p for p in check_ready(mine.current(), NOW, config=c) if p.startswith("teaching")]  # noqa: E731
+    assert teaching(cfg) == []  # (the nine-point map is now stale: it comes after the teaching)
+    (problem,) = teaching(base)
+    assert problem.startswith("teaching: taught reading the wall along process.align.sweep.path_mm") and "`cellctl teach`" in problem

@@ -54,7 +54,7 @@ def test_calibrate_status_does_not_call_a_stale_part_ok(monkeypatch: pytest.Monk
     cal = SimpleNamespace(version=2, part=parts.get)
     stale = "teaching: computed with hand_eye hand_eye-0, but the set now holds hand_eye hand_eye-1; run `cellctl teach` again"
     monkeypatch.setattr(ccli, "_store", lambda args: _Store(cal))
-    monkeypatch.setattr(ccli, "check_ready", lambda cal, now: [stale])
+    monkeypatch.setattr(ccli, "check_ready", lambda cal, now, **_: [stale])
     assert ccli._cmd_status(argparse.Namespace(history=False, store=None, workdir=Path("/srv/cell"))) == 1
     out = capsys.readouterr().out
     assert "set version 2 in use, 2 version(s) kept" in out

@@ -43,8 +43,12 @@ from cellctl.calibration.set_parts import (
     StrictRecord,
     PartRecord,
     RecipeParts,
+    TeachingPart,
+    WallRead,
 )
 from cellctl.compensate import TaughtPoses
+from cellctl.config import CellConfig
+from cellctl.config.cell import AlignConfig
 from cellctl.config.loader import format_validation_errors
 from cellctl.geometry.pose import Pose
 from cellctl.vision.lens import Lens
@@ -278,14 +282,42 @@ def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
     return None if recipe is None or recipe == first_recipe else recipe
 
 
+SAME_SPOT_MM = 1.0  # a taught reading spot this close to the configured one is the same place on the wall
+HOW_READ = {"stop_and_go": "standing at process.align.spots_mm", "on_the_fly": "along process.align.sweep.path_mm"}
+
+
+def wall_read_problem(taught: WallRead | None, align: AlignConfig) -> str | None:
+    """Why the cycle would read the wall elsewhere or otherwise than teaching did (None: as taught, or not recorded).
+
+    The taught plane is the reference the cycle's plane is compared with; the robot's accuracy errors
+    cancel between the two only where both read the same places in the same way.
+    """
+    if taught is None:
+        return None
+    if taught.mode != align.mode:
+        return (f"taught reading the wall {HOW_READ[taught.mode]} (process.align.mode = {taught.mode!r}), but the cell "
+                f"now reads it {HOW_READ[align.mode]} (mode {align.mode!r})")  # fmt: skip
+    was, now = np.asarray(taught.spots_mm, dtype=float), np.asarray(align.wall_spots_mm(), dtype=float)
+    if was.shape != now.shape or float(np.max(np.abs(was - now))) > SAME_SPOT_MM:
+        return (f"taught reading the wall at {len(was)} places {HOW_READ[align.mode]}, but that setting now names "
+                f"{len(now)} other ones")  # fmt: skip
+    return None
+
+
 def check_ready(
-    cal: CalibrationSet | None, now: datetime, *, recipe: str | None = None, first_recipe: str | None = None
+    cal: CalibrationSet | None,
+    now: datetime,
+    *,
+    recipe: str | None = None,
+    first_recipe: str | None = None,
+    config: CellConfig | None = None,
 ) -> list[str]:
     """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
     A part is a problem when it is missing, failed, expired, dated in the future, or was
     computed from a part that has since been replaced (stale); a teaching is one when it was
-    taught for another recipe than the one it stands for (``first_recipe`` names the cell's first).
+    taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
+    or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
     """
     if now.tzinfo is None:
         raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
@@ -315,6 +347,10 @@ def check_ready(
         wanted = slot if slot is not None else first_recipe
         if taught_for is not None and wanted is not None and taught_for != wanted:
             problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
+        elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:
+            align = config.for_recipe(wanted or config.default_recipe).process.align
+            if (why := wall_read_problem(p.values.wall_read, align)) is not None:
+                problems.append(f"{label}: {why}; run `{cmd}` again, so the cycle reads the wall where it was taught")
         for dep in DEPENDS_ON[name]:
             used = p.inputs.get(dep)
             have = cal.part(dep, slot)

@@ -460,6 +460,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         }
     values = {
         "recipe": ds.manifest.get("recipe") or config.default_recipe,
+        "wall_read": ds.manifest.get("wall_read"),  # None in a dataset from before it was recorded
         "T0": T0.tolist(),
         "C_Pos_0": C_Pos_0.tolist(),
         "g_Pos_0": g_Pos_0.tolist(),

@@ -110,8 +110,16 @@ class PixelMapValues(StrictRecord):
         return a.tolist()  # type: ignore[no-any-return]
 
 
+class WallRead(StrictRecord):
+    """Where and how teaching read the wall: the cycle must read it the same way (the robot's errors cancel)."""
+
+    mode: Literal["stop_and_go", "on_the_fly"]  # process.align.mode when taught
+    spots_mm: list[tuple[float, float]] = Field(min_length=3)  # in T0: process.align.wall_spots_mm() when taught
+
+
 class TeachingValues(StrictRecord):
     recipe: str | None = None  # the recipe taught (None: taught before recipes had their own teaching; the first)
+    wall_read: WallRead | None = None  # None: taught before teachings recorded it (not checked)
     T0: list[list[float]]
     C_Pos_0: list[list[float]]
     g_Pos_0: list[list[float]]

@@ -207,7 +207,9 @@ class CalibrationSetSource:
         snap = self._snapshot()
         if snap.damage is not None:
             return [snap.damage]
-        return check_ready(snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe)
+        return check_ready(
+            snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config
+        )
 
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         snap = self._snapshot()
@@ -239,7 +241,8 @@ class CalibrationSetSource:
                 "quality": p.quality, "failure": p.failure,
             }  # fmt: skip
         now = datetime.now(timezone.utc)
-        recipes = {r.name: {"ready": not check_ready(cal, now, recipe=r.name, first_recipe=self.config.default_recipe),
+        first = self.config.default_recipe
+        recipes = {r.name: {"ready": not check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config),
                             "taught": cal.usable("teaching", self._slot(r.name))}
                    for r in self.config.process.recipes}  # fmt: skip
         return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes}

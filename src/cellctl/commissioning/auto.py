@@ -43,12 +43,12 @@ def parts_needed(jobs: JobManager) -> list[Needed]:
     if cal is None:
         return [Needed(part) for part in ORDER]
     now, first = datetime.now(timezone.utc), jobs.config.default_recipe
-    problems = check_ready(cal, now)
+    problems = check_ready(cal, now, config=jobs.config)
     needed = [Needed(part) for part in ORDER if any(p.startswith(f"{part}:") for p in problems)]
     if needed:
         return needed
     for recipe in jobs.config.process.recipes[1:]:
-        own = check_ready(cal, now, recipe=recipe.name, first_recipe=first)
+        own = check_ready(cal, now, recipe=recipe.name, first_recipe=first, config=jobs.config)
         needed += [Needed(part, recipe.name) for part in ORDER
                    if part in RECIPE_PART_NAMES and any(p.startswith(f"{part} of recipe {recipe.name}:") for p in own)]  # fmt: skip
     return needed

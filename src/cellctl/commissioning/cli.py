@@ -77,7 +77,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     try:
         current = store.current()
         ds = read_dataset(args.dataset, proc.kind)
-        config = config.for_recipe(ds.manifest.get("recipe") or config.default_recipe)  # a recipe's dataset: its settings
+        cell, config = config, config.for_recipe(ds.manifest.get("recipe") or config.default_recipe)  # a recipe's dataset: its settings
     except (CalibrationSetError, DatasetError, KeyError) as err:
         print(f"{procedure}: {err}", file=sys.stderr)
         return 2
@@ -105,7 +105,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     when = datetime.now(timezone.utc)
     saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
     print(f"stored as version {saved.version} in {store.root}")
-    problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=config.default_recipe)
+    problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
     return 0
 
@@ -141,7 +141,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
         print(f"the calibration store is damaged:\n{err}", file=sys.stderr)
         return 2
     root = store.root.resolve()
-    problems = check_ready(cal, datetime.now(timezone.utc))
+    config = load_config(args.config) if getattr(args, "config", None) else None
+    problems = check_ready(cal, datetime.now(timezone.utc), config=config)
     if cal is None:
         print(f"no calibration set in {root}")
         if not args.store:
@@ -161,9 +162,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
         for row in history:
             print(f"  v{row['version']:<4d} {row['created_utc']}  {row['note']}")
     print("ready for production" if not problems else "not ready:\n  - " + "\n  - ".join(problems))
-    recipes = load_config(args.config).process.recipes if getattr(args, "config", None) and cal is not None else ()
+    recipes = config.process.recipes if config is not None and cal is not None else ()
     for recipe in recipes[1:]:
-        own = check_ready(cal, datetime.now(timezone.utc), recipe=recipe.name, first_recipe=recipes[0].name)
+        own = check_ready(cal, datetime.now(timezone.utc), recipe=recipe.name, first_recipe=recipes[0].name, config=config)
         print(f"recipe {recipe.name}: " + ("ready" if not own else "not ready: " + "; ".join(own)))
     return 0 if not problems else 1
 

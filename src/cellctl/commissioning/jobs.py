@@ -439,7 +439,8 @@ class JobManager:
             fields["version_after"] = saved.version
             result["stored_version"] = saved.version
             result["ready_problems"] = check_ready(
-                saved, datetime.now(timezone.utc), recipe=opts.get("recipe"), first_recipe=self.config.default_recipe
+                saved, datetime.now(timezone.utc), recipe=opts.get("recipe"), first_recipe=self.config.default_recipe,
+                config=self.config,
             )
         else:
             result["stored_version"] = None

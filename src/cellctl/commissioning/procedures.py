@@ -246,6 +246,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         g_Pos_0_installs=[],
         plan=plan.summary(),
         recipe=recipe or config.default_recipe,
+        wall_read={"mode": config.process.align.mode, "spots_mm": plan.details["spots_mm"]},  # the cycle must read it so
     )
     await confirm_start(ctx, plan, "the teaching alignment")
     spots_H, spots_d = [], []

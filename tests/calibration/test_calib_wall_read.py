@@ -1,0 +1,93 @@
+"""A teaching records where and how it read the wall; production refuses a cell that now reads it elsewhere or
+otherwise (the taught plane is the cycle's reference: the robot's errors cancel only between like readings)."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+from calib_test_support import INPUTS, NOW, VALUES, config
+
+from cellctl.calibration.calibration_set import CalibrationStore, check_ready, make_part
+from cellctl.commissioning.auto import Needed, parts_needed
+from cellctl.config import CellConfig
+
+LATER = NOW + timedelta(days=1)
+
+
+def _with_align(cfg: CellConfig, **update: Any) -> CellConfig:
+    process = cfg.process.model_copy(update={"align": cfg.process.align.model_copy(update=update)})
+    return cfg.model_copy(update={"process": process})
+
+
+def _taught(root: Path, wall_read: dict[str, Any] | None) -> CalibrationStore:
+    """Camera, hand-eye, laser, nine-point and a teaching of the first recipe that read the wall as ``wall_read``
+    (valid for years: the auto-commissioning below asks with the clock's own date)."""
+    store = CalibrationStore(root)
+    for name in ("camera", "hand_eye", "laser", "teaching", "pixel_map"):
+        cur = store.current()
+        inputs = {dep: cur.part(dep).id for dep in INPUTS[name]} if cur else {}  # type: ignore[union-attr]
+        values = dict(VALUES[name], wall_read=wall_read) if name == "teaching" else VALUES[name]
+        store.commit(name, make_part(name, values=values, method="test", when=NOW, valid_days=3650.0, inputs=inputs), now=NOW)
+    return store
+
+
+def test_a_teaching_read_standing_is_refused_for_a_cell_that_now_reads_on_the_move(tmp_path: Path) -> None:
+    cfg = config()
+    assert cfg.process.align.mode == "stop_and_go"
+    store = _taught(tmp_path, {"mode": "stop_and_go", "spots_mm": cfg.process.align.spots_mm})
+    assert check_ready(store.current(), LATER, config=cfg) == []
+    on_the_move = _with_align(cfg, mode="on_the_fly")
+    assert check_ready(store.current(), LATER, config=on_the_move) == [
+        "teaching: taught reading the wall standing at process.align.spots_mm (process.align.mode = 'stop_and_go'), "
+        "but the cell now reads it along process.align.sweep.path_mm (mode 'on_the_fly'); run `cellctl teach` again, "
+        "so the cycle reads the wall where it was taught"
+    ]
+    # the service's auto-commissioning teaches again (and nothing else)
+    jobs = SimpleNamespace(current_calibration=store.current, config=on_the_move)
+    assert parts_needed(jobs) == [Needed("teaching")]  # type: ignore[arg-type]
+    as_taught = parts_needed(SimpleNamespace(current_calibration=store.current, config=cfg))  # type: ignore[arg-type]
+    assert [n for n in as_taught if n.recipe is None] == []  # (the second recipe, never taught, comes next)
+    # without the configuration (e.g. a set checked on its own) nothing is compared
+    assert check_ready(store.current(), LATER) == []
+
+
+def test_spots_moved_on_the_wall_need_a_new_teaching_a_millimetre_does_not(tmp_path: Path) -> None:
+    cfg = config()
+    spots = [tuple(s) for s in cfg.process.align.spots_mm]
+    store = _taught(tmp_path, {"mode": "stop_and_go", "spots_mm": spots})
+    nudged = tuple((x + 0.5, y - 0.5) for x, y in spots)
+    assert check_ready(store.current(), LATER, config=_with_align(cfg, spots_mm=nudged)) == []
+    moved = tuple([spots[0], (spots[1][0] + 40.0, spots[1][1])] + spots[2:])
+    assert check_ready(store.current(), LATER, config=_with_align(cfg, spots_mm=moved)) == [
+        "teaching: taught reading the wall at 6 places standing at process.align.spots_mm, but that setting now names "
+        "6 other ones; run `cellctl teach` again, so the cycle reads the wall where it was taught"
+    ]
+    fewer = _with_align(cfg, spots_mm=tuple(spots[:5]))
+    assert "at 6 places standing at process.align.spots_mm, but that setting now names 5 other ones" in check_ready(
+        store.current(), LATER, config=fewer
+    )[0]
+
+
+def test_a_sweep_path_changed_since_teaching_on_the_move_needs_a_new_teaching(tmp_path: Path) -> None:
+    cfg = _with_align(config(), mode="on_the_fly")
+    sweep = cfg.process.align.sweep
+    store = _taught(tmp_path, {"mode": "on_the_fly", "spots_mm": cfg.process.align.wall_spots_mm()})
+    assert check_ready(store.current(), LATER, config=cfg) == []
+    assert check_ready(store.current(), LATER, config=_with_align(cfg, sweep=sweep.model_copy(update={"speed_mm_s": 500.0}))) == []
+    path = [list(c) for c in sweep.path_mm]
+    path[-1][1] -= 200.0  # the second leg ends 200 mm earlier: fewer points along it
+    shorter = _with_align(cfg, sweep=sweep.model_copy(update={"path_mm": tuple(tuple(c) for c in path)}))
+    (problem,) = check_ready(store.current(), LATER, config=shorter)
+    assert problem.startswith(f"teaching: taught reading the wall at {len(cfg.process.align.wall_spots_mm())} places "
+                              "along process.align.sweep.path_mm, but that setting now names")  # fmt: skip
+    # back to reading standing: the mode is named first
+    (problem,) = check_ready(store.current(), LATER, config=_with_align(cfg, mode="stop_and_go"))
+    assert "(process.align.mode = 'on_the_fly'), but the cell now reads it standing at process.align.spots_mm" in problem
+
+
+def test_a_teaching_from_before_the_record_is_not_compared(tmp_path: Path) -> None:
+    store = _taught(tmp_path, None)
+    assert check_ready(store.current(), LATER, config=_with_align(config(), mode="on_the_fly")) == []
