@@ -36,14 +36,15 @@ class _TwinWatch:
         def after_cycle(hooks: cells_mod.CellHooks, k: int, service: Any, trial: Trial) -> None:
             original(hooks, k, service, trial)
             cell = hooks.twin.cell
-            watch.seen.append({"hooks": id(hooks), "k": k, "error": dict(cell.install_error().as_dict()), "T_H_C": cell.T_H_C.copy()})
+            # The hooks object itself, not id(): a finished run's hooks may be freed and its id reused.
+            watch.seen.append({"hooks": hooks, "k": k, "error": dict(cell.install_error().as_dict()), "T_H_C": cell.T_H_C.copy()})
 
         monkeypatch.setattr(cells_mod.CellHooks, "after_cycle", after_cycle)
 
     def of(self, run: CellRun) -> list[dict[str, Any]]:
-        ids = {s["hooks"] for s in self.seen}
-        for i in ids:  # the run's hooks are the ones whose cycles match its trials one to one
-            rows = [s for s in self.seen if s["hooks"] == i]
+        runs = list({id(s["hooks"]): s["hooks"] for s in self.seen}.values())
+        for hooks in runs:  # the run's hooks are the ones whose cycles match its trials one to one
+            rows = [s for s in self.seen if s["hooks"] is hooks]
             if [r["k"] for r in rows] == [t.index for t in run.run.trials] and all(
                 t.true_error is None or t.true_error == pytest.approx(r["error"]) for t, r in zip(run.run.trials, rows)
             ):
