@@ -91,3 +91,16 @@ def test_a_sweep_path_changed_since_teaching_on_the_move_needs_a_new_teaching(tm
 def test_a_teaching_from_before_the_record_is_not_compared(tmp_path: Path) -> None:
     store = _taught(tmp_path, None)
     assert check_ready(store.current(), LATER, config=_with_align(config(), mode="on_the_fly")) == []
+
+
+def test_a_teaching_for_a_recipe_the_configuration_no_longer_lists_is_named_not_a_crash(tmp_path: Path) -> None:
+    cfg = config()
+    store = _taught(tmp_path, {"mode": "stop_and_go", "spots_mm": cfg.process.align.spots_mm})
+    values = dict(VALUES["teaching"], recipe="door", wall_read={"mode": "stop_and_go", "spots_mm": cfg.process.align.spots_mm})
+    inputs = {dep: store.current().part(dep).id for dep in INPUTS["teaching"]}  # type: ignore[union-attr]
+    store.commit("teaching", make_part("teaching", values=values, method="test", when=NOW, valid_days=3650.0, inputs=inputs),
+                 now=NOW, recipe="door")  # fmt: skip
+    assert "door" not in {r.name for r in cfg.process.recipes}
+    problems = check_ready(store.current(), LATER, recipe="door", first_recipe=cfg.default_recipe, config=cfg)
+    assert "teaching of recipe door: taught for recipe door, which [[process.recipes]] does not list; add the recipe " \
+        "to the configuration or teach one it lists" in problems  # fmt: skip

@@ -348,8 +348,11 @@ def check_ready(
         if taught_for is not None and wanted is not None and taught_for != wanted:
             problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
         elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:
-            align = config.for_recipe(wanted or config.default_recipe).process.align
-            if (why := wall_read_problem(p.values.wall_read, align)) is not None:
+            of_recipe = wanted or config.default_recipe
+            if of_recipe not in {r.name for r in config.process.recipes}:
+                problems.append(f"{label}: taught for recipe {of_recipe}, which [[process.recipes]] does not list; "
+                                "add the recipe to the configuration or teach one it lists")
+            elif (why := wall_read_problem(p.values.wall_read, config.for_recipe(of_recipe).process.align)) is not None:
                 problems.append(f"{label}: {why}; run `{cmd}` again, so the cycle reads the wall where it was taught")
         for dep in DEPENDS_ON[name]:
             used = p.inputs.get(dep)
