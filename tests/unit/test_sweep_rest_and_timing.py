@@ -30,6 +30,17 @@ def test_the_latency_is_timed_first_then_checked_until_it_is_due_again() -> None
     assert "another device" in (timing.why_time(object(), robot, 3) or "")  # a swapped laser is timed anew
 
 
+class _Driver:
+    pass
+
+
+def test_a_driver_replaced_after_the_old_one_is_gone_is_timed_anew() -> None:
+    timing, robot = LaserTiming(), object()
+    timing.timed(_estimate(0.0073), _Driver(), robot)  # the caller keeps no reference to the timed laser's driver
+    for _ in range(20):  # CPython hands a freed object's address (its id()) to the next one of its size
+        assert "another device" in (timing.why_time(_Driver(), robot, 25) or "")
+
+
 def test_a_check_that_disagrees_is_used_once_and_the_next_sweep_times_anew() -> None:
     timing, laser, robot = LaserTiming(), object(), object()
     timing.timed(_estimate(0.0073), laser, robot)

@@ -33,14 +33,14 @@ class LaserTiming:
     latency_s: float | None = None
     sigma_s: float | None = None
     sweeps_since: int = 0
-    devices: tuple[int, int] | None = None
+    devices: tuple[object, object] | None = None  # the objects, not id()s: a replaced driver may reuse a freed id
     retime_reason: str | None = None
 
     def why_time(self, laser: object, robot: object, retime_every: int) -> str | None:
         """Why the coming sweep times the laser (three moves along the beam); None: it checks the kept latency."""
         if self.latency_s is None:
             return "no latency kept yet (the first sweep since the service started)"
-        if self.devices != (id(laser), id(robot)):
+        if self.devices is None or self.devices[0] is not laser or self.devices[1] is not robot:
             return "the laser or the robot is another device than the one timed"
         if self.retime_reason is not None:
             return self.retime_reason
@@ -51,7 +51,7 @@ class LaserTiming:
     def timed(self, estimate: LatencyEstimate, laser: object, robot: object) -> None:
         """A sweep timed the laser: keep its estimate."""
         self.latency_s, self.sigma_s, self.sweeps_since = estimate.latency_s, estimate.sigma_s, 0
-        self.devices, self.retime_reason = (id(laser), id(robot)), None
+        self.devices, self.retime_reason = (laser, robot), None
 
     def checked(self, estimate: LatencyEstimate, tolerance_s: float) -> tuple[float, dict[str, Any]]:
         """A sweep checked the kept latency: the latency it uses, and the check's figures for the record.
