@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -29,6 +29,7 @@ from cellctl.align import (
     AlignmentResult,
     compute_alignment,
     plan_spot_poses,
+    readings_at_stops,
 )
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.fine_motion import verification_move
@@ -215,10 +216,13 @@ class CycleRun:
         at_rest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # on the move: the plane's offset from the sweep's stops
         if cfg.mode == "on_the_fly" and unavailable is None:
             poses, distances, figures, at_rest = await sweep_readings(self)
+        elif unavailable is not None:
+            # Asked for, but these devices cannot: read standing where teaching read for the sweep (its offset at the
+            # path's corners), so the taught plane and this one share the robot's errors; the record says why.
+            poses, distances, figures, at_rest = await self._spot_readings(cfg.wall_spots_mm(), cfg.wall_stops())
+            figures |= {"on_the_fly_unavailable": unavailable, "spots_along": "process.align.sweep.path_mm"}
         else:
-            poses, distances, figures = await self._spot_readings()
-            if unavailable is not None:  # asked for, but these devices cannot: the spots are read, and the record says why
-                figures["on_the_fly_unavailable"] = unavailable
+            poses, distances, figures, _ = await self._spot_readings(cfg.spots_mm)
         try:
             result = compute_alignment(
                 poses,
@@ -233,6 +237,7 @@ class CycleRun:
                 max_rms_mm=cfg.max_rms_mm,
                 min_collinearity=cfg.min_collinearity,
                 at_rest=at_rest,
+                min_rest_points=10 if unavailable is None else len(cfg.wall_stops()),  # a sweep's many, or one a corner
             )
         except AlignmentError as err:
             raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
@@ -254,11 +259,14 @@ class CycleRun:
         C_Pos_1 = await self.move(step, result.T_B_H_aligned)
         return result, C_Pos_1
 
-    async def _spot_readings(self) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-        """Stop at each spot and read once (stop and go): the flange poses (N, 4, 4), distances (N,) and the figures."""
+    async def _spot_readings(
+        self, spots_mm: Sequence[Sequence[float]], stops: Sequence[int] = ()
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, Any], tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+        """Stop at each spot (mm in T0) and read once (stop and go): the flange poses (N, 4, 4), distances (N,), the
+        figures, and the readings at ``stops`` (spot indices, each its own stop) as ``compute_alignment``'s ``at_rest``."""
         step, cfg, cal = CycleStep.ALIGN, self.process.align, self.cal
         planned = plan_spot_poses(
-            cal.taught.T0, cfg.spots_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, cfg.laser_standoff_mm
+            cal.taught.T0, spots_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, cfg.laser_standoff_mm
         )
         poses, distances, spots = [], [], []
         for i, T in enumerate(planned):
@@ -279,8 +287,17 @@ class CycleRun:
                 f"only {len(distances)} of {len(planned)} laser spots gave a distance (spots {missing} "
                 "had none); is the car body in position?",
             )
-        figures = {"mode": "stop_and_go", "spots": spots, "spots_without_reading": missing}
-        return np.stack(poses), np.array(distances), figures
+        if unread := [k for k in stops if k in missing]:
+            raise CycleFailed(
+                step,
+                AlarmCode.ALIGNMENT_FAILED,
+                f"no laser reading at spots {unread}, corners of process.align.sweep.path_mm: the wall's distance is "
+                "taken at every corner, as teaching took it; is the car body in position?",
+            )
+        figures = {"mode": "stop_and_go", "spots": spots, "spots_without_reading": missing} | ({"stops": list(stops)} if stops else {})
+        read = [s["index"] for s in spots if s["status"] == LaserStatus.OK.value]
+        H, d = np.stack(poses), np.array(distances)
+        return H, d, figures, readings_at_stops(H, d, [read.index(k) for k in stops])
 
     async def shoot_and_compensate(self, C_Pos_1: Pose) -> tuple[Pose, tuple[ShotRecord, ...]]:
         """The first shot at C_Pos_1, then verification shots at the corrected shooting pose.
