@@ -105,3 +105,20 @@ def test_a_copy_with_other_settings_gives_recipe_views_with_those_settings() -> 
     assert copy.for_recipe("door-window").process.align.mode == "on_the_fly"  # the copy's setting, the recipe's spots
     assert copy.for_recipe("door-window").process.align.spots_mm[0] == (-900.0, -60.0)
     assert config.for_recipe("door-window").process.align.mode == "stop_and_go"  # the original's views are its own
+
+
+
+def test_a_copy_at_a_freed_configurations_address_makes_its_own_recipe_views() -> None:
+    base = parse_config(_data(DOOR))
+    reused = 0
+    for _ in range(10):
+        first = base.model_copy()
+        first.for_recipe("door-window")  # first's own views, made
+        process = first.process.model_copy(update={"align": first.process.align.model_copy(update={"mode": "on_the_fly"})})
+        moved = first.model_copy(update={"process": process})  # carries first's views until asked
+        freed = id(first)
+        del first  # CPython hands the freed address (its id()) to the next object of its size: the copy below
+        again = moved.model_copy()
+        reused += id(again) == freed
+        assert again.for_recipe("door-window").process.align.mode == "on_the_fly"
+    assert reused  # the case this test is about happened

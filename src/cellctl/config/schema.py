@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import weakref
 from typing import Any, Literal
 
 import numpy as np
@@ -43,7 +44,8 @@ class CellConfig(StrictModel):
     calibration: CalibrationConfig = CalibrationConfig()
     sim: SimConfig = SimConfig()
     # (the id of the configuration they were made from, each recipe's view): a model_copy must make its own
-    _recipe_views: tuple[int, dict[str, "CellConfig"]] = PrivateAttr(default=(0, {}))
+    # Whose views these are (a weak reference, not id(): a copy may land at a freed configuration's address).
+    _recipe_views: tuple["weakref.ref[CellConfig]", dict[str, "CellConfig"]] | None = PrivateAttr(default=None)
 
     @model_validator(mode="before")
     @classmethod
@@ -114,7 +116,7 @@ class CellConfig(StrictModel):
     @model_validator(mode="after")
     def _recipes_make_valid_cells(self) -> "CellConfig":
         """Each recipe's sections checked as the tables they replace (a bad field names its recipe)."""
-        self._recipe_views = (id(self), self._make_recipe_views())
+        self._recipe_views = (weakref.ref(self), self._make_recipe_views())
         return self
 
     def _make_recipe_views(self) -> dict[str, "CellConfig"]:
@@ -149,11 +151,9 @@ class CellConfig(StrictModel):
         if name not in {r.name for r in self.process.recipes}:
             known = ", ".join(r.name for r in self.process.recipes)
             raise KeyError(f"no recipe {name!r} in [[process.recipes]] (the recipes are: {known})")
-        owner, views = self._recipe_views
-        if owner != id(self):  # a model_copy (with other settings, maybe): its own views, made once
-            views = self._make_recipe_views()
-            self._recipe_views = (id(self), views)
-        return views.get(name, self)
+        if self._recipe_views is None or self._recipe_views[0]() is not self:  # a model_copy: its own views, made once
+            self._recipe_views = (weakref.ref(self), self._make_recipe_views())
+        return self._recipe_views[1].get(name, self)
 
     @property
     def default_recipe(self) -> str:
