@@ -62,13 +62,19 @@ def test_spots_moved_on_the_wall_need_a_new_teaching_a_millimetre_does_not(tmp_p
     assert check_ready(store.current(), LATER, config=_with_align(cfg, spots_mm=nudged)) == []
     moved = tuple([spots[0], (spots[1][0] + 40.0, spots[1][1])] + spots[2:])
     assert check_ready(store.current(), LATER, config=_with_align(cfg, spots_mm=moved)) == [
-        "teaching: taught reading the wall at 6 places standing at process.align.spots_mm, but that setting now names "
-        "6 other ones; run `cellctl teach` again, so the cycle reads the wall where it was taught"
+        "teaching: taught reading the wall at 6 places standing at process.align.spots_mm, but one of them is now "
+        "40 mm from where it was taught; run `cellctl teach` again, so the cycle reads the wall where it was taught"
     ]
+    two = tuple([(spots[0][0] - 30.0, spots[0][1]), (spots[1][0] + 40.0, spots[1][1])] + spots[2:])
+    assert "but 2 of them are now up to 40 mm from where they were taught" in check_ready(
+        store.current(), LATER, config=_with_align(cfg, spots_mm=two)
+    )[0]
     fewer = _with_align(cfg, spots_mm=tuple(spots[:5]))
-    assert "at 6 places standing at process.align.spots_mm, but that setting now names 5 other ones" in check_ready(
+    assert "at 6 places standing at process.align.spots_mm, but that setting now names 5;" in check_ready(
         store.current(), LATER, config=fewer
     )[0]
+    # the same places in another order read the same wall the same way
+    assert check_ready(store.current(), LATER, config=_with_align(cfg, spots_mm=tuple(reversed(spots)))) == []
 
 
 def test_a_sweep_path_changed_since_teaching_on_the_move_needs_a_new_teaching(tmp_path: Path) -> None:
@@ -102,5 +108,5 @@ def test_a_teaching_for_a_recipe_the_configuration_no_longer_lists_is_named_not_
                  now=NOW, recipe="door")  # fmt: skip
     assert "door" not in {r.name for r in cfg.process.recipes}
     problems = check_ready(store.current(), LATER, recipe="door", first_recipe=cfg.default_recipe, config=cfg)
-    assert "teaching of recipe door: taught for recipe door, which [[process.recipes]] does not list; add the recipe " \
-        "to the configuration or teach one it lists" in problems  # fmt: skip
+    assert "teaching of recipe door: [[process.recipes]] does not list recipe door; add the recipe to the " \
+        "configuration or teach one it lists" in problems  # fmt: skip

@@ -253,8 +253,8 @@ def offset_at_rest(
     if near.shape[0] < min_points:
         raise AlignmentError(
             f"only {near.shape[0]} of {P.shape[0]} readings taken at rest lie within {inlier_threshold_mm} mm of the "
-            f"wall's plane (need {min_points}): the sweep must stand still at its corners long enough to read, "
-            "with the laser on the plain wall there"
+            f"wall's plane (need {min_points}): the laser must read the plain wall at each corner of the sweep's path "
+            "(on the move, the sweep must stand still at its corners long enough to read)"
         )
     plane = wall.plane
     along = near @ plane.normal

@@ -226,8 +226,8 @@ def _align_summary(record: CycleRecord) -> dict[str, Any] | None:
     figures = next((s.figures for s in record.steps if s.step is CycleStep.ALIGN), None)
     if not figures:
         return None
-    keys = ("mode", "on_the_fly_unavailable", "spots_along", "stops", "readings_fitted", "latency_ms", "latency_sigma_ms", "latency",
-            "latency_check")
+    keys = ("mode", "on_the_fly_unavailable", "spots_along", "stops", "spots_without_reading", "rejected", "readings_fitted",
+            "latency_ms", "latency_sigma_ms", "latency", "latency_check")
     return {k: _jsonable(figures[k]) for k in keys if k in figures}
 
 

@@ -33,6 +33,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import Field, ValidationError
+from scipy.optimize import linear_sum_assignment
 
 from cellctl.calibration.camera import lens_from_matrix
 from cellctl.calibration.set_parts import (
@@ -282,7 +283,7 @@ def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
     return None if recipe is None or recipe == first_recipe else recipe
 
 
-SAME_SPOT_MM = 1.0  # a taught reading spot this close to the configured one is the same place on the wall
+SAME_SPOT_MM = 1.0  # a taught reading place this near (mm in T0) to a configured one is the same place on the wall
 HOW_READ = {"stop_and_go": "standing at process.align.spots_mm", "on_the_fly": "along process.align.sweep.path_mm"}
 
 
@@ -298,9 +299,17 @@ def wall_read_problem(taught: WallRead | None, align: AlignConfig) -> str | None
         return (f"taught reading the wall {HOW_READ[taught.mode]} (process.align.mode = {taught.mode!r}), but the cell "
                 f"now reads it {HOW_READ[align.mode]} (mode {align.mode!r})")  # fmt: skip
     was, now = np.asarray(taught.spots_mm, dtype=float), np.asarray(align.wall_spots_mm(), dtype=float)
-    if was.shape != now.shape or float(np.max(np.abs(was - now))) > SAME_SPOT_MM:
-        return (f"taught reading the wall at {len(was)} places {HOW_READ[align.mode]}, but that setting now names "
-                f"{len(now)} other ones")  # fmt: skip
+    read = f"taught reading the wall at {len(was)} places {HOW_READ[align.mode]}"
+    if was.shape != now.shape:
+        return f"{read}, but that setting now names {len(now)}"
+    # the places as a set (the order the robot visits them in does not change the plane): each to its nearest match
+    D = np.linalg.norm(was[:, None, :] - now[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(D)
+    moved = D[rows, cols][D[rows, cols] > SAME_SPOT_MM]
+    if moved.size == 1:
+        return f"{read}, but one of them is now {moved[0]:.0f} mm from where it was taught"
+    if moved.size:
+        return f"{read}, but {moved.size} of them are now up to {moved.max():.0f} mm from where they were taught"
     return None
 
 
@@ -350,7 +359,7 @@ def check_ready(
         elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:
             of_recipe = wanted or config.default_recipe
             if of_recipe not in {r.name for r in config.process.recipes}:
-                problems.append(f"{label}: taught for recipe {of_recipe}, which [[process.recipes]] does not list; "
+                problems.append(f"{label}: [[process.recipes]] does not list recipe {of_recipe}; "
                                 "add the recipe to the configuration or teach one it lists")
             elif (why := wall_read_problem(p.values.wall_read, config.for_recipe(of_recipe).process.align)) is not None:
                 problems.append(f"{label}: {why}; run `{cmd}` again, so the cycle reads the wall where it was taught")

@@ -243,10 +243,13 @@ class CycleRun:
             raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
         self.limit(step, cal.taught.C_Pos_0, result.T_B_H_aligned, "aligned shooting pose")
         wall = result.wall
+        # standing, a rejected reading is named by its spot (as figures["spots"] are), not by its place among the readings
+        spot_of = [s["index"] for s in figures["spots"] if s["status"] == LaserStatus.OK.value] if "spots" in figures else None
         await self.rec.step_figures(
             step,
             figures | {
-                "rejected": [{"index": r.index, "residual_mm": r.residual_mm, "reason": r.reason} for r in wall.rejected],
+                "rejected": [{"index": r.index if spot_of is None else spot_of[r.index], "residual_mm": r.residual_mm,
+                              "reason": r.reason} for r in wall.rejected],  # fmt: skip
                 "normal_B": wall.normal.tolist(),
                 "fit_rms_mm": wall.plane.rms,
                 "fit_max_residual_mm": wall.plane.max_residual,

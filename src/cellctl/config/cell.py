@@ -86,7 +86,8 @@ class AlignConfig(StrictModel):
     ``spots_mm`` are where the laser should hit the wall, in the taught workpiece frame T0
     (x right, y down from the upper-right corner; the opening is x < 0, 0 < y). Keep them on the
     wall, off the opening, and spread in two directions. ``mode = "on_the_fly"`` reads the wall
-    while sweeping ``[process.align.sweep]`` instead, where the devices can (else the spots are read).
+    while sweeping ``[process.align.sweep]`` instead, where the devices can (else standing, at the
+    points along the sweep's path that teaching read: :meth:`wall_spots_mm`).
     """
 
     spots_mm: tuple[Vec2, ...] = (
