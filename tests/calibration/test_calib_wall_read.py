@@ -8,10 +8,13 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import pytest
+
 from calib_test_support import INPUTS, NOW, VALUES, config
 
 from cellctl.calibration.calibration_set import CalibrationStore, check_ready, make_part
 from cellctl.commissioning.auto import Needed, parts_needed
+from cellctl.commissioning.plans import PlanError, plan_teaching
 from cellctl.config import CellConfig
 
 LATER = NOW + timedelta(days=1)
@@ -110,3 +113,15 @@ def test_a_teaching_for_a_recipe_the_configuration_no_longer_lists_is_named_not_
     problems = check_ready(store.current(), LATER, recipe="door", first_recipe=cfg.default_recipe, config=cfg)
     assert "teaching of recipe door: [[process.recipes]] does not list recipe door; add the recipe to the " \
         "configuration or teach one it lists" in problems  # fmt: skip
+
+
+def test_teaching_places_out_of_reach_name_the_setting_that_puts_them_there(tmp_path: Path) -> None:
+    cal = _taught(tmp_path, None).current()
+    cfg = config()
+    far = ((-6000.0, -60.0), (-4000.0, -60.0), (-4000.0, 1200.0))
+    for mode, setting, update in (
+        ("stop_and_go", "process.align.spots_mm", {"spots_mm": far}),
+        ("on_the_fly", "process.align.sweep.path_mm", {"sweep": cfg.process.align.sweep.model_copy(update={"path_mm": far})}),
+    ):
+        with pytest.raises(PlanError, match=rf"; move {setting} or the layout's opening"):
+            plan_teaching(_with_align(cfg, mode=mode, **update), cal)

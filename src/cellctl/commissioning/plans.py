@@ -252,7 +252,7 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
         poses.append(X)
         labels.append(f"spot {k}")
     if dropped:
-        raise PlanError("teaching: " + "; ".join(dropped) + "; move process.align.spots_mm or the layout's opening")
+        raise PlanError("teaching: " + "; ".join(dropped) + f"; move {ac.wall_setting()} or the layout's opening")
     details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.wall_spots_mm()],
                "stops": list(ac.wall_stops()), "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
     return make_plan(config, "teaching", poses, labels, dropped, start, details)

@@ -260,8 +260,8 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         if reading.status is not LaserStatus.OK or reading.distance_mm is None:
             raise CalibrationRefused(
                 "teaching", "alignment",
-                f"laser spot {k} gave no distance ({reading.status.value}); move process.align.spots_mm onto the wall "
-                "and within the sensor's range",
+                f"laser spot {k} gave no distance ({reading.status.value}); move {config.process.align.wall_setting()} onto "
+                "the wall and within the sensor's range",
             )  # fmt: skip
         spots_H.append(reported)
         spots_d.append(float(reading.distance_mm))

@@ -114,6 +114,10 @@ class AlignConfig(StrictModel):
         """
         return self.spots_mm if self.mode == "stop_and_go" else self.sweep.points_along_mm()
 
+    def wall_setting(self) -> str:
+        """The setting that says where the alignment reads the wall (for the messages that ask to move it)."""
+        return "process.align.spots_mm" if self.mode == "stop_and_go" else "process.align.sweep.path_mm"
+
     def wall_stops(self) -> tuple[int, ...]:
         """The indices in :meth:`wall_spots_mm` where a sweep stands (its path's corners); none at stop and go.
 
