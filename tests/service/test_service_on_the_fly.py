@@ -72,12 +72,20 @@ async def test_on_the_move_installs_as_well_as_stop_and_go_in_less_robot_time(tm
     assert _align(stop[0])["mode"] == "stop_and_go"
 
 
-async def test_on_the_move_falls_back_to_the_spots_when_the_robot_streams_no_pose(tmp_path: Path) -> None:
-    # the ABB driver over its fake without EGM: no position feedback stream, so the spots are read
+async def test_on_the_move_falls_back_to_reading_standing_where_it_was_taught_when_the_robot_streams_no_pose(
+    tmp_path: Path,
+) -> None:
+    # the ABB driver over its fake without EGM: no position feedback stream, so the wall is read standing, at the
+    # points along the sweep's path that the cell's own teaching read (it commissioned itself, on the move)
     rec = (await _cycles(tmp_path, "on_the_fly", 1, devices={"laser": {"kind": "sim"}, "robot": {"kind": "sim_abb", "egm": False}}))[0]
     assert rec["state"] == "done", rec.get("error")
     a = _align(rec)
     assert a["mode"] == "stop_and_go" and "position feedback" in a["on_the_fly_unavailable"], a
+    align = sim_config(**{"process.align": {"mode": "on_the_fly"}}).process.align
+    assert a["spots_along"] == "process.align.sweep.path_mm" and len(a["spots"]) == len(align.wall_spots_mm()) > 6, a
+    assert a["stops"] == list(align.wall_stops()) and a["spots_without_reading"] == [], a
+    te = rec["true_error"]
+    assert all(abs(te[k]) < 0.3 for k in AXES_MM) and all(abs(te[k]) < 0.05 for k in AXES_DEG), te
 
 
 async def _one_cycle_with_fault(
