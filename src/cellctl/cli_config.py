@@ -8,6 +8,7 @@ from typing import Any
 
 from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
+from cellctl.config.devices import AbbRobotDevice, SimAbbDevice
 from cellctl.config.loader import check_tokens
 from cellctl.commissioning.wall_plan import wall_plan
 
@@ -44,6 +45,20 @@ def _recipe(config: CellConfig, name: str) -> str:
             f" at {tuple(round(v, 1) for v in o.corner_position_mm)}; " + (f"its own {own}" if own else "the cell's settings"))
 
 
+def wall_reading_in_use(config: CellConfig) -> str:
+    """Which of the wall plan's choices this configuration's cycle makes, as far as the file tells."""
+    if config.process.align.mode == "stop_and_go":
+        return "this cell: stop and go (process.align.mode)"
+    robot, no_egm = config.devices.robot, None
+    if isinstance(robot, AbbRobotDevice) and robot.egm_port is None:
+        no_egm = "devices.robot.egm_port = 0"
+    elif isinstance(robot, SimAbbDevice) and not robot.egm:
+        no_egm = "devices.robot.egm = false"
+    if no_egm is not None:
+        return f"this cell: standing along the path (process.align.mode = 'on_the_fly', but {no_egm}: the robot streams no pose)"
+    return "this cell: on the move (process.align.mode), standing along the path in a cycle whose devices cannot"
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
@@ -56,7 +71,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     for line in summary(config):
         print(f"  {line}")
     try:
-        plan = wall_plan(config).lines()
+        plan = wall_plan(config).lines() + [wall_reading_in_use(config)]
     except ValueError as err:  # e.g. spots on a line: the configuration loads, the alignment would refuse
         plan = [f"cannot be predicted: {err}"]
     print("  wall readings           " + "\n                          ".join(plan))

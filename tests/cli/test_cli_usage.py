@@ -9,11 +9,13 @@ import sys
 from importlib.metadata import version
 from pathlib import Path
 
+import numpy as np
 import pytest
 from shared_support import free_port
 
 import cellctl.cli as cli
 from cellctl.cli import build_parser, main
+from cellctl.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "config" / "sim.toml"
@@ -55,6 +57,28 @@ def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFix
     assert re.search(r"on the move: \d+ readings along the sweep, [\d.]+ s of robot time and [\d.]+ s to read the laser.s storage out; plane \+-", out), out
     rc, out, _ = _run(capsys, "--config", str(SIM), "config", "check", "--secrets")
     assert rc == 0 and "could be read" in out
+
+
+def test_config_check_says_where_this_cell_reads_the_wall(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc, out, _ = _run(capsys, "config", "check", "--config", str(SIM))
+    assert rc == 0 and "this cell: stop and go (process.align.mode)" in out, out
+    # a cell without a storing laser or a pose stream reads standing at the points teaching reads along the path
+    m = re.search(r"devices that cannot \(no storing laser, or no EGM\): standing at the (\d+) points along the path that "
+                  r"teaching reads, ([\d.]+) s of robot time between them", out)  # fmt: skip
+    align, travel = load_config(SIM).process.align, load_config(SIM).process.motion.travel_speed_mm_s
+    assert m and int(m[1]) == len(align.sweep.points_along_mm()), out
+    legs = np.diff(np.asarray(align.sweep.path_mm, dtype=float), axis=0)
+    assert float(m[2]) > np.linalg.norm(legs, axis=1).sum() / travel  # no faster than the path at the travel speed
+    on_the_move = SIM.read_text(encoding="utf-8").replace('\nmode = "stop_and_go"', '\nmode = "on_the_fly"', 1)
+    (tmp_path / "otf.toml").write_text(on_the_move, encoding="utf-8")
+    rc, out, _ = _run(capsys, "config", "check", "--config", str(tmp_path / "otf.toml"))
+    assert rc == 0 and "this cell: on the move (process.align.mode)" in out, out
+    hw = (ROOT / "config" / "hardware.example.toml").read_text(encoding="utf-8")
+    no_egm = hw.replace("\negm_port = 6511 ", "\negm_port = 0 ", 1) + '\n[process.align]\nmode = "on_the_fly"\n'
+    (tmp_path / "hw.toml").write_text(no_egm, encoding="utf-8")
+    rc, out, err = _run(capsys, "config", "check", "--config", str(tmp_path / "hw.toml"))
+    assert rc == 0, err
+    assert "this cell: standing along the path (process.align.mode = 'on_the_fly', but devices.robot.egm_port = 0" in out, out
 
 
 def test_config_check_names_the_bad_field_and_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -41,6 +41,8 @@ class WallPlan:
     sweep_readings: int
     sweep_error: tuple[float, float]
     readout_s: float  # reading the laser's storage out after the sweep (its serial line)
+    along_spots: int  # on the move with devices that cannot: the points along the path read standing (as taught)
+    along_s: float  # robot time between them
 
     def lines(self) -> list[str]:
         return [
@@ -52,6 +54,8 @@ class WallPlan:
             f"and {self.readout_s:.1f} s to read the laser's storage out; "
             f"plane +-{self.sweep_error[0]:.4f} deg, +-{self.sweep_error[1]:.3f} mm",
             f"(predicted 1 sigma with laser {LASER_SIGMA_MM:g} mm per reading, robot {ROBOT_SIGMA_MM:g} mm per standing stop)",
+            f"on the move with devices that cannot (no storing laser, or no EGM): standing at the {self.along_spots} points "
+            f"along the path that teaching reads, {self.along_s:.1f} s of robot time between them",
         ]
 
 
@@ -77,12 +81,14 @@ def wall_plan(config: CellConfig) -> WallPlan:
     sweep_s = sum(robot.move_time_s(a, b, sw.speed_mm_s, motion.speed_deg_s) for a, b in zip(route, route[1:]))
     readout_s = sweep_s / sw.storage_cycle_s * readout_s_per_reading(config)  # everything stored from start to stop
     along = sweep_readings(sw.path_mm, sw.speed_mm_s * sw.storage_cycle_s)
+    standing = poses(sw.points_along_mm())
+    along_s = sum(robot.move_time_s(a, b, motion.travel_speed_mm_s, motion.speed_deg_s) for a, b in zip(standing, standing[1:]))
     noise = {"laser_sigma_mm": LASER_SIGMA_MM, "robot_sigma_mm": ROBOT_SIGMA_MM}
     return WallPlan(
         spots=len(spots), spots_s=sum(between(i, i + 1) for i in range(len(spots) - 1)), fastest_order=order,
         fastest_s=fastest, spots_error=predicted_plane_error(standing_readings(ac.spots_mm), **noise),
         sweep_s=float(sweep_s), sweep_readings=len(along.xy_mm), sweep_error=predicted_plane_error(along, **noise),
-        readout_s=float(readout_s),
+        readout_s=float(readout_s), along_spots=len(standing), along_s=float(along_s),
     )  # fmt: skip
 
 
