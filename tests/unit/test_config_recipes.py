@@ -122,3 +122,13 @@ def test_a_copy_at_a_freed_configurations_address_makes_its_own_recipe_views() -
         reused += id(again) == freed
         assert again.for_recipe("door-window").process.align.mode == "on_the_fly"
     assert reused  # the case this test is about happened
+
+
+def test_a_configuration_pickles_compares_by_its_fields_and_a_copy_makes_its_own_recipe_views() -> None:
+    import pickle
+
+    config = parse_config(_data(DOOR))
+    assert parse_config(_data(DOOR)) == config  # the recipe views do not enter the comparison
+    again = pickle.loads(pickle.dumps(config))
+    assert again == config and again.for_recipe("door-window").process.align.spots_mm[0] == (-900.0, -60.0)
+    assert again.for_recipe("side-window") is again

@@ -25,6 +25,25 @@ from cellctl.config.vision import VisionConfig
 
 
 
+class _RecipeViews:
+    """Each recipe's view of one configuration, and whose they are.
+
+    The owner is held by a weak reference, not its id(): a copy may land at a freed configuration's
+    address. Two are equal whatever they hold: the views follow from the fields, which pydantic compares.
+    """
+
+    __slots__ = ("owner", "views")
+
+    def __init__(self, owner: CellConfig, views: dict[str, CellConfig]) -> None:
+        self.owner = weakref.ref(owner)
+        self.views = views
+
+    def __eq__(self, other: object) -> bool:
+        return other is None or isinstance(other, _RecipeViews)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 class CellConfig(StrictModel):
     """A whole cell: which devices, its nominal layout, the process, and (simulated) the twin."""
 
@@ -43,9 +62,13 @@ class CellConfig(StrictModel):
     api: ApiConfig = ApiConfig()
     calibration: CalibrationConfig = CalibrationConfig()
     sim: SimConfig = SimConfig()
-    # (the id of the configuration they were made from, each recipe's view): a model_copy must make its own
-    # Whose views these are (a weak reference, not id(): a copy may land at a freed configuration's address).
-    _recipe_views: tuple["weakref.ref[CellConfig]", dict[str, "CellConfig"]] | None = PrivateAttr(default=None)
+    _recipe_views: _RecipeViews | None = PrivateAttr(default=None)  # made on demand, not pickled
+
+    def __getstate__(self) -> dict[Any, Any]:
+        state = super().__getstate__()
+        if state.get("__pydantic_private__"):
+            state["__pydantic_private__"] = {**state["__pydantic_private__"], "_recipe_views": None}
+        return state
 
     @model_validator(mode="before")
     @classmethod
@@ -116,7 +139,7 @@ class CellConfig(StrictModel):
     @model_validator(mode="after")
     def _recipes_make_valid_cells(self) -> "CellConfig":
         """Each recipe's sections checked as the tables they replace (a bad field names its recipe)."""
-        self._recipe_views = (weakref.ref(self), self._make_recipe_views())
+        self._recipe_views = _RecipeViews(self, self._make_recipe_views())
         return self
 
     def _make_recipe_views(self) -> dict[str, "CellConfig"]:
@@ -151,9 +174,9 @@ class CellConfig(StrictModel):
         if name not in {r.name for r in self.process.recipes}:
             known = ", ".join(r.name for r in self.process.recipes)
             raise KeyError(f"no recipe {name!r} in [[process.recipes]] (the recipes are: {known})")
-        if self._recipe_views is None or self._recipe_views[0]() is not self:  # a model_copy: its own views, made once
-            self._recipe_views = (weakref.ref(self), self._make_recipe_views())
-        return self._recipe_views[1].get(name, self)
+        if self._recipe_views is None or self._recipe_views.owner() is not self:  # a model_copy: its own views, made once
+            self._recipe_views = _RecipeViews(self, self._make_recipe_views())
+        return self._recipe_views.views.get(name, self)
 
     @property
     def default_recipe(self) -> str:
