@@ -55,6 +55,10 @@ def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFix
     # the alignment's choice of readings: robot time and predicted plane error, spots against the sweep
     assert re.search(r"stop and go: 6 spots, [\d.]+ s of robot time .*plane \+-[\d.]+ deg, \+-[\d.]+ mm", out), out
     assert re.search(r"on the move: \d+ readings along the sweep, [\d.]+ s of robot time and [\d.]+ s to read the laser.s storage out; plane \+-", out), out
+    m = load_config(SIM).process.motion  # the speeds with the glass and, after the release, without it
+    assert (f"with the glass {m.travel_speed_mm_s:g} mm/s and {m.speed_deg_s:g} deg/s" in out
+            and f"released {m.empty_travel_speed_mm_s:g} mm/s and {m.empty_speed_deg_s:g} deg/s, out of the opening "
+                f"{m.back_off_speed_mm_s:g} mm/s" in out), out  # fmt: skip
     rc, out, _ = _run(capsys, "--config", str(SIM), "config", "check", "--secrets")
     assert rc == 0 and "could be read" in out
 

@@ -43,7 +43,8 @@ def test_hand_eye_is_reorthonormalised_and_faces_the_wall_with_the_laser() -> No
 # Where config/sim.toml departs from the code defaults on purpose (the defaults suit a real cell).
 SIM_OVERRIDES = {("plc", "heartbeat_alarm"), ("devices", "laser"), ("devices", "robot"),
                  ("opcua", "security_policies"), ("opcua", "allow_anonymous"),  # the demo also offers None and anonymous
-                 ("process", "recipes")}  # the simulated line installs two window types; the default is one
+                 ("process", "recipes"),  # the simulated line installs two window types; the default is one
+                 ("process", "motion")}  # after the release the twin's robot goes faster; by default as with the glass
 
 
 def test_code_defaults_equal_the_shipped_sim_toml_but_for_the_sim_overrides() -> None:

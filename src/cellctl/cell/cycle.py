@@ -181,6 +181,7 @@ class CycleRun:
         self.vision = vision
         self.rec = recorder
         self.motion = process.motion
+        self.glass_on_gripper = True  # the cycle starts with a glass on the gripper; the inspection releases it
         self.sweep_latency_s: float | None = None  # this cycle's laser-to-robot latency, once a sweep timed it
         self.laser_timing = laser_timing if laser_timing is not None else LaserTiming()  # kept from cycle to cycle
         self._last_shot = ShotRecord(-1, PlanarOffset(0.0, 0.0, 0.0), 0.0)
@@ -189,8 +190,9 @@ class CycleRun:
     async def move(
         self, step: CycleStep, T: Pose, *, kind: MotionKind = "linear", fine: bool = False, speed_mm_s: float | None = None
     ) -> Pose:
-        speed = speed_mm_s or (self.motion.fine_speed_mm_s if fine else self.motion.travel_speed_mm_s)
-        request = MotionRequest(CartesianPose.from_matrix(T), kind, speed, self.motion.speed_deg_s)
+        travel_mm_s, turn_deg_s = self.motion.speeds(glass_on_gripper=self.glass_on_gripper)
+        speed = speed_mm_s or (self.motion.fine_speed_mm_s if fine else travel_mm_s)
+        request = MotionRequest(CartesianPose.from_matrix(T), kind, speed, turn_deg_s)
         try:
             reached = await self.dev.robot.move(request, timeout_s=self.motion.move_timeout_s)
         except UnreachableTarget as err:

@@ -147,6 +147,11 @@ class MotionConfig(StrictModel):
     travel_speed_mm_s: Finite = Field(500.0, gt=0, le=7000)  # between spots, to the shooting pose
     fine_speed_mm_s: Finite = Field(50.0, gt=0, le=1000)  # the last approach into the opening
     speed_deg_s: Finite = Field(30.0, gt=0, le=500)
+    # Once the gripper has released the glass (the inspection's moves) the robot carries no glass;
+    # None: the speeds above (back_off_speed_mm_s: the move out of the opening, None: fine_speed_mm_s).
+    empty_travel_speed_mm_s: Finite | None = Field(None, gt=0, le=7000)
+    empty_speed_deg_s: Finite | None = Field(None, gt=0, le=500)
+    back_off_speed_mm_s: Finite | None = Field(None, gt=0, le=1000)
     approach_mm: Finite = Field(100.0, ge=0)  # stand-off in front of the install pose
     move_timeout_s: Finite = Field(60.0, gt=0)
     read_timeout_s: Finite = Field(2.0, gt=0)  # laser reading, pose read-back
@@ -157,6 +162,12 @@ class MotionConfig(StrictModel):
     verify_by_egm: bool = True
     egm_tolerance_mm: Finite = Field(0.02, gt=0, le=5)
     egm_tolerance_deg: Finite = Field(0.005, gt=0, le=1)
+
+    def speeds(self, *, glass_on_gripper: bool) -> tuple[float, float]:
+        """The travel speed (mm/s) and reorientation speed (deg/s) of a move, with the glass on the gripper or not."""
+        if glass_on_gripper:
+            return self.travel_speed_mm_s, self.speed_deg_s
+        return self.empty_travel_speed_mm_s or self.travel_speed_mm_s, self.empty_speed_deg_s or self.speed_deg_s
 
 
 class VerifyConfig(StrictModel):
