@@ -40,10 +40,10 @@ def summary(config: CellConfig) -> list[str]:
 def _speeds(config: CellConfig) -> str:
     """The cycle's speeds with the glass on the gripper and once it is released (process.motion)."""
     m = config.process.motion
-    empty_mm_s, empty_deg_s = m.speeds(glass_on_gripper=False)
-    return (f"with the glass {m.travel_speed_mm_s:g} mm/s and {m.speed_deg_s:g} deg/s, into the opening {m.fine_speed_mm_s:g} mm/s; "
-            f"released {empty_mm_s:g} mm/s and {empty_deg_s:g} deg/s, out of the opening "
-            f"{m.back_off_speed_mm_s or m.fine_speed_mm_s:g} mm/s (process.motion)")
+    (held_mm_s, held_deg_s), (empty_mm_s, empty_deg_s) = m.speeds(glass_on_gripper=True), m.speeds(glass_on_gripper=False)
+    return (f"with the glass {held_mm_s:g} mm/s and {held_deg_s:g} deg/s, into the opening {m.fine_speed_mm_s:g} mm/s; "
+            f"released {empty_mm_s:g} mm/s and {empty_deg_s:g} deg/s, out of the opening {m.back_off_mm_s():g} mm/s "
+            "(process.motion)")
 
 
 def _recipe(config: CellConfig, name: str) -> str:

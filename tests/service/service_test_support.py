@@ -29,6 +29,7 @@ def sim_config(**sections: dict[str, Any]) -> CellConfig:
     data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
     sections.setdefault("calibration", {"source": "oracle"})
     sections.setdefault("opcua", {"enabled": False})  # the OPC UA tests turn it on (its start costs about a second)
+    sections["plc"] = {"port": 0} | sections.get("plc", {})  # never sim.toml's 5020: tests run side by side
     for name, fields in sections.items():
         node = data
         for part in name.split("."):

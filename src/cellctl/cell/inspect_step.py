@@ -56,7 +56,7 @@ async def release_and_back_off(run: CycleRun, T2: Pose, reached: Pose) -> None:
     run.glass_on_gripper = False  # from here on the moves run at the empty gripper's speeds
     # T2's z axis points into the wall: back off along -z of T2, keeping the flange's orientation.
     out = T2 @ make_pose(np.eye(3), [0.0, 0.0, -cfg.back_off_mm]) @ invert_pose(T2) @ reached
-    await run.move(STEP, out, speed_mm_s=run.motion.back_off_speed_mm_s or run.motion.fine_speed_mm_s)
+    await run.move(STEP, out, speed_mm_s=run.motion.back_off_mm_s())
 
 
 async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> tuple[np.ndarray, GapMeasurement]:

@@ -169,6 +169,10 @@ class MotionConfig(StrictModel):
             return self.travel_speed_mm_s, self.speed_deg_s
         return self.empty_travel_speed_mm_s or self.travel_speed_mm_s, self.empty_speed_deg_s or self.speed_deg_s
 
+    def back_off_mm_s(self) -> float:
+        """The speed (mm/s) of the move out of the opening after the release."""
+        return self.back_off_speed_mm_s or self.fine_speed_mm_s
+
 
 class VerifyConfig(StrictModel):
     """Verification shots: re-shoot at the corrected shooting pose until the residual is small.
