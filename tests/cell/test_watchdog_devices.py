@@ -233,3 +233,33 @@ async def test_running_watchdog_detects_loss_and_return() -> None:
     # Both went away but stay listed until acknowledged; nothing about the robot was raised.
     assert {(a.code, a.source, a.active) for a in am.current()} == {
         (AlarmCode.DEVICE_SLOW, "laser", False), (AlarmCode.LASER_LOST, "laser", False)}  # fmt: skip
+
+
+async def test_stop_ends_a_loop_whose_cancellation_the_ping_swallowed(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Python 3.11's asyncio.wait_for returns the call's result when the cancel lands as the call completes:
+    # the loop's task then runs on as if never cancelled. Here the first cancel is swallowed so.
+    swallowed = [0]
+
+    async def swallowing_wait_for(aw: object, timeout: float | None = None) -> object:
+        try:
+            return await aw  # type: ignore[misc]
+        except asyncio.CancelledError:
+            swallowed[0] += 1
+            if swallowed[0] > 1:  # then as asyncio would: a test that fails still ends
+                raise
+            return 0.001
+
+    robot = FakeRobot()
+    robot.link.mode = "hang"  # every ping waits, so the cancel lands in it
+    wd = DeviceWatchdog(AlarmManager(), defaults=WatchdogSettings(period_s=0.01, timeout_s=0.005, miss_threshold=2))
+    wd.add("robot", robot)
+    monkeypatch.setattr(asyncio, "wait_for", swallowing_wait_for)
+    await wd.start()
+    while robot.link.calls == 0:
+        await asyncio.sleep(0.005)
+    stopping = asyncio.ensure_future(wd.stop())
+    done, _ = await asyncio.wait({stopping}, timeout=10.0)
+    assert stopping in done, "stop() still waits for a loop that went on after its cancel"  # before the mend: for ever
+    calls = robot.link.calls
+    await asyncio.sleep(0.05)
+    assert robot.link.calls == calls and swallowed[0] >= 1  # a cancel was lost, and no loop is left pinging

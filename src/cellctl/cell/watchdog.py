@@ -27,6 +27,7 @@ _log = logging.getLogger(__name__)
 
 TIMEOUT_GRACE_S = 0.25
 """How much longer than ``timeout_s`` the watchdog waits for a driver that ignores its timeout."""
+STOP_RETRY_S = 0.5  # stop() cancels a loop again after this long without its end
 
 
 @runtime_checkable
@@ -170,9 +171,13 @@ class DeviceWatchdog:
     async def stop(self) -> None:
         self._running = False
         tasks = [sup.task for sup in self._devices.values() if sup.task is not None]
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
+        # Cancelled again until done: Python 3.11's wait_for (the ping's) can swallow a cancellation that lands
+        # as the ping completes; the loop then ends at its next turn, as _running is off.
+        while pending := [t for t in tasks if not t.done()]:
+            for t in pending:
+                t.cancel()
+            await asyncio.wait(pending, timeout=STOP_RETRY_S)
+        await asyncio.gather(*tasks, return_exceptions=True)  # all done: collects their outcomes
         for sup in self._devices.values():
             sup.task = None
 
@@ -188,7 +193,7 @@ class DeviceWatchdog:
     async def _loop(self, sup: _Supervised) -> None:
         period = sup.health.settings.period_s
         next_due = self._clock()
-        while True:
+        while self._running:
             try:
                 await self._check(sup)
             except asyncio.CancelledError:
