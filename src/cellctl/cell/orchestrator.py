@@ -19,6 +19,7 @@ from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.cancel import cancel_until_done
 from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.cycle_failure import CycleFailed
@@ -165,11 +166,9 @@ class CellOrchestrator:
         """Stop background work. A running cycle is left as it is (the next start marks it interrupted)."""
         if self.watchdog is not None:
             await self.watchdog.stop()
-        for t in [*self._tasks, *([self._cycle_task] if self._cycle_task else [])]:
-            t.cancel()
-        for t in self._tasks:
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await t
+        if self._cycle_task is not None:
+            self._cycle_task.cancel()
+        await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
         self._tasks.clear()
 
     async def _pump(self, q: asyncio.Queue[Any], sink: Any) -> None:

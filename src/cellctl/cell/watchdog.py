@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.cancel import cancel_until_done
 from cellctl.domain import AlarmCode
 from cellctl.ports import Camera, DisplacementSensor, Robot
 
@@ -27,7 +28,6 @@ _log = logging.getLogger(__name__)
 
 TIMEOUT_GRACE_S = 0.25
 """How much longer than ``timeout_s`` the watchdog waits for a driver that ignores its timeout."""
-STOP_RETRY_S = 0.5  # stop() cancels a loop again after this long without its end
 
 
 @runtime_checkable
@@ -170,14 +170,8 @@ class DeviceWatchdog:
 
     async def stop(self) -> None:
         self._running = False
-        tasks = [sup.task for sup in self._devices.values() if sup.task is not None]
-        # Cancelled again until done: Python 3.11's wait_for (the ping's) can swallow a cancellation that lands
-        # as the ping completes; the loop then ends at its next turn, as _running is off.
-        while pending := [t for t in tasks if not t.done()]:
-            for t in pending:
-                t.cancel()
-            await asyncio.wait(pending, timeout=STOP_RETRY_S)
-        await asyncio.gather(*tasks, return_exceptions=True)  # all done: collects their outcomes
+        # A ping's wait_for may swallow the cancel (Python 3.11); the loop then ends at its next turn, as _running is off.
+        await cancel_until_done([sup.task for sup in self._devices.values() if sup.task is not None])
         for sup in self._devices.values():
             sup.task = None
 
