@@ -166,15 +166,16 @@ def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_
     ds = asyncio.run(go())
     spots = ds.manifest["spots"]
     along = align.sweep.points_along_mm()
-    assert len(spots) == len(along) and [k for k, s in enumerate(spots) if s.get("stop")] == [0, 16, 29]
-    assert [along[k] for k in (0, 16, 29)] == [tuple(c) for c in align.sweep.path_mm]
+    stops = [0, 16, 29, 42]  # every 100 mm along the path's 1560, 1260 and 1260 mm legs; back at the second corner
+    assert len(spots) == len(along) and [k for k, s in enumerate(spots) if s.get("stop")] == stops
+    assert [along[k] for k in stops] == [tuple(c) for c in align.sweep.path_mm]
     teach = compute_teaching(ds, store.current(), cfg)
-    assert teach.quality["offset_from_stops"] == 3
-    assert "its distance at the sweep's 3 corners" in teach.summary[0]
+    assert teach.quality["offset_from_stops"] == 4
+    assert "its distance at the sweep's 4 stops" in teach.summary[0]
     plane = teach.detail[0].wall.plane
     r, l = store.current().laser_ray()  # noqa: E741
     points = np.array([np.asarray(s["T_B_H"]) @ np.r_[r + s["distance_mm"] * l, 1.0] for s in spots])[:, :3]
-    corners = points[[0, 16, 29]] @ plane.normal
+    corners = points[stops] @ plane.normal
     assert plane.offset == pytest.approx(float(corners.mean()), abs=1e-6)  # eq. 2 at the corners, not over the path
     assert abs(plane.offset - float((points @ plane.normal).mean())) > 1e-4  # which differs here
     assert np.degrees(angle_between_vectors(plane.normal, nominal_world(cfg.sim.world).normal_B)) < 0.05

@@ -153,6 +153,16 @@ def test_the_readings_at_rest_count_at_the_corner_they_were_read_at_and_not_out_
     assert idx.tolist() == [1, 3, 4, 5] and corner.tolist() == [0, 1, 1, 2]
 
 
+def test_a_path_that_comes_back_to_a_corner_counts_its_two_stops_there_apart() -> None:
+    # corners 1 and 3 are one place: each stand is its own draw of the robot's error, told apart by when it was read
+    corners = [make_pose(np.eye(3), [0.0, y, 0.0]) for y in (0.0, 1000.0, 1500.0, 1000.0)]
+    poses = np.array([corners[0], corners[1], corners[2], corners[3], corners[3], corners[1]])
+    stop_of = np.array([0, 1, 2, 3, 3, 2])  # the last: read while standing at corner 2's stop, though near corner 1
+    idx, corner = at_corners(poses, np.ones(6, dtype=bool), corners, 2.0, stop_of=stop_of)
+    assert idx.tolist() == [0, 1, 2, 3, 4] and corner.tolist() == [0, 1, 2, 3, 3]
+    assert at_corners(poses, np.ones(6, dtype=bool), corners, 2.0)[1].tolist() == [0, 1, 2, 1, 1, 1]  # by place alone
+
+
 def test_teaching_on_the_move_reads_the_paths_corners_as_its_stops() -> None:
     align = AlignConfig(mode="on_the_fly", sweep={"path_mm": [[-1500.0, -60.0], [60.0, -60.0], [60.0, 1200.0]]})
     spots, stops = align.wall_spots_mm(), align.wall_stops()

@@ -5,12 +5,13 @@ cell's clock) while the robot streams its flange pose T_B_H (mm) every few ms. R
 reflects the flange pose at ``instant_k - latency``; the laser point is then
 P_k = T_B_H(instant_k - latency) @ (r + d_k l) (paper eq. 1). The latency is the one that puts the
 points of a move against a flat wall on one plane (eq. 2-11), found by a coarse grid and a bounded
-1-D refinement of the plane-fit residual.
+1-D refinement of the plane-fit residual. The cycle's sweep times the laser at one spot instead
+(:mod:`cellctl.align.beam_timing`), where the robot's error from stop to stop cannot pass for latency.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,8 +178,9 @@ class LatencyEstimate:
         n: readings used.
         beam_speed_mm_s: RMS of the point speed along the normal that no plane can absorb (mm/s);
             the latency's leverage (sigma_s = residual sigma / (this * sqrt(n))).
-        normal: unit normal of the fitted wall plane (base frame).
-        offset_mm: the plane's D: normal . p = D (mm).
+        normal: unit normal of the fitted wall plane (base frame); None when timed at one spot
+            (:mod:`cellctl.align.beam_timing`, whose ``rms_mm`` is the spread along the beam).
+        offset_mm: the plane's D: normal . p = D (mm); None with ``normal``.
     """
 
     latency_s: float
@@ -186,8 +188,51 @@ class LatencyEstimate:
     rms_mm: float
     n: int
     beam_speed_mm_s: float
-    normal: F64
-    offset_mm: float
+    normal: F64 | None = None
+    offset_mm: float | None = None
+
+
+@dataclass(frozen=True)
+class TimingReadings:
+    """Readings to time the laser by: each with a distance and within the feedback for every latency searched.
+
+    Attributes:
+        trajectory: the flange feedback.
+        instants, distances: (K,) the readings kept (s on the cell's clock; mm along l).
+        r, l: the laser's origin (mm) and unit direction in the flange frame.
+        search_s: the latencies searched (s), low < high.
+    """
+
+    trajectory: FlangeTrajectory
+    instants: F64
+    distances: F64
+    r: F64
+    l: F64
+    search_s: tuple[float, float]
+
+    @classmethod
+    def checked(
+        cls, instants: ArrayLike, distances: ArrayLike, samples_t: ArrayLike, samples_T: ArrayLike, r: ArrayLike,
+        l: ArrayLike, search_s: tuple[float, float],
+    ) -> TimingReadings:
+        """The readings kept (NaN distances and those the search would shift off the feedback left out); ValueError
+        on mismatched arrays, an empty search range or fewer than ``MIN_READINGS`` kept."""
+        t_k = np.asarray(instants, dtype=float).reshape(-1)
+        d = np.asarray(distances, dtype=float).reshape(-1)
+        if t_k.shape != d.shape:
+            raise ValueError(f"{t_k.size} instants but {d.size} distances; give one instant per reading")
+        lo, hi = float(search_s[0]), float(search_s[1])
+        if not lo < hi:
+            raise ValueError(f"search_s must be (low, high) with low < high, got {search_s!r}")
+        rv, lv = check_laser_ray(r, l)
+        trajectory = FlangeTrajectory(samples_t, samples_T)
+        keep = np.isfinite(d) & np.isfinite(t_k) & (t_k - hi >= trajectory.start_s) & (t_k - lo <= trajectory.end_s)
+        if (n := int(keep.sum())) < MIN_READINGS:
+            raise ValueError(
+                f"only {n} readings have a distance and lie within the feedback for every latency in "
+                f"{lo * 1e3:g}..{hi * 1e3:g} ms; need {MIN_READINGS}: record the feedback longer than the readings"
+            )
+        return cls(trajectory, t_k[keep], d[keep], rv, lv, (lo, hi))
 
 
 class _WallCost:
@@ -252,23 +297,9 @@ def estimate_latency(
         ValueError: too few readings, a latency at the edge of the search range, or a move from
             which the latency is not observable (it says which move to make instead).
     """
-    t_k = np.asarray(instants, dtype=float).reshape(-1)
-    d = np.asarray(distances, dtype=float).reshape(-1)
-    if t_k.shape != d.shape:
-        raise ValueError(f"{t_k.size} instants but {d.size} distances; give one instant per reading")
-    lo, hi = float(search_s[0]), float(search_s[1])
-    if not lo < hi:
-        raise ValueError(f"search_s must be (low, high) with low < high, got {search_s!r}")
-    rv, lv = check_laser_ray(r, l)
-    trajectory = FlangeTrajectory(samples_t, samples_T)
-    keep = np.isfinite(d) & np.isfinite(t_k) & (t_k - hi >= trajectory.start_s) & (t_k - lo <= trajectory.end_s)
-    n = int(keep.sum())
-    if n < MIN_READINGS:
-        raise ValueError(
-            f"only {n} readings have a distance and lie within the feedback for every latency in "
-            f"{lo * 1e3:g}..{hi * 1e3:g} ms; need {MIN_READINGS}: record the feedback longer than the readings"
-        )
-    cost = _WallCost(trajectory, t_k[keep], d[keep], rv, lv)
+    timed = TimingReadings.checked(instants, distances, samples_t, samples_T, r, l, search_s)
+    trajectory, (lo, hi), n = timed.trajectory, timed.search_s, timed.instants.size
+    cost = _WallCost(trajectory, timed.instants, timed.distances, timed.r, timed.l)
     P = cost.points(0.5 * (lo + hi))
     spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(P.T)), 0.0, None))
     if spread[1] < 1e-3 * spread[2] or spread[1] < 1.0:
@@ -276,26 +307,17 @@ def estimate_latency(
             f"the laser spots lie on a line or one spot (spread {spread[2]:.3g} by {spread[1]:.3g} mm), "
             f"so no wall plane is defined and the latency is not observable; {OBSERVABILITY_HINT}"
         )
-    grid = np.linspace(lo, hi, max(round((hi - lo) / GRID_STEP_S), 2) + 1)
-    values = np.array([cost(x) for x in grid])
-    i = int(np.argmin(values))
-    J, _ = cost.leverage(float(grid[i]))
-    beam_speed = float(np.sqrt(np.mean(J**2)))
-    if beam_speed < min_beam_speed_mm_s:
-        raise ValueError(
-            f"the latency is not observable from this move: the distances barely change "
-            f"(spread {np.ptp(d[keep]):.3g} mm) and the point speed along the wall normal that no plane "
-            f"can absorb is {beam_speed:.3g} mm/s RMS (need {min_beam_speed_mm_s:g}); {OBSERVABILITY_HINT}"
-        )
-    if i == 0 or i == grid.size - 1:
-        raise LatencyAtEdge(
-            f"the best latency lies at the edge of the search range {lo * 1e3:g}..{hi * 1e3:g} ms "
-            f"({grid[i] * 1e3:g} ms); widen search_s"
-        )
-    res = minimize_scalar(
-        cost, bounds=(float(grid[i - 1]), float(grid[i + 1])), method="bounded", options={"xatol": 1e-8}
-    )
-    latency = float(res.x)
+
+    def observable(latency_s: float) -> None:
+        beam_speed = float(np.sqrt(np.mean(cost.leverage(latency_s)[0] ** 2)))
+        if beam_speed < min_beam_speed_mm_s:
+            raise ValueError(
+                f"the latency is not observable from this move: the distances barely change "
+                f"(spread {np.ptp(timed.distances):.3g} mm) and the point speed along the wall normal that no plane "
+                f"can absorb is {beam_speed:.3g} mm/s RMS (need {min_beam_speed_mm_s:g}); {OBSERVABILITY_HINT}"
+            )
+
+    latency = best_latency(cost, timed.search_s, observable)
     normal, offset, _, residuals = cost.plane(latency)
     J, _ = cost.leverage(latency)
     sigma_mm = float(np.sqrt(np.sum(residuals**2) / max(n - 4, 1)))
@@ -311,6 +333,26 @@ def estimate_latency(
     )
 
 
+def best_latency(cost: Callable[[float], float], search_s: tuple[float, float], observable: Callable[[float], None]) -> float:
+    """The latency (s) with the least ``cost`` in ``search_s``: a grid every ``GRID_STEP_S``, ``observable`` told its
+    best (it raises when the move cannot show the latency), then a bounded 1-D refinement between its neighbours.
+
+    Raises:
+        LatencyAtEdge: the grid's best lies at an edge of the range.
+    """
+    lo, hi = search_s
+    grid = np.linspace(lo, hi, max(round((hi - lo) / GRID_STEP_S), 2) + 1)
+    i = int(np.argmin([cost(float(x)) for x in grid]))
+    observable(float(grid[i]))
+    if i == 0 or i == grid.size - 1:
+        raise LatencyAtEdge(
+            f"the best latency lies at the edge of the search range {lo * 1e3:g}..{hi * 1e3:g} ms "
+            f"({grid[i] * 1e3:g} ms); widen search_s"
+        )
+    res = minimize_scalar(cost, bounds=(float(grid[i - 1]), float(grid[i + 1])), method="bounded", options={"xatol": 1e-8})
+    return float(res.x)
+
+
 def even_along_path(poses: ArrayLike, keep: int) -> NDArray[np.intp]:
     """Indices of at most ``keep`` of the flange poses (N, 4, 4) spread evenly along the path by distance
     travelled, not by time: readings crowd where the arm ramps its speed and pile up where it stands."""
@@ -322,15 +364,18 @@ def even_along_path(poses: ArrayLike, keep: int) -> NDArray[np.intp]:
 
 
 def at_corners(
-    poses: ArrayLike, at_rest: ArrayLike, corners: Sequence[ArrayLike], within_mm: float
+    poses: ArrayLike, at_rest: ArrayLike, corners: Sequence[ArrayLike], within_mm: float, *, stop_of: ArrayLike | None = None
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """The readings taken standing (``at_rest``, (N,) bool) with the flange within ``within_mm`` of a corner's
-    position (not out along the beam while the laser is timed), and the corner of each: (M,) indices, (M,) corners."""
+    position (not out along the beam while the laser is timed), and the corner of each: (M,) indices, (M,) corners.
+
+    ``stop_of`` (N,) is the corner whose stop each reading fell in, by time; a path that comes back to a corner
+    then counts its two stops apart. Without it, each reading counts at the nearest corner."""
     rest = np.flatnonzero(np.asarray(at_rest, dtype=bool))
     if not len(corners) or not rest.size:
         return rest[:0], rest[:0]
     at = np.array([np.asarray(T, dtype=float)[:3, 3] for T in corners])
     gaps = np.linalg.norm(np.asarray(poses, dtype=float)[rest, None, :3, 3] - at[None], axis=2)
-    nearest = np.argmin(gaps, axis=1)
-    keep = gaps[np.arange(rest.size), nearest] <= within_mm
-    return rest[keep], nearest[keep]
+    corner = np.argmin(gaps, axis=1) if stop_of is None else np.clip(np.asarray(stop_of, dtype=np.intp)[rest], 0, len(at) - 1)
+    keep = gaps[np.arange(rest.size), corner] <= within_mm
+    return rest[keep], corner[keep]

@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import scipy.special
 import scipy.stats
 
 
@@ -150,17 +151,37 @@ def percentile(values: Sequence[float], q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else float("nan")
 
 
+def normal_p99_abs(values: Sequence[float] | np.ndarray, axis: int = -1) -> np.ndarray:
+    """p99 of |e| for a normal error with the values' mean and standard deviation (along ``axis``): the q with
+    P(|e| <= q) = 0.99. Where the errors are Gaussian (sums of the robot's Gaussian draws) it is about the true
+    p99, while that of a few dozen values sits between their largest two (low by a tenth at 60), and it
+    scatters less from run to run (by a quarter at 60)."""
+    x = np.asarray(values, dtype=float)
+    mu, sd = x.mean(axis=axis), x.std(axis=axis, ddof=1)
+    lo, hi = np.abs(mu), np.abs(mu) + 4.0 * sd
+    safe = np.where(sd > 0.0, sd, 1.0)
+    for _ in range(60):  # bisection: P(|e| <= q) rises with q
+        mid = 0.5 * (lo + hi)
+        below = scipy.special.ndtr((mid - mu) / safe) - scipy.special.ndtr((-mid - mu) / safe) < 0.99
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return np.asarray(np.where(sd > 0.0, 0.5 * (lo + hi), np.abs(mu)))
+
+
 def p99_difference_interval(
-    before: Sequence[float], after: Sequence[float], *, confidence: float = 0.95, resamples: int = 2000, seed: int = 0
+    before: Sequence[float], after: Sequence[float], *, normal: bool = False, confidence: float = 0.95, resamples: int = 2000,
+    seed: int = 0,
 ) -> tuple[float, float]:
-    """The bootstrap percentile interval of ``p99|after| - p99|before|``: what a few dozen cycles can say
-    about a change in p99. Paired by index (the same cells and postures) when both have the same count."""
-    a, b = np.abs(np.asarray(before, dtype=float)), np.abs(np.asarray(after, dtype=float))
+    """The bootstrap percentile interval of ``p99|after| - p99|before|`` (``normal``: of :func:`normal_p99_abs`'s):
+    what a few dozen cycles can say about a change in p99. Paired by index (the same cells and postures) when
+    both have the same count."""
+    a, b = np.asarray(before, dtype=float), np.asarray(after, dtype=float)
     if len(a) < 2 or len(b) < 2:
         return float("nan"), float("nan")
 
     def diff(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-        return np.asarray(np.percentile(y, 99, axis=axis) - np.percentile(x, 99, axis=axis))
+        if normal:
+            return normal_p99_abs(y, axis) - normal_p99_abs(x, axis)
+        return np.asarray(np.percentile(np.abs(y), 99, axis=axis) - np.percentile(np.abs(x), 99, axis=axis))
 
     ci = scipy.stats.bootstrap(
         (a, b), diff, paired=len(a) == len(b), vectorized=True, n_resamples=resamples, method="percentile",

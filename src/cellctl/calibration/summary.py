@@ -86,7 +86,7 @@ def _teaching(values: dict[str, Any], q: dict[str, Any]) -> list[str]:
     edges = q.get("feature_edge", {})
     lines = [
         f"wall fit {q['wall_rms_mm']:.4f} mm RMS over {q['spots_used']} spots"
-        + (f", its distance at the sweep's {q['offset_from_stops']} corners" if q.get("offset_from_stops") else "")
+        + (f", its distance at the sweep's {q['offset_from_stops']} stops" if q.get("offset_from_stops") else "")
         + "; C_Pos_0 at "
         f"{_vec(np.asarray(values['C_Pos_0'])[:3, 3], 2)} mm",
         f"template: u_d {values['u_d']:.3f} px, v_d {values['v_d']:.3f} px, theta_d {np.degrees(values['theta_d']):+.4f} deg "

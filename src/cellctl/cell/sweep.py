@@ -21,12 +21,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cellctl.align import plan_spot_poses
+from cellctl.align.beam_timing import estimate_latency_at_spot
 from cellctl.align.laser_points import laser_points, sweep_route
 from cellctl.align.onthefly import (
     LatencyAtEdge,
     LatencyEstimate,
+    TimingReadings,
     at_corners,
-    estimate_latency,
     even_along_path,
     pair_stored_readings,
     pose_samples_arrays,
@@ -232,7 +233,8 @@ async def sweep_path(
     swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0), moving=~at_rest[on_path])
     if not stops:
         return swept
-    rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM)
+    stop_of = np.searchsorted(leg_starts, paired.instants - lat_s, side="right")  # before leg j starts: standing at corner j
+    rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM, stop_of=stop_of)
     figures["readings_at_rest"] = int(len(rest))
     figures["readings_at_rest_per_corner"] = np.bincount(corner_of, minlength=len(corners)).tolist()  # each weighs the same
     return replace(swept, rest_poses=paired.poses[rest], rest_distances=paired.distances[rest], rest_stops=corner_of)
@@ -294,16 +296,17 @@ def _latency(
     run: CycleRun, step: CycleStep, instants: np.ndarray, distances: np.ndarray, feedback: tuple[np.ndarray, np.ndarray],
     approach: tuple[float, float], check_s: float | None,
 ) -> LatencyEstimate:
-    """The latency between the laser's and the robot's clocks, from the readings since the approach began.
+    """The latency between the laser's and the robot's clocks, from the readings of the approach along the beam.
 
-    The approach along the beam is where the latency shows (the distance changes with the motion);
-    the legs after it fix the wall's plane, which a line of spots alone would not. A check searches
-    within ``CHECK_WINDOW_S`` of the kept latency ``check_s`` first (a fraction of the grid), then the whole range.
+    There the distance changes with the motion while the spot stays on one wall point, so the latency is
+    the one that puts the points on one point (:mod:`cellctl.align.beam_timing`); over the legs the robot's
+    error, drawn anew at each stop, could pass for latency. A check searches within ``CHECK_WINDOW_S`` of the kept
+    latency ``check_s`` first (a fraction of the grid), then the whole range.
     """
     cfg, cal = run.process.align.sweep, run.cal
     t, T = feedback
-    since = instants >= approach[0]
-    in_approach = int(np.count_nonzero(since & (instants <= approach[1]) & np.isfinite(distances)))
+    during = (instants >= approach[0]) & (instants <= approach[1])
+    in_approach = int(np.count_nonzero(during & np.isfinite(distances)))
     if t.size < 2 or in_approach < 10:
         raise CycleFailed(
             step, AlarmCode.ALIGNMENT_FAILED,
@@ -311,7 +314,7 @@ def _latency(
             "the laser against the robot (is the wall in the laser's range at the path's first corner?)",
         )  # fmt: skip
     def estimate(window: tuple[float, float]) -> LatencyEstimate:
-        return estimate_latency(instants[since], distances[since], t, T, cal.laser_r, cal.laser_l, search_s=window)
+        return estimate_latency_at_spot(TimingReadings.checked(instants[during], distances[during], t, T, cal.laser_r, cal.laser_l, window))
 
     try:
         est: LatencyEstimate | None = None
@@ -326,6 +329,6 @@ def _latency(
         raise CycleFailed(
             step, AlarmCode.ALIGNMENT_FAILED,
             f"the laser-to-robot latency is uncertain by {1e3 * est.sigma_s:.2f} ms (limit "
-            f"{1e3 * cfg.max_latency_sigma_s:g} ms): the readings scatter; check the wall along the path",
+            f"{1e3 * cfg.max_latency_sigma_s:g} ms): the readings scatter; check the wall at the path's first corner",
         )  # fmt: skip
     return est

@@ -35,7 +35,9 @@ class SweepConfig(StrictModel):
     streams its position; else the cell reads at standing spots.
     """
 
-    path_mm: tuple[Vec2, ...] = ((-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0))
+    # Along the top, down the side and back up to the corner beside the window's: a second stop there (its own
+    # draw of the robot's error) steadies the plane where the camera looks, and the shooting pose is a short move on.
+    path_mm: tuple[Vec2, ...] = ((-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0), (60.0, -60.0))
     speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)  # the laser stores every 10 mm at the default cycle
     approach_mm: Finite = Field(40.0, gt=5, le=200)
     # The LK-G's storage cycle. Each stored reading costs 0.78 ms of read-out at 115200 Bd after the sweep:
@@ -74,6 +76,9 @@ class SweepConfig(StrictModel):
     def _path(self) -> "SweepConfig":
         if len(self.path_mm) < 3:
             raise ValueError("path_mm needs at least 3 corners (two legs), so the readings span the wall in two directions")
+        for k, (a, b) in enumerate(zip(self.path_mm, self.path_mm[1:])):
+            if a == b:
+                raise ValueError(f"path_mm corners {k} and {k + 1} are the same point {list(a)}: a leg needs a length; drop one of them")
         lo, hi = self.latency_search_s
         if not lo < hi:
             raise ValueError(f"latency_search_s must be [min, max] with min < max, got {list(self.latency_search_s)}")
