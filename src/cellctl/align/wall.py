@@ -8,7 +8,7 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cellctl.align.errors import AlignmentError
+from cellctl.align.errors import AlignmentError, WallFitScatter
 from cellctl.geometry.plane import PlaneFit, PlaneFitError, fit_plane
 
 # Above this many spots the robust fit samples triples at random instead of trying them all.
@@ -193,7 +193,7 @@ def fit_wall_plane(
             )
         )
     if max_rms_mm is not None and plane.rms > max_rms_mm:
-        raise AlignmentError(
+        raise WallFitScatter(
             f"wall fit RMS {plane.rms:.3f} mm exceeds the limit {max_rms_mm} mm over {inliers.size} spots; "
             "the wall is not flat where the spots hit it, or a reading is bad"
         )

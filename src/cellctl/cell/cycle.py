@@ -31,6 +31,7 @@ from cellctl.align import (
     plan_spot_poses,
     readings_at_stops,
 )
+from cellctl.align.errors import WallFitScatter
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.fine_motion import verification_move
 from cellctl.cell.inspect_step import inspect_install
@@ -242,7 +243,11 @@ class CycleRun:
                 min_rest_points=10 if unavailable is None else len(cfg.wall_stops()),  # a sweep's many, or one a corner
             )
         except AlignmentError as err:
-            raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, str(err)) from err
+            why = str(err)
+            if isinstance(err, WallFitScatter) and figures.get("mode") == "on_the_fly":  # the passes of a path part too
+                why += (f"; on the move, or the laser's latency is off by milliseconds (this sweep paired its readings "
+                        f"at {figures['latency_ms']:.2f} ms, {figures.get('latency')})")  # fmt: skip
+            raise CycleFailed(step, AlarmCode.ALIGNMENT_FAILED, why) from err
         self.limit(step, cal.taught.C_Pos_0, result.T_B_H_aligned, "aligned shooting pose")
         wall = result.wall
         # standing, a rejected reading is named by its spot (as figures["spots"] are), not by its place among the readings
