@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from cellctl.align import AlignmentError, compute_alignment
 from cellctl.align.laser_points import sweep_route
@@ -169,3 +170,9 @@ def test_teaching_on_the_move_reads_the_paths_corners_as_its_stops() -> None:
     assert [spots[k] for k in stops] == [(-1500.0, -60.0), (60.0, -60.0), (60.0, 1200.0)]
     assert max(np.hypot(*np.subtract(a, b)) for a, b in zip(spots, spots[1:])) <= 100.0
     assert AlignConfig().wall_stops() == ()  # stop and go: the plane's offset from all its spots
+
+
+def test_a_path_with_a_leg_of_no_length_is_refused_naming_its_corners() -> None:
+    with pytest.raises(ValidationError, match=r"path_mm corners 2 and 3 are the same point \[60.0, 1200.0\]: a leg needs a length"):
+        AlignConfig(mode="on_the_fly", sweep={"path_mm": [[-1500.0, -60.0], [60.0, -60.0], [60.0, 1200.0], [60.0, 1200.0]]})
+    AlignConfig(mode="on_the_fly", sweep={"path_mm": [[-1500.0, -60.0], [60.0, -60.0], [60.0, 1200.0], [60.0, -60.0]]})  # back: fine

@@ -176,8 +176,8 @@ class LatencyEstimate:
         sigma_s: its standard deviation from the Jacobian of the plane residuals (s).
         rms_mm: RMS distance of the laser points from their plane at that latency (mm).
         n: readings used.
-        beam_speed_mm_s: RMS of the point speed along the normal that no plane can absorb (mm/s);
-            the latency's leverage (sigma_s = residual sigma / (this * sqrt(n))).
+        beam_speed_mm_s: RMS of the point speed along the normal that no plane can absorb (mm/s; at one
+            spot, along the beam); the latency's leverage (sigma_s = residual sigma / (this * sqrt(n))).
         normal: unit normal of the fitted wall plane (base frame); None when timed at one spot
             (:mod:`cellctl.align.beam_timing`, whose ``rms_mm`` is the spread along the beam).
         offset_mm: the plane's D: normal . p = D (mm); None with ``normal``.
