@@ -226,14 +226,14 @@ async def sweep_path(
     }
     if latency is not None:
         figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
-    # Each reading's leg: the moves end at fine points (the next starts after this one's settle), so a
-    # reading belongs to the last move started before its pose's instant.
-    legs = np.searchsorted(leg_starts, paired.instants[on_path] - lat_s, side="right") - 1
+    # Each reading's leg: the moves end at fine points (the next starts after this one's settle), so a reading
+    # belongs to the last move started before its pose's instant, leg j - 1, and standing it is at corner j.
+    stop_of = np.searchsorted(leg_starts, paired.instants - lat_s, side="right")
     at_rest = await asyncio.to_thread(standing, t, T, paired.instants - lat_s)  # once for every paired reading
-    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=np.maximum(legs, 0), moving=~at_rest[on_path])
+    legs = np.maximum(stop_of[on_path] - 1, 0)
+    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=legs, moving=~at_rest[on_path])
     if not stops:
         return swept
-    stop_of = np.searchsorted(leg_starts, paired.instants - lat_s, side="right")  # before leg j starts: standing at corner j
     rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM, stop_of=stop_of)
     figures["readings_at_rest"] = int(len(rest))
     figures["readings_at_rest_per_corner"] = np.bincount(corner_of, minlength=len(corners)).tolist()  # each weighs the same
