@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import re
 from collections.abc import Iterator
 from typing import Any
 from urllib.parse import urlsplit
@@ -96,7 +97,7 @@ def test_dashboard_loads_offline_with_forbidden_commands_disabled(
     expect(pg.locator("[data-command=clear]")).to_be_enabled()
     for cmd in ("reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "complete", "abort"):
         expect(pg.locator(f"[data-command={cmd}]")).to_be_disabled()
-    assert "not allowed in ABORTED" in (pg.locator("[data-command=start]").get_attribute("title") or "")
+    expect(pg.locator("[data-command=start]")).to_have_attribute("title", re.compile("not allowed in ABORTED"))
     # Aborted is a mode-change state in the configuration: the mode control is open.
     expect(pg.locator("#mode-apply")).to_be_enabled()
     # Every device of the simulated cell shows its link and heartbeat age.
@@ -253,7 +254,7 @@ def test_dashboard_acknowledges_an_alarm_and_gates_unhold(
     # Unhold exists in Held but the alarm holds it back: disabled, and the reason is shown.
     unhold = pg.locator("[data-command=unhold]")
     expect(unhold).to_be_disabled()
-    assert "acknowledge it first" in (unhold.get_attribute("title") or "")
+    expect(unhold).to_have_attribute("title", re.compile("acknowledge it first"))
     expect(pg.locator("#blocked")).to_contain_text("acknowledge it first")
     expect(pg.locator("[data-command=start]")).to_be_disabled()
     # The refused cycle is pinned at the front of the filmstrip.

@@ -11,6 +11,7 @@ test-artifacts/dashboard/."""
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -129,7 +130,7 @@ def test_commissioning_page_walks_a_laser_job_through_its_prompt(
     # Without the operator token the mutating buttons are closed and say why; a dry run is a read.
     start = pg.locator("#comm-proc-table [data-start=laser]")
     expect(start).to_be_disabled()
-    assert "operator token" in (start.get_attribute("title") or "")
+    expect(start).to_have_attribute("title", re.compile("operator token"))
     expect(pg.locator("#comm-gate")).to_contain_text("Enter the operator token")
     pg.fill("#comm-opt-laser-poses", str(LASER_POSES))
     pg.click("#comm-proc-table [data-plan=laser]")
@@ -141,7 +142,7 @@ def test_commissioning_page_walks_a_laser_job_through_its_prompt(
     # Teaching needs camera, hand-eye and laser calibrated: its Start stays closed and names them.
     teach = pg.locator("#comm-proc-table [data-start=teaching]")
     expect(teach).to_be_disabled()
-    assert "needs camera, hand_eye, laser" in (teach.get_attribute("title") or "")
+    expect(teach).to_have_attribute("title", re.compile("needs camera, hand_eye, laser"))
     shot(pg, "10-commissioning-ready.png")
 
     job_id = _start_laser_from_page(pg, client)

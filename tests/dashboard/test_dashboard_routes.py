@@ -4,7 +4,9 @@ with the cycle records and the configuration."""
 
 from __future__ import annotations
 
+import json
 import re
+import threading
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timezone
@@ -14,7 +16,7 @@ import cv2
 import httpx
 import numpy as np
 import pytest
-from dashboard_test_support import LiveCell, install_cycles, sim_config
+from dashboard_test_support import LiveCell, install_cycles, sim_config, to_aborted, to_execute
 
 from cellctl.api.dashboard import (
     STALE_AFTER_S,
@@ -136,6 +138,49 @@ def test_events_repeat_the_status_while_the_cell_is_quiet(client: httpx.Client) 
                     break
     gaps = np.diff(stamps)
     assert gaps.max() < SSE_STATUS_PERIOD_S + 1.0, gaps
+
+
+# ISA-88/PackML: the commands each of these states takes (no interlock holds one back in this cell).
+PACKML_COMMANDS = {
+    "ABORTED": ["clear"],
+    "STOPPED": ["abort", "reset"],
+    "IDLE": ["abort", "start", "stop"],
+    "EXECUTE": ["abort", "complete", "hold", "stop", "suspend"],
+}
+
+
+def test_a_state_event_carries_the_commands_of_its_state(cell: LiveCell, client: httpx.Client) -> None:
+    """The page patches the state from a state event; the commands must come with it, not stay the old state's
+    (an Unhold greyed out in Held as "not allowed in HELD" until the next /status)."""
+    events: list[dict] = []
+    streaming = threading.Event()
+
+    def listen() -> None:
+        with httpx.Client(base_url=cell.url) as c, c.stream("GET", "/events", timeout=30.0) as r:
+            kind = None
+            for line in r.iter_lines():
+                streaming.set()
+                if line.startswith("event: "):
+                    kind = line[len("event: ") :]
+                elif line.startswith("data: ") and kind == "state":
+                    events.append(json.loads(line[len("data: ") :]))
+                    if events[-1]["state"] == "EXECUTE":
+                        return
+
+    t = threading.Thread(target=listen, daemon=True)
+    t.start()
+    assert streaming.wait(10.0)
+    to_aborted(client)
+    to_execute(client)
+    t.join(20.0)
+    assert not t.is_alive() and events, events
+    seen = {e["state"]: e for e in events}
+    for state in ("ABORTED", "EXECUTE"):  # the test waits in these, so the machine is still in them when told
+        assert "allowed_commands" in seen[state], seen[state]
+    for e in events:
+        if "allowed_commands" in e and e["state"] in PACKML_COMMANDS:
+            assert e["allowed_commands"] == PACKML_COMMANDS[e["state"]], e
+            assert e["blocked_commands"] == {}, e
 
 
 def _record(**changes: object) -> CycleRecord:

@@ -125,7 +125,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
     @reads.get(
         "/events", response_class=StreamingResponse,
-        responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: `status` (the /status document, StatusView), state, alarm, cycle, step, image, job, prompt, ..."}},
+        responses={200: {"content": {"text/event-stream": {}}, "description": "server-sent events: `status` (the /status document, StatusView), state (with its allowed and blocked commands while it lasts), alarm, cycle, step, image, job, prompt, ..."}},
     )  # fmt: skip
     async def events(request: Request) -> StreamingResponse:
         queue = orch.events.subscribe()

@@ -29,6 +29,7 @@ from cellctl.cell.packml import (
     CycleStepNotAllowed,
     EventKind,
     MachineEvent,
+    MachineStatus,
     PackMLMachine,
 )
 from cellctl.cell.quality_loop import InstallQualityLoop
@@ -73,6 +74,14 @@ _ACTING = {
 }
 # Entering these stops a running cycle (and the robot).
 _STOP_CYCLE = {PackMLState.STOPPING, PackMLState.ABORTING, PackMLState.HOLDING, PackMLState.SUSPENDING}
+
+
+def _commands_view(st: MachineStatus) -> dict[str, Any]:
+    """The commands a status allows and those an interlock holds back (with why), JSON-ready."""
+    return {
+        "allowed_commands": sorted(c.name.lower() for c in st.allowed_commands),
+        "blocked_commands": {c.name.lower(): why for c, why in st.blocked_commands.items()},
+    }
 
 
 class CycleRefused(Exception):
@@ -184,16 +193,16 @@ class CellOrchestrator:
     async def _on_machine_event(self, ev: MachineEvent) -> None:
         if ev.kind is not EventKind.CYCLE_STEP:  # the steps are in the cycle's record; the audit log keeps what people and faults did
             await self.store.append_machine_event(ev, cycle_id=self._current)
-        self.events.publish(
-            "state",
-            {
-                "state": ev.state_after.name,
-                "mode": ev.mode_after.name,
-                "step": ev.step_after.name.lower(),
-                "actor": ev.actor,
-                "command": None if ev.command is None else ev.command.name,
-            },
-        )
+        state_event: dict[str, Any] = {
+            "state": ev.state_after.name,
+            "mode": ev.mode_after.name,
+            "step": ev.step_after.name.lower(),
+            "actor": ev.actor,
+            "command": None if ev.command is None else ev.command.name,
+        }
+        if self.machine.state is ev.state_after:  # the commands of this state; a later event brings its own
+            state_event.update(_commands_view(self.machine.status()))
+        self.events.publish("state", state_event)
         if not ev.state_changed:
             return
         state = ev.state_after
@@ -452,8 +461,7 @@ class CellOrchestrator:
             "cycle_step": st.cycle_step.name.lower(),
             "current_cycle": self._current,
             "queued_cycles": self._queue.qsize(),
-            "allowed_commands": sorted(c.name.lower() for c in st.allowed_commands),
-            "blocked_commands": {c.name.lower(): why for c, why in st.blocked_commands.items()},
+            **_commands_view(st),
             "stop_reason": None if stop is None else {"code": int(stop.code), "message": stop.message},
             "devices": {
                 name: {

@@ -88,9 +88,17 @@ function onEvent(kind, data) {
       break;
     case "state":
       if (model.status) {
-        model.status.state = data.state;
-        model.status.mode = data.mode;
-        model.status.cycle_step = data.step;
+        const st = model.status;
+        if (data.allowed_commands) {
+          st.allowed_commands = data.allowed_commands;
+          st.blocked_commands = data.blocked_commands || {};
+        } else if (st.state !== data.state) {
+          st.allowed_commands = null; // the old state's commands are not this one's: pending until read
+          st.blocked_commands = {};
+        }
+        st.state = data.state;
+        st.mode = data.mode;
+        st.cycle_step = data.step;
         renderStatus();
       }
       schedule("status", refreshStatus, 50);

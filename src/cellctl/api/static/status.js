@@ -122,6 +122,7 @@ export function renderCalibrationTile() {
 
 function renderCommands() {
   const st = model.status;
+  const pending = !st.allowed_commands; // a state event came without its commands; /status follows
   const allowed = new Set(st.allowed_commands || []);
   const blocked = st.blocked_commands || {};
   const notes = [];
@@ -131,6 +132,8 @@ function renderCommands() {
     btn.disabled = !ok;
     if (model.stale) {
       btn.title = `${cmd}: the data is stale, so no command is sent`;
+    } else if (pending) {
+      btn.title = `${cmd}: reading what ${st.state} allows`;
     } else if (ok) {
       btn.title = `Send ${cmd} (allowed in ${st.state})`;
     } else if (blocked[cmd]) {
