@@ -95,8 +95,9 @@ class ModeFigures:
             "spent_median_s": {n: percentile([s.get(n, 0.0) for s in self.spent_s], 50) for n in spent_on},
             "p99_abs": {a.label: percentile(np.abs(self.errors[:, i]).tolist(), 99) for i, a in enumerate(AXES)},
             # The bulk beside the tail: p99 of a few dozen cycles is near their largest and moves with one of them.
-            "mean": {a.label: float(np.mean(self.errors[:, i])) for i, a in enumerate(AXES)},
-            "rms": {a.label: float(np.sqrt(np.mean(self.errors[:, i] ** 2))) for i, a in enumerate(AXES)},
+            "mean": {a.label: float(np.mean(self.errors[:, i])) if len(self.errors) else float("nan") for i, a in enumerate(AXES)},
+            "rms": {a.label: float(np.sqrt(np.mean(self.errors[:, i] ** 2))) if len(self.errors) else float("nan")
+                    for i, a in enumerate(AXES)},
             # The p99 a normal with these cycles' mean and std would have: the tail from the bulk, not from one cycle.
             "p99_normal": {a.label: float(normal_p99_abs(self.errors[:, i])) if len(self.errors) > 1 else float("nan")
                            for i, a in enumerate(AXES)},
