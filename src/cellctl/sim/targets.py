@@ -25,6 +25,7 @@ from cellctl.geometry.pose import apply_pose, check_pose, pose_in_plane
 from cellctl.sim.edge_coverage import (
     circle_sdf,
     coverage_from_sdf,
+    edge_coverage,
     kernel_reach_px,
     rounded_rect_sdf,
 )
@@ -90,12 +91,25 @@ def _grid_P(cols: int, rows: int, pitch_mm: float) -> F64:
     return np.column_stack([i.ravel() * pitch_mm, j.ravel() * pitch_mm, np.zeros(cols * rows)])
 
 
-def _axis_coverage(dist_mm: F64, jac: Jacobian, axis: int, sigma_px: float) -> F64:
-    """Coverage of the half-plane {coordinate > line} for pixels ``dist_mm`` past the line."""
-    one = np.ones_like(dist_mm)
-    zero = np.zeros_like(dist_mm)
-    gx, gy = (-one, zero) if axis == 0 else (zero, -one)
-    return coverage_from_sdf(-dist_mm, gx, gy, jac, sigma_px)
+def _grid_line_coverages(coord_mm: F64, nearest: F64, pitch_mm: float, ju: F64, jv: F64, sigma_px: float) -> list[F64]:
+    """Coverage of the half-planes {coordinate > (nearest + k) pitch_mm}, k = -1, 0, 1 (lines across one axis).
+
+    ``ju, jv``: that coordinate's derivatives along the pixel's u and v (mm/px). The edge's image normal
+    is the same for the three lines, so it is computed once (:func:`coverage_from_sdf` for a gradient
+    along the axis, whose result this is to the bit).
+    """
+    norm = np.hypot(ju, jv)
+    nu, nv = -ju / norm, -jv / norm
+    reach = kernel_reach_px(sigma_px)
+    out: list[F64] = []
+    for k in (-1, 0, 1):
+        d_px = (coord_mm - (nearest + k) * pitch_mm) / norm
+        cover = (d_px > 0.0).astype(np.float64)
+        near = np.abs(d_px) < reach
+        if np.any(near):
+            cover[near] = edge_coverage(d_px[near], nu[near], nv[near], sigma_px)
+        out.append(cover)
+    return out
 
 
 def _check_pixel_size(name: str, size_mm: float, jac: Jacobian, sigma_px: float, need: float) -> None:
@@ -178,16 +192,18 @@ class Checkerboard:
         kx = np.rint(x / s)  # nearest vertical grid line, at x = kx * s
         ky = np.rint(y / s)
         # Coverage of the half-planes beyond the lines kx - 1, kx, kx + 1 (farther ones are 0/1).
-        hx = [_axis_coverage(x - (kx + k) * s, jac, 0, sigma_px) for k in (-1, 0, 1)]
-        hy = [_axis_coverage(y - (ky + k) * s, jac, 1, sigma_px) for k in (-1, 0, 1)]
+        a, b, c, d = jac
+        hx = _grid_line_coverages(x, kx, s, a, b, sigma_px)
+        hy = _grid_line_coverages(y, ky, s, c, d, sigma_px)
         col_cov = {0: hx[0] - hx[1], 1: hx[1] - hx[2]}  # cells kx and kx + 1
         row_cov = {0: hy[0] - hy[1], 1: hy[1] - hy[2]}
+        even = np.mod(kx + ky, 2) == 0  # cell (kx, ky) is black where on the board; its neighbours alternate
+        col_in = {dc: (kx + dc >= 0) & (kx + dc <= cols) for dc in (0, 1)}
+        row_in = {dr: (ky + dr >= 0) & (ky + dr <= rows) for dr in (0, 1)}
         dark = np.zeros_like(x)
         for dc in (0, 1):
-            c = kx + dc
             for dr in (0, 1):
-                r = ky + dr
-                black = (c >= 0) & (c <= cols) & (r >= 0) & (r <= rows) & (np.mod(c + r, 2) == 0)
+                black = col_in[dc] & row_in[dr] & (even if (dc + dr) % 2 == 0 else ~even)
                 dark += np.where(black, col_cov[dc] * row_cov[dr], 0.0)
         return self.white_dn - (self.white_dn - self.black_dn) * dark
 
