@@ -180,7 +180,7 @@ def test_dashboard_shows_a_cycle_started_through_the_api_live(
     expect(pg.locator("#cycle-time-chart .chart-value")).to_have_text(f"{rec['result']['cycle_time_s']:.2f}")
     # The simulated cell lands within the paper's tolerance: nothing outside the bands, no colour.
     for axis in ("dx_mm", "dy_mm", "dz_mm", "drx_deg", "dry_deg", "drz_deg"):
-        assert pg.locator(f"#trend-charts [data-axis={axis}]").get_attribute("data-outside") == "0"
+        expect(pg.locator(f"#trend-charts [data-axis={axis}]")).to_have_attribute("data-outside", "0")
     assert pg.evaluate("window.cellctlDashboard.loadedAt") == loaded_at
     assert log.loads == 1
     shot(pg, "02-cycle-live.png")
@@ -303,13 +303,13 @@ def test_dashboard_marks_stale_data_and_recovers(cell: LiveCell, page: tuple[Pag
     try:
         expect(pg.locator("#live")).to_contain_text("STALE", timeout=12_000)
         expect(pg.locator("#tile-live")).to_have_class("tile tile-live is-warn")
-        assert pg.evaluate("document.body.classList.contains('stale')")
+        expect(pg.locator("body")).to_have_class(re.compile(r"\bstale\b"))
         shot(pg, "06-stale.png")
     finally:
         cell.start_http()
     # The browser reconnects by itself and the mark goes away.
     expect(pg.locator("#live")).to_have_text("live", timeout=20_000)
-    assert not pg.evaluate("document.body.classList.contains('stale')")
+    expect(pg.locator("body")).not_to_have_class(re.compile(r"\bstale\b"))
     assert log.foreign() == [], log.foreign()
 
 
