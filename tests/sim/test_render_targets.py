@@ -124,3 +124,35 @@ def test_invalid_targets_are_refused_naming_the_field() -> None:
         NinePointTarget(pitch_mm=10.0, dot_diameter_mm=12.0)
     with pytest.raises(ValueError, match="T_B_P"):
         PlacedTarget(Checkerboard(), np.eye(3))
+
+
+# Squares of about 100, 12 and 8 px; at 1.2 mm/px the lines beside the nearest come within the blur's reach (computed, not taken as 0 or 1).
+@pytest.mark.parametrize("mm_per_px", [0.1, 0.8, 1.2])
+def test_checkerboard_shading_is_each_cells_coverage_from_its_four_lines(mm_per_px: float) -> None:
+    """The board's shading against the general edge model: each cell's coverage from the half-planes of its
+    lines (coverage_from_sdf per line), the black cells summed; to the bit, wherever the lines are in reach."""
+    from cellctl.sim.edge_coverage import coverage_from_sdf
+
+    board, sigma = Checkerboard(), 0.7
+    rng = np.random.default_rng(5)
+    n = 50_000
+    cols, rows = board.inner_corners
+    x = rng.uniform(-board.square_mm - board.border_mm, (cols + 1) * board.square_mm, n)
+    y = rng.uniform(-board.square_mm - board.border_mm, (rows + 1) * board.square_mm, n)
+    a, d = (rng.uniform(0.6, 1.0, n) * mm_per_px for _ in range(2))
+    b, c = (rng.uniform(-0.2, 0.2, n) * mm_per_px for _ in range(2))
+    one, zero = np.ones(n), np.zeros(n)
+
+    def beyond(coord: np.ndarray, line_mm: np.ndarray, axis: int) -> np.ndarray:  # coverage of {coord > line}
+        g = (-one, zero) if axis == 0 else (zero, -one)
+        return coverage_from_sdf(line_mm - coord, *g, (a, b, c, d), sigma)
+
+    s = board.square_mm
+    dark = np.zeros(n)
+    for ci in range(-1, cols + 2):  # cell ci spans x in [(ci - 1) s, ci s]; black where ci + ri is even on the board
+        col = beyond(x, np.full(n, (ci - 1) * s), 0) - beyond(x, np.full(n, ci * s), 0)
+        for ri in range(-1, rows + 2):
+            if 0 <= ci <= cols and 0 <= ri <= rows and (ci + ri) % 2 == 0:
+                dark += col * (beyond(y, np.full(n, (ri - 1) * s), 1) - beyond(y, np.full(n, ri * s), 1))
+    expected = board.white_dn - (board.white_dn - board.black_dn) * dark
+    np.testing.assert_allclose(board.shade(x, y, (a, b, c, d), sigma), expected, rtol=0, atol=1e-5)  # DN; summed in another order

@@ -101,8 +101,14 @@ def _grid_line_coverages(coord_mm: F64, nearest: F64, pitch_mm: float, ju: F64, 
     norm = np.hypot(ju, jv)
     nu, nv = -ju / norm, -jv / norm
     reach = kernel_reach_px(sigma_px)
+    # The lines either side are at least half a pitch away: where that is beyond the kernel's reach in
+    # every pixel, the half-planes beyond them cover wholly (k = -1) and not at all (k = 1).
+    neighbours_clear = norm.size == 0 or 0.5 * pitch_mm / float(norm.max()) > reach * (1.0 + 1e-9)
     out: list[F64] = []
     for k in (-1, 0, 1):
+        if k and neighbours_clear:
+            out.append(np.full_like(coord_mm, 1.0 if k < 0 else 0.0))
+            continue
         d_px = (coord_mm - (nearest + k) * pitch_mm) / norm
         cover = (d_px > 0.0).astype(np.float64)
         near = np.abs(d_px) < reach
