@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cellctl.bench.cycle_time import COMPUTING, format_cycle_time, run_cycle_time
+from cellctl.bench.cycle_time import COMPUTING, format_cycle_time, run_cycle_time, sweep_legs_s
 from cellctl.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -47,8 +47,33 @@ def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_t
     assert fast["spent_median_s"][glass_turns] == pytest.approx(slow["spent_median_s"][glass_turns], abs=1.0)
     text = format_cycle_time(out)
     assert "where the time goes" in text and "RMS e stop and go / on the move" in text
+    # The sweeps' legs with their stops are part of the moves at the sweep speed (which add the moves that time the laser).
+    legs = out["sweep_legs"]
+    assert legs["flown_s"] < legs["stopping_s"] < fast["spent_median_s"][sweep]
+    assert f"take {legs['stopping_s']:.2f} s stopping at every corner" in text
     # the one cycle timed the laser (the first sweep of a service does): within 1 ms of the twin's latency
     assert fast["latency_estimates"] == 1 and out["latency_error_ms_max"] < 1.0
     assert f"of the twin's {out['true_latency_ms']:.2f} ms (bar 1 ms)" in text
     for mode in (slow, fast):  # one cycle a mode: its error is its own mean, RMS and p99
         assert all(mode["rms"][k] == pytest.approx(abs(mode["mean"][k])) == pytest.approx(mode["p99_abs"][k]) for k in mode["rms"])
+
+
+def test_the_sweeps_legs_take_the_trapezoids_closed_form_stopping_or_flown_through() -> None:
+    """Each leg from rest to rest: L/v + v/a above v^2/a, 2 sqrt(L/a) below, and the settle; flown through,
+    one such move over each sweep's whole length."""
+    config = load_config(ROOT / "config" / "sim.toml")
+    sweep, robot = config.process.align.sweep, config.sim.robot
+    v, a, settle = sweep.speed_mm_s, robot.acceleration_mm_s2, robot.settle_time_s
+
+    def rest_to_rest(L: float) -> float:
+        return (L / v + v / a if L >= v * v / a else 2.0 * np.sqrt(L / a)) + settle
+
+    def legs(corners: tuple[tuple[float, float], ...]) -> list[float]:
+        p = np.asarray(corners, dtype=float)
+        return [float(np.hypot(*(q - r))) for r, q in zip(p[:-1], p[1:])]
+
+    align, inspect = [sweep.approach_mm, *legs(sweep.path_mm)], legs(config.process.inspect.sweep_path_mm)
+    got = sweep_legs_s(config)
+    assert got["stopping_s"] == pytest.approx(sum(map(rest_to_rest, align + inspect)))
+    assert got["flown_s"] == pytest.approx(rest_to_rest(sum(align)) + rest_to_rest(sum(inspect)))
+    assert got["length_mm"] == pytest.approx(sum(align) + sum(inspect))
