@@ -122,7 +122,8 @@ class CellOrchestrator:
         self.image_dir = image_dir
         self.truth = truth
         self._queue: asyncio.Queue[int] = asyncio.Queue()
-        self._tasks: list[asyncio.Task[None]] = []
+        self._tasks: list[asyncio.Task[None]] = []  # the pumps of machine and alarm events
+        self._worker_task: asyncio.Task[None] | None = None
         self._cycle_task: asyncio.Task[None] | None = None
         self._current: int | None = None
         self._finished: dict[int, asyncio.Event] = {}
@@ -167,18 +168,29 @@ class CellOrchestrator:
             (self.alarms.subscribe_queue(), self._on_alarm_event),
         ):
             self._tasks.append(asyncio.create_task(self._pump(q, sink)))
-        self._tasks.append(asyncio.create_task(self._worker()))
+        self._worker_task = asyncio.create_task(self._worker())
         if self.watchdog is not None:
             await self.watchdog.start()
 
     async def stop(self) -> None:
-        """Stop background work. A running cycle is left as it is (the next start marks it interrupted)."""
+        """Stop background work. A running cycle is left as it is (the next start marks it interrupted).
+
+        The worker and its cycle are cancelled once and waited for: the cycle's shielded clean-up
+        (the sweep's stream and laser storage, the stopped cycle's record) runs to its end, its events
+        still pumped. A second cancel would cut that clean-up loose; the service bounds this wait.
+        """
         if self.watchdog is not None:
             await self.watchdog.stop()
         if self._cycle_task is not None:
             self._cycle_task.cancel()
-        await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
-        self._tasks.clear()
+        try:
+            if self._worker_task is not None:
+                self._worker_task.cancel()
+                await asyncio.gather(self._worker_task, return_exceptions=True)
+                self._worker_task = None
+        finally:
+            await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
+            self._tasks.clear()
 
     async def _pump(self, q: asyncio.Queue[Any], sink: Any) -> None:
         while True:
