@@ -60,7 +60,7 @@ def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_t
 
 def test_the_sweeps_legs_take_the_trapezoids_closed_form_stopping_or_flown_through() -> None:
     """Each leg from rest to rest: L/v + v/a above v^2/a, 2 sqrt(L/a) below, and the settle; flown through,
-    one such move over each sweep's whole length."""
+    one such move over each sweep's length, but for the alignment's, which turns back up the side: two there."""
     config = load_config(ROOT / "config" / "sim.toml")
     sweep, robot = config.process.align.sweep, config.sim.robot
     v, a, settle = sweep.speed_mm_s, robot.acceleration_mm_s2, robot.settle_time_s
@@ -75,5 +75,7 @@ def test_the_sweeps_legs_take_the_trapezoids_closed_form_stopping_or_flown_throu
     align, inspect = [sweep.approach_mm, *legs(sweep.path_mm)], legs(config.process.inspect.sweep_path_mm)
     got = sweep_legs_s(config)
     assert got["stopping_s"] == pytest.approx(sum(map(rest_to_rest, align + inspect)))
-    assert got["flown_s"] == pytest.approx(rest_to_rest(sum(align)) + rest_to_rest(sum(inspect)))
+    assert sweep.path_mm[1] == sweep.path_mm[3] and sweep.path_mm[1][0] == sweep.path_mm[2][0]  # up the side and back
+    there, back = align[:-1], align[-1:]
+    assert got["flown_s"] == pytest.approx(rest_to_rest(sum(there)) + rest_to_rest(sum(back)) - settle + rest_to_rest(sum(inspect)))
     assert got["length_mm"] == pytest.approx(sum(align) + sum(inspect))

@@ -195,19 +195,27 @@ def run_cycle_time(config: CellConfig, *, cells: int, trials: int, seed: int, pr
 def sweep_legs_s(config: CellConfig) -> dict[str, float]:
     """The robot time of the two sweeps' legs alone (the alignment's, with the one move in along the beam
     that checks a kept latency, and the inspection's), from the twin's motion limits: with a stop at every
-    corner as the cell moves now, and with every corner flown through at full speed, the least any blended
-    path along the same corners could take (a real robot slows in a corner's zone)."""
+    corner as the cell moves now, and flown through every corner at full speed but for a stop where the
+    path turns back on itself, the least any blended path along the same corners could take (a real robot
+    also slows in a corner's zone)."""
     sweep, robot = config.process.align.sweep, config.sim.robot
     v, a, settle = min(sweep.speed_mm_s, robot.max_speed_mm_s), robot.acceleration_mm_s2, robot.settle_time_s
 
-    def legs(path_mm: tuple[tuple[float, float], ...], *first_mm: float) -> list[float]:
-        p = np.asarray(path_mm, dtype=float)
-        return [*first_mm, *np.linalg.norm(np.diff(p, axis=0), axis=1).tolist()]
+    def runs(path_mm: tuple[tuple[float, float], ...], first_mm: float = 0.0) -> list[list[float]]:
+        """The legs' lengths, in runs between the corners where the path turns back (the move in comes first)."""
+        steps = np.diff(np.asarray(path_mm, dtype=float), axis=0)
+        out = [[first_mm]] if first_mm else [[]]
+        for k, step in enumerate(steps):
+            if k and float(step @ steps[k - 1]) <= -(1.0 - 1e-9) * float(np.linalg.norm(step) * np.linalg.norm(steps[k - 1])):
+                out.append([])
+            out[-1].append(float(np.linalg.norm(step)))
+        return out
 
-    paths = (legs(sweep.path_mm, sweep.approach_mm), legs(config.process.inspect.sweep_path_mm))
-    stopping = sum(TrapezoidProfile(L, v, a).duration + settle for path in paths for L in path)
-    flown = sum(TrapezoidProfile(sum(path), v, a).duration + settle for path in paths)
-    return {"length_mm": float(sum(map(sum, paths))), "speed_mm_s": v, "stopping_s": stopping, "flown_s": flown}
+    paths = (runs(sweep.path_mm, sweep.approach_mm), runs(config.process.inspect.sweep_path_mm))
+    stopping = sum(TrapezoidProfile(L, v, a).duration + settle for path in paths for run in path for L in run)
+    flown = sum(sum(TrapezoidProfile(sum(run), v, a).duration for run in path) + settle for path in paths)
+    length = sum(L for path in paths for run in path for L in run)
+    return {"length_mm": float(length), "speed_mm_s": v, "stopping_s": stopping, "flown_s": flown}
 
 
 def format_cycle_time(out: dict[str, Any]) -> str:
@@ -250,7 +258,7 @@ def format_cycle_time(out: dict[str, Any]) -> str:
     lines.append(
         f"  of which the sweeps' legs ({legs['length_mm']:.0f} mm at {legs['speed_mm_s']:g} mm/s) take {legs['stopping_s']:.2f} s "
         f"stopping at every corner, and would take {legs['flown_s']:.2f} s at the least flown through every corner at full "
-        f"speed: with the rest as now ({rest:.2f} s) align and inspect could not take under {legs['flown_s'] + rest:.2f} s"
+        f"speed (stopping only where the path turns back): with the rest as now ({rest:.2f} s) align and inspect could not take under {legs['flown_s'] + rest:.2f} s"
     )
     lines += _spent_table(slow, fast)
     bad = out[UNCOMPENSATED]
