@@ -227,3 +227,26 @@ async def test_the_walls_distance_comes_from_the_sweeps_stops_not_from_the_arm_d
     assert abs(rec["true_error"]["dz_mm"]) < 0.12, rec["true_error"]  # and it did not reach the install
     off = {k: rec["measured_deviation"][k] - rec["true_error"][k] for k in ("dz_mm", "drx_deg", "dry_deg")}
     assert abs(off["dz_mm"]) < 0.02 and abs(off["drx_deg"]) < 0.005 and abs(off["dry_deg"]) < 0.005, off
+
+
+async def test_a_move_in_too_short_to_check_the_latency_is_refused_naming_what_gives_more_readings(tmp_path: Path) -> None:
+    # 10 mm in along the beam at 1000 mm/s and its settle last 0.29 s: 14 readings at a 20 ms storage cycle, fewer
+    # than the timing needs. The first cycle moves in, out and in (about 40 readings) and times the laser; the second
+    # checks the kept latency on one move in and is refused, saying how many it needs and what gives more.
+    sweep = {"approach_mm": 10.0, "storage_cycle_s": 0.02}
+    config = sim_config(**{"process.align": {"mode": "on_the_fly"}, "process.align.sweep": sweep,
+                           "devices": TWIN_DEVICES, "sim": {"seed": 7}})  # fmt: skip
+    async with running_service(tmp_path, config) as service, api_client(service) as client:
+        await to_execute(client)
+        states = []
+        for i in range(2):
+            r = await client.post(
+                "/cycle?wait=true&timeout_s=120", json={"recipe": "side-window", "part_id": f"short-{i}"},
+                headers={**AUTH, "Idempotency-Key": f"short-{i}"},
+            )  # fmt: skip
+            states.append(r.json())
+            if i == 0:
+                assert states[0]["state"] == "done", states[0].get("error")
+    error = states[1]["error"] or ""
+    assert states[1]["state"] == "failed" and "laser readings (at least 20 needed)" in error, error
+    assert "process.align.sweep.approach_mm" in error, error

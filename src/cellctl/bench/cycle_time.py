@@ -78,7 +78,7 @@ class ModeFigures:
     on_the_fly: int  # cycles whose alignment really read on the move
     latency_ms: list[float]
     latency_modes: dict[str, int]  # how the sweeps had the latency: timed, checked, fixed
-    estimated_ms: list[float]  # each sweep's own estimate: a timing's, or a check's (whichever latency it then used)
+    estimated_ms: list[float]  # each sweep's own estimate: a timing's, or a check's (not the kept latency a check that agrees pairs with)
     failures: list[str]  # each cycle that did not install: its seed, trial, outcome and reason
     spent_s: list[dict[str, float]]  # each installed cycle's time by what it was spent on (SpentPerCycle)
 

@@ -24,6 +24,7 @@ from cellctl.align import plan_spot_poses
 from cellctl.align.beam_timing import estimate_latency_at_spot
 from cellctl.align.laser_points import laser_points, sweep_route
 from cellctl.align.onthefly import (
+    MIN_READINGS,
     LatencyAtEdge,
     LatencyEstimate,
     TimingReadings,
@@ -307,11 +308,12 @@ def _latency(
     t, T = feedback
     during = (instants >= approach[0]) & (instants <= approach[1])
     in_approach = int(np.count_nonzero(during & np.isfinite(distances)))
-    if t.size < 2 or in_approach < 10:
+    if t.size < 2 or in_approach < MIN_READINGS:
         raise CycleFailed(
             step, AlarmCode.ALIGNMENT_FAILED,
-            f"the approach gave {in_approach} laser readings and the sweep {t.size} robot poses: too few to time "
-            "the laser against the robot (is the wall in the laser's range at the path's first corner?)",
+            f"the approach gave {in_approach} laser readings (at least {MIN_READINGS} needed) and the sweep {t.size} robot "
+            "poses: too few to time the laser against the robot (is the wall in the laser's range at the path's first "
+            "corner? a longer process.align.sweep.approach_mm or a shorter storage_cycle_s gives more)",
         )  # fmt: skip
     def estimate(window: tuple[float, float]) -> LatencyEstimate:
         return estimate_latency_at_spot(TimingReadings.checked(instants[during], distances[during], t, T, cal.laser_r, cal.laser_l, window))
