@@ -15,7 +15,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.align.laser_points import laser_points
-from cellctl.align.onthefly import MIN_BEAM_SPEED_MM_S, FlangeTrajectory, LatencyEstimate, TimingReadings, best_latency
+from cellctl.align.onthefly import (
+    MIN_BEAM_SPEED_MM_S,
+    FlangeTrajectory,
+    LatencyEstimate,
+    TimingReadings,
+    best_latency,
+    difference_latencies,
+)
 
 F64 = NDArray[np.float64]
 
@@ -36,6 +43,11 @@ class _SpotCost:
 
     def __call__(self, latency_s: float) -> float:
         return float(np.mean(self.along(latency_s) ** 2))
+
+    def rate(self, latency_s: float) -> F64:
+        """(K,) d(offset along the beam)/d(latency) (mm/s), by central difference."""
+        lo, hi = difference_latencies(latency_s, self.instants, self.trajectory)
+        return (self.along(hi) - self.along(lo)) / (hi - lo)
 
 
 def estimate_latency_at_spot(timed: TimingReadings, *, min_beam_speed_mm_s: float = MIN_BEAM_SPEED_MM_S) -> LatencyEstimate:
@@ -63,7 +75,7 @@ def estimate_latency_at_spot(timed: TimingReadings, *, min_beam_speed_mm_s: floa
     cost = _SpotCost(trajectory, t_k, timed.distances, timed.r, timed.l, beam)
 
     def observable(latency_s: float) -> None:
-        beam_speed = float(np.sqrt(np.mean(_derivative(cost, latency_s, trajectory, t_k) ** 2)))
+        beam_speed = float(np.sqrt(np.mean(cost.rate(latency_s) ** 2)))
         if beam_speed < min_beam_speed_mm_s:
             raise ValueError(
                 f"the latency is not observable: the points move along the beam at {beam_speed:.3g} mm/s RMS with it "
@@ -72,7 +84,7 @@ def estimate_latency_at_spot(timed: TimingReadings, *, min_beam_speed_mm_s: floa
 
     latency = best_latency(cost, timed.search_s, observable)
     e = cost.along(latency)
-    J = _derivative(cost, latency, trajectory, t_k)
+    J = cost.rate(latency)
     sigma_mm = float(np.sqrt(np.sum(e**2) / max(n - 2, 1)))
     return LatencyEstimate(
         latency_s=latency,
@@ -82,9 +94,3 @@ def estimate_latency_at_spot(timed: TimingReadings, *, min_beam_speed_mm_s: floa
         beam_speed_mm_s=float(np.sqrt(np.mean(J**2))),
     )
 
-
-def _derivative(cost: _SpotCost, latency_s: float, trajectory: FlangeTrajectory, instants: F64, h: float = 2e-4) -> F64:
-    """(K,) d(offset along the beam)/d(latency) (mm/s), by central difference kept within the feedback."""
-    lo = max(latency_s - h, float(instants.max()) - trajectory.end_s)
-    hi = min(latency_s + h, float(instants.min()) - trajectory.start_s)
-    return (cost.along(hi) - cost.along(lo)) / (hi - lo)

@@ -235,6 +235,14 @@ class TimingReadings:
         return cls(trajectory, t_k[keep], d[keep], rv, lv, (lo, hi))
 
 
+def difference_latencies(latency_s: float, instants: F64, trajectory: FlangeTrajectory, h: float = 2e-4) -> tuple[float, float]:
+    """The latencies ``h`` (s) either side of ``latency_s`` for a central difference, kept where every reading's
+    shifted instant stays within the feedback."""
+    lo = max(latency_s - h, float(instants.max()) - trajectory.end_s)
+    hi = min(latency_s + h, float(instants.min()) - trajectory.start_s)
+    return lo, hi
+
+
 class _WallCost:
     """The laser points as a function of the latency, and their plane-fit residuals (eq. 1-11)."""
 
@@ -263,8 +271,7 @@ class _WallCost:
         """The residuals' derivative by the latency (mm/s) with the plane's own freedom projected out."""
         normal, _, axes, _ = self.plane(latency_s)
         P = self.points(latency_s)
-        lo = max(latency_s - h, self.instants.max() - self.trajectory.end_s)
-        hi = min(latency_s + h, self.instants.min() - self.trajectory.start_s)
+        lo, hi = difference_latencies(latency_s, self.instants, self.trajectory, h)
         J = (self.points(hi) - self.points(lo)) @ normal / (hi - lo)
         nuisance = np.column_stack([(P - P.mean(axis=0)) @ axes, np.ones(P.shape[0])])
         coef = np.linalg.lstsq(nuisance, J, rcond=None)[0]
