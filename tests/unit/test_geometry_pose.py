@@ -82,6 +82,15 @@ def test_check_pose_names_the_problem() -> None:
         check_pose(np.full((4, 4), np.nan), "x")
     with pytest.raises(ValueError, match="4x4"):
         check_pose(np.eye(3), "x")
+    for off, ok in ((0.9e-6, True), (1.1e-6, False)):  # the bottom row within tol (1e-6), as np.allclose judges it
+        T = np.eye(4)
+        T[3, 0] = off
+        assert (np.allclose(T[3], [0, 0, 0, 1], atol=1e-6)) is ok
+        if ok:
+            check_pose(T, "x")
+        else:
+            with pytest.raises(ValueError, match="x: bottom row"):
+                check_pose(T, "x")
 
 
 def test_pose_error_in_reference_frame() -> None:

@@ -172,3 +172,15 @@ def test_minimal_rotation_antiparallel() -> None:
 def test_bad_quaternions_are_refused(bad: list[float]) -> None:
     with pytest.raises(ValueError, match="quaternion"):
         quat_to_matrix(bad)
+
+
+@settings(max_examples=300, deadline=None)
+@given(rotations(), st.floats(-12.0, -3.0), st.floats(-10.0, -5.0), st.integers(0, 2**32 - 1))
+def test_is_rotation_is_numpys_allclose_on_the_gram_matrix_and_det_one(
+    R: np.ndarray, log_noise: float, log_tol: float, seed: int
+) -> None:
+    """The hand-spelled test agrees with np.allclose(R.T R, I, atol=tol) and |det R - 1| < tol on either side of tol."""
+    M = R + 10.0**log_noise * np.random.default_rng(seed).standard_normal((3, 3))
+    tol = 10.0**log_tol
+    expected = bool(np.allclose(M.T @ M, np.eye(3), atol=tol) and abs(np.linalg.det(M) - 1.0) < tol)
+    assert is_rotation(M, tol=tol) is expected

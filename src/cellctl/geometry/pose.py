@@ -33,6 +33,10 @@ def make_pose(R: ArrayLike, t: ArrayLike) -> Pose:
     return T
 
 
+_BOTTOM_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_BOTTOM_RTOL = 1e-5 * _BOTTOM_ROW  # np.allclose's default rtol, relative to the row it compares with
+
+
 def check_pose(T: ArrayLike, name: str = "pose", tol: float = 1e-6) -> Pose:
     """Return ``T`` as a float 4x4 array after checking it is a finite rigid transform.
 
@@ -42,9 +46,9 @@ def check_pose(T: ArrayLike, name: str = "pose", tol: float = 1e-6) -> Pose:
     M = np.asarray(T, dtype=float)
     if M.shape != (4, 4):
         raise ValueError(f"{name}: expected a 4x4 homogeneous matrix, got shape {M.shape}")
-    if not np.all(np.isfinite(M)):
+    if not np.isfinite(M).all():
         raise ValueError(f"{name}: contains NaN or infinite values")
-    if not np.allclose(M[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
+    if not (np.abs(M[3] - _BOTTOM_ROW) <= tol + _BOTTOM_RTOL).all():  # np.allclose's test, without its overhead
         raise ValueError(f"{name}: bottom row must be [0, 0, 0, 1], got {M[3].tolist()}")
     if not is_rotation(M[:3, :3], tol=tol):
         raise ValueError(f"{name}: rotation part is not orthonormal with det +1 (re-orthonormalise it)")

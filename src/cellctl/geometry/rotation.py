@@ -44,12 +44,18 @@ def skew(v: ArrayLike) -> Matrix3:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+_I3 = np.eye(3)
+_I3.flags.writeable = False
+_RTOL_I3 = 1e-5 * _I3
+
+
 def is_rotation(R: ArrayLike, tol: float = 1e-9) -> bool:
     """True if ``R`` is a finite 3x3 orthonormal matrix with determinant +1 within ``tol``."""
     M = np.asarray(R, dtype=float)
-    if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+    if M.shape != (3, 3) or not np.isfinite(M).all():
         return False
-    return bool(np.allclose(M.T @ M, np.eye(3), atol=tol) and abs(np.linalg.det(M) - 1.0) < tol)
+    # np.allclose(M.T @ M, I, atol=tol) spelled out (its rtol 1e-5 applies on the diagonal): a third of its time.
+    return bool((np.abs(M.T @ M - _I3) <= tol + _RTOL_I3).all() and abs(np.linalg.det(M) - 1.0) < tol)
 
 
 def nearest_rotation(M: ArrayLike) -> Matrix3:

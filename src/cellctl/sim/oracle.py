@@ -12,7 +12,9 @@ belief that truly seats the glass); T0 the true workpiece frame.
 
 from __future__ import annotations
 
+import copy
 import threading
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -113,6 +115,37 @@ def oracle_calibration(rig: SimRig, config: CellConfig, *, repeats: int = 8) -> 
     )
 
 
+# Teaching from the truth is deterministic in (config, seed) and takes seconds (16 rendered and
+# measured shots): each process teaches a twin once and hands out copies.
+_TAUGHT: OrderedDict[tuple[int, str], CycleCalibration] = OrderedDict()
+_TAUGHT_MAX = 32
+_TAUGHT_LOCK = threading.Lock()
+_TEACHING: dict[tuple[int, str], threading.Lock] = {}
+
+
+def taught_once(config: CellConfig, seed: int) -> CycleCalibration:
+    """:func:`oracle_calibration` on a twin of ``config.sim`` and ``seed`` (a recipe's view), taught once per process.
+
+    The key is every section teaching reads (``layout``, ``process``, ``vision``, ``sim``), so any
+    change to them teaches anew; each caller gets its own copy.
+    """
+    key = (int(seed), config.model_dump_json(include={"mode", "layout", "process", "vision", "sim"}))
+    with _TAUGHT_LOCK:
+        teaching = _TEACHING.setdefault(key, threading.Lock())
+    with teaching:  # one twin teaches a key; others wait for it, other keys teach meanwhile
+        with _TAUGHT_LOCK:
+            cal = _TAUGHT.get(key)
+        if cal is None:
+            cal = oracle_calibration(SimRig(config.sim, seed=seed), config)
+            with _TAUGHT_LOCK:
+                _TAUGHT[key] = cal
+                while len(_TAUGHT) > _TAUGHT_MAX:
+                    _TAUGHT.popitem(last=False)
+        with _TAUGHT_LOCK:
+            _TEACHING.pop(key, None)
+    return copy.deepcopy(cal)
+
+
 class OracleCalibrationSource:
     """A CalibrationSource that is always ready, built from the twin's truth on first use."""
 
@@ -132,9 +165,7 @@ class OracleCalibrationSource:
         name = recipe or self._config.default_recipe
         with self._lock:
             if name not in self._cals:
-                view = self._config.for_recipe(name)
-                cell = self._rig.cell
-                self._cals[name] = oracle_calibration(SimRig(view.sim, seed=cell.seed), view)
+                self._cals[name] = taught_once(self._config.for_recipe(name), self._rig.cell.seed)
             return self._cals[name]
 
     def summary(self) -> dict[str, Any]:
