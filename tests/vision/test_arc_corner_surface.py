@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from arc_test_support import arc_centre
+from arc_test_support import arc_centre, arc_point, occlude
 from vision_test_support import SMALL_LENS, corner_image, ideal_grid
 
 from cellctl.config import load_config
@@ -25,6 +25,7 @@ from cellctl.sim.image_truth import camera_pose_seeing_corner
 from cellctl.sim.world import sample_world
 from cellctl.vision import Lens
 from cellctl.vision.arc_corner import detect_arc_corner
+from cellctl.vision.arc_profile import arc_profile
 from cellctl.vision.quality import Refusal
 
 R150 = 985.0  # 150 mm on the 1024 px SMALL_LENS
@@ -64,6 +65,23 @@ def test_the_seal_arc_when_the_recipe_counts_from_the_opening(grid) -> None:
     assert m.ok, m.message
     assert abs(m.radius_px - (R150 - 120.0)) < 0.3  # concentric: the same centre, a smaller radius
     assert np.hypot(*(m.centre_px - arc_centre(corner, angle, R150))) < 0.3
+
+
+def test_the_arcs_profile_is_the_median_of_the_recipes_cross_sections_spread_along_it(grid) -> None:
+    """As across a straight edge: ``feature.cross_sections`` of the arc's normals, a dirt spot on one of them
+    left out by the median, every concentric step at its drawn offset."""
+    corner, angle = (1000.0, 20.0), 0.01
+    img = corner_image(SMALL_LENS, grid, corner, angle, radius_px=R150, steps=REAL_STEPS, noise_dn=2.0, blur_px=1.0,
+                       rng=np.random.default_rng(13))  # fmt: skip
+    centre = arc_centre(corner, angle, R150)
+    img = occlude(img, (*arc_point(centre, R150 - 30.0, 45.0), 40.0, 40.0), 250.0)  # a bright spot across the bands
+    a = np.radians(np.linspace(15.0, 75.0, 4000))  # every quarter pixel along the arc, as the detector passes them
+    normals = np.column_stack([np.cos(a), -np.sin(a)])
+    profile = arc_profile(img, SMALL_LENS, centre, R150, normals, opening_darker=True, feature=FeatureConfig())
+    assert profile.sections == FeatureConfig().cross_sections == 24
+    found = [s.offset_px for s in profile.steps]
+    assert len(found) == len(REAL_STEPS) and all(min(abs(f - o) for f in found) < 0.5 for o, _ in REAL_STEPS), found
+    assert profile.feature_step is not None and abs(profile.feature_step.offset_px) < 0.5  # the wall's own edge
 
 
 def test_a_rule_that_picks_no_arc_is_a_refusal(grid) -> None:

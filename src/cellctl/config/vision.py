@@ -130,7 +130,7 @@ class FeatureConfig(StrictModel):
     # Half-length of the cross-sections, either side of the coarse line (px): it must reach past
     # every band the rule counts (the default covers 30 mm at 0.0762 mm/px).
     profile_half_px: int = Field(400, ge=20, le=1000)
-    # Cross-sections taken along each straight edge (their median is the profile).
+    # Cross-sections taken along each straight edge, and along an arc (their median is the profile).
     cross_sections: int = Field(24, ge=8, le=400)
 
 

@@ -30,10 +30,12 @@ def arc_profile(
 ) -> EdgeProfile:
     """The median radial profile about ``centre`` (ideal px) across the circle of ``radius``.
 
-    ``normals`` are unit directions from the centre (one cross-section each). Offsets are px from
-    the circle, positive towards the centre (into the opening, as across a straight edge), so a
-    step at offset o is the concentric arc of radius ``radius - o``.
+    ``normals`` are unit directions from the centre, in order along the arc; the profile is the
+    median of ``feature.cross_sections`` of them spread evenly along it, as across a straight edge.
+    Offsets are px from the circle, positive towards the centre (into the opening, as across a
+    straight edge), so a step at offset o is the concentric arc of radius ``radius - o``.
     """
+    normals = normals[np.unique(np.linspace(0, len(normals) - 1, min(len(normals), feature.cross_sections)).round().astype(int))]
     half = float(min(feature.profile_half_px, 0.9 * radius))
     offsets = np.arange(-half, half + 1e-9, SAMPLE_STEP_PX)
     ideal = centre[None, None, :] + (radius - offsets)[None, :, None] * normals[:, None, :]  # (S, O, 2)
