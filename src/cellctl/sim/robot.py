@@ -29,6 +29,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -299,21 +300,24 @@ class Motion:
         return T
 
     def _true_on_path(self, f: float) -> Pose:
-        """The truth at path fraction f: the accuracy field at the belief there, the ends' repeatability blended.
-
-        A real arm's kinematic errors act at every point of its path, not only at its ends.
-        """
-        assert self.deform is not None
+        """The truth at path fraction f: the accuracy field at the belief there (a real arm's kinematic errors
+        act all along its path), the ends' repeatability blended."""
         if f >= 1.0:
             return self.target_true.copy()
         if f <= 0.0:
             return self.start_true.copy()
-        E0, E1 = self.deform(self.start_belief), self.deform(self.target_belief)
-        noise0 = make_pose(self.start_true[:3, :3] @ E0[:3, :3].T, self.start_true[:3, 3] - E0[:3, 3])
-        noise1 = make_pose(self.target_true[:3, :3] @ E1[:3, :3].T, self.target_true[:3, 3] - E1[:3, 3])
-        N = interpolate_pose(noise0, noise1, f)
+        assert self.deform is not None
+        N = interpolate_pose(*self._ends_noise, f)
         E = self.deform(interpolate_pose(self.start_belief, self.target_belief, f))
         return make_pose(N[:3, :3] @ E[:3, :3], E[:3, 3] + N[:3, 3])
+
+    @cached_property
+    def _ends_noise(self) -> tuple[Pose, Pose]:
+        """The repeatability noise N at the start and the target (truth = N E(belief)); once per move."""
+        assert self.deform is not None
+        ends = ((self.start_true, self.deform(self.start_belief)), (self.target_true, self.deform(self.target_belief)))
+        n0, n1 = (make_pose(T[:3, :3] @ E[:3, :3].T, T[:3, 3] - E[:3, 3]) for T, E in ends)
+        return n0, n1
 
     def belief_at(self, now: float) -> Pose:
         """What the controller reports at clock time ``now``."""
