@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from typing import Any, AsyncIterator, Callable, Final, Literal, Mapping, Sequence
 
 from cellctl.ports import (
+    DeviceBusy,
     DeviceDisconnected,
     DeviceError,
     DeviceProtocolError,
@@ -284,7 +285,7 @@ class KeyenceLkgSensor(LkgStorage):
             try:
                 await asyncio.wait_for(self._lock.acquire(), timeout_s)
             except TimeoutError:
-                raise DeviceTimeout(self.name, f"busy: another command did not finish within {timeout_s:g} s") from None
+                raise DeviceBusy(self.name, f"busy: another command did not finish within {timeout_s:g} s") from None
         else:
             await self._lock.acquire()
         try:

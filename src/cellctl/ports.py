@@ -38,6 +38,10 @@ class DeviceTimeout(DeviceError):
     """No (complete) answer within the call's timeout."""
 
 
+class DeviceBusy(DeviceTimeout):
+    """The link was taken by another call for the whole timeout (e.g. a storage read-out): nothing was asked."""
+
+
 class DeviceDisconnected(DeviceError):
     """The link to the device is down (port vanished, socket closed); the driver may reconnect."""
 

@@ -14,6 +14,7 @@ from cellctl.cell.tags import PackMLCommand, PackMLState
 from cellctl.cell.watchdog import DeviceWatchdog, LinkState, WatchdogSettings, default_alarm_code
 from cellctl.ports import (
     CartesianPose,
+    DeviceBusy,
     DeviceTimeout,
     DistanceReading,
     Frame,
@@ -37,6 +38,8 @@ class Link:
             return 0.001
         if self.mode == "timeout":
             raise DeviceTimeout(device, f"no reply within {timeout_s} s")
+        if self.mode == "busy":  # another call (a long read-out) held the link for the whole timeout
+            raise DeviceBusy(device, f"busy: another command did not finish within {timeout_s} s")
         if self.mode == "hang":  # a driver ignoring its own timeout
             await asyncio.sleep(60)
             return 60.0
@@ -178,6 +181,29 @@ async def test_lost_sensor_holds_the_cell_and_its_return_clears_the_alarm() -> N
     h = await wd.check_once()
     assert h["laser"].link == LinkState.UP and h["laser"].consecutive_misses == 0
     assert am.active() == [] and h["laser"].pings == 6 and h["laser"].misses == 4
+
+
+async def test_a_link_held_by_another_call_is_neither_an_answer_nor_a_miss() -> None:
+    m = await executing_machine()
+    am = AlarmManager(m)
+    am.install()
+    clock = FakeClock()
+    laser = FakeLaser()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=2), clock=clock)
+    wd.add("laser", laser)
+    await wd.check_once()
+    laser.link.mode = "busy"  # a read-out longer than the threshold's pings: the cell goes on
+    for _ in range(5):
+        clock.t += 1.0
+        h = (await wd.check_once())["laser"]
+    assert (h.link, h.consecutive_misses, h.misses, h.pings) == (LinkState.UP, 0, 0, 6)
+    assert h.heartbeat_age_s == pytest.approx(5.0)  # no answer came meanwhile
+    assert am.active() == [] and m.state == PackMLState.EXECUTE
+    laser.link.mode = "timeout"  # the link free and the device silent: misses again
+    for _ in range(2):
+        clock.t += 1.0
+        await wd.check_once()
+    assert wd.health()["laser"].link == LinkState.LOST and [a.code for a in am.active()] == [AlarmCode.LASER_LOST]
 
 
 async def test_lost_robot_aborts() -> None:

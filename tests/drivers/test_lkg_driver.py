@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 import pytest
 
 from cellctl.ports import (
+    DeviceBusy,
     DeviceDisconnected,
     DeviceError,
     DeviceProtocolError,
@@ -361,6 +362,32 @@ async def test_concurrent_callers_take_turns(fake: FakeLkgController, sensor: Ke
     sent = [REF_MM + e.values_mm[0] for e in fake.exchanges if e.values_mm and e.values_mm[0] is not None]
     assert values == pytest.approx(sent)  # one command in flight: every reply answered its own read
     assert sensor.stats.late_replies == 0
+
+
+async def test_a_ping_while_a_long_exchange_holds_the_line_says_busy_and_the_watchdog_misses_nothing(
+    fake: FakeLkgController, sensor: KeyenceLkgSensor
+) -> None:
+    """A storage read-out holds the serial line for seconds (9 characters a reading at 115200 Bd): the watchdog's ping
+    cannot be sent meanwhile, which says nothing of the device; a silent device on a free line is still a miss."""
+    from cellctl.cell.alarms import AlarmManager
+    from cellctl.cell.watchdog import DeviceWatchdog, LinkState, WatchdogSettings
+
+    am = AlarmManager()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=0.2, timeout_s=0.15, miss_threshold=1))
+    wd.add("laser", sensor)
+    fake.delay(0.8)  # the next reply comes late: the line is held the whole time
+    long = asyncio.ensure_future(sensor.read(timeout_s=2.0))
+    await asyncio.sleep(0.05)
+    with pytest.raises(DeviceBusy, match="busy") as busy:
+        await guarded(sensor.ping(timeout_s=0.15))
+    assert isinstance(busy.value, DeviceTimeout)  # to a caller of the port it is a timeout like any other
+    for _ in range(3):
+        h = (await guarded(wd.check_once()))["laser"]
+    assert_true_reading(await guarded(long), fake)
+    assert (h.link, h.misses) == (LinkState.UNKNOWN, 0) and am.active() == []
+    fake.silence(None)  # the line free, the controller silent: the ping itself times out
+    h = (await guarded(wd.check_once()))["laser"]
+    assert h.link == LinkState.LOST and "busy" not in (h.last_error or "")
 
 
 @pytest.mark.parametrize("seed", [1, 2])

@@ -3,7 +3,9 @@ raises an alarm when a device is lost and clears it when the device answers agai
 
 Each device has its own loop: every ``period_s`` it calls ``ping(timeout_s=...)`` (all ports have
 it). A ping that raises or does not return within ``timeout_s`` (plus a small grace for the
-driver's own timeout to fire first) is a miss. ``miss_threshold`` consecutive misses make the
+driver's own timeout to fire first) is a miss, except one the device could not take because another
+call held its link throughout (``DeviceBusy``, e.g. the laser's storage read-out, which has its own
+timeout): that is neither an answer nor a miss. ``miss_threshold`` consecutive misses make the
 link LOST and raise the device's alarm (robot -> Abort, laser/camera -> Hold, per
 :data:`cellctl.cell.alarms.REACTIONS`); the first answer after that makes it UP again and clears
 the alarm. A first miss raises a warning (DEVICE_SLOW) that clears on the next answer.
@@ -22,7 +24,7 @@ from typing import Protocol, runtime_checkable
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import cancel_until_done
 from cellctl.domain import AlarmCode
-from cellctl.ports import Camera, DisplacementSensor, Robot
+from cellctl.ports import Camera, DeviceBusy, DisplacementSensor, Robot
 
 _log = logging.getLogger(__name__)
 
@@ -210,6 +212,9 @@ class DeviceWatchdog:
             rtt = float(await asyncio.wait_for(sup.device.ping(timeout_s=s.timeout_s), s.timeout_s + TIMEOUT_GRACE_S))
         except asyncio.CancelledError:
             raise
+        except DeviceBusy:  # another call held the link throughout (it has its own timeout): no answer, no miss
+            sup.health = replace(sup.health, pings=sup.health.pings + 1)
+            return
         except TimeoutError:
             error = f"no answer within {s.timeout_s:g} s"
         except Exception as exc:
