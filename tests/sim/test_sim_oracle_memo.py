@@ -4,17 +4,15 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from service_test_support import sim_config
 
 import cellctl.sim.oracle as oracle
-from cellctl.config import CellConfig, parse_config
+from cellctl.config import CellConfig
 from cellctl.sim.rig import SimRig
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True, eq=False)
@@ -26,15 +24,6 @@ class _Taught:
     def __eq__(self, other: object) -> bool:
         return isinstance(other, _Taught) and (self.seed, self.working_distance_mm) == (
             other.seed, other.working_distance_mm) and np.array_equal(self.T0, other.T0)
-
-
-def _config(**sections: dict[str, Any]) -> CellConfig:
-    import tomllib
-
-    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
-    for name, fields in sections.items():
-        data.setdefault(name, {}).update(fields)
-    return parse_config(data, "sim.toml (test)")
 
 
 @pytest.fixture
@@ -52,7 +41,7 @@ def teachings(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
 
 def test_a_config_and_seed_are_taught_once_and_each_caller_gets_its_own_copy(teachings: list[int]) -> None:
-    cfg = _config()
+    cfg = sim_config()
     first = oracle.taught_once(cfg, 3)
     second = oracle.taught_once(cfg, 3)
     assert teachings == [3]
@@ -60,17 +49,17 @@ def test_a_config_and_seed_are_taught_once_and_each_caller_gets_its_own_copy(tea
     first.T0[0, 3] = 99.0  # a caller that changes its copy changes nobody else's
     assert oracle.taught_once(cfg, 3).T0[0, 3] == 0.0
     # sections teaching never reads (the PLC's port, the store's place) do not teach anew
-    assert oracle.taught_once(_config(plc={"port": 0}, store={"path": "elsewhere.db"}), 3) == second
+    assert oracle.taught_once(sim_config(plc={"port": 0}, store={"path": "elsewhere.db"}), 3) == second
     assert teachings == [3]
 
 
 def test_a_change_to_what_teaching_reads_or_another_seed_teaches_anew(teachings: list[int]) -> None:
-    base = _config()
+    base = sim_config()
     oracle.taught_once(base, 1)
-    moved = _config(process={"working_distance_mm": base.process.working_distance_mm + 50.0})
+    moved = sim_config(process={"working_distance_mm": base.process.working_distance_mm + 50.0})
     assert oracle.taught_once(moved, 1).working_distance_mm == base.process.working_distance_mm + 50.0
     oracle.taught_once(base, 2)
-    oracle.taught_once(_config(sim={"seed": 7}), 1)  # the sim section is read: its changes count too
+    oracle.taught_once(sim_config(sim={"seed": 7}), 1)  # the sim section is read: its changes count too
     assert teachings == [1, 1, 2, 1]
 
 
@@ -84,7 +73,7 @@ def test_callers_at_once_wait_for_one_teaching(teachings: list[int], monkeypatch
         return teach(rig, config)
 
     monkeypatch.setattr(oracle, "oracle_calibration", slow)
-    cfg = _config()
+    cfg = sim_config()
     out: list[Any] = []
     threads = [threading.Thread(target=lambda: out.append(oracle.taught_once(cfg, 4))) for _ in range(3)]
     for t in threads:
