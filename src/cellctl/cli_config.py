@@ -82,8 +82,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
         print(f"  {line}")
     try:
         plan = wall_plan(config).lines() + [wall_reading_in_use(config)]
-    except ValueError as err:  # e.g. spots on a line: the configuration loads, the alignment would refuse
-        plan = [f"cannot be predicted: {err}"]
+    except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
+        plan = [f"cannot be predicted from process.align on [layout]: {err}"]
     print("  wall readings           " + "\n                          ".join(plan))
     print("  secrets                 " + ("every API token and OPC UA password could be read" if args.secrets
                                           else "not read (--secrets reads the API tokens and OPC UA passwords)"))  # fmt: skip

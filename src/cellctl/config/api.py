@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import Field, model_validator
 
-from cellctl.config.types import StrictModel, check_unique
+from cellctl.config.types import ListenHost, StrictModel, check_unique
 
 MIN_TOKEN_LENGTH = 16
 SIM_DEFAULT_TOKEN = "sim-operator-token-change-me"
@@ -149,7 +149,7 @@ def _read_token_file(where: str, path: Path) -> str:
 class ApiConfig(StrictModel):
     """Where the service listens, who may change things, whether reads need a token, how large a request may be."""
 
-    host: str = "127.0.0.1"
+    host: ListenHost = "127.0.0.1"
     port: int = Field(8080, ge=0, le=65535)
     tokens: tuple[ApiToken, ...] = (ApiToken(name="operator", token=SIM_DEFAULT_TOKEN),)
     open_reads: bool = True  # GET routes, /health details and /metrics without a token, for a trusted cell network
@@ -161,6 +161,13 @@ class ApiConfig(StrictModel):
         if not self.tokens:
             raise ValueError("tokens: give at least one token; mutating routes need a bearer token")
         check_unique("tokens", "name", [t.name for t in self.tokens])
+        for field in ("token", "token_env", "token_file"):
+            given = [(t.name, getattr(t, field)) for t in self.tokens if getattr(t, field) is not None]
+            if field == "token_file":
+                given = [(name, os.path.normpath(path)) for name, path in given]
+            problem = shared_token(given, f"the same {field}", where="tokens")
+            if problem is not None:
+                raise ValueError(problem)
         return self
 
     def hardware_problems(self) -> list[str]:
@@ -191,6 +198,20 @@ class ApiConfig(StrictModel):
                 out.append((t.name, t.secret()))
             except TokenUnavailable as err:
                 problems.append(str(err))
+        shared = shared_token(out, "the same token value (read from their sources)")
+        if shared is not None:
+            problems.append(shared)
         if problems:
             raise TokenUnavailable("\n".join(problems))
         return tuple(out)
+
+
+def shared_token(tokens: list[tuple[str, object]], what: str, *, where: str = "api.tokens") -> str | None:
+    """Two [[api.tokens]] entries (name, value) whose values are equal, named (never the value), or None."""
+    first: dict[object, str] = {}
+    for name, value in tokens:
+        if value in first:
+            return (f"{where}: '{first[value]}' and '{name}' have {what}: a request with it would be recorded in the "
+                    f"audit log as '{first[value]}'s; give each entry its own token (make one with {MAKE_A_TOKEN})")
+        first[value] = name
+    return None

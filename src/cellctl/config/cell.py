@@ -11,6 +11,7 @@ from cellctl.config.inspection import InspectionConfig
 from cellctl.config.recipe import Recipe
 from cellctl.config.spc import SpcConfig
 from cellctl.config.types import Finite, StrictModel, Vec2, check_unique
+from cellctl.geometry.plane import PlaneFitError, fit_plane
 from cellctl.inspection.flush_crossing import crossing_path_problem
 
 
@@ -144,6 +145,40 @@ class AlignConfig(StrictModel):
         if len(self.spots_mm) < 3:
             raise ValueError(f"spots_mm has {len(self.spots_mm)} spots; the plane needs at least 3")
         return self
+
+    @model_validator(mode="after")
+    def _spread_in_two_directions(self) -> "AlignConfig":
+        """The readings must fix the wall's tilt in both directions: the wall fit refuses points on one line."""
+        readings = (
+            ("spots_mm", self.spots_mm, f"{len(self.spots_mm)} spots"),
+            ("sweep.path_mm", self.sweep.points_along_mm(), f"path's {len(self.sweep.path_mm)} corners and legs"),
+        )
+        for field, points, what in readings:
+            problem = one_line_problem(points, self.min_collinearity)
+            if problem is not None:
+                raise ValueError(
+                    f"{field}: the {what} {problem}, so the wall's tilt about that line is undetermined "
+                    "and every alignment would fail: spread them in two directions (along the top edge and down the "
+                    "side, as config/sim.toml does)"
+                )
+        return self
+
+
+def one_line_problem(points_mm: tuple[tuple[float, float], ...], min_collinearity: float) -> str | None:
+    """Why 2-D wall points cannot fix a plane (on one point, or on one line), or None.
+
+    The wall fit's criterion (:func:`cellctl.geometry.plane.fit_plane`): lambda_mid / lambda_max of the
+    points' centred scatter, below ``min_collinearity`` (process.align.min_collinearity) they are on a line.
+    """
+    P = np.asarray(points_mm, dtype=float).reshape(-1, 2)
+    try:
+        fit = fit_plane(np.column_stack([P, np.zeros(len(P))]), min_collinearity=0.0)
+    except PlaneFitError:
+        return "stand on one point"
+    if fit.collinearity < min_collinearity:
+        return (f"lie on one line (lambda_mid/lambda_max of their spread is {fit.collinearity:.3g}, below "
+                f"process.align.min_collinearity = {min_collinearity:g})")
+    return None
 
 
 class MotionConfig(StrictModel):

@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from cellctl.config.api import read_secret
-from cellctl.config.types import StrictModel, check_unique
+from cellctl.config.types import ListenHost, StrictModel, check_unique
 
 SecurityPolicy = Literal["Basic256Sha256_SignAndEncrypt", "Basic256Sha256_Sign", "None"]
 SIM_DEFAULT_PASSWORD = "sim-opcua-password-change-me"
@@ -52,7 +52,7 @@ class OpcUaConfig(StrictModel):
     """OPC UA server (OPC 30050 PackML model; node set: docs/opcua_nodeset.md)."""
 
     enabled: bool = True
-    host: str = "127.0.0.1"
+    host: ListenHost = "127.0.0.1"
     port: int = Field(4840, ge=0, le=65535)  # 0: any free port (tests); the server reports the one it got
     path: str = Field("/cellctl", pattern=r"^/[A-Za-z0-9/_.-]*$")  # endpoint opc.tcp://host:port<path>
     application_uri: str = Field("urn:cellctl:{cell_id}", min_length=1)  # {cell_id} is replaced; must match the certificate

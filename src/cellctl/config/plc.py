@@ -6,14 +6,14 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from cellctl.config.types import Finite, StrictModel
+from cellctl.config.types import Finite, ListenHost, StrictModel
 
 
 class PlcConfig(StrictModel):
     """Modbus TCP server settings (register map: docs/plc_register_map.md)."""
 
     enabled: bool = True
-    host: str = "127.0.0.1"
+    host: ListenHost = "127.0.0.1"
     port: int = Field(5020, ge=0, le=65535)  # 0: any free port (tests); the server reports the one it got
     unit_id: int = Field(1, ge=0, le=255)  # 0: answer every unit id
     float_word_order: Literal["big", "little"] = "big"  # 32-bit values; "big": high word first (ABCD)

@@ -86,6 +86,11 @@ class CellConfig(StrictModel):
             part = layout.get(lsection)
             value = part[lfield] if isinstance(part, dict) and lfield in part else getattr(getattr(defaults, lsection), lfield)
             given = sim.get(section)
+            if given is not None and not isinstance(given, dict):
+                raise ValueError(
+                    f"sim.{section} = {given!r} is not a table: write it as a [sim.{section}] table of its fields "
+                    "(see config/sim.toml), or leave it out"
+                )
             if isinstance(given, dict) and field in given and not _same(given[field], value):
                 raise ValueError(
                     f"sim.{section}.{field} belongs to the cell's nominal layout: set layout.{lsection}.{lfield} "
@@ -134,6 +139,30 @@ class CellConfig(StrictModel):
             if problem is not None:
                 r = self.layout.opening.corner_radius_mm
                 raise ValueError(f"layout.opening.corner_radius_mm = {r:g} makes the arc the feature, but {problem}")
+        return self
+
+    @model_validator(mode="after")
+    def _laser_in_the_heads_range(self) -> "CellConfig":
+        """The alignment's standoff and accepted range lie within the sensor head's measuring range."""
+        problem = laser_range_problem(self.process.align.laser_standoff_mm, self.process.align.laser_range_mm,
+                                      self.layout.laser_mount.range_min_mm, self.layout.laser_mount.range_max_mm)  # fmt: skip
+        if problem is not None:
+            raise ValueError(problem)
+        return self
+
+    @model_validator(mode="after")
+    def _servers_on_their_own_ports(self) -> "CellConfig":
+        """The API, the PLC's and the OPC UA server (those enabled) cannot listen on one port of one address."""
+        listening = [("api", self.api.host, self.api.port)]
+        listening += [(name, s.host, s.port) for name, s in (("plc", self.plc), ("opcua", self.opcua)) if s.enabled]
+        for k, (a, host_a, port_a) in enumerate(listening):
+            for b, host_b, port_b in listening[k + 1:]:
+                if port_a == port_b != 0 and _same_address(host_a, host_b):
+                    raise ValueError(
+                        f"{a}.port and {b}.port are both {port_a} on one address ({a}.host = {host_a!r}, "
+                        f"{b}.host = {host_b!r}; 0.0.0.0 or '' is every address): the second server could not "
+                        f"listen; give each its own port (0: any free one)"
+                    )
         return self
 
     @model_validator(mode="after")
@@ -201,6 +230,30 @@ def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
 def _twin_copy(recipe: Recipe, error: Any) -> bool:
     """An error of the twin's copy of the recipe's opening (``sim.world``): the opening's own error says it."""
     return bool(recipe.opening) and tuple(error["loc"][:2]) == ("sim", "world")
+
+
+EVERY_ADDRESS = frozenset({"", "0.0.0.0", "::", "[::]", "*"})
+
+
+def _same_address(a: str, b: str) -> bool:
+    """Whether servers bound to hosts ``a`` and ``b`` share an address (every address includes each one)."""
+    a, b = ("127.0.0.1" if h == "localhost" else h for h in (a.strip().lower(), b.strip().lower()))
+    return a == b or a in EVERY_ADDRESS or b in EVERY_ADDRESS
+
+
+def laser_range_problem(standoff_mm: float, range_mm: tuple[float, float], head_min_mm: float, head_max_mm: float) -> str | None:
+    """Why process.align's standoff or accepted range does not fit the head's range ([layout.laser_mount]), or None."""
+    head = (f"the sensor head's measuring range, layout.laser_mount.range_min_mm = {head_min_mm:g} "
+            f"to range_max_mm = {head_max_mm:g}")
+    if not head_min_mm <= standoff_mm <= head_max_mm:
+        return (f"process.align.laser_standoff_mm = {standoff_mm:g} lies outside {head}: the laser reads nothing there; "
+                "set the standoff inside the head's range (its middle is best), or correct [layout.laser_mount] "
+                "to the head fitted")
+    lo, hi = range_mm
+    if lo < head_min_mm or hi > head_max_mm:
+        return (f"process.align.laser_range_mm = [{lo:g}, {hi:g}] extends beyond {head}: the head gives no reading "
+                "there; keep laser_range_mm within the head's range, or correct [layout.laser_mount] to the head fitted")
+    return None
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -37,6 +37,7 @@ from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.store import AsyncCellStore
+from cellctl.store.connection import make_store_folder
 
 log = logging.getLogger(__name__)
 
@@ -200,7 +201,7 @@ async def assemble_service(
     source = calibration if calibration is not None else CalibrationSetSource(cal_store, config)
     db_path = Path(config.store.path)
     db_path = db_path if db_path.is_absolute() else root / db_path
-    db_path.parent.mkdir(parents=True, exist_ok=True)
+    make_store_folder(db_path)  # a file in the way, or no right to create it: StorePathError names [store] path
     store = await AsyncCellStore.open(db_path, synchronous=config.store.synchronous, busy_timeout_s=config.store.busy_timeout_s)
     pk = config.packml
     machine = PackMLMachine(

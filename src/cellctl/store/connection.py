@@ -85,6 +85,34 @@ def from_json(s: str | None) -> Any:
     return None if s is None else json.loads(s)
 
 
+class StorePathError(StoreError, OSError):
+    """``[store] path`` cannot hold the database file; the message names the setting and the fix."""
+
+
+_FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
+
+
+def check_store_path(path: Path) -> None:
+    """Raise :class:`StorePathError` unless ``path`` can be the database file: not a folder, in an existing folder."""
+    if path.is_dir():
+        raise StorePathError(f"[store] path {path} is a folder; the store is one SQLite file: give a file's path, "
+                             f"e.g. path = \"{path / 'cellctl.db'}\"")
+    for folder in path.parents:
+        if folder.exists() and not folder.is_dir():
+            raise StorePathError(f"[store] path {path} lies under {folder}, which is a file, not a folder; {_FIX}")
+    if not path.parent.is_dir():
+        raise StorePathError(f"[store] path {path}: its folder {path.parent} does not exist: create it or {_FIX}")
+
+
+def make_store_folder(path: Path) -> None:
+    """Create the folder of the database file ``path`` (and its parents); :class:`StorePathError` if it cannot be."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        check_store_path(path)  # a file in the way is named
+        raise StorePathError(f"[store] path {path}: its folder cannot be created ({err.strerror or err}); {_FIX}") from None
+
+
 @dataclass(frozen=True)
 class StoreInfo:
     """What :meth:`Database.info` reports: the file, its schema version, journal mode and sync level."""
@@ -124,9 +152,11 @@ class Database:
             raise ValueError("the store needs a file path (WAL mode and crash recovery need a file), not ':memory:'")
         if synchronous not in ("FULL", "NORMAL"):
             raise ValueError(f"synchronous must be 'FULL' or 'NORMAL', got {synchronous!r}")
-        if not p.parent.is_dir():
-            raise StoreError(f"store directory {p.parent} does not exist: create it or change [store] path")
-        conn = sqlite3.connect(p, isolation_level=None, timeout=busy_timeout_s)
+        check_store_path(p)
+        try:
+            conn = sqlite3.connect(p, isolation_level=None, timeout=busy_timeout_s)
+        except sqlite3.OperationalError as err:  # e.g. a folder the service may not write in
+            raise StorePathError(f"[store] path {p}: SQLite cannot open it ({err}); {_FIX}") from None
         try:
             mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if str(mode).lower() != "wal":
