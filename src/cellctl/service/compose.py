@@ -36,6 +36,7 @@ from cellctl.domain import PackMLState, UnitMode
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
+from cellctl.service.store_lock import StoreInUse, StoreLock
 from cellctl.store import AsyncCellStore
 from cellctl.store.connection import make_store_folder
 
@@ -66,6 +67,7 @@ class Service:
     commissioning: asyncio.Task[None] | None = None
     extras: dict[str, object] = field(default_factory=dict)  # what a root adds (the simulated cell: its twin and operator)
     stopped: bool = False
+    store_lock: StoreLock | None = None  # held from before the store opens until it has closed
 
     async def start(self) -> None:
         await self.orchestrator.start()
@@ -128,6 +130,8 @@ class Service:
                 log.error("stopping %s took over %.0f s; went on without it", name, STOP_STEP_TIMEOUT_S)
             except Exception:  # a failing part must not keep the others running; logged with its trace
                 log.exception("stopping %s failed", name)
+        if self.store_lock is not None:
+            self.store_lock.release()
 
     async def serve(self, *, ready: asyncio.Event | None = None, demo_cycles: int = 0) -> int | None:
         """Run the REST API and dashboard until the process is told to stop (SIGINT or SIGTERM, alike).
@@ -202,7 +206,15 @@ async def assemble_service(
     db_path = Path(config.store.path)
     db_path = db_path if db_path.is_absolute() else root / db_path
     make_store_folder(db_path)  # a file in the way, or no right to create it: StorePathError names [store] path
-    store = await AsyncCellStore.open(db_path, synchronous=config.store.synchronous, busy_timeout_s=config.store.busy_timeout_s)
+    lock = StoreLock(db_path)
+    try:
+        lock.acquire()  # before the store is opened: startup's recovery must never touch a running cell's cycles
+        store = await AsyncCellStore.open(db_path, synchronous=config.store.synchronous, busy_timeout_s=config.store.busy_timeout_s)
+    except StoreInUse as err:
+        raise ServiceError(str(err)) from None
+    except BaseException:
+        lock.release()
+        raise
     pk = config.packml
     machine = PackMLMachine(
         initial_state=PackMLState[pk.initial_state.upper()],
@@ -237,7 +249,7 @@ async def assemble_service(
     )  # fmt: skip
     orch.add_status("job", jobs.status)
     link = PlcCellLink(orch, config.process.recipe_names(), heartbeat_alarm=config.plc.heartbeat_alarm)
-    service = Service(config, store, orch, jobs, link, root)
+    service = Service(config, store, orch, jobs, link, root, store_lock=lock)
     # -- issue 15 item 7: retention, disk-space alarms and the /status "storage" figures (cellctl.service.retention)
     retention = StorageRetention(
         config.store.retention, store, alarms, image_dir=orch.image_dir, db_path=db_path, events=events,

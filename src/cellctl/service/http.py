@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import socket
 import threading
 from collections.abc import Callable, Generator
 from types import FrameType
@@ -41,6 +42,15 @@ class ServiceServer(uvicorn.Server):
         finally:
             for sig, handler in original.items():
                 signal.signal(sig, handler)
+
+    async def serve(self, sockets: list[socket.socket] | None = None) -> None:
+        """uvicorn's, but a port it cannot bind ends it with ``started`` False (the service then names the
+        setting to change) instead of its ``sys.exit``, which would leave the event loop at once."""
+        try:
+            await super().serve(sockets)
+        except SystemExit:
+            if self.started:
+                raise
 
     def handle_exit(self, sig: int, frame: FrameType | None) -> None:
         if self.should_exit and sig == signal.SIGINT:
