@@ -40,22 +40,10 @@ from cellctl.cell.tags import TO_EXECUTE
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
-from cellctl.domain import (
-    AlarmCode,
-    CycleStep,
-    PackMLCommand,
-    PackMLState,
-)
+from cellctl.domain import AlarmCode, CycleStep, PackMLCommand, PackMLState
 from cellctl.memory import release_free_memory
-from cellctl.ports import (
-    DeviceError,
-)
-from cellctl.store import (
-    AsyncCellStore,
-    CycleRecord,
-    CycleRequest,
-    SubmitResult,
-)
+from cellctl.ports import DeviceError
+from cellctl.store import AsyncCellStore, CycleRecord, CycleRequest, SubmitResult
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +62,8 @@ _ACTING = {
 }
 # Entering these stops a running cycle (and the robot).
 _STOP_CYCLE = {PackMLState.STOPPING, PackMLState.ABORTING, PackMLState.HOLDING, PackMLState.SUSPENDING}
+# Entering these also ends the cycles queued behind it: production ends here, a Hold or Suspend only pauses it.
+_DROP_QUEUED = {PackMLState.STOPPING, PackMLState.ABORTING}
 
 
 def _commands_view(st: MachineStatus) -> dict[str, Any]:
@@ -121,10 +111,12 @@ class CellOrchestrator:
         self.events = events
         self.image_dir = image_dir
         self.truth = truth
-        self._queue: asyncio.Queue[int] = asyncio.Queue()
+        self._queue: asyncio.Queue[None] = asyncio.Queue()  # nudges for the worker
+        self._pending: list[int] = []  # cycles queued, in the order they came
         self._tasks: list[asyncio.Task[None]] = []  # the pumps of machine and alarm events
         self._worker_task: asyncio.Task[None] | None = None
         self._cycle_task: asyncio.Task[None] | None = None
+        self._recording: asyncio.Future[None] | None = None  # the finished cycle's record being written
         self._current: int | None = None
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
@@ -136,6 +128,13 @@ class CellOrchestrator:
         self._applied_offset: dict[str, float] = {}
         self._loop_recipe: str | None = None  # the running cycle's recipe, whose closed loop its result feeds
         self.laser_timing = LaserTiming()  # the laser-to-robot latency, kept from sweep to sweep
+        machine.add_guard(PackMLCommand.COMPLETE, self._complete_guard)
+
+    def _complete_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
+        """Complete ends production in a wait state: not while a cycle still moves the robot."""
+        if self._cycle_task is None or self._cycle_task.done():
+            return None
+        return f"cycle {self._current} is running: Complete once it has ended, or Stop or Hold it first"
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
@@ -188,6 +187,8 @@ class CellOrchestrator:
                 self._worker_task.cancel()
                 await asyncio.gather(self._worker_task, return_exceptions=True)
                 self._worker_task = None
+            if self._recording is not None:  # a finished cycle's record is written before the store closes
+                await asyncio.gather(self._recording, return_exceptions=True)
         finally:
             await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
             self._tasks.clear()
@@ -221,6 +222,8 @@ class CellOrchestrator:
         if state in _STOP_CYCLE:
             why = f"{ev.command.name.lower()} by {ev.actor}" if ev.command is not None else f"{ev.actor}"
             await self._stop_running_cycle(f"the cell went to {state.name.lower()} ({why})")
+        if state in _DROP_QUEUED:
+            await self._drop_queued(f"the cell went to {state.name.lower()} before it began")
         if state is PackMLState.RESETTING:
             self.alarms.reset_stop_reason()
         if state in _ACTING:
@@ -253,10 +256,24 @@ class CellOrchestrator:
         with contextlib.suppress(asyncio.CancelledError):
             await task
 
+    async def _drop_queued(self, why: str) -> None:
+        """End every queued cycle as failed, saying why: a Stop or Abort ends production, and a queued
+        cycle must not start by itself once the cell is back in Execute, perhaps long after its requester gave up."""
+        dropped, self._pending = self._pending, []
+        stop = self.alarms.stop_reason
+        code = int(stop.code) if stop is not None else int(AlarmCode.CYCLE_STOPPED)
+        for cid in dropped:
+            reason = f"not started: {why}; request it again in Execute"
+            await self.store.fail_cycle(cid, error=reason, result={"error_code": code})
+            self.events.publish("cycle", {"cycle_id": cid, "state": "failed", "error": reason})
+            ev = self._finished.pop(cid, None)
+            if ev is not None:
+                ev.set()
+
     # -- cycles -----------------------------------------------------------------------------
 
     def ready_for_cycle(self) -> bool:
-        """The cell takes a new cycle now: Execute, in production or maintenance, no cycle running."""
+        """The cell takes a cycle now: Execute (production or maintenance); it queues behind a running one."""
         return self.machine.state is PackMLState.EXECUTE
 
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
@@ -276,7 +293,8 @@ class CellOrchestrator:
         result = await self.store.submit_cycle(request, scope=scope, key=key, actor=actor)
         if result.created:
             self._finished[result.cycle.id] = asyncio.Event()
-            await self._queue.put(result.cycle.id)
+            self._pending.append(result.cycle.id)
+            self._kick()
             self.events.publish("cycle", {"cycle_id": result.cycle.id, "state": "queued", "part_id": request.part_id})
         return result
 
@@ -290,16 +308,13 @@ class CellOrchestrator:
 
     def _kick(self) -> None:
         """Nudge the worker (it waits for Execute before taking the next cycle)."""
-        self._queue.put_nowait(0)
+        self._queue.put_nowait(None)
 
     async def _worker(self) -> None:
-        pending: list[int] = []
         while True:
-            cid = await self._queue.get()
-            if cid:
-                pending.append(cid)
-            while pending and self.ready_for_cycle():
-                nxt = pending.pop(0)
+            await self._queue.get()
+            while self._pending and self.ready_for_cycle():
+                nxt = self._pending.pop(0)
                 self._cycle_task = asyncio.create_task(self._run(nxt))
                 try:
                     await self._cycle_task
@@ -344,8 +359,9 @@ class CellOrchestrator:
             self._finishing = True
         if failure is not None:  # a device may have been restarted or swapped: the next sweep times the laser anew
             self.laser_timing.forget(f"cycle {cycle_id} failed")
-        # Recording the outcome must not be cut short by a stop arriving now.
-        await asyncio.shield(self._record(rec, cycle_id, started, result, failure))
+        # Recording the outcome must not be cut short by a stop arriving now (stop() waits for it).
+        self._recording = asyncio.ensure_future(self._record(rec, cycle_id, started, result, failure))
+        await asyncio.shield(self._recording)
 
     def _stopped(self) -> tuple[str, int, AlarmCode | None]:
         """A cycle the cell stopped: its reason, and as its code the first-out alarm if one caused the stop
@@ -377,26 +393,6 @@ class CellOrchestrator:
             feature=shot_feature(view),
         )  # fmt: skip
 
-    async def _feed_quality_loop(self, cycle_id: int, result: CycleResult | None) -> tuple[dict[str, Any], Any]:
-        """The cycle's measured result into the closed loop (a failed cycle counts as not installed).
-
-        A fault of the loop must not cost the cycle its record: it is logged and the record says so.
-        """
-        measured = None if result is None or result.measured is None else result.measured.deviation
-        if result is None and "version" not in self._calibration_read:
-            # Failed before it read the calibration set: no version to file it under (feeding it
-            # under none would read as a new set and reset the loop).
-            return {"skipped": "the cycle ended before it read the calibration set"}, None
-        try:
-            assert self._loop_recipe is not None  # set with the calibration's reference
-            return await self.quality.after_cycle(
-                cycle_id, measured, recipe=self._loop_recipe, calibration_version=self._calibration_read.get("version"),
-                applied=self._applied_offset,
-            )  # fmt: skip
-        except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
-            log.exception("cycle %d: the closed loop could not take its result", cycle_id)
-            return {"error": f"{type(err).__name__}: {err}"}, None
-
     async def _record(
         self,
         rec: StoreRecorder,
@@ -418,7 +414,10 @@ class CellOrchestrator:
                 await rec.close_step(ok=True)
                 fields = result_fields(result, elapsed, not_ok=not_ok) | times | {"step_time_s": rec.step_times_s()}
                 fields["calibration_version"] = self._calibration_read.get("version")
-                fields["spc"], update = await self._feed_quality_loop(cycle_id, result)
+                fields["spc"], update = await self.quality.feed_cycle(
+                    cycle_id, result.measured, recipe=self._loop_recipe, calibration_read=self._calibration_read,
+                    applied=self._applied_offset,
+                )  # fmt: skip
                 await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
                 if update is not None:
@@ -432,7 +431,10 @@ class CellOrchestrator:
                     stop = self.alarms.stop_reason
                     code = int(stop.code) if stop is not None else code
                 await rec.close_step(ok=False, error=reason)
-                spc, _ = await self._feed_quality_loop(cycle_id, None)
+                spc, _ = await self.quality.feed_cycle(
+                    cycle_id, None, recipe=self._loop_recipe, calibration_read=self._calibration_read,
+                    applied=self._applied_offset, failed=True,
+                )  # fmt: skip
                 await self.store.fail_cycle(
                     cycle_id, error=reason,
                     result={"error_code": code, "cycle_time_s": elapsed, **times, "step_time_s": rec.step_times_s(),
@@ -472,7 +474,7 @@ class CellOrchestrator:
             "mode_id": int(st.mode),
             "cycle_step": st.cycle_step.name.lower(),
             "current_cycle": self._current,
-            "queued_cycles": self._queue.qsize(),
+            "queued_cycles": len(self._pending),
             **_commands_view(st),
             "stop_reason": None if stop is None else {"code": int(stop.code), "message": stop.message},
             "devices": {

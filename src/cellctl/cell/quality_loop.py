@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import logging
 from datetime import datetime, timezone
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 from cellctl.calibration.calibration_set import recipe_slot
 from cellctl.cell.alarms import AlarmManager
@@ -32,6 +33,9 @@ from cellctl.quality import (
     state_to_dict,
 )
 from cellctl.store import AsyncCellStore
+
+if TYPE_CHECKING:
+    from cellctl.inspection import MeasuredDeviation
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +141,26 @@ class InstallQualityLoop:
         }
         self.events.publish("spc", self.snapshot())
         return fields, up
+
+    async def feed_cycle(
+        self, cycle_id: int, measured: MeasuredDeviation | None, *, recipe: str | None, calibration_read: Mapping[str, Any],
+        applied: dict[str, float], failed: bool = False,
+    ) -> tuple[dict[str, Any], SpcUpdate | None]:
+        """A finished cycle's measured result into its recipe's loop (a failed cycle counts as not installed):
+        the record's ``spc`` fields. A fault of the loop must not cost the cycle its record: logged, and said there."""
+        if failed and "version" not in calibration_read:
+            # Failed before it read the calibration set: no version to file it under (feeding it
+            # under none would read as a new set and reset the loop).
+            return {"skipped": "the cycle ended before it read the calibration set"}, None
+        try:
+            assert recipe is not None  # set with the calibration's reference
+            return await self.after_cycle(
+                cycle_id, None if measured is None else measured.deviation, recipe=recipe,
+                calibration_version=calibration_read.get("version"), applied=applied,
+            )  # fmt: skip
+        except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
+            log.exception("cycle %d: the closed loop could not take its result", cycle_id)
+            return {"error": f"{type(err).__name__}: {err}"}, None
 
     async def raise_drift(self, cycle_id: int, up: SpcUpdate, recipe: str) -> None:
         """Alarm 1313 for a drift of ``recipe``'s loop that started with this cycle (the loop holds its
