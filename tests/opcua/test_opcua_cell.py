@@ -187,3 +187,6 @@ async def test_a_cycle_started_over_opcua_is_the_cells_own_record(tmp_path: Path
         ns = await ns_of(client)
         assert await call(client, ns, "Cycle.StartCycle", "side-window", "P-REST", "CAR-REST", "req-rest") == cid
         assert await client.get_node(ua.NodeId("cell-1.Cycle.LastResult.CycleId", ns)).read_value() == cid
+        with pytest.raises(ua.uaerrors.BadInvalidArgument):  # the same RequestId for another glass: not the first's cycle
+            await call(client, ns, "Cycle.StartCycle", "side-window", "P-OTHER", "CAR-REST", "req-rest")
+        assert "req-rest" in await client.get_node(ua.NodeId("cell-1.Cycle.LastRefusal", ns)).read_value()

@@ -54,9 +54,8 @@ class OpcUaCellLink:
             raise Refused("BadInvalidState", str(err)) from None
 
     async def start_cycle(self, recipe: str, part_id: str, car_id: str | None, request_id: str, *, actor: str) -> int:
-        existing = await self._orch.store.cycle_for_key(OPCUA_SCOPE, request_id)
-        if existing is not None:
-            return existing.id  # looked up before the state: a repeat answers even when the cell moved on
+        # A repeat of the same request answers with its cycle in any state (the orchestrator looks the key up
+        # before the state); the same RequestId with another request is refused (IdempotencyConflict below).
         if recipe not in self.recipes:
             raise Refused("BadInvalidArgument", f"Recipe '{recipe}' is not a recipe of this cell (valid: "
                                                 f"{', '.join(self.recipes)}; [[process.recipes]] in the config)")  # fmt: skip

@@ -58,9 +58,7 @@ class PlcCellLink:
         )
 
     async def start_cycle(self, req_id: int, recipe_id: int, part_id: int) -> CycleAcceptance:
-        key = str(req_id)
-        if await self._orch.store.cycle_for_key(PLC_SCOPE, key) is not None:
-            return CycleAcceptance(True)  # queued or running under this id: idempotent, nothing new starts
+        key = str(req_id)  # a repeat of the same request is accepted, nothing new starts; another request: id_in_use
         recipe = self._recipes.get(recipe_id)
         if recipe is None:
             valid = ", ".join(f"{n} ({name})" for n, name in sorted(self._recipes.items()))
