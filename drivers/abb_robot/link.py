@@ -19,6 +19,7 @@ garbage on the link gives :class:`~cellctl.ports.DeviceProtocolError` and a reco
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import logging
 import math
 import socket
@@ -73,8 +74,14 @@ class _Connection:
         self.pending: dict[int, _Pending] = {}
         self.task: asyncio.Task[None] | None = None
         self.alive = True
+        self.owner: RapidLink | None = None  # the link that opened it
         self.last_rx = time.monotonic()
         self.write_lock = asyncio.Lock()
+
+
+# The connection the current task is setting up (HELLO, then the on_connect hook): its requests go on it before
+# it is the link's live connection, which it only becomes once both completed. Tasks the hook starts inherit it.
+_SETTING_UP: contextvars.ContextVar[_Connection | None] = contextvars.ContextVar("abb_link_setting_up", default=None)
 
 
 def quiet(fut: asyncio.Future[object]) -> None:
@@ -103,7 +110,8 @@ class RapidLink:
         settings: connection settings (host, port, timeouts, heartbeat, keepalive).
         name: the device's name in errors and logs.
         on_connect: awaited with the deadline after every successful HELLO; an error it raises
-            fails the connection.
+            fails the connection. The connection becomes the live one (``connected``, used by later
+            calls) only once HELLO and the hook completed; a failure or cancellation in either closes it.
     """
 
     def __init__(
@@ -116,6 +124,7 @@ class RapidLink:
         self.closed = False
         self._on_connect = on_connect
         self._conn: _Connection | None = None
+        self._opening: _Connection | None = None  # a connection still in its handshake (close() drops it too)
         self._connect_lock = asyncio.Lock()
         self._next_id = 0
         self._heartbeat: asyncio.Task[None] | None = None
@@ -155,10 +164,22 @@ class RapidLink:
             except DeviceError:
                 pass
             self._drop(conn, DeviceDisconnected(self.name, "client closed the connection"))
+        if self._opening is not None:
+            self._drop(self._opening, DeviceDisconnected(self.name, "client closed during the handshake"))
+
+    def _being_set_up(self) -> _Connection | None:
+        """This link's connection the current task is setting up (inside :meth:`_connect_once`), else None."""
+        conn = _SETTING_UP.get()
+        return conn if conn is not None and conn.owner is self else None
 
     async def _ensure_connected(self, deadline: float) -> _Connection:
         if self.closed:
             raise DeviceDisconnected(self.name, "the robot client is closed")
+        opening = self._being_set_up()
+        if opening is not None:  # the on_connect hook's own requests: on the connection being set up, never a new one
+            if not opening.alive:
+                raise DeviceDisconnected(self.name, "the connection closed during its handshake")
+            return opening
         conn = self._conn
         if conn is not None and conn.alive:
             return conn
@@ -195,9 +216,11 @@ class RapidLink:
             ) from exc
         self._configure_socket(writer)
         conn = _Connection(reader, writer)
+        conn.owner = self
         conn.task = asyncio.create_task(self._read_loop(conn), name=f"{self.name}-reader")
-        self._conn = conn
         self.connections += 1
+        self._opening = conn
+        setting_up = _SETTING_UP.set(conn)
         try:
             hello = await self.request("HELLO", P.PROTOCOL_VERSION, deadline=deadline, reconnect=False)
             fields = hello[-1].fields
@@ -205,9 +228,20 @@ class RapidLink:
                 raise DeviceProtocolError(self.name, f"unexpected HELLO answer: {' '.join(fields)!r}")
             self.info = ControllerInfo(int(fields[0]), fields[1].replace("_", " "), fields[2].replace("_", " "))
             await self._on_connect(deadline)
+            if self.closed or not conn.alive:
+                raise DeviceDisconnected(self.name, "the connection closed during its handshake")
         except DeviceError as exc:
             self._drop(conn, exc)
             raise
+        except BaseException as exc:  # cancelled (or a bug in the hook): never leave a half-made connection behind
+            self._drop(conn, DeviceDisconnected(
+                self.name, f"connection set-up interrupted ({type(exc).__name__}) before its handshake completed; "
+                "the next call connects afresh"))  # fmt: skip
+            raise
+        finally:
+            _SETTING_UP.reset(setting_up)
+            self._opening = None
+        self._conn = conn  # live only now: HELLO answered and the settings sent
         log.info("%s: connected to %s:%d (%s, %s)", self.name, s.host, s.rapid_port, self.info.robot_type,
                  self.info.rw_version)
         return conn
@@ -363,7 +397,7 @@ class RapidLink:
         if reconnect:
             conn = await self._ensure_connected(deadline)
         else:
-            conn = self._conn
+            conn = self._being_set_up() or self._conn  # HELLO and the hook go on the connection being set up
             if conn is None or not conn.alive:
                 raise DeviceDisconnected(self.name, f"{verb}: not connected")
         try:
