@@ -55,3 +55,15 @@ def edge_crossing(profile: np.ndarray, centre: float, half: int = 7) -> float:
     roots = [r for r in spline.roots(extrapolate=False) if pos[3] <= r <= pos[-4]]
     assert len(roots) == 1, f"expected one crossing near {centre:.2f}, got {roots}"
     return float(roots[0])
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    """``cellctl argv`` in this process: exit status (argparse's SystemExit too), stdout, stderr."""
+    from cellctl.cli import main
+
+    try:
+        rc = main(list(argv))
+    except SystemExit as stop:
+        rc = int(stop.code or 0)
+    out, err = capsys.readouterr()
+    return rc, out, err

@@ -250,7 +250,9 @@ def _cmd_parts_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_align(args: argparse.Namespace) -> int:
+    from cellctl.align.errors import AlignmentError
     from cellctl.sim.alignment_run import simulate_alignment
+    from cellctl.sim.robot import ReachError
 
     config = load_config(args.config)
     if config.mode != "sim":
@@ -260,7 +262,11 @@ def _cmd_align(args: argparse.Namespace) -> int:
     print(f"simulated laser alignment, {args.runs} run(s), seed {args.seed}, config {args.config}")
     errors = []
     for k in range(args.runs):
-        run = simulate_alignment(config, rng)
+        try:
+            run = simulate_alignment(config, rng)
+        except (AlignmentError, ReachError) as err:  # refused: its message says what and what to change
+            print(f"cellctl align: run {k + 1} refused: {err}", file=sys.stderr)
+            return 1
         res = run.result
         unc = res.wall.uncertainty
         errors.append(np.degrees(run.camera_axis_error_rad))
@@ -347,7 +353,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_parts_show)
 
     p = sub.add_parser("align", help="run the laser alignment on the simulated cell in-process and score it")
-    p.add_argument("--seed", type=int, default=1, help="random seed of the simulated cell (default: %(default)s)")
+    p.add_argument("--seed", type=non_negative_int, default=1, help="random seed of the simulated cell (default: %(default)s)")
     p.add_argument("--runs", type=positive_int, default=3, metavar="N", help="how many alignments (default: %(default)s)")
     p.set_defaults(func=_cmd_align)
 

@@ -11,24 +11,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_support import free_port
+from shared_support import free_port, run_cli
 
 import cellctl.cli as cli
-from cellctl.cli import build_parser, main
+from cellctl.cli import build_parser
 from cellctl.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 SIM = ROOT / "config" / "sim.toml"
-
-
-def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    """``main(argv)`` in this process: exit status (argparse's SystemExit too), stdout, stderr."""
-    try:
-        rc = main(list(argv))
-    except SystemExit as stop:
-        rc = int(stop.code or 0)
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def _config_on_port(tmp_path: Path, port: int) -> Path:
@@ -38,7 +28,7 @@ def _config_on_port(tmp_path: Path, port: int) -> Path:
 
 
 def test_version_comes_from_the_installed_metadata(capsys: pytest.CaptureFixture[str]) -> None:
-    rc, out, _ = _run(capsys, "--version")
+    rc, out, _ = run_cli(capsys, "--version")
     assert rc == 0 and out.strip() == f"cellctl {version('cellctl')}"
 
 
@@ -48,7 +38,7 @@ def test_python_dash_m_cellctl_is_the_same_command() -> None:
 
 
 def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFixture[str]) -> None:
-    rc, out, _ = _run(capsys, "config", "check", "--config", str(SIM))
+    rc, out, _ = run_cli(capsys, "config", "check", "--config", str(SIM))
     assert rc == 0
     assert out.startswith(f"OK: {SIM}") and "mode sim, cell_id cell-1" in out
     assert "http://127.0.0.1:8080/" in out and "opc.tcp://127.0.0.1:4840/cellctl" in out and "127.0.0.1:5020" in out
@@ -59,12 +49,12 @@ def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFix
     assert (f"with the glass {m.travel_speed_mm_s:g} mm/s and {m.speed_deg_s:g} deg/s" in out
             and f"released {m.empty_travel_speed_mm_s:g} mm/s and {m.empty_speed_deg_s:g} deg/s, out of the opening "
                 f"{m.back_off_speed_mm_s:g} mm/s" in out), out  # fmt: skip
-    rc, out, _ = _run(capsys, "--config", str(SIM), "config", "check", "--secrets")
+    rc, out, _ = run_cli(capsys, "--config", str(SIM), "config", "check", "--secrets")
     assert rc == 0 and "could be read" in out
 
 
 def test_config_check_says_where_this_cell_reads_the_wall(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc, out, _ = _run(capsys, "config", "check", "--config", str(SIM))
+    rc, out, _ = run_cli(capsys, "config", "check", "--config", str(SIM))
     assert rc == 0 and "this cell: stop and go (process.align.mode)" in out, out
     # a cell without a storing laser or a pose stream reads standing at the points teaching reads along the path
     m = re.search(r"devices that cannot \(no storing laser, or no EGM\): standing at the (\d+) points along the path that "
@@ -75,12 +65,12 @@ def test_config_check_says_where_this_cell_reads_the_wall(tmp_path: Path, capsys
     assert float(m[2]) > np.linalg.norm(legs, axis=1).sum() / travel  # no faster than the path at the travel speed
     on_the_move = SIM.read_text(encoding="utf-8").replace('\nmode = "stop_and_go"', '\nmode = "on_the_fly"', 1)
     (tmp_path / "otf.toml").write_text(on_the_move, encoding="utf-8")
-    rc, out, _ = _run(capsys, "config", "check", "--config", str(tmp_path / "otf.toml"))
+    rc, out, _ = run_cli(capsys, "config", "check", "--config", str(tmp_path / "otf.toml"))
     assert rc == 0 and "this cell: on the move (process.align.mode)" in out, out
     hw = (ROOT / "config" / "hardware.example.toml").read_text(encoding="utf-8")
     no_egm = hw.replace("\negm_port = 6511 ", "\negm_port = 0 ", 1) + '\n[process.align]\nmode = "on_the_fly"\n'
     (tmp_path / "hw.toml").write_text(no_egm, encoding="utf-8")
-    rc, out, err = _run(capsys, "config", "check", "--config", str(tmp_path / "hw.toml"))
+    rc, out, err = run_cli(capsys, "config", "check", "--config", str(tmp_path / "hw.toml"))
     assert rc == 0, err
     assert "this cell: standing along the path (process.align.mode = 'on_the_fly', but devices.robot.egm_port = 0" in out, out
 
@@ -88,7 +78,7 @@ def test_config_check_says_where_this_cell_reads_the_wall(tmp_path: Path, capsys
 def test_config_check_names_the_bad_field_and_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(SIM.read_text(encoding="utf-8").replace("\nport = 8080\n", "\nport = 99999\n", 1), encoding="utf-8")
-    rc, out, err = _run(capsys, "config", "check", "--config", str(bad))
+    rc, out, err = run_cli(capsys, "config", "check", "--config", str(bad))
     assert rc == 2 and out == "" and f"NOT OK: {bad}" in err and "api.port" in err and "Traceback" not in err
 
 
@@ -96,7 +86,7 @@ def test_config_check_secrets_reads_the_tokens(tmp_path: Path, capsys: pytest.Ca
                                                monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     monkeypatch.delenv("CELLCTL_TOKEN", raising=False)
     hw = ROOT / "config" / "hardware.example.toml"
-    rc, _, err = _run(capsys, "config", "check", "--config", str(hw), "--secrets")
+    rc, _, err = run_cli(capsys, "config", "check", "--config", str(hw), "--secrets")
     assert rc == 2 and "CELLCTL_TOKEN" in err
 
 
@@ -106,13 +96,13 @@ def test_client_commands_call_the_port_of_the_given_config(tmp_path: Path, capsy
     port = free_port()  # nobody listens: the error says where it called
     cfg = _config_on_port(tmp_path, port)
     for argv in (["--config", str(cfg), "status"], ["status", "--config", str(cfg)]):
-        rc, _, err = _run(capsys, *argv)
+        rc, _, err = run_cli(capsys, *argv)
         assert rc == 1 and f"http://127.0.0.1:{port}" in err and "Traceback" not in err
     other = free_port()
     monkeypatch.setenv("CELLCTL_URL", f"http://127.0.0.1:{other}")
-    rc, _, err = _run(capsys, "--config", str(cfg), "status")
+    rc, _, err = run_cli(capsys, "--config", str(cfg), "status")
     assert rc == 1 and f"http://127.0.0.1:{other}" in err
-    rc, _, err = _run(capsys, "--config", str(cfg), "status", "--url", "http://127.0.0.1:1")
+    rc, _, err = run_cli(capsys, "--config", str(cfg), "status", "--url", "http://127.0.0.1:1")
     assert rc == 1 and "http://127.0.0.1:1" in err
 
 
@@ -131,7 +121,7 @@ def test_client_commands_call_the_port_of_the_given_config(tmp_path: Path, capsy
     ],
 )
 def test_a_bad_argument_is_one_line_and_exit_2(argv: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
-    rc, out, err = _run(capsys, *argv)
+    rc, out, err = run_cli(capsys, *argv)
     assert rc == 2 and out == ""
     first = err.splitlines()[0]
     assert first.startswith("cellctl") and ": error: " in first and message in first, err
@@ -141,7 +131,7 @@ def test_a_bad_argument_is_one_line_and_exit_2(argv: list[str], message: str, ca
 def test_a_bad_log_level_in_the_environment_is_a_usage_error(capsys: pytest.CaptureFixture[str],
                                                              monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     monkeypatch.setenv("CELLCTL_LOG_LEVEL", "loud")
-    rc, _, err = _run(capsys, "config", "check")
+    rc, _, err = run_cli(capsys, "config", "check")
     assert rc == 2 and "unknown log level 'loud'" in err
 
 
@@ -171,7 +161,7 @@ def test_no_parser_takes_abbreviations_and_every_option_says_what_it_does() -> N
 def test_teach_and_cycle_help_describe_their_options(capsys: pytest.CaptureFixture[str]) -> None:
     for argv, words in ((["teach", "--help"], ("--dry-run", "--dataset", "--workdir", "--url")),
                         (["cycle", "--help"], ("--recipe", "--count", "--timeout", "Idempotency-Key"))):  # fmt: skip
-        rc, out, _ = _run(capsys, *argv)
+        rc, out, _ = run_cli(capsys, *argv)
         assert rc == 0 and all(w in out for w in words)
         assert "--config" in out and "--log-level" in out  # the global options after the command too
 
@@ -191,7 +181,7 @@ def test_calibrate_status_without_a_set_says_where_it_looked(tmp_path: Path, cap
                                                             monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("CELLCTL_WORKDIR", str(tmp_path / "cell"))
-    rc, out, _ = _run(capsys, "--config", str(SIM), "calibrate", "status")
+    rc, out, _ = run_cli(capsys, "--config", str(SIM), "calibrate", "status")
     assert rc == 1
     assert f"no calibration set in {tmp_path / 'cell' / 'var' / 'calibration'}" in out
     assert "0 version(s)" not in out and "CELLCTL_WORKDIR" in out
@@ -211,9 +201,9 @@ def test_serve_host_and_port_override_the_configuration(tmp_path: Path, capsys: 
     monkeypatch.setattr(service, "build_service", fake_build)
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("CELLCTL_WORKDIR", raising=False)
-    rc, _, err = _run(capsys, "--config", str(SIM), "serve", "--host", "0.0.0.0", "--port", "18080")
+    rc, _, err = run_cli(capsys, "--config", str(SIM), "serve", "--host", "0.0.0.0", "--port", "18080")
     assert rc == 1 and "stop here" in err and "Traceback" not in err
     api = seen["config"].api  # type: ignore[attr-defined]
     assert (api.host, api.port) == ("0.0.0.0", 18080) and seen["workdir"] == tmp_path.resolve()
-    rc, _, _ = _run(capsys, "--config", str(SIM), "serve", "--port", "18081")
+    rc, _, _ = run_cli(capsys, "--config", str(SIM), "serve", "--port", "18081")
     assert (seen["config"].api.host, seen["config"].api.port) == ("127.0.0.1", 18081)  # type: ignore[attr-defined]
