@@ -140,8 +140,12 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
                 detail=f"body field 'recipe': unknown recipe '{body.recipe}'; known recipes: {known}",
             )
         try:
+            request = CycleRequest(body.recipe, body.part_id, body.car_id, source=f"rest:{caller.source}")
+        except ValueError as err:  # the store's own check (the body's patterns are the same rule): names the field
+            raise HTTPException(422, detail=f"body: {err}") from None
+        try:
             sub = await orch.submit_cycle(
-                CycleRequest(body.recipe, body.part_id, body.car_id, source=f"rest:{caller.source}"),
+                request,
                 scope="rest",
                 key=idempotency_key,
                 actor=caller.actor,

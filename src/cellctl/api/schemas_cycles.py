@@ -7,9 +7,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic_core import PydanticCustomError
 
 from cellctl.domain import InstallDeviation
+from cellctl.store.records import NAME_ALLOWED, NAME_PATTERN, TEXT_ALLOWED, TEXT_PATTERN, text_problem
 
 
 class CycleRequestBody(BaseModel):
@@ -18,8 +20,22 @@ class CycleRequestBody(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     recipe: str = Field(min_length=1, max_length=64, description="recipe name, e.g. 'side-window'")
-    part_id: str = Field(min_length=1, max_length=64, description="the glass part's id")
-    car_id: str | None = Field(None, max_length=64, description="the car body's id, if known")
+    part_id: str = Field(min_length=1, max_length=64, pattern=NAME_PATTERN,
+                         description=f"the glass part's id; {NAME_ALLOWED}")  # fmt: skip
+    car_id: str | None = Field(None, max_length=64, pattern=TEXT_PATTERN,
+                               description=f"the car body's id, if known; {TEXT_ALLOWED}. Omitted, null, empty or only "
+                               "white space: not known (recorded as null)")  # fmt: skip
+
+    @field_validator("part_id", "car_id", mode="before")
+    @classmethod
+    def _printable(cls, value: object, info: ValidationInfo) -> object:
+        """The store's rule (cellctl.store.records) said in words; a blank car_id is no car_id (as over OPC UA)."""
+        if not isinstance(value, str):
+            return value  # the field's type says what is wrong
+        problem = text_problem(value, required=info.field_name == "part_id")
+        if problem is not None:
+            raise PydanticCustomError("text_not_allowed", "{problem}", {"problem": problem})
+        return None if info.field_name == "car_id" and not value.strip() else value
 
 
 class CycleAccepted(BaseModel):

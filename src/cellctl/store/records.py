@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime
@@ -11,6 +12,16 @@ from typing import Any
 from cellctl.domain import CycleStep
 
 MAX_TEXT_LEN = 128
+
+# The one definition of the text a request's names and ids may hold; the REST API's request bodies carry the same
+# patterns (so its OpenAPI document says it) and check them with text_problem (so its 422 says it in words).
+_CONTROL = r"\x00-\x1f"  # control characters, U+0000 to U+001F (tab, newline, carriage return, ...)
+TEXT_PATTERN = rf"^[^{_CONTROL}]*$"
+"""Optional text (a car body's id): no control characters."""
+NAME_PATTERN = rf"^[^{_CONTROL}]*[^{_CONTROL}\s][^{_CONTROL}]*$"
+"""Required text (recipe, part id, source): no control characters, and at least one character that is not white space."""
+TEXT_ALLOWED = "printable text: no control characters (U+0000 to U+001F: tab, newline, ...)"
+NAME_ALLOWED = f"{TEXT_ALLOWED}, and not empty or only white space"
 
 
 class CycleState(str, enum.Enum):
@@ -21,17 +32,27 @@ class CycleState(str, enum.Enum):
     INTERRUPTED = "interrupted"  # the process died while it was queued or running
 
 
+def text_problem(value: str, *, required: bool) -> str | None:
+    """What is wrong with ``value`` as a required (:data:`NAME_PATTERN`) or optional (:data:`TEXT_PATTERN`)
+    text, and what to give instead; None when it matches."""
+    if re.fullmatch(NAME_PATTERN if required else TEXT_PATTERN, value):
+        return None
+    allowed = NAME_ALLOWED if required else TEXT_ALLOWED
+    if re.search(f"[{_CONTROL}]", value):
+        return f"contains control characters; use {allowed}"
+    return f"must not be empty or only white space; use {allowed}"
+
+
 def _check_text(name: str, value: object, *, required: bool) -> None:
     if value is None and not required:
         return
     if not isinstance(value, str):
         raise ValueError(f"{name} must be a string, got {type(value).__name__}")
-    if required and not value.strip():
-        raise ValueError(f"{name} must not be empty")
+    problem = text_problem(value, required=required)
+    if problem is not None:
+        raise ValueError(f"{name} {problem}")
     if len(value) > MAX_TEXT_LEN:
         raise ValueError(f"{name} is {len(value)} characters long; at most {MAX_TEXT_LEN} are allowed")
-    if any(ord(ch) < 32 for ch in value):
-        raise ValueError(f"{name} contains control characters; use printable text")
 
 
 @dataclass(frozen=True)
