@@ -95,6 +95,8 @@ def test_kill_9_during_install_is_recorded_and_the_install_never_repeats(tmp_pat
         rec = store.cycle(cid)
         assert rec.state == CycleState.INTERRUPTED and rec.interrupted_step == CycleStep.INSTALL
         assert rec.install_started and rec.interrupted_at is not None
+        assert rec.error is not None and "after the install began" in rec.error and "never repeated" in rec.error
+        assert "before the cycle began" in (store.cycle(queued[0].cycle_id).error or "")
         assert [(s.step, s.ok) for s in rec.steps] == [
             (CycleStep.CALIBRATE, True), (CycleStep.ALIGN, True), (CycleStep.SHOOT, True),
             (CycleStep.COMPENSATE, True), (CycleStep.INSTALL, None)]  # fmt: skip
@@ -118,8 +120,10 @@ def test_kill_9_before_install_can_resume(tmp_path: Path) -> None:
         report = store.recover()
         mine = next(i for i in report.interrupted if i.cycle_id == cid)
         assert (mine.step, mine.install_started, mine.resumable) == (CycleStep.ALIGN, False, True)
+        assert "before the install; nothing was installed" in (store.cycle(cid).error or "")
         resumed = store.resume_cycle(cid)
         assert resumed.state == CycleState.RUNNING and resumed.interrupted_step == CycleStep.ALIGN
+        assert resumed.error is None  # running again: its reason is gone with the interruption
         assert store.begin_step(cid, CycleStep.ALIGN).attempt == 2
         store.finish_step(cid, CycleStep.ALIGN, ok=True, figures={})
         store.begin_step(cid, CycleStep.INSTALL)

@@ -228,7 +228,7 @@ class CycleRows(Database):
                 raise CycleStateError(cycle_id, f"is {state.value}; only an interrupted cycle can be resumed")
             if install_started is not None:
                 raise InstallAlreadyStarted(cycle_id, install_started)
-            c.execute("UPDATE cycles SET state = 'running', current_step = 0 WHERE id = ?", (cycle_id,))
+            c.execute("UPDATE cycles SET state = 'running', current_step = 0, error = NULL WHERE id = ?", (cycle_id,))
         return self.cycle(cycle_id)
 
     def cycle(self, cycle_id: int) -> CycleRecord:

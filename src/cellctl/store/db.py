@@ -43,6 +43,13 @@ from cellctl.store.retention import RetentionRows
 from cellctl.store.spc import SpcRows
 
 
+INTERRUPTED_REASONS = (  # queued, running before the install, running after the install began
+    "interrupted: the service stopped before the cycle began; request it again",
+    "interrupted: the service stopped before the install; nothing was installed, request it again",
+    "interrupted: the service stopped after the install began; check the glass by hand, the install is never repeated",
+)
+
+
 class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows, PartRows, OutboxRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
 
@@ -64,10 +71,11 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
             found = tuple(
                 InterruptedCycle(int(r[0]), CycleState(r[1]), CycleStep(r[2]), r[3] is not None) for r in rows
             )
-            c.execute(
-                "UPDATE cycles SET state = 'interrupted', interrupted_step = current_step, interrupted_at = ? "
+            c.execute(  # with its reason, as a failed cycle has one (REST, the PLC, OPC UA and MQTT show it)
+                "UPDATE cycles SET state = 'interrupted', interrupted_step = current_step, interrupted_at = ?, "
+                "error = COALESCE(error, CASE WHEN state = 'queued' THEN ? WHEN install_started_at IS NULL THEN ? ELSE ? END) "
                 "WHERE state IN ('queued', 'running')",
-                (now,),
+                (now, *INTERRUPTED_REASONS),
             )
             c.execute(
                 "UPDATE cycle_steps SET error = 'interrupted: the cell process stopped during this step' "
