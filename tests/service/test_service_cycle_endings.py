@@ -62,10 +62,10 @@ async def test_complete_is_held_back_while_a_cycle_moves_the_robot_and_taken_onc
         assert status["state"] == "EXECUTE" and "complete" in status["blocked_commands"]
         slow_moves(service, 1.0 / 30.0)
 
-        async def done() -> bool:
-            return (await client.get(f"/cycles/{cid}")).json()["state"] == "done"
+        async def ended() -> bool:  # what the operator sees: no cycle running any more
+            return (await client.get("/status")).json()["current_cycle"] is None
 
-        await _until("the cycle ends", done, timeout_s=120)
+        await _until("the cycle ends", ended, timeout_s=120)
         assert (await _command(client, "complete")) == "COMPLETE"
         assert not robot.moving
         rec = (await client.get(f"/cycles/{cid}")).json()
@@ -127,3 +127,35 @@ async def test_a_service_stop_while_a_finished_cycle_records_keeps_its_result(tm
         rec = store.cycle(cid)
     assert rec.state.value == "done", f"cycle {cid} is {rec.state.value} after a clean stop"
     assert rec.result is not None and "spc" in rec.result
+
+
+async def test_a_cycle_stopped_before_its_first_step_waits_for_the_unhold_or_ends_with_the_abort(tmp_path: Path) -> None:
+    async with running_service(tmp_path, sim_config(plc={"enabled": False})) as service, api_client(service) as client:
+        orch = service.orchestrator
+        await to_execute(client)
+        entered = asyncio.Event()
+
+        async def not_begun(cycle_id: int) -> None:  # the cycle's task runs, its cycle has not begun
+            entered.set()
+            await asyncio.Event().wait()
+
+        orch._run = not_begun  # type: ignore[method-assign]
+        cid = await _submit(client, "early")
+        await asyncio.wait_for(entered.wait(), 10)
+        assert await _command(client, "hold") == "HELD"
+        assert (await service.store.cycle(cid)).state.value == "queued"
+        assert (await client.get("/status")).json()["queued_cycles"] == 1
+        del orch._run  # type: ignore[attr-defined]
+        assert await _command(client, "unhold") == "EXECUTE"
+
+        async def done() -> bool:
+            return (await service.store.cycle(cid)).state.value == "done"
+
+        await _until("the held cycle runs after the unhold", done, timeout_s=120)
+        entered.clear()
+        orch._run = not_begun  # type: ignore[method-assign]
+        other = await _submit(client, "early-2")
+        await asyncio.wait_for(entered.wait(), 10)
+        assert await _command(client, "abort") == "ABORTED"
+        rec = await service.store.cycle(other)
+        assert rec.state.value == "failed" and rec.error is not None and rec.error.startswith("not started")

@@ -118,6 +118,7 @@ class CellOrchestrator:
         self._cycle_task: asyncio.Task[None] | None = None
         self._recording: asyncio.Future[None] | None = None  # the finished cycle's record being written
         self._current: int | None = None
+        self._busy: int | None = None  # the cycle the worker took, from then until its record is written
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
         self._finishing = False
@@ -132,9 +133,9 @@ class CellOrchestrator:
 
     def _complete_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
         """Complete ends production in a wait state: not while a cycle still moves the robot."""
-        if self._cycle_task is None or self._cycle_task.done():
+        if self._busy is None:
             return None
-        return f"cycle {self._current} is running: Complete once it has ended, or Stop or Hold it first"
+        return f"cycle {self._busy} is running: Complete once it has ended, or Stop or Hold it first"
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
@@ -315,6 +316,7 @@ class CellOrchestrator:
             await self._queue.get()
             while self._pending and self.ready_for_cycle():
                 nxt = self._pending.pop(0)
+                self._busy, self._finishing = nxt, False
                 self._cycle_task = asyncio.create_task(self._run(nxt))
                 try:
                     await self._cycle_task
@@ -322,6 +324,9 @@ class CellOrchestrator:
                     task = asyncio.current_task()
                     if task is not None and task.cancelling():  # the worker itself is being stopped
                         raise
+                    if self._current != nxt:  # stopped before its first step: queued again (a Stop or Abort ends it)
+                        self._pending.insert(0, nxt)
+                        self._busy = None
                 except Exception:  # noqa: BLE001 - a bug around one cycle must not stop the cell taking the next
                     log.exception("cycle %d: the worker caught a fault outside the cycle's own handling", nxt)
                 finally:
@@ -333,13 +338,13 @@ class CellOrchestrator:
         clock = self.devices.clock  # the cycle is timed on one clock, even if the devices are swapped meanwhile
         rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir, clock=clock)
         started = (clock, clock(), time.monotonic())
-        recipe = (await self.store.start_cycle(cycle_id)).request.recipe
-        self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
         self._calibration_read, self._applied_offset, self._loop_recipe = {}, self.quality.no_offset(), None
         self._stop_reason = None
         result: CycleResult | None = None
         failure: tuple[str, int, AlarmCode | None] | None = None  # (reason, error code, alarm to raise)
-        try:
+        try:  # from its start: a stop (or a store fault) while it starts still ends it with a record
+            recipe = (await self.store.start_cycle(cycle_id)).request.recipe
+            self.events.publish("cycle", {"cycle_id": cycle_id, "state": "running"})
             result = await self._cycle(rec, recipe)
         except CycleFailed as f:
             # A move the stop interrupted is the stop's doing, not a robot fault of its own.
@@ -443,7 +448,7 @@ class CellOrchestrator:
                 )
                 self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
         finally:
-            self._current = None
+            self._current = self._busy = None
             with contextlib.suppress(Exception):
                 await self.machine.set_cycle_step(CycleStep.NONE)
             ev = self._finished.pop(cycle_id, None)
