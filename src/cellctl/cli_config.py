@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.devices import AbbRobotDevice, SimAbbDevice
 from cellctl.config.loader import check_tokens
+from cellctl.cli_args import default_workdir
 from cellctl.commissioning.wall_plan import wall_plan
 
 
@@ -69,11 +71,25 @@ def wall_reading_in_use(config: CellConfig) -> str:
     return "this cell: on the move (process.align.mode), standing along the path in a cycle whose devices cannot"
 
 
+def _check_files(config: CellConfig, workdir: Path) -> None:
+    """The files the service reads at start beside its secrets (the OPC UA users' certificates and trusted
+    clients' folder), paths taken from ``workdir`` as ``serve`` takes them; ConfigError naming each problem."""
+    if not config.opcua.enabled:
+        return
+    from cellctl.opcua.security import file_problems  # asyncua and cryptography only when asked
+
+    problems = file_problems(config.opcua, workdir)
+    if problems:
+        raise ConfigError("\n".join([f"{len(problems)} file(s) the OPC UA server reads at start (from {workdir}):",
+                                     *(f"  - {p}" for p in problems)]))
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
         if args.secrets:
             check_tokens(config, str(args.config))
+            _check_files(config, args.workdir)
     except (ConfigError, TokenUnavailable) as err:
         print(f"NOT OK: {args.config}\n{err}", file=sys.stderr)
         return 2
@@ -85,8 +101,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
         plan = [f"cannot be predicted from process.align on [layout]: {err}"]
     print("  wall readings           " + "\n                          ".join(plan))
-    print("  secrets                 " + ("every API token and OPC UA password could be read" if args.secrets
-                                          else "not read (--secrets reads the API tokens and OPC UA passwords)"))  # fmt: skip
+    print("  secrets                 " + ("every API token, OPC UA password and certificate could be read" if args.secrets
+                                          else "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip
     return 0
 
 
@@ -99,5 +115,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description="Exit status 0: the configuration is valid; 2: it is not (each problem names its field).",
     )  # fmt: skip
     p.add_argument("--secrets", action="store_true",
-                   help="also read every API token and OPC UA password (environment variables, files), as `serve` does")  # fmt: skip
+                   help="also read every API token and OPC UA password (environment variables, files) and the OPC UA "
+                        "users' certificates and trusted clients' folder, as `serve` does")  # fmt: skip
+    p.add_argument("--workdir", type=Path, default=default_workdir(),
+                   help="where `serve --workdir` will run: relative paths are taken from it (default: $CELLCTL_WORKDIR, "
+                        "else the current folder)")  # fmt: skip
     p.set_defaults(func=_cmd_check)

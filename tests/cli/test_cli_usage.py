@@ -207,3 +207,29 @@ def test_serve_host_and_port_override_the_configuration(tmp_path: Path, capsys: 
     assert (api.host, api.port) == ("0.0.0.0", 18080) and seen["workdir"] == tmp_path.resolve()
     rc, _, _ = run_cli(capsys, "--config", str(SIM), "serve", "--port", "18081")
     assert (seen["config"].api.host, seen["config"].api.port) == ("127.0.0.1", 18081)  # type: ignore[attr-defined]
+
+
+async def test_config_check_secrets_reads_the_opcua_certificates_as_serve_would(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from asyncua.crypto import cert_gen
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    text = SIM.read_text(encoding="utf-8")
+    users = '[[opcua.users]]\nname = "operator"\n'
+    assert text.count(users) == 1 and text.count("\nallow_anonymous = true\n") == 1
+    text = text.replace("\nallow_anonymous = true\n", '\nallow_anonymous = true\ntrusted_clients = "opcua/trusted"\n')
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(text.replace(users, '[[opcua.users]]\nname = "scada"\nrole = "viewer"\ncertificate = "opcua/scada.der"\n\n' + users),
+                   encoding="utf-8")  # fmt: skip
+    rc, out, err = run_cli(capsys, "config", "check", "--config", str(cfg), "--secrets", "--workdir", str(tmp_path))
+    assert rc == 2 and out == "" and "Traceback" not in err, err
+    assert f"opcua.users 'scada': certificate {tmp_path / 'opcua' / 'scada.der'} cannot be read" in err
+    assert f"opcua.trusted_clients: {tmp_path / 'opcua' / 'trusted'} is not a folder" in err
+    rc, out, err = run_cli(capsys, "config", "check", "--config", str(cfg))  # without --secrets the files are not read
+    assert rc == 0, err
+    (tmp_path / "opcua" / "trusted").mkdir(parents=True)
+    cert = tmp_path / "opcua" / "scada.der"
+    await cert_gen.setup_self_signed_certificate(tmp_path / "scada-key.pem", cert, "urn:example:scada", "localhost",
+                                                 [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "scada"})  # fmt: skip
+    (tmp_path / "opcua" / "trusted" / "scada.der").write_bytes(cert.read_bytes())
+    rc, out, err = run_cli(capsys, "config", "check", "--config", str(cfg), "--secrets", "--workdir", str(tmp_path))
+    assert rc == 0 and "certificate could be read" in out, err

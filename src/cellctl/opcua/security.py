@@ -24,7 +24,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from cellctl.config.opcua import OpcUaConfig
+from cellctl.config.opcua import OpcUaConfig, OpcUaUser
 
 log = logging.getLogger(__name__)
 
@@ -82,14 +82,7 @@ class CellUserManager:
         certificates: dict[bytes, tuple[str, bool]] = {}
         for u in cfg.users:
             if u.certificate is not None:
-                path = u.certificate if u.certificate.is_absolute() else root / u.certificate
-                try:
-                    cert = x509.load_der_x509_certificate(path.read_bytes()) if path.suffix.lower() == ".der" \
-                        else x509.load_pem_x509_certificate(path.read_bytes())  # fmt: skip
-                except (OSError, ValueError) as err:
-                    raise ValueError(f"opcua.users '{u.name}': certificate {path} cannot be read ({err}); give the "
-                                     "user's X.509 certificate as a DER (.der) or PEM file") from None
-                certificates[cert.public_bytes(Encoding.DER)] = (u.name, u.role == "operator")
+                certificates[user_certificate(u, root)] = (u.name, u.role == "operator")
             else:
                 passwords[u.name] = (u.secret(), u.role == "operator")
         return cls(passwords, certificates, allow_anonymous=cfg.allow_anonymous)
@@ -112,6 +105,44 @@ class CellUserManager:
         if self._anonymous:
             return CellUser(role=UserRole.User, name="opcua-anonymous", may_call=True)
         return None
+
+
+def user_certificate(user: OpcUaUser, root: Path) -> bytes:
+    """A certificate user's X.509 certificate (DER bytes), its path taken from ``root``; ValueError naming the user."""
+    assert user.certificate is not None
+    path = user.certificate if user.certificate.is_absolute() else root / user.certificate
+    try:
+        data = path.read_bytes()
+        cert = x509.load_der_x509_certificate(data) if path.suffix.lower() == ".der" else x509.load_pem_x509_certificate(data)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"opcua.users '{user.name}': certificate {path} cannot be read ({err}); give the "
+                         "user's X.509 certificate as a DER (.der) or PEM file") from None
+    return cert.public_bytes(Encoding.DER)
+
+
+def trusted_clients_problem(folder: Path) -> str | None:
+    """Why ``folder`` cannot be the trusted client certificates' folder (opcua.trusted_clients), or None."""
+    if folder.is_dir() and any(folder.iterdir()):
+        return None
+    return (f"opcua.trusted_clients: {folder} is not a folder holding the trusted client certificates; put each "
+            "client's certificate (DER) there or remove the setting")
+
+
+def file_problems(cfg: OpcUaConfig, root: Path) -> list[str]:
+    """What the server would refuse at start among the files it reads (the certificate users', the trusted
+    clients' folder), paths taken from ``root`` as ``serve --workdir`` takes them; [] when none."""
+    problems: list[str] = []
+    for u in cfg.users:
+        if u.certificate is not None:
+            try:
+                user_certificate(u, root)
+            except ValueError as err:
+                problems.append(str(err))
+    if cfg.trusted_clients is not None:
+        folder = cfg.trusted_clients if cfg.trusted_clients.is_absolute() else root / cfg.trusted_clients
+        if (problem := trusted_clients_problem(folder)) is not None:
+            problems.append(problem)
+    return problems
 
 
 def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) -> bool:

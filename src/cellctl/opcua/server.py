@@ -35,6 +35,7 @@ from cellctl.opcua.security import (
     caller,
     certificate_uri,
     ensure_certificate,
+    trusted_clients_problem,
 )
 
 log = logging.getLogger(__name__)
@@ -116,9 +117,8 @@ class CellOpcUaServer:
         await server.load_private_key(str(key))
         if cfg.trusted_clients is not None:
             folder = self._path(cfg.trusted_clients)
-            if not folder.is_dir() or not any(folder.iterdir()):
-                raise OpcUaStartError(f"opcua.trusted_clients: {folder} is not a folder holding the trusted client "
-                                      "certificates; put each client's certificate (DER) there or remove the setting")
+            if (problem := trusted_clients_problem(folder)) is not None:
+                raise OpcUaStartError(problem)
             store = TrustStore([folder], [])
             await store.load()
             options = CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT
