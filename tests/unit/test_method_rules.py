@@ -6,8 +6,12 @@ true normal into the wall is +x and D = 1000 mm unless a test says otherwise.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+from typing import Any
+
 import numpy as np
 import pytest
+from service_test_support import sim_config
 
 import cellctl.align
 from cellctl.align import (
@@ -18,7 +22,10 @@ from cellctl.align import (
     fit_wall_plane,
     offset_at_rest,
 )
-from cellctl.compensate import CorrectionLimitError, check_correction
+from cellctl.cell.cycle import CycleRun
+from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.compensate import CorrectionLimitError, TaughtPoses, check_correction
+from cellctl.domain import AlarmCode
 from cellctl.geometry import angle_between_vectors, make_pose, rot_y, rot_z
 
 WALL_X = 1000.0
@@ -121,3 +128,29 @@ def test_camera_behind_the_wall_is_refused() -> None:
     behind = make_pose(R_LOOK_X, [WALL_X - 100.0, 200.0, 200.0])  # flange in front, optical centre at x = 1050
     with pytest.raises(AlignmentError, match="50.0 mm behind the fitted wall"):
         correct_distance(behind, T_H_C, wall.plane, 400.0)
+
+
+async def test_an_install_pose_beyond_the_correction_limit_is_refused_before_the_robot_moves() -> None:
+    """Paper 4.3: T2 @ inv(T0) @ g_Pos_0 is checked against g_Pos_0 before the install starts (limits.max_correction_mm)."""
+    cfg = sim_config(**{"process.limits": {"max_correction_mm": 10.0}})
+    T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
+    taught = TaughtPoses(T0, T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]), T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]))
+    calls: list[str] = []
+
+    class Robot:
+        async def move(self, request: Any, *, timeout_s: float) -> Any:
+            calls.append("move")
+            return request.target
+
+    class Recorder:
+        async def install_started(self, target: Any) -> None:
+            calls.append("install started")
+
+    run = CycleRun(SimpleNamespace(robot=Robot()), SimpleNamespace(taught=taught), cfg.process, cfg.vision, Recorder())  # type: ignore[arg-type]
+    with pytest.raises(CycleFailed) as refused:
+        await run.install(T0 @ make_pose(np.eye(3), [30.0, 0.0, 0.0]))  # the car body 30 mm along
+    assert refused.value.code is AlarmCode.CORRECTION_LIMIT_EXCEEDED and "install pose moves 30.00 mm" in refused.value.reason
+    assert calls == []  # nothing recorded as started, the robot never asked to move
+    target, _ = await run.install(T0 @ make_pose(np.eye(3), [5.0, 0.0, 0.0]))  # within the limit: it goes on
+    np.testing.assert_allclose(target[:3, 3] - taught.g_Pos_0[:3, 3], [5.0, 0.0, 0.0], atol=1e-9)
+    assert calls == ["install started", "move", "move"]
