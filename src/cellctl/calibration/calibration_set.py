@@ -475,3 +475,16 @@ def history_row(cal: CalibrationSet) -> dict[str, Any]:
         "parts": {n: status(n) for n in PART_NAMES},
         "recipes": {r: {n: status(n, r) for n in RECIPE_PART_NAMES} for r in sorted(cal.recipes)},
     }
+
+
+def damage_text(store: CalibrationStore, err: Exception, version: int | None) -> str:
+    """Why the set in use (``version``) cannot be read, and how to get a usable one back."""
+    text = "; ".join(line.strip().lstrip("- ") for line in str(err).splitlines() if line.strip())
+    if isinstance(err, OSError) and not isinstance(err, FileNotFoundError):
+        text = f"{getattr(err, 'filename', None) or store.root}: cannot be read ({err.strerror or err})"
+    older = [v for v in store.versions() if version is None or v < version]
+    fix = "restore the file from a backup"
+    if older:
+        fix += f", or point {store.root / store.POINTER} at an earlier version (e.g. set-{older[-1]:06d}.json)"
+    fix += "; a new calibration builds on the set in use, so it cannot start from a damaged one"
+    return f"the calibration set in use is damaged: {text}; {fix}"

@@ -35,6 +35,7 @@ from cellctl.calibration.calibration_set import (
     CalibrationStore,
     check_ready,
     command,
+    damage_text,
     history_row,
     recipe_slot,
     store_root,
@@ -159,15 +160,7 @@ class CalibrationSetSource:
         return _Snapshot(pointer, path, file, version, cal, None)
 
     def _damage_text(self, err: Exception, version: int | None) -> str:
-        text = "; ".join(line.strip().lstrip("- ") for line in str(err).splitlines() if line.strip())
-        if isinstance(err, OSError) and not isinstance(err, FileNotFoundError):
-            text = f"{getattr(err, 'filename', None) or self.store.root}: cannot be read ({err.strerror or err})"
-        older = [v for v in self.store.versions() if version is None or v < version]
-        fix = "restore the file from a backup"
-        if older:
-            fix += f", or point {self.store.root / self.store.POINTER} at an earlier version (e.g. set-{older[-1]:06d}.json)"
-        fix += "; a new calibration builds on the set in use, so it cannot start from a damaged one"
-        return f"the calibration set in use is damaged: {text}; {fix}"
+        return damage_text(self.store, err, version)
 
     def _refused(self, snap: _Snapshot) -> None:
         assert snap.damage is not None
@@ -295,3 +288,4 @@ class CalibrationSetSource:
         slot = self._slot(recipe)
         parts = {name: (None if cal.part(name, slot) is None else cal.part(name, slot).id) for name in PART_NAMES}  # type: ignore[union-attr]
         return {"source": str(self.store.root), "version": cal.version, "parts": parts}
+

@@ -1,10 +1,12 @@
-"""Ending background tasks for sure: cancel, wait, and cancel again while one still runs."""
+"""Ending background tasks for sure (cancel, wait, cancel again), and work that must end once begun."""
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Awaitable, Sequence
+from typing import Any, TypeVar
+
+_T = TypeVar("_T")
 
 RETRY_S = 0.5  # a task still running this long after its cancel is cancelled again
 
@@ -21,3 +23,16 @@ async def cancel_until_done(tasks: Sequence[asyncio.Task[Any]], *, retry_s: floa
             t.cancel()
         await asyncio.wait(pending, timeout=retry_s)
     await asyncio.gather(*tasks, return_exceptions=True)
+
+
+async def to_the_end(work: Awaitable[_T]) -> tuple[_T, bool]:
+    """Await ``work`` to its end whatever cancels arrive meanwhile (a write begun is finished, and said so):
+    its result, and whether a cancel came. The caller re-raises the cancel where it must end too."""
+    fut = asyncio.ensure_future(work)
+    cancelled = False
+    while not fut.done():
+        try:
+            await asyncio.shield(fut)
+        except asyncio.CancelledError:
+            cancelled = True
+    return fut.result(), cancelled

@@ -23,17 +23,13 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import (
-    CalibrationSet,
-    CalibrationStore,
-    check_ready,
-    recipe_slot,
-)
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready, damage_text, recipe_slot
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.recording import record
 from cellctl.cell.alarms import AlarmManager
+from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
 from cellctl.cell.packml import PackMLMachine
@@ -42,12 +38,7 @@ from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
-from cellctl.commissioning.registry import (
-    ALL_PROCEDURES,
-    JobRefused,
-    check_options,
-    motion_settings,
-)
+from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
 from cellctl.domain import AlarmCode, MachineEvent, PackMLCommand, PackMLState
@@ -120,6 +111,7 @@ class JobManager:
         self._finished: dict[int, asyncio.Event] = {}
         self._pump: asyncio.Task[None] | None = None
         self._lock = asyncio.Lock()
+        self._starting: str | None = None  # a job between its state check and its start: Start is held back meanwhile
         self._last_frames: dict[int, Frame] = {}
         self.schedule: VerifySchedule | None = None
         machine.add_guard(PackMLCommand.START, self._start_guard)
@@ -141,7 +133,11 @@ class JobManager:
         for rec in await self.store.jobs(limit=500, procedure="verify"):
             if rec.state == "done" and (rec.result or {}).get("quality", {}).get("passed") and rec.finished_at is not None:
                 return rec.finished_at
-        cal = await asyncio.to_thread(self.current_calibration)
+        try:
+            cal = await asyncio.to_thread(self.current_calibration)
+        except JobRefused as err:  # a damaged set: the service still starts, with alarm 1305 (cellctl.calibration.source)
+            log.warning("the check schedule starts without the hand-eye's date: %s", err)
+            return None
         part = None if cal is None else cal.part("hand_eye")
         return None if part is None else part.calibrated_utc
 
@@ -172,7 +168,7 @@ class JobManager:
     def _start_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
         run = self._running
         if run is None:
-            return None
+            return None if self._starting is None else f"a commissioning job ({self._starting}) is starting: wait for it or cancel it"
         return f"commissioning job {run.record.id} ({run.record.procedure}) is running: wait for it or cancel it first"
 
     # -- queries --------------------------------------------------------------------------------
@@ -216,7 +212,12 @@ class JobManager:
         return await self.job(job_id)
 
     def current_calibration(self) -> CalibrationSet | None:
-        return self.calibration_store.current()
+        """The set in use (None before the first calibration); a damaged one is JobRefused saying how to restore it."""
+        try:
+            return self.calibration_store.current()
+        except (ValueError, OSError) as err:  # CalibrationSetError is a ValueError; alarm 1305 says the same
+            raise JobRefused(damage_text(self.calibration_store, err, self.calibration_store.current_version()),
+                             conflict=True) from None
 
     # -- plans ----------------------------------------------------------------------------------
 
@@ -252,23 +253,32 @@ class JobManager:
                     + ("send Clear first" if state is PackMLState.ABORTED else "send Stop first"),
                     conflict=True,
                 )
-            cal = await asyncio.to_thread(self.current_calibration)
-            slot = recipe_slot(opts.get("recipe"), self.config.default_recipe)
-            missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
-            if missing:
-                of = "" if slot is None else f" (recipe {slot})"
-                raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first", conflict=True)
-            rec = await self.store.create_job(
-                procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
-            )
-            run = _Running(rec)
-            self._running = run
-            self._finished[rec.id] = asyncio.Event()
-            await self.store.append_audit(actor=actor, source=source, action="job.start",
-                                          params={"job_id": rec.id, "procedure": procedure, "options": opts})  # fmt: skip
-            run.task = asyncio.create_task(self._run(run, cal, opts))
+            self._starting = procedure  # from here a Start waits: no cycle may begin beside the job
+            try:
+                run = await self._create(procedure, opts, actor=actor, source=source)
+            finally:
+                self._starting = None
         self._publish(run)
-        return rec
+        return run.record
+
+    async def _create(self, procedure: str, opts: dict[str, Any], *, actor: str, source: str) -> _Running:
+        """The job's record and task, once its procedure's parts are calibrated (under the submit lock)."""
+        cal = await asyncio.to_thread(self.current_calibration)
+        slot = recipe_slot(opts.get("recipe"), self.config.default_recipe)
+        missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
+        if missing:
+            of = "" if slot is None else f" (recipe {slot})"
+            raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first", conflict=True)
+        rec = await self.store.create_job(
+            procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
+        )
+        run = _Running(rec)
+        self._running = run
+        self._finished[rec.id] = asyncio.Event()
+        await self.store.append_audit(actor=actor, source=source, action="job.start",
+                                      params={"job_id": rec.id, "procedure": procedure, "options": opts})  # fmt: skip
+        run.task = asyncio.create_task(self._run(run, cal, opts))
+        return run
 
     async def cancel(self, job_id: int, *, actor: str, source: str, reason: str | None = None) -> JobRecord:
         """Stop the robot at once and end the job as cancelled (its partial dataset is kept)."""
@@ -412,13 +422,7 @@ class JobManager:
             fields.update(state="failed", error=f"software fault: {type(err).__name__}: {err}")
         # The record is written before the task ends: a cancel landing while it is written (the job saw
         # the cancel at its next step first) waits for it rather than answer with the job still running.
-        finishing = asyncio.ensure_future(self._finish(run, ctx, fields))
-        cancelled = False
-        while not finishing.done():
-            try:
-                await asyncio.shield(finishing)
-            except asyncio.CancelledError:
-                cancelled = True
+        _, cancelled = await to_the_end(self._finish(run, ctx, fields))
         if cancelled:
             raise asyncio.CancelledError
 
@@ -435,7 +439,12 @@ class JobManager:
                 self.schedule.checked()
             return fields
         if opts.get("store", True):
-            saved = await asyncio.to_thread(record, self.calibration_store, outcome, ds, config, when, f"{outcome.part}: job {rec.id}")
+            # Once the new version is being written it is written: a cancel landing now (the thread would commit
+            # anyway) waits for it, and the job ends done with the version it stored, as the set in use then is.
+            saved, late = await to_the_end(asyncio.to_thread(
+                record, self.calibration_store, outcome, ds, config, when, f"{outcome.part}: job {rec.id}"))  # fmt: skip
+            if late:
+                result["cancel"] = "came while the new version was being written: it was stored and is in use"
             fields["version_after"] = saved.version
             result["stored_version"] = saved.version
             result["ready_problems"] = check_ready(
