@@ -75,3 +75,13 @@ def test_a_shot_seeing_only_an_edge_the_template_lacks_turns_nothing() -> None:
     off = offset_from_map(taught, right_only, NINE_POINT, ARC_CENTRE_MM)
     assert off.dtheta_rad == 0.0 and not turn_measured(taught, right_only)
     assert turn_measured(taught, current) and abs(offset_from_map(taught, current, NINE_POINT, ARC_CENTRE_MM).dtheta_rad) > 0.0
+
+
+def test_the_turn_is_the_mean_of_both_edges_turns() -> None:
+    """Eq. 16's angle from both edges: each is one noisy measure of the same turn, so they are averaged."""
+    taught = CornerFeatures(1000.0, 1000.0, np.pi / 2, 0.0, 0.0)
+    current = CornerFeatures(1000.0, 1000.0, np.pi / 2, 0.010, 0.014)  # the edges' fits differ by 4 mrad
+    offset = offset_from_map(taught, current, AffineMap(np.column_stack([MM_PER_PX * np.eye(2), [0.0, 0.0]]), np.zeros(9), 0.0, 0.0))
+    assert offset.dtheta_rad == pytest.approx(0.012, abs=1e-12)
+    only_top = CornerFeatures(1000.0, 1000.0, np.pi / 2, 0.010, float("nan"))  # the right edge out of view: the top's alone
+    assert offset_from_map(taught, only_top, NINE_POINT).dtheta_rad == pytest.approx(0.010, abs=1e-12)
