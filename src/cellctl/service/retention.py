@@ -8,7 +8,9 @@ What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]
   the file was pruned. A pass runs every ``period_s`` and, when a finished cycle brings the
   images near their bound, right after that cycle; it leaves room under the bound for the next
   cycle's images (the most one of the last few cycles wrote, :func:`cycle_headroom`), so the
-  folder stays under the bound between passes too.
+  folder stays under the bound between passes too. A reference whose file is not there is marked
+  missing (never deleted for it; kept again when the file is back); a folder that is not there,
+  unreadable, or holds none of the finished cycles' files looks unmounted: the images are left alone.
 - **cycle records** (steps, image references, idempotency keys) after ``cycles_days``, and
   **alarm records** after ``alarms_days`` (inactive ones); each deletion of records is written to
   the audit log.
@@ -51,14 +53,19 @@ from cellctl.domain import AlarmCode, CycleStep
 from cellctl.service.retention_plan import (
     GB,
     MB,
+    FileInfo,
+    ImageFolderUnavailable,
     ImagePlan,
     cycle_headroom,
     largest_cycle_in_names,
+    looks_unmounted,
     plan_images,
     scan_images,
+    storable,
     unlink_all,
 )
-from cellctl.store import AsyncCellStore
+from cellctl.store import AsyncCellStore, KeptImage
+from cellctl.store.retention import MISSING_REASON
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +80,7 @@ class PassReport:
 
     images_pruned: int = 0
     images_missing: int = 0
+    images_restored: int = 0
     orphans_deleted: int = 0
     cycles_deleted: int = 0
     alarms_deleted: int = 0
@@ -105,6 +113,7 @@ class _Figures:
     disk_checked: datetime | None = None
     last_pass: datetime | None = None
     last_error: str | None = None
+    images_problem: str | None = None  # the image folder looks unmounted: the image part is skipped
     deferred: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -154,6 +163,7 @@ class StorageRetention:
         self._queue: asyncio.Queue[Any] | None = None
         self._failures = 0
         self._headroom = 0  # bytes a pass leaves free under the image bound for the next cycle's images
+        self._odd_names: set[str] = set()  # files whose names are not UTF-8, logged once each
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -196,7 +206,7 @@ class StorageRetention:
             "disk": f.disk,  # ok | low | critical | unknown
             "checked_utc": _iso(f.disk_checked),
             "last_pass_utc": _iso(f.last_pass),
-            "last_error": f.last_error,
+            "last_error": "; ".join(e for e in (f.images_problem, f.last_error) if e) or None,
             "pruned_since_start": {
                 "images": self._totals.images_pruned, "orphan_files": self._totals.orphans_deleted,
                 "cycles": self._totals.cycles_deleted, "alarms": self._totals.alarms_deleted,
@@ -278,25 +288,12 @@ class StorageRetention:
             now = self._clock()
             c = self.config
             kept = await self.store.kept_images()
-            files = await asyncio.to_thread(scan_images, self.image_dir)
-            referenced = {k.uri for k in kept}
-            unreferenced = [n for n in files if n not in referenced]
-            # Files whose references all say pruned: a crash came between the mark and the unlink.
-            leftovers = await self.store.pruned_only(unreferenced) if unreferenced else set()
-            files = {n: f for n, f in files.items() if n not in leftovers}
+            files = await self._scan_for_pass(kept)
+            if files is not None:  # None: the folder looks unmounted; no image is pruned, none marked missing
+                await self._images(kept, files, report, now)
             if c.enabled:
-                self._headroom = cycle_headroom(kept, files, int(c.images_max_gb * GB))
-                target = int(c.images_max_gb * GB) - self._headroom
-                plan = plan_images(
-                    kept, files, now=now, images_days=c.images_days, max_bytes=target, stated_bound=int(c.images_max_gb * GB)
-                )
-                await self._apply(plan, sorted(leftovers), report, now)
                 report.cycles_deleted = await self._prune_cycles(now)
                 report.alarms_deleted = await self._prune_alarms(now)
-            else:
-                plan = plan_images(kept, files, now=now, images_days=None, max_bytes=None)
-            self._fig.images_bytes, self._fig.images_count = plan.kept_bytes, plan.kept_count
-            self._fig.oldest_image, self._fig.images_checked = plan.oldest_kept, now
             self._fig.last_pass = now
             self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
             report.seconds = time.monotonic() - t0
@@ -311,11 +308,71 @@ class StorageRetention:
                 )  # fmt: skip
             return report
 
-    async def _apply(self, plan: ImagePlan, leftovers: list[str], report: PassReport, now: datetime) -> None:
-        if plan.missing:
-            report.images_missing = await self.store.mark_images_pruned(
-                plan.missing, reason="file missing on disk when retention looked", at=now
+    async def _images(
+        self, kept: list[KeptImage], files: dict[str, FileInfo], report: PassReport, now: datetime
+    ) -> None:
+        """The image part of a pass (only measuring when disabled) and its figures."""
+        c = self.config
+        kept, leftovers = await self._reconcile(kept, files, report)
+        files = {n: f for n, f in files.items() if n not in leftovers}
+        if c.enabled:
+            self._headroom = cycle_headroom(kept, files, int(c.images_max_gb * GB))
+            target = int(c.images_max_gb * GB) - self._headroom
+            plan = plan_images(
+                kept, files, now=now, images_days=c.images_days, max_bytes=target, stated_bound=int(c.images_max_gb * GB)
             )
+            await self._apply(plan, sorted(leftovers), report, now)
+        else:
+            plan = plan_images(kept, files, now=now, images_days=None, max_bytes=None)
+        self._fig.images_bytes, self._fig.images_count = plan.kept_bytes, plan.kept_count
+        self._fig.oldest_image, self._fig.images_checked = plan.oldest_kept, now
+
+    async def _scan_for_pass(self, kept: list[KeptImage]) -> dict[str, FileInfo] | None:
+        """The image files, or None when the folder looks unmounted or moved (said in /status)."""
+        try:
+            files = await asyncio.to_thread(scan_images, self.image_dir)
+            why = looks_unmounted(kept, files)
+            why = why and f"the image folder {self.image_dir}: {why}"
+        except ImageFolderUnavailable as err:
+            files, why = {}, (str(err) if kept else None)  # no reference yet: nothing there to lose
+        if why:
+            why = (f"images: {why}; it looks unmounted or moved: mount it again (or give the service read access "
+                   "to it); until then retention prunes no image and marks none missing")  # fmt: skip
+            if why != self._fig.images_problem:
+                log.warning("retention: %s", why)
+        elif self._fig.images_problem:
+            log.info("retention: the image folder %s is back", self.image_dir)
+        self._fig.images_problem = why
+        return None if why else files
+
+    async def _reconcile(
+        self, kept: list[KeptImage], files: dict[str, FileInfo], report: PassReport
+    ) -> tuple[list[KeptImage], set[str]]:
+        """The kept references after those marked missing whose file is back are kept again, and the
+        leftovers: files whose references all say retention pruned them (a crash between mark and unlink)."""
+        referenced = {k.uri for k in kept}
+        unreferenced = []
+        for name in (n for n in files if n not in referenced):
+            if storable(name):
+                unreferenced.append(name)
+            elif name not in self._odd_names:  # no record can name it: an orphan file like any other
+                self._odd_names.add(name)
+                log.warning("retention: %r in %s: the name is not UTF-8, so no cycle record names it; it is "
+                            "treated as an orphan file (rename it, or move it out of the folder to keep it)",
+                            os.fsencode(name), self.image_dir)  # fmt: skip
+        if unreferenced and self.config.enabled:
+            back = await self.store.restore_missing_images(unreferenced)
+            if back:
+                report.images_restored = len(back)
+                log.info("retention: %d image files marked missing are back; their references are kept again",
+                         len(back))  # fmt: skip
+                kept = await self.store.kept_images()
+                unreferenced = [n for n in unreferenced if n not in set(back)]
+        return kept, (await self.store.pruned_only(unreferenced) if unreferenced else set())
+
+    async def _apply(self, plan: ImagePlan, leftovers: list[str], report: PassReport, now: datetime) -> None:
+        if plan.missing:  # only marked, never deleted for it: a file that is back gets its reference back
+            report.images_missing = await self.store.mark_images_pruned(plan.missing, reason=MISSING_REASON, at=now)
         # Mark first, then delete: a crash in between leaves a file the next pass deletes, never a
         # reference that claims an image which is gone without saying so.
         for reason, names in plan.prune.items():
@@ -361,7 +418,10 @@ class StorageRetention:
 
     async def _scan_only(self) -> None:
         """After a cycle: measure the images (a folder scan in a worker thread); a pass if near the bound."""
-        files = await asyncio.to_thread(scan_images, self.image_dir)
+        try:
+            files = await asyncio.to_thread(scan_images, self.image_dir)
+        except ImageFolderUnavailable:
+            return  # the next pass says so in /status
         total = sum(f.size for f in files.values())
         self._fig.images_bytes, self._fig.images_count = total, len(files)
         bound = int(self.config.images_max_gb * GB)

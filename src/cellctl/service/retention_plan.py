@@ -39,13 +39,24 @@ class FileInfo(NamedTuple):
     mtime: float
 
 
+class ImageFolderUnavailable(Exception):
+    """The image folder is not there or cannot be read: a pass must not take that for "no files"."""
+
+
 def scan_images(image_dir: Path) -> dict[str, FileInfo]:
-    """The cycle image files in ``image_dir`` (name -> size and mtime); an absent folder is empty."""
+    """The cycle image files in ``image_dir`` (name -> size and mtime). A name that is not UTF-8
+    is kept as :func:`os.fsdecode` gives it (no record can name it: :func:`storable`).
+
+    Raises:
+        ImageFolderUnavailable: the folder is not there or cannot be read.
+    """
     out: dict[str, FileInfo] = {}
     try:
         entries = os.scandir(image_dir)
-    except FileNotFoundError:
-        return out
+    except FileNotFoundError as err:
+        raise ImageFolderUnavailable(f"the image folder {image_dir} is not there") from err
+    except OSError as err:
+        raise ImageFolderUnavailable(f"the image folder {image_dir} cannot be read ({err.strerror or err})") from err
     with entries:
         for e in entries:
             if not (e.name.startswith(IMAGE_PATTERN[0]) and e.name.endswith(IMAGE_PATTERN[1])):
@@ -57,6 +68,26 @@ def scan_images(image_dir: Path) -> dict[str, FileInfo]:
             if e.is_file(follow_symlinks=False):
                 out[e.name] = FileInfo(st.st_size, st.st_mtime)
     return out
+
+
+def storable(name: str) -> bool:
+    """Whether a scanned file name can be a reference in the store (a name that is not UTF-8 cannot:
+    it is an unreferenced file, and must not be passed to a query)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def looks_unmounted(kept: list[KeptImage], files: Mapping[str, FileInfo]) -> str | None:
+    """Why the folder scanned cannot be the one the records' images are in, or None: the store keeps
+    image references of finished cycles and not one of their files is there (an empty mount point,
+    or one the recorder has written only new files into). Marking them all missing would be wrong."""
+    finished = {k.uri for k in kept if not k.cycle_active}
+    if finished and finished.isdisjoint(files):
+        return f"not one of the {len(finished)} image files the finished cycles' records keep is there"
+    return None
 
 
 def unlink_all(image_dir: Path, names: Iterable[str]) -> int:
@@ -75,7 +106,7 @@ def unlink_all(image_dir: Path, names: Iterable[str]) -> int:
 class ImagePlan:
     """What an image pass does: references whose file is missing, files to delete and why, what stays."""
 
-    missing: list[str]  # kept references without a file
+    missing: list[str]  # kept references of finished cycles without a file
     prune: dict[str, list[str]]  # reason -> referenced files to delete (their references are marked)
     orphans: list[str]  # files no reference names, old enough to delete
     kept_bytes: int
@@ -99,12 +130,13 @@ def plan_images(
 
     ``files`` are the image files on disk, ``kept`` the references not yet pruned. Files of a
     queued or running cycle, and unreferenced files younger than ``orphan_grace_s``, are never
-    chosen (they still count toward the total). A file no kept reference names is an orphan.
+    chosen (they still count toward the total), nor reported missing. A file no kept reference
+    names is an orphan.
     """
     by_uri: dict[str, list[KeptImage]] = {}
     for k in kept:
         by_uri.setdefault(k.uri, []).append(k)
-    missing = [u for u in by_uri if u not in files]
+    missing = [u for u, refs in by_uri.items() if u not in files and not any(r.cycle_active for r in refs)]
     items: list[tuple[datetime, str, int, bool, bool]] = []  # (time, name, size, protected, orphan)
     for name, info in files.items():
         refs = by_uri.get(name)

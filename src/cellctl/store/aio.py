@@ -163,6 +163,7 @@ class AsyncCellStore:
     kept_images = _on_store_thread(CellStore.kept_images)
     mark_images_pruned = _on_store_thread(CellStore.mark_images_pruned)
     pruned_only = _on_store_thread(CellStore.pruned_only)
+    restore_missing_images = _on_store_thread(CellStore.restore_missing_images)
     prune_cycles = _on_store_thread(CellStore.prune_cycles)
     prune_alarms = _on_store_thread(CellStore.prune_alarms)
     oldest_cycle = _on_store_thread(CellStore.oldest_cycle)

@@ -6,7 +6,10 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
 
 - images: the references still kept (with whether their cycle is still queued or running, whose
   images are never pruned), marking references pruned, and which files belong only to pruned
-  references (left on disk by a crash between the mark and the unlink);
+  references (left on disk by a crash between the mark and the unlink). A reference marked
+  :data:`MISSING_REASON` says only that its file was not there when retention looked: such a file
+  is never a leftover to delete, and when it is back its reference is kept again
+  (:meth:`RetentionRows.restore_missing_images`);
 - cycle records older than a cutoff, deleted with their steps, image references, idempotency
   keys and closed-loop history rows, in batches so no single transaction holds the write lock for long
   (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`);
@@ -28,6 +31,7 @@ from typing import Any
 from cellctl.store.connection import Database, ts
 
 FINISHED_CYCLE_STATES = ("done", "failed", "interrupted")
+MISSING_REASON = "file missing on disk when retention looked"  # marked by a look, not by deleting the file
 
 
 @dataclass(frozen=True)
@@ -94,17 +98,32 @@ class RetentionRows(Database):
         return n
 
     def pruned_only(self, uris: Sequence[str]) -> set[str]:
-        """Of ``uris``, those every reference of which says pruned (their files should be gone)."""
+        """Of ``uris``, those every reference of which says pruned by retention deleting the file
+        (their files should be gone); a reference marked :data:`MISSING_REASON` never counts."""
         out: set[str] = set()
         for chunk in _chunks(list(dict.fromkeys(uris))):
             marks = ",".join("?" * len(chunk))
             out.update(
                 r[0]
                 for r in self._conn.execute(
-                    f"SELECT uri FROM cycle_images WHERE uri IN ({marks}) GROUP BY uri HAVING COUNT(pruned_at) = COUNT(*)",
-                    tuple(chunk),
+                    f"SELECT uri FROM cycle_images WHERE uri IN ({marks}) GROUP BY uri "
+                    "HAVING COUNT(pruned_at) = COUNT(*) AND SUM(COALESCE(pruned_reason, '') = ?) = 0",
+                    (*chunk, MISSING_REASON),
                 )
             )
+        return out
+
+    def restore_missing_images(self, uris: Sequence[str]) -> list[str]:
+        """The files ``uris`` are there: references marked :data:`MISSING_REASON` to them are kept
+        again (not pruned). Returns the files whose references were restored."""
+        out: list[str] = []
+        with self._tx() as c:
+            for chunk in _chunks(list(dict.fromkeys(uris))):
+                marks = ",".join("?" * len(chunk))
+                args = (MISSING_REASON, *chunk)
+                where = f"WHERE pruned_reason = ? AND uri IN ({marks})"
+                out += [r[0] for r in c.execute(f"SELECT DISTINCT uri FROM cycle_images {where}", args)]
+                c.execute(f"UPDATE cycle_images SET pruned_at = NULL, pruned_reason = NULL {where}", args)
         return out
 
     # -- records ------------------------------------------------------------------------------
