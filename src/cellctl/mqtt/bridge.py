@@ -13,7 +13,8 @@ It follows the orchestrator's :class:`~cellctl.cell.events.EventHub`:
 - ``job`` done, and every ``CALIBRATION_POLL_S``: the retained ``calibration`` when its version changed.
 
 The hub drops a slow subscriber's oldest events; a gap in its sequence makes the bridge queue
-the state, the alarms and the results again from their sources, so nothing but an
+the state, the alarms and the results again from their sources (and empty the ``alarm/{code}``
+of every alarm that ended meanwhile), so nothing but an
 ``alarm/events`` entry can be lost that way (and that is logged).
 """
 
@@ -74,6 +75,7 @@ class EventBridge:
         self._tasks: list[asyncio.Task[None]] = []
         self._last_event = 0
         self._alarm_seen: dict[str, tuple[bool, bool]] = {}  # uid -> (active, acknowledged) as last published
+        self._alarm_code: dict[str, int] = {}  # uid -> code, of the alarms in _alarm_seen
         self._calibration: tuple[Any, bool] | None = None  # (version, damaged) as last queued
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -87,7 +89,7 @@ class EventBridge:
         await self._clear_stale_alarms()
         await self._check_calibration()
         for a in self.alarms.current():
-            self._alarm_seen[a.uid] = (a.active, a.acknowledged)
+            self._alarm_seen[a.uid], self._alarm_code[a.uid] = (a.active, a.acknowledged), int(a.code)
         self._tasks = [
             asyncio.create_task(self._follow(self._queue), name="mqtt-bridge"),
             asyncio.create_task(self._poll_calibration(), name="mqtt-calibration"),
@@ -145,9 +147,10 @@ class EventBridge:
         await self.catch_up()
         await self._put_state(*self._state_now())
         listed = {a.uid: a for a in self.alarms.current()}
-        for uid in list(self._alarm_seen):
-            if uid not in listed:
-                del self._alarm_seen[uid]
+        ended = {self._alarm_code.pop(uid) for uid in list(self._alarm_seen) if uid not in listed}
+        self._alarm_seen = {uid: seen for uid, seen in self._alarm_seen.items() if uid in listed}
+        for code in sorted(ended - {int(a.code) for a in listed.values()}):  # the others are published below
+            await self.outbox.put([OutboxMessage(self.topics.alarm(code), None, "alarm", retain=True)])
         for a in listed.values():
             await self._publish_alarm(a, None)
 
@@ -194,10 +197,11 @@ class EventBridge:
             await self.outbox.put([OutboxMessage(self.topics.alarm_events, payloads.alarm(a, event=event), "alarm_event")])
         listed = active or not acked
         if listed:
-            self._alarm_seen[a.uid] = (active, acked)
+            self._alarm_seen[a.uid], self._alarm_code[a.uid] = (active, acked), int(a.code)
             await self.outbox.put([OutboxMessage(self.topics.alarm(a.code), payloads.alarm(a), "alarm", retain=True)])
             return
         self._alarm_seen.pop(a.uid, None)
+        self._alarm_code.pop(a.uid, None)
         other = next((o for o in self.alarms.current() if o.code == a.code and o.uid != a.uid), None)
         body = None if other is None else payloads.alarm(other)  # another of the same code still holds the topic
         await self.outbox.put([OutboxMessage(self.topics.alarm(a.code), body, "alarm", retain=True)])

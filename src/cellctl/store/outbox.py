@@ -13,7 +13,8 @@ a JSON body (or None: an empty retained message, which clears the topic) and its
 - The bound: when ``max_messages`` rows are pending, the oldest row that is not a cycle result
   (kind ``result``) goes first; a result pushes out the oldest result only when nothing else is
   left, and a message that is not a result never pushes out a result (it is dropped itself).
-  Every drop is counted (in total and results alone, and how many the plant has not been told
+  The row the publisher is sending (``in_flight``, waiting for its PUBACK) is never dropped, so a
+  dropped message is one the broker never got. Every drop is counted (in total and results alone, and how many the plant has not been told
   of yet) and returned to the caller. Superseded and dropped messages leave gaps in ``seq``.
 - Results: ``result_hwm`` is the last cycle whose result was queued, written in the same
   transaction as the result's rows; a cycle at or below it is never queued twice.
@@ -90,12 +91,18 @@ class OutboxRows(Database):
     """The MQTT outbox methods of :class:`cellctl.store.db.CellStore`."""
 
     def outbox_enqueue(
-        self, messages: Sequence[OutboxMessage], *, max_messages: int, result_of_cycle: int | None = None
+        self,
+        messages: Sequence[OutboxMessage],
+        *,
+        max_messages: int,
+        result_of_cycle: int | None = None,
+        in_flight: int | None = None,
     ) -> Enqueued:
         """Queue ``messages`` in one transaction, in order, each with the next ``seq`` in its body.
 
         With ``result_of_cycle`` they are that cycle's result: queued only if the cycle is above
-        the results' high-water mark, which moves to it in the same transaction.
+        the results' high-water mark, which moves to it in the same transaction. The bound never
+        drops row ``in_flight`` (the one being sent).
         """
         if max_messages < len(messages) + 1:
             raise ValueError(f"max_messages ({max_messages}) must exceed the messages queued at once ({len(messages)})")
@@ -112,7 +119,7 @@ class OutboxRows(Database):
                 if m.retain:  # a retained topic holds a value: the pending older one is superseded
                     c.execute("DELETE FROM mqtt_outbox WHERE retain = 1 AND topic = ?", (m.topic,))
                 last_seq += 1
-                if not self._make_room(c, max_messages, m.kind == RESULT_KIND, dropped):
+                if not self._make_room(c, max_messages, m.kind == RESULT_KIND, dropped, in_flight):
                     dropped.append(DroppedMessage(last_seq, m.topic, m.kind))  # only results are queued: not this one
                     continue
                 payload = "" if m.body is None else to_json(f"MQTT message for {m.topic}", {**m.body, "seq": last_seq})
@@ -204,13 +211,16 @@ class OutboxRows(Database):
         return int(c.execute("SELECT COUNT(*) FROM mqtt_outbox").fetchone()[0])
 
     @staticmethod
-    def _make_room(c: Any, max_messages: int, for_result: bool, dropped: list[DroppedMessage]) -> bool:
-        """Drop the oldest rows until one more fits: non-results first, results only to make room for a result.
-        False: the rest are results and the new message is not one (it is dropped instead)."""
+    def _make_room(
+        c: Any, max_messages: int, for_result: bool, dropped: list[DroppedMessage], in_flight: int | None = None
+    ) -> bool:
+        """Drop the oldest rows until one more fits: non-results first, results only to make room for a result,
+        never row ``in_flight``. False: nothing of that is left (the new message is dropped instead)."""
         while OutboxRows._pending(c) >= max_messages:
             row = c.execute(
-                "SELECT seq, topic, kind FROM mqtt_outbox WHERE kind != ? OR ? ORDER BY kind = ?, seq LIMIT 1",
-                (RESULT_KIND, int(for_result), RESULT_KIND),
+                "SELECT seq, topic, kind FROM mqtt_outbox WHERE (kind != ? OR ?) AND seq != ? "
+                "ORDER BY kind = ?, seq LIMIT 1",
+                (RESULT_KIND, int(for_result), -1 if in_flight is None else int(in_flight), RESULT_KIND),
             ).fetchone()
             if row is None:
                 return False
