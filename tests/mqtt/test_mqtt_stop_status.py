@@ -3,7 +3,10 @@ through the will when the offline status cannot go out."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 from mosquitto_support import running_broker
 from mqtt_publisher_support import connected, frozen, publisher_config, retained_json
@@ -15,42 +18,38 @@ from cellctl.store import AsyncCellStore
 from cellctl.store.outbox import OutboxMessage
 
 
-async def test_a_stop_that_cuts_the_backlog_short_still_leaves_status_offline(tmp_path: Path) -> None:
+@contextlib.asynccontextmanager
+async def _publishing(tmp_path: Path, backlog: int) -> AsyncIterator[tuple[AsyncCellStore, Any, CellTopics, MqttPublisher]]:
+    """A publisher connected to a fresh broker with ``backlog`` alarm events still to send."""
     store = await AsyncCellStore.open(tmp_path / "cell.db")
     try:
         with running_broker(tmp_path) as broker:
             cfg = publisher_config(broker.port)
             t = CellTopics(cfg.isa95)
             outbox = Outbox(store, cfg.max_messages)
-            for chunk in range(3):  # a backlog that takes longer than the grace below
-                await outbox.put([OutboxMessage(t.alarm_events, {"n": chunk * 1000 + i}, "alarm_event") for i in range(1000)])
+            for first in range(0, backlog, 1000):
+                await outbox.put([OutboxMessage(t.alarm_events, {"n": n}, "alarm_event") for n in range(first, min(first + 1000, backlog))])
             pub = MqttPublisher(cfg, t, outbox)
             pub.start()
             await connected(pub, 5)
-            await pub.stop(grace_s=0.2)
-            left = (await store.outbox_counts()).pending
-            status = await retained_json(broker, t.status)
+            yield store, broker, t, pub
     finally:
         await store.close()
+
+
+async def test_a_stop_that_cuts_the_backlog_short_still_leaves_status_offline(tmp_path: Path) -> None:
+    async with _publishing(tmp_path, 3000) as (store, broker, t, pub):  # a backlog longer than the grace below
+        await pub.stop(grace_s=0.2)
+        left = (await store.outbox_counts()).pending
+        status = await retained_json(broker, t.status)
     assert left > 0, "the backlog went out within the grace; make it longer"
     assert status["online"] is False and status["reason"] == "service stopped", status
 
 
 async def test_a_stop_whose_offline_status_cannot_go_out_leaves_the_will(tmp_path: Path) -> None:
-    store = await AsyncCellStore.open(tmp_path / "cell.db")
-    try:
-        with running_broker(tmp_path) as broker:
-            cfg = publisher_config(broker.port)
-            t = CellTopics(cfg.isa95)
-            outbox = Outbox(store, cfg.max_messages)
-            await outbox.put([OutboxMessage(t.alarm_events, {"n": n}, "alarm_event") for n in range(2000)])
-            pub = MqttPublisher(cfg, t, outbox)
-            pub.start()
-            await connected(pub, 5)
-            with frozen(broker):  # no PUBACK, neither for the backlog nor for the offline status: the stop gives up
-                await pub.stop(grace_s=0.2)
-                assert not pub.connected
-            status = await retained_json(broker, t.status)
-    finally:
-        await store.close()
+    async with _publishing(tmp_path, 2000) as (_store, broker, t, pub):
+        with frozen(broker):  # no PUBACK, neither for the backlog nor for the offline status: the stop gives up
+            await pub.stop(grace_s=0.2)
+            assert not pub.connected
+        status = await retained_json(broker, t.status)
     assert status["online"] is False and status["reason"] == "connection lost", status  # the will: no clean DISCONNECT
