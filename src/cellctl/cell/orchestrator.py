@@ -326,11 +326,11 @@ class CellOrchestrator:
                         raise
                     if self._current != nxt:  # stopped before its first step: queued again (a Stop or Abort ends it)
                         self._pending.insert(0, nxt)
-                        self._busy = None
                 except Exception:  # noqa: BLE001 - a bug around one cycle must not stop the cell taking the next
                     log.exception("cycle %d: the worker caught a fault outside the cycle's own handling", nxt)
                 finally:
                     self._cycle_task = None
+                    self._busy = None if self._busy == nxt else self._busy  # its record was written, or it never began
 
     async def _run(self, cycle_id: int) -> None:
         self._current = cycle_id
