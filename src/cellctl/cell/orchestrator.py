@@ -261,15 +261,11 @@ class CellOrchestrator:
         """End every queued cycle as failed, saying why: a Stop or Abort ends production, and a queued
         cycle must not start by itself once the cell is back in Execute, perhaps long after its requester gave up."""
         dropped, self._pending = self._pending, []
-        stop = self.alarms.stop_reason
-        code = int(stop.code) if stop is not None else int(AlarmCode.CYCLE_STOPPED)
         for cid in dropped:
             reason = f"not started: {why}; request it again in Execute"
-            await self.store.fail_cycle(cid, error=reason, result={"error_code": code})
+            await self.store.fail_cycle(cid, error=reason, result={"error_code": self._stop_code(AlarmCode.CYCLE_STOPPED)})
             self.events.publish("cycle", {"cycle_id": cid, "state": "failed", "error": reason})
-            ev = self._finished.pop(cid, None)
-            if ev is not None:
-                ev.set()
+            self._ended(cid)
 
     # -- cycles -----------------------------------------------------------------------------
 
@@ -371,9 +367,18 @@ class CellOrchestrator:
     def _stopped(self) -> tuple[str, int, AlarmCode | None]:
         """A cycle the cell stopped: its reason, and as its code the first-out alarm if one caused the stop
         (the PLC and the record then name the cause, e.g. 1201), else that a command stopped it. No new alarm."""
+        return (f"stopped: {self._stop_reason}", self._stop_code(AlarmCode.CYCLE_STOPPED), None)
+
+    def _stop_code(self, otherwise: int) -> int:
+        """The first-out alarm's code when one stopped the cell (the cause the PLC and the record name), else ``otherwise``."""
         stop = self.alarms.stop_reason
-        code = int(stop.code) if stop is not None else int(AlarmCode.CYCLE_STOPPED)
-        return (f"stopped: {self._stop_reason}", code, None)
+        return int(stop.code) if stop is not None else int(otherwise)
+
+    def _ended(self, cycle_id: int) -> None:
+        """Wake whoever waits for the cycle's end (``?wait=true``)."""
+        ev = self._finished.pop(cycle_id, None)
+        if ev is not None:
+            ev.set()
 
     async def _cycle(self, rec: StoreRecorder, recipe: str) -> CycleResult:
         await rec.step_started(CycleStep.CALIBRATE)
@@ -433,8 +438,7 @@ class CellOrchestrator:
                     # Raised before the record is written, so the record (and the PLC) carry the first-out
                     # cause: this alarm, or one that stopped the cell first (e.g. the watchdog's link lost).
                     await self.alarms.raise_alarm(alarm, source="cycle", detail=reason, cycle_id=cycle_id)
-                    stop = self.alarms.stop_reason
-                    code = int(stop.code) if stop is not None else code
+                    code = self._stop_code(code)
                 await rec.close_step(ok=False, error=reason)
                 spc, _ = await self.quality.feed_cycle(
                     cycle_id, None, recipe=self._loop_recipe, calibration_read=self._calibration_read,
@@ -451,9 +455,7 @@ class CellOrchestrator:
             self._current = self._busy = None
             with contextlib.suppress(Exception):
                 await self.machine.set_cycle_step(CycleStep.NONE)
-            ev = self._finished.pop(cycle_id, None)
-            if ev is not None:
-                ev.set()
+            self._ended(cycle_id)
             with contextlib.suppress(Exception):
                 await asyncio.to_thread(release_free_memory)  # what the cycle's worker threads freed
 

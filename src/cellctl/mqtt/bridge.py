@@ -74,8 +74,7 @@ class EventBridge:
         self._queue: asyncio.Queue[CellEvent] | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._last_event = 0
-        self._alarm_seen: dict[str, tuple[bool, bool]] = {}  # uid -> (active, acknowledged) as last published
-        self._alarm_code: dict[str, int] = {}  # uid -> code, of the alarms in _alarm_seen
+        self._alarm_seen: dict[str, tuple[bool, bool, int]] = {}  # uid -> (active, acknowledged, code) as last published
         self._calibration: tuple[Any, bool] | None = None  # (version, damaged) as last queued
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -89,7 +88,7 @@ class EventBridge:
         await self._clear_stale_alarms()
         await self._check_calibration()
         for a in self.alarms.current():
-            self._alarm_seen[a.uid], self._alarm_code[a.uid] = (a.active, a.acknowledged), int(a.code)
+            self._alarm_seen[a.uid] = (a.active, a.acknowledged, int(a.code))
         self._tasks = [
             asyncio.create_task(self._follow(self._queue), name="mqtt-bridge"),
             asyncio.create_task(self._poll_calibration(), name="mqtt-calibration"),
@@ -147,7 +146,7 @@ class EventBridge:
         await self.catch_up()
         await self._put_state(*self._state_now())
         listed = {a.uid: a for a in self.alarms.current()}
-        ended = {self._alarm_code.pop(uid) for uid in list(self._alarm_seen) if uid not in listed}
+        ended = {seen[2] for uid, seen in self._alarm_seen.items() if uid not in listed}
         self._alarm_seen = {uid: seen for uid, seen in self._alarm_seen.items() if uid in listed}
         for code in sorted(ended - {int(a.code) for a in listed.values()}):  # the others are published below
             await self.outbox.put([OutboxMessage(self.topics.alarm(code), None, "alarm", retain=True)])
@@ -180,7 +179,8 @@ class EventBridge:
     async def _on_alarm(self, d: dict[str, Any]) -> None:
         uid = str(d["uid"])
         now = (bool(d["active"]), bool(d["acknowledged"]))
-        before = self._alarm_seen.get(uid)
+        seen = self._alarm_seen.get(uid)
+        before = None if seen is None else seen[:2]
         if before == now:
             return  # a reaction or a repeat: nothing the plant sees changed
         try:
@@ -197,11 +197,10 @@ class EventBridge:
             await self.outbox.put([OutboxMessage(self.topics.alarm_events, payloads.alarm(a, event=event), "alarm_event")])
         listed = active or not acked
         if listed:
-            self._alarm_seen[a.uid], self._alarm_code[a.uid] = (active, acked), int(a.code)
+            self._alarm_seen[a.uid] = (active, acked, int(a.code))
             await self.outbox.put([OutboxMessage(self.topics.alarm(a.code), payloads.alarm(a), "alarm", retain=True)])
             return
         self._alarm_seen.pop(a.uid, None)
-        self._alarm_code.pop(a.uid, None)
         other = next((o for o in self.alarms.current() if o.code == a.code and o.uid != a.uid), None)
         body = None if other is None else payloads.alarm(other)  # another of the same code still holds the topic
         await self.outbox.put([OutboxMessage(self.topics.alarm(a.code), body, "alarm", retain=True)])

@@ -367,7 +367,8 @@ class StorageRetention:
                 log.info("retention: %d image files marked missing are back; their references are kept again",
                          len(back))  # fmt: skip
                 kept = await self.store.kept_images()
-                unreferenced = [n for n in unreferenced if n not in set(back)]
+                restored = set(back)
+                unreferenced = [n for n in unreferenced if n not in restored]
         return kept, (await self.store.pruned_only(unreferenced) if unreferenced else set())
 
     async def _apply(self, plan: ImagePlan, leftovers: list[str], report: PassReport, now: datetime) -> None:
