@@ -92,15 +92,15 @@ class AbbRobot:
         }
 
     async def connect(self, *, timeout_s: float | None = None) -> None:
-        """Connect, shake hands, send the settings and start the heartbeat.
+        """Connect, shake hands and send the settings now; optional: the first request does the same.
 
+        The link's heartbeat starts with its first connection, made here or by that request.
         ``timeout_s`` bounds the link and the handshake. EGM is not started here: its peer binds
         its port when the first EGM session needs it (nothing runs that no step uses).
         """
         deadline = time.monotonic() + (timeout_s if timeout_s is not None else self.settings.connect_timeout_s
                                        + self.settings.request_timeout_s)
         await self._link.ensure_connected(deadline)
-        self._link.start_heartbeat()
 
     async def close(self) -> None:
         """Say BYE, close the link and the EGM port, stop the heartbeat. Safe to call twice."""

@@ -2,7 +2,8 @@
 
 :class:`RapidLink` keeps one TCP connection at a time. One reader task routes reply lines to
 their requests by id, so queries, PING and STOP go on while a motion runs. Every request has a
-deadline that covers everything it does, reconnecting included. A heartbeat task pings when the
+deadline that covers everything it does, reconnecting included. The heartbeat
+(:mod:`abb_robot.heartbeat`) starts with the first connection, whoever makes it: it pings when the
 link has been quiet for a period, drops the link when no PONG comes back, and reconnects in the
 background with growing delays. After every (re)connection the link says HELLO, checks the
 protocol version and calls its ``on_connect`` hook (the robot verbs send their tool, work object,
@@ -28,6 +29,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from abb_robot import protocol as P
+from abb_robot.heartbeat import Heartbeat
 from abb_robot.settings import AbbRobotSettings
 from cellctl.ports import (
     DeviceDisconnected,
@@ -89,13 +91,6 @@ def quiet(fut: asyncio.Future[object]) -> None:
     fut.add_done_callback(lambda f: f.cancelled() or f.exception())
 
 
-def _answering(conn: _Connection) -> bool:
-    """A request on ``conn`` still waits for its answer. Its own deadline watches the controller then:
-    GRIP reads nothing while the gripper settles (the module's WaitTime), so a PING meanwhile would
-    go unanswered and drop a healthy link."""
-    return any(not p.answer.done() for p in conn.pending.values())
-
-
 def deadline_in(timeout_s: float) -> float:
     """The ``time.monotonic()`` deadline of a call given ``timeout_s``; ValueError for a bad one."""
     if not (timeout_s > 0 and math.isfinite(timeout_s)):
@@ -127,7 +122,7 @@ class RapidLink:
         self._opening: _Connection | None = None  # a connection still in its handshake (close() drops it too)
         self._connect_lock = asyncio.Lock()
         self._next_id = 0
-        self._heartbeat: asyncio.Task[None] | None = None
+        self._heartbeat = Heartbeat(self, settings, name)
 
     # ------------------------------------------------------------------------------------------
     # connection
@@ -137,26 +132,29 @@ class RapidLink:
         """A live connection exists."""
         return self._conn is not None and self._conn.alive
 
+    def quiet_for(self) -> float | None:
+        """Seconds since the live connection last received a line (None: no live connection)."""
+        conn = self._conn
+        return None if conn is None or not conn.alive else time.monotonic() - conn.last_rx
+
+    def waiting_for(self) -> str | None:
+        """The verb of a request on the live connection still waiting for its answer, else None (its own deadline
+        watches the controller then: GRIP reads nothing while the gripper settles). PING aside: a controller
+        that reads lines answers it at once, so one waiting means silence, not busyness."""
+        conn = self._conn
+        pending = conn.pending.values() if conn is not None and conn.alive else ()
+        return next((p.verb for p in pending if p.verb != "PING" and not p.answer.done()), None)
+
     async def ensure_connected(self, deadline: float) -> None:
         """Connect (and shake hands) unless a live connection exists; bounded by ``deadline``."""
         await self._ensure_connected(deadline)
-
-    def start_heartbeat(self) -> None:
-        """Start the heartbeat task (once)."""
-        if self._heartbeat is None:
-            self._heartbeat = asyncio.create_task(self._heartbeat_loop(), name=f"{self.name}-heartbeat")
 
     async def close(self) -> None:
         """Stop the heartbeat, say BYE and close the connection. Safe to call twice."""
         if self.closed:
             return
         self.closed = True
-        if self._heartbeat is not None:
-            self._heartbeat.cancel()
-            try:
-                await asyncio.wait_for(self._heartbeat, 1.0)
-            except (asyncio.CancelledError, asyncio.TimeoutError, Exception):  # noqa: BLE001 - shutting down
-                pass
+        await self._heartbeat.stop()
         conn = self._conn
         if conn is not None and conn.alive:
             try:
@@ -242,6 +240,7 @@ class RapidLink:
             _SETTING_UP.reset(setting_up)
             self._opening = None
         self._conn = conn  # live only now: HELLO answered and the settings sent
+        self._heartbeat.start()  # from the first connection on (connect() or a first request); a no-op while it runs
         log.info("%s: connected to %s:%d (%s, %s)", self.name, s.host, s.rapid_port, self.info.robot_type,
                  self.info.rw_version)
         return conn
@@ -351,35 +350,22 @@ class RapidLink:
                 fut.set_exception(error)
                 quiet(fut)  # type: ignore[arg-type]
 
-    async def _heartbeat_loop(self) -> None:
-        """PING a quiet link (nothing waiting for an answer), drop it when the PONG does not come,
-        reconnect in the background."""
-        s = self.settings
-        delay = s.reconnect_delay_s
-        next_attempt = 0.0
-        while not self.closed:
-            await asyncio.sleep(min(s.heartbeat_period_s, delay) / 2)
-            now = time.monotonic()
-            conn = self._conn
-            if conn is None or not conn.alive:
-                if now < next_attempt:
-                    continue
-                try:
-                    await self._ensure_connected(now + s.connect_timeout_s + s.request_timeout_s)
-                    delay = s.reconnect_delay_s
-                except DeviceError as exc:
-                    log.info("%s: reconnection failed (%s); next try in %.1f s", self.name, exc.message, delay)
-                    next_attempt = time.monotonic() + delay
-                    delay = min(delay * 2, s.reconnect_max_delay_s)
-                continue
-            if now - conn.last_rx < s.heartbeat_period_s or _answering(conn):
-                continue
-            try:
-                await self.request("PING", deadline=now + s.heartbeat_timeout_s, reconnect=False)
-            except DeviceTimeout:
-                self._drop(conn, DeviceTimeout(self.name, f"controller silent: no PONG within {s.heartbeat_timeout_s:g} s"))
-            except DeviceError:
-                pass  # the link went down meanwhile; the next round reconnects
+    async def probe(self, timeout_s: float) -> None:
+        """The heartbeat's PING on the live connection: dropped when no PONG, nor any other line, comes within
+        ``timeout_s`` (the reader gets one more turn first: a stalled event loop is no silent controller)."""
+        conn = self._conn
+        if conn is None or not conn.alive:
+            return
+        sent = time.monotonic()
+        try:
+            await self.request("PING", deadline=sent + timeout_s, reconnect=False)
+        except DeviceTimeout:
+            await asyncio.sleep(0)
+            if conn.last_rx < sent:
+                self._drop(conn, DeviceTimeout(self.name, f"controller silent: no PONG within {timeout_s:g} s "
+                                               "(heartbeat_timeout_s); reconnecting"))
+        except DeviceError:
+            pass  # the link went down meanwhile; the heartbeat reconnects it
 
     # ------------------------------------------------------------------------------------------
     # requests

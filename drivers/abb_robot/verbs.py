@@ -20,6 +20,7 @@ from abb_robot.link import RapidLink, deadline_in
 from abb_robot.settings import AbbRobotSettings
 from cellctl.ports import (
     CartesianPose,
+    DeviceBusy,
     DeviceProtocolError,
     DeviceRejected,
     DeviceTimeout,
@@ -183,9 +184,18 @@ class RobotVerbs:
             raise DeviceProtocolError(self.name, f"bad GRIP answer: {' '.join(fields)!r} (expected {value})")
 
     async def ping(self, *, timeout_s: float) -> float:
-        """A PING round trip; returns its duration in seconds."""
+        """A PING round trip; returns its duration in seconds.
+
+        Raises DeviceBusy, sending nothing, while another request waits for its answer: the controller
+        reads no line until it has answered (GRIP waits the gripper's settle time), and that request's
+        own deadline watches it meanwhile.
+        """
+        deadline = deadline_in(timeout_s)
         t0 = time.monotonic()
-        await self.link.request("PING", deadline=deadline_in(timeout_s))
+        busy_with = self.link.waiting_for()
+        if busy_with is not None:
+            raise DeviceBusy(self.name, f"busy: {busy_with} waits for its answer (under its own deadline); no PING sent")
+        await self.link.request("PING", deadline=deadline)
         return time.monotonic() - t0
 
 

@@ -4,9 +4,11 @@ harvesters is synchronous, so every call into it runs on one dedicated worker th
 handles stay on the thread that made them, and calls are serialised); the coroutine waits for it
 with the call's timeout, so a stuck producer ends in DeviceTimeout, never a hang.
 
-A grab in software-trigger mode first returns any queued buffers to the producer, then fires
+A grab in software-trigger mode first returns any queued buffers to the producer, waits until the
+frames of earlier triggers (a grab that timed out) have landed and drops them, then fires
 ``TriggerSoftware`` and waits for the frame it produced, so the image is one taken after the
 call began. In free-run mode it returns the next frame after the queue was emptied.
+A GenTL failure releases the camera and the producer; the next call opens both afresh.
 
 harvesters and genicam are an optional extra (``pip install 'cellctl[camera]'``): they are
 imported when the camera is opened, and a missing one is reported with that fix.
@@ -15,6 +17,7 @@ imported when the camera is opened, and a missing one is reported with that fix.
 from __future__ import annotations
 
 import asyncio
+import collections
 import concurrent.futures
 import logging
 import math
@@ -63,6 +66,8 @@ class GenicamCamera:
         gain_db: gain to set (None: leave the camera's).
         trigger_mode: "software" (one trigger per grab) or "free_run".
         timeout_s: bound on opening the camera and writing its settings.
+        frame_lost_after_s: how long after its software trigger (beyond the exposure) a frame may
+            still land; an earlier trigger whose frame has not landed by then is taken as lost.
         name: the device's name in errors.
     """
 
@@ -77,6 +82,7 @@ class GenicamCamera:
         gain_db: float | None = None,
         trigger_mode: TriggerMode = "software",
         timeout_s: float = 5.0,
+        frame_lost_after_s: float = 1.0,
         name: str = "camera",
     ) -> None:
         if not cti_path:
@@ -92,6 +98,8 @@ class GenicamCamera:
             raise ValueError(f"exposure_us must be positive, got {exposure_us!r}")
         if not (math.isfinite(timeout_s) and timeout_s > 0):
             raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
+        if not (math.isfinite(frame_lost_after_s) and frame_lost_after_s > 0):
+            raise ValueError(f"frame_lost_after_s must be a positive number of seconds, got {frame_lost_after_s!r}")
         self.cti_path = cti_path
         self.serial_number = serial_number
         self.user_id = user_id
@@ -100,6 +108,7 @@ class GenicamCamera:
         self.gain_db = gain_db
         self.trigger_mode: TriggerMode = trigger_mode
         self.timeout_s = float(timeout_s)
+        self.frame_lost_after_s = float(frame_lost_after_s)
         self.name = name
         self.info: CameraInfo | None = None
         self._executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="genicam")
@@ -108,6 +117,7 @@ class GenicamCamera:
         self._exposure_in_effect: float | None = None
         self._gain_in_effect: float | None = None
         self._frames = 0
+        self._in_flight: collections.deque[float] = collections.deque()  # monotonic times of triggers not yet answered
         self._closed = False
 
     @classmethod
@@ -193,7 +203,7 @@ class GenicamCamera:
         except DeviceError:
             raise
         except Exception as exc:  # a GenTL/GenApi failure: the link to the camera is not usable
-            self._executor.submit(self._release_acquirer)
+            self._executor.submit(self._release_blocking)  # the producer too: a second Harvester finds no camera
             raise DeviceDisconnected(
                 self.name, f"{what} failed: {type(exc).__name__}: {exc}; the next call reopens the camera"
             ) from exc
@@ -203,6 +213,7 @@ class GenicamCamera:
     def _open_blocking(self) -> None:
         if self._acquirer is not None:
             return
+        self._release_blocking()  # a producer left loaded by a failure keeps the camera from a new Harvester
         try:
             from harvesters.core import Harvester
         except ImportError as exc:
@@ -311,23 +322,54 @@ class GenicamCamera:
         return float(node.value)
 
     def _grab_blocking(self, deadline: float) -> Frame:
+        self._open_blocking()  # released by a failure after this call was queued: reopen now
         acquirer = self._acquirer
-        if acquirer is None:
-            raise DeviceDisconnected(self.name, "the camera was released; the next call reopens it")
-        for _ in range(int(acquirer.num_buffers) + 2):  # hand back what queued up before this call
+        self._return_queued(acquirer)
+        if self.trigger_mode == "software":
+            self._await_in_flight(acquirer, deadline)
+            acquirer.remote_device.node_map.TriggerSoftware.execute()
+            self._in_flight.append(time.monotonic())
+        while (remaining := deadline - time.monotonic()) > 0:
+            buffer = acquirer.try_fetch(timeout=max(remaining, _DRAIN_POLL_S))
+            if buffer is not None:  # None early: an incomplete buffer, which harvesters queued again
+                self._landed()
+                return self._to_frame(buffer, time.monotonic())
+        raise _NoFrame()
+
+    def _landed(self) -> None:
+        """A frame arrived: it answers the oldest trigger still in flight (if any)."""
+        if self._in_flight:
+            self._in_flight.popleft()
+
+    def _return_queued(self, acquirer: Any) -> None:
+        """Hand back to the producer what queued up before this call."""
+        for _ in range(int(acquirer.num_buffers) + 2):
             stale = acquirer.try_fetch(timeout=_DRAIN_POLL_S)
             if stale is None:
                 break
             stale.queue()
-        if self.trigger_mode == "software":
-            acquirer.remote_device.node_map.TriggerSoftware.execute()
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            raise _NoFrame()
-        buffer = acquirer.try_fetch(timeout=remaining)
-        if buffer is None:
-            raise _NoFrame()
-        arrived = time.monotonic()
+            self._landed()
+
+    def _await_in_flight(self, acquirer: Any, deadline: float) -> None:
+        """Wait for the frames of earlier triggers and drop them, so the next frame is this call's
+        own; a trigger unanswered ``frame_lost_after_s`` plus the exposure after it is taken as lost."""
+        lost_after_s = self.frame_lost_after_s + (self._exposure_in_effect or 0.0) * 1e-6
+        while self._in_flight:
+            now = time.monotonic()
+            lost_at = self._in_flight[0] + lost_after_s
+            if now >= lost_at:
+                self._in_flight.popleft()
+                _log.warning("%s: no frame %.3g s after a software trigger; taken as lost", self.name, lost_after_s)
+                continue
+            if now >= deadline:
+                raise _NoFrame()
+            stale = acquirer.try_fetch(timeout=max(min(lost_at, deadline) - now, _DRAIN_POLL_S))
+            if stale is not None:
+                stale.queue()
+                self._landed()
+
+    def _to_frame(self, buffer: Any, arrived: float) -> Frame:
+        """Convert a fetched buffer to a Frame and hand the buffer back to the producer."""
         try:
             component = buffer.payload.components[0]
             delivered = str(component.data_format)
@@ -356,8 +398,7 @@ class GenicamCamera:
         )
 
     def _ping_blocking(self) -> None:
-        if self._acquirer is None:
-            raise DeviceDisconnected(self.name, "the camera was released; the next call reopens it")
+        self._open_blocking()  # released by a failure after this call was queued: reopen now
         nm = self._acquirer.remote_device.node_map
         node = _node(nm, "DeviceModelName") or _node(nm, "Width")
         if node is None:
@@ -366,6 +407,7 @@ class GenicamCamera:
 
     def _release_acquirer(self) -> None:
         acquirer, self._acquirer = self._acquirer, None
+        self._in_flight.clear()
         if acquirer is not None:
             for step in (acquirer.stop, acquirer.destroy):
                 try:
@@ -374,7 +416,11 @@ class GenicamCamera:
                     _log.warning("%s: %s failed while releasing: %r", self.name, step.__name__, exc)
 
     def _release_blocking(self) -> None:
+        """Release the acquirer, then unload the producer (what a failure or close() does)."""
         self._release_acquirer()
         harvester, self._harvester = self._harvester, None
         if harvester is not None:
-            harvester.reset()
+            try:
+                harvester.reset()
+            except Exception as exc:  # the producer may be in a bad state; a new Harvester loads it afresh
+                _log.warning("%s: releasing the GenTL producer failed: %r", self.name, exc)

@@ -6,46 +6,18 @@ the ramp (x + y + n) mod 256, which the tests use as the known truth.
 
 from __future__ import annotations
 
-import os
-from collections.abc import AsyncIterator
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 
-pytest.importorskip("harvesters.core", reason="the optional extra 'camera' (harvesters, genicam) is not installed")
-genicam = pytest.importorskip("genicam", reason="the optional extra 'camera' (harvesters, genicam) is not installed")
+from genicam_support import MONO, TLSIMU, camera, ramp_offset  # noqa: F401 - camera is a fixture
+from cellctl.ports import Camera, DeviceDisconnected, DeviceProtocolError, DeviceRejected, DeviceTimeout, Frame
+from genicam_camera import GenicamCamera
 
-from cellctl.ports import Camera, DeviceDisconnected, DeviceProtocolError, DeviceRejected, DeviceTimeout, Frame  # noqa: E402
-from genicam_camera import GenicamCamera  # noqa: E402
-
-TLSIMU = os.path.join(os.path.dirname(genicam.__file__), "TLSimu.cti")
-if not os.path.isfile(TLSIMU):
-    pytest.skip(
-        f"genicam {getattr(genicam, '__version__', '?')} has no TLSimu.cti (only 1.3.0-1.5.0 ship it): "
-        "install the camera extra's pin 'genicam>=1.3,<1.5.1'",
-        allow_module_level=True,
-    )
-
-MONO = "SN_InterfaceA_0"
 TLSIMU_STAMP_WRAP_NS = 1_000_000_000
 COLOUR = "SN_InterfaceA_1"
-
-
-def ramp_offset(image: np.ndarray) -> int:
-    """The n of TLSimu's ramp (x + y + n) mod 256; fails if the image is not that ramp."""
-    n = int(image[0, 0])
-    yy, xx = np.indices(image.shape)
-    np.testing.assert_array_equal(image, ((xx + yy + n) % 256).astype(np.uint8))
-    return n
-
-
-@pytest.fixture
-async def camera() -> AsyncIterator[GenicamCamera]:
-    cam = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, timeout_s=10.0)
-    yield cam
-    await cam.close()
 
 
 async def test_it_is_a_camera(camera: GenicamCamera) -> None:
