@@ -80,7 +80,7 @@ def check_correction(
     """Refuse a correction larger than the limits (a wrong measurement must not throw the robot)."""
     dt, dr = pose_error(taught_pose, corrected_pose)
     size = CorrectionSize(float(np.linalg.norm(dt)), float(np.linalg.norm(dr)))
-    if size.translation_mm > max_translation_mm or size.rotation_rad > max_rotation_rad:
+    if not (size.translation_mm <= max_translation_mm and size.rotation_rad <= max_rotation_rad):  # NaN too
         raise CorrectionLimitError(
             f"{what} moves {size.translation_mm:.2f} mm and {np.degrees(size.rotation_rad):.3f} deg from "
             f"the taught pose; the limits are {max_translation_mm:g} mm and "

@@ -188,3 +188,22 @@ def test_teaching_for_the_cycle_on_the_move_reads_along_the_sweep_and_takes_the_
     assert teaching(cfg) == []  # (the nine-point map is now stale: it comes after the teaching)
     (problem,) = teaching(base)
     assert problem.startswith("teaching: taught reading the wall along process.align.sweep.path_mm") and "`cellctl teach`" in problem
+
+
+def test_a_shot_setting_changed_after_teaching_stops_production_naming_the_setting() -> None:
+    """T0 is the feature seen at the taught shooting pose: a new working distance, corner radius or aim needs a new teaching."""
+    store, _, _, _ = _taught()
+    cfg = config()
+    assert check_ready(store.current(), NOW, config=cfg) == []
+
+    def teaching(c: object) -> list[str]:
+        return [p for p in check_ready(store.current(), NOW, config=c) if p.startswith("teaching")]  # type: ignore[arg-type]
+
+    nearer = cfg.model_copy(update={"process": cfg.process.model_copy(update={"working_distance_mm": 380.0})})
+    (problem,) = teaching(nearer)
+    assert "process.working_distance_mm was 400 mm, now 380" in problem and "`cellctl teach`" in problem, problem
+    opening = cfg.layout.opening.model_copy(update={"corner_radius_mm": 60.0})
+    rounder = cfg.model_copy(update={"layout": cfg.layout.model_copy(update={"opening": opening})})
+    (problem,) = teaching(rounder)
+    assert f"corner_radius_mm ([layout.opening], or recipe {cfg.default_recipe}'s [process.recipes.opening]) was" in problem
+    assert "the shot measured the corner, now the arc" in problem, problem

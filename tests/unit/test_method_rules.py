@@ -47,6 +47,15 @@ def test_correction_beyond_the_rotation_limit_is_refused_even_within_the_transla
     assert size.rotation_rad == pytest.approx(0.2, abs=1e-12)
 
 
+def test_a_corrected_pose_that_is_not_a_number_is_refused_by_the_last_limit() -> None:
+    """The correction limit is the last guard before the robot moves: a NaN from a failed measurement fails it."""
+    taught = make_pose(np.eye(3), [1500.0, -200.0, 900.0])
+    lost = taught.copy()
+    lost[0, 3] = np.nan
+    with pytest.raises(CorrectionLimitError, match="moves nan mm"):
+        check_correction(taught, lost, max_translation_mm=100.0, max_rotation_rad=0.1, what="install pose")
+
+
 def _standing_spots() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Flange poses 400 mm in front of the wall looking along +x, laser on the flange z axis."""
     yz = np.array([[0.0, 0.0], [500.0, 50.0], [30.0, 480.0], [520.0, 530.0], [250.0, 250.0]])
@@ -86,18 +95,15 @@ def test_rest_reading_off_the_plane_does_not_move_the_offset() -> None:
     np.testing.assert_allclose(moved.normal, [1.0, 0.0, 0.0], atol=1e-12)
 
 
-def test_consensus_tie_goes_to_the_smaller_residual_sum() -> None:
-    """Robust fit before eq. 2-11: equal inlier counts are broken by the smaller residual sum.
+def test_consensus_tie_between_two_surfaces_is_refused() -> None:
+    """Robust fit before eq. 2-11: two groups of spots as large as each other on two surfaces are no wall.
 
     Spots 0-3 hit a recessed panel 20 mm deep, one of them 0.4 mm off the others' plane (a bump);
-    spots 4-7 hit the flat wall exactly. Both sets give 4 inliers; the flat wall is the truth.
+    spots 4-7 hit the flat wall exactly. Both sets give 4 inliers: no majority tells which is the wall.
     """
     panel = np.array([[1020.0, -700, -300], [1020.0, -250, -350], [1020.0, -650, -800], [1020.4, -200, -750]])
-    wall = fit_wall_plane(np.vstack([panel, WALL_SPOTS]), SENSOR_FRONT, inlier_threshold_mm=0.5)
-    assert wall.inliers == (4, 5, 6, 7)
-    assert [s.index for s in wall.rejected] == [0, 1, 2, 3]
-    np.testing.assert_allclose(wall.normal, [1.0, 0.0, 0.0], atol=1e-12)
-    assert wall.offset == pytest.approx(WALL_X, abs=1e-9)
+    with pytest.raises(AlignmentError, match="only 4 of 8 spots agree on one plane"):
+        fit_wall_plane(np.vstack([panel, WALL_SPOTS]), SENSOR_FRONT, inlier_threshold_mm=0.5)
 
 
 def test_normal_points_away_from_the_sensor_on_either_side() -> None:

@@ -146,6 +146,8 @@ def fit_wall_plane(
     many; the plane through the triple that agrees with the most spots within
     ``inlier_threshold_mm`` wins, ties going to the smaller residual sum), then the least-squares
     plane of eq. 2-11 over the agreeing spots, repeated until the inlier set no longer changes.
+    Of four or more spots, at least four and more than half must agree, and no other group as
+    large may agree on another plane: else a bad spot cannot be told from a good one.
 
     Args:
         points: (N, 3) laser points (eq. 1).
@@ -164,7 +166,11 @@ def fit_wall_plane(
     except PlaneFitError as err:
         raise AlignmentError(str(err)) from None
     n = P.shape[0]
-    inliers = _consensus(P, inlier_threshold_mm, min_collinearity) if n > 3 else np.arange(n)
+    rivals: list[NDArray[np.intp]] = []
+    if n > 3:
+        inliers, rivals = _consensus(P, inlier_threshold_mm, min_collinearity)
+    else:
+        inliers = np.arange(n)
     plane = first
     for _ in range(10):
         try:
@@ -180,6 +186,8 @@ def fit_wall_plane(
             f"only {inliers.size} of {n} spots agree on one plane within {inlier_threshold_mm} mm; "
             "check for spots off the wall (in the opening, on a seal or a rib)"
         )
+    if n > 3:
+        _check_majority(P, plane, inliers, rivals, inlier_threshold_mm)
     plane = orient_normal_into_wall(plane, sensor_points)
     rejected = []
     for i in sorted(set(range(n)) - set(inliers.tolist())):
@@ -204,8 +212,38 @@ def fit_wall_plane(
     return WallPlane(plane, tuple(int(i) for i in inliers), tuple(rejected), uncertainty)
 
 
-def _consensus(P: NDArray[np.float64], threshold: float, min_collinearity: float) -> NDArray[np.intp]:
-    """Indices of the largest set of points lying within ``threshold`` of a plane through 3 of them."""
+def _check_majority(
+    P: NDArray[np.float64], plane: PlaneFit, inliers: NDArray[np.intp], rivals: list[NDArray[np.intp]], threshold: float
+) -> None:
+    """Refuse a plane that is not the clear choice: fewer than 4 or not more than half of the spots agree
+    on it, or another group of as many spots agrees on a plane it does not (a member beyond 2 x threshold)."""
+    n = P.shape[0]
+    residual = plane.distance(P)
+    off = [i for i in range(n) if i not in set(inliers.tolist())]
+    if inliers.size < 4 or 2 * inliers.size <= n:
+        spots = ", ".join(f"{i} ({residual[i]:+.2f} mm)" for i in off) or "none"
+        raise AlignmentError(
+            f"only {inliers.size} of {n} spots agree on one plane within {threshold} mm (need at least 4 and more "
+            f"than half, so a bad spot can be told from a good one); off the plane of spots "
+            f"{', '.join(map(str, inliers.tolist()))}: {spots}; check for spots off the wall (in the opening, on a "
+            "seal or a rib) and for spots without a reading"
+        )
+    for rival in rivals:
+        far = rival[np.abs(residual[rival]) > 2 * threshold]
+        if far.size:
+            raise AlignmentError(
+                f"two groups of {inliers.size} of {n} spots agree on different planes (spots "
+                f"{', '.join(map(str, inliers.tolist()))} and {', '.join(map(str, rival.tolist()))}; spot(s) "
+                f"{', '.join(f'{i} ({residual[i]:+.2f} mm)' for i in far.tolist())} off the first); the wall cannot be "
+                "told from what else the laser hit: check for spots off the wall (in the opening, on a seal or a rib)"
+            )
+
+
+def _consensus(
+    P: NDArray[np.float64], threshold: float, min_collinearity: float
+) -> tuple[NDArray[np.intp], list[NDArray[np.intp]]]:
+    """Indices of the largest set of points lying within ``threshold`` of a plane through 3 of them, and the
+    other sets of that size (its rivals)."""
     n = P.shape[0]
     if n <= _EXHAUSTIVE_MAX_SPOTS:
         triples = np.array(list(combinations(range(n), 3)))
@@ -218,7 +256,7 @@ def _consensus(P: NDArray[np.float64], threshold: float, min_collinearity: float
     span = np.maximum(np.linalg.norm(b - a, axis=1), np.linalg.norm(c - a, axis=1))
     ok = lengths > np.sqrt(min_collinearity) * span**2
     if not ok.any():
-        return np.arange(n)
+        return np.arange(n), []
     normals = normals[ok] / lengths[ok, None]
     a = a[ok]
     dist = np.abs(P @ normals.T - np.sum(normals * a, axis=1)[None, :])  # (n, triples)
@@ -226,7 +264,10 @@ def _consensus(P: NDArray[np.float64], threshold: float, min_collinearity: float
     counts = within.sum(axis=0)
     score = np.where(within, dist**2, threshold**2).sum(axis=0)
     best = np.lexsort((score, -counts))[0]
-    return np.flatnonzero(within[:, best])
+    chosen = np.flatnonzero(within[:, best])
+    rivals = {tuple(np.flatnonzero(within[:, k]).tolist()) for k in np.flatnonzero(counts == counts[best])}
+    rivals.discard(tuple(chosen.tolist()))
+    return chosen, [np.array(r, dtype=np.intp) for r in sorted(rivals)]
 
 
 def offset_at_rest(

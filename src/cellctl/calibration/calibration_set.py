@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Literal
@@ -36,6 +35,8 @@ from pydantic import Field, ValidationError
 from scipy.optimize import linear_sum_assignment
 
 from cellctl.calibration.camera import lens_from_matrix
+from cellctl.calibration.set_lock import remove_stale_temps, store_lock, write_file
+from cellctl.calibration.taught_shot import shot_problem
 from cellctl.calibration.set_parts import (
     PART_MODELS,
     CalibrationSetError,
@@ -363,6 +364,8 @@ def check_ready(
                                 "add the recipe to the configuration or teach one it lists")
             elif (why := wall_read_problem(p.values.wall_read, config.for_recipe(of_recipe).process.align)) is not None:
                 problems.append(f"{label}: {why}; run `{cmd}` again, so the cycle reads the wall where it was taught")
+            elif (why := shot_problem(p.values.shot, config.for_recipe(of_recipe), of_recipe)) is not None:
+                problems.append(f"{label}: {why} (`{cmd}`, then the parts computed with it)")
         for dep in DEPENDS_ON[name]:
             used = p.inputs.get(dep)
             have = cal.part(dep, slot)
@@ -387,12 +390,14 @@ class CalibrationStore:
 
     Args:
         root: the folder (created when the first set is written).
+        lock_timeout_s: how long a commit waits for another process's before it is refused (default ``LOCK_WAIT_S``).
     """
 
     POINTER = "current"
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, *, lock_timeout_s: float | None = None) -> None:
         self.root = Path(root)
+        self.lock_timeout_s = lock_timeout_s
 
     def _path(self, version: int) -> Path:
         return self.root / f"set-{version:06d}.json"
@@ -430,31 +435,26 @@ class CalibrationStore:
         v = self.current_version()
         return None if v is None else self.load(v)
 
-    def _write_atomic(self, path: Path, text: str) -> None:
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-
     def commit(
         self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None, recipe: str | None = None
     ) -> CalibrationSet:
-        """Store a new version with ``part`` replacing ``name`` (``recipe``'s own, when it names one) and make it current."""
+        """Store a new version with ``part`` replacing ``name`` (``recipe``'s own, if it names one), make it current; locked."""
         when = now or datetime.now(timezone.utc)
         self.root.mkdir(parents=True, exist_ok=True)
-        base = self.current() or empty_set(when)
-        existing = self.versions()
-        version = (max(existing) if existing else 0) + 1
-        new = base.with_part(name, part, version=version, created_utc=when, note=note, recipe=recipe)
-        if base.version == 0:
-            new = new.model_copy(update={"parent_version": None})
-        path = self._path(version)
-        if path.exists():
-            raise CalibrationSetError(f"{path} exists already; another process is writing the calibration store")
-        self._write_atomic(path, dump_calibration_set(new))
-        self._write_atomic(self.root / self.POINTER, path.name + "\n")
+        with store_lock(self.root, self.lock_timeout_s):
+            remove_stale_temps(self.root)
+            base = self.current() or empty_set(when)
+            existing = self.versions()
+            version = (max(existing) if existing else 0) + 1
+            new = base.with_part(name, part, version=version, created_utc=when, note=note, recipe=recipe)
+            if base.version == 0:
+                new = new.model_copy(update={"parent_version": None})
+            path = self._path(version)
+            try:
+                write_file(path, dump_calibration_set(new), exclusive=True)
+            except FileExistsError:
+                raise CalibrationSetError(f"{path} exists already; a writer without the store's lock wrote it") from None
+            write_file(self.root / self.POINTER, path.name + "\n", exclusive=False)
         return new
 
     def history(self) -> list[dict[str, Any]]:

@@ -28,6 +28,7 @@ from cellctl.calibration.hand_eye import board_pose, solve_hand_eye
 from cellctl.calibration.laser import calibrate_laser
 from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
 from cellctl.calibration.summary import summary_lines
+from cellctl.calibration.taught_shot import refuse_changed_shot, taught_shot
 from cellctl.calibration.teach import workpiece_frame_from_corner
 from cellctl.calibration.template_figures import corner_angle_deg, taught_feature
 from cellctl.compensate import deviation_in_frame
@@ -298,7 +299,7 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
     corners, poses, quality_px = [], [], []
     feature = shot_feature(config)
     for v in views:
-        m = detect_feature(ds.image(v["image"]), lens, config.vision, feature.arc)
+        m = detect_feature(ds.image(v["image"]), lens, config.vision, feature.arc, corner_radius=feature.corner_radius)
         if m.features is None:
             raise CalibrationRefused("pixel_map", "corner_not_found", f"{v['name']}: the {m.kind} detector refused: {m.message}")
         corners.append([m.features.u_px, m.features.v_px])
@@ -407,6 +408,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     H = np.array([pose_array(s["T_B_H"], "spot.T_B_H") for s in spots])
     d = np.array([s["distance_mm"] for s in spots], dtype=float)
     start = pose_array(ds.manifest["shooting_start"], "shooting_start")
+    refuse_changed_shot(ds.manifest, config)
     stops = [k for k, s in enumerate(spots) if s.get("stop")]  # taught for the cycle on the move: its corners
     align = align_for_teaching(H, d, stops, cal, config, start, tuple(ds.manifest["sensor_range_mm"]))
     C_Pos_0 = pose_array(ds.manifest["C_Pos_0"], "C_Pos_0")
@@ -419,7 +421,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         )
     lens = cal.lens()
     feature = shot_feature(config)
-    shot = detect_feature(ds.image(ds.manifest["shooting_image"]), lens, config.vision, feature.arc)
+    shot = detect_feature(ds.image(ds.manifest["shooting_image"]), lens, config.vision, feature.arc, corner_radius=feature.corner_radius)
     if shot.features is None:
         raise CalibrationRefused("teaching", "corner_not_found", f"the {shot.kind} detector refused the template image: {shot.message}")
     f = shot.features
@@ -461,6 +463,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     values = {
         "recipe": ds.manifest.get("recipe") or config.default_recipe,
         "wall_read": ds.manifest.get("wall_read"),  # None in a dataset from before it was recorded
+        "shot": taught_shot(config),
         "T0": T0.tolist(),
         "C_Pos_0": C_Pos_0.tolist(),
         "g_Pos_0": g_Pos_0.tolist(),

@@ -117,9 +117,19 @@ class WallRead(StrictRecord):
     spots_mm: list[tuple[float, float]] = Field(min_length=3)  # in T0: process.align.wall_spots_mm() when taught
 
 
+class TaughtShot(StrictRecord):
+    """The settings the taught shot stood on: T0, the template and the pixel map hold only with them."""
+
+    working_distance_mm: float  # process.working_distance_mm
+    feature: Literal["corner", "arc"]  # what the shot measured
+    corner_radius_mm: float  # the opening's ([layout.opening] or the recipe's)
+    aim_mm: tuple[float, float]  # in T: the point on the camera's axis (vision.shot_aim_mm or its default)
+
+
 class TeachingValues(StrictRecord):
     recipe: str | None = None  # the recipe taught (None: taught before recipes had their own teaching; the first)
     wall_read: WallRead | None = None  # None: taught before teachings recorded it (not checked)
+    shot: TaughtShot | None = None  # None: taught before teachings recorded it (not checked)
     T0: list[list[float]]
     C_Pos_0: list[list[float]]
     g_Pos_0: list[list[float]]

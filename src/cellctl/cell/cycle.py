@@ -290,12 +290,13 @@ class CycleRun:
                 poses.append(reached)
                 distances.append(reading.distance_mm)
         missing = [s["index"] for s in spots if s["status"] != LaserStatus.OK.value]
-        if len(distances) < 3:
+        need = min(4, len(planned))  # of four or more, a bad reading can be told from the others (align.wall)
+        if len(distances) < need:
             raise CycleFailed(
                 step,
                 AlarmCode.ALIGNMENT_FAILED,
-                f"only {len(distances)} of {len(planned)} laser spots gave a distance (spots {missing} "
-                "had none); is the car body in position?",
+                f"only {len(distances)} of {len(planned)} laser spots gave a distance (spots {missing} had none; "
+                f"{need} are needed, so that a bad one can be found); is the car body in position?",
             )
         if unread := [k for k in stops if k in missing]:
             raise CycleFailed(
@@ -381,7 +382,8 @@ class CycleRun:
         if first:  # the first shot aims the verification shots; they carry the precision
             verify = self.process.verify
             vision, arc = first_shot_limits(vision, arc, verify.first_shot_sigma_px, verify.first_shot_min_edge_points)
-        m = await asyncio.to_thread(detect_feature, frame.image, cal.lens, vision, arc, need_orientation=not first)
+        radius = self.feature.corner_radius
+        m = await asyncio.to_thread(detect_feature, frame.image, cal.lens, vision, arc, need_orientation=not first, corner_radius=radius)
         point = self.feature.point_mm
         offset = offset_from_map(cal.template, m.features, cal.nine_point, point) if m.features is not None else None
         self._last_image = (index, frame.image, m, offset)

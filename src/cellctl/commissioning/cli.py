@@ -103,7 +103,11 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
         print("not stored (--no-store)")
         return 0
     when = datetime.now(timezone.utc)
-    saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
+    try:
+        saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
+    except CalibrationSetError as err:  # the store busy with another writer, or its set in use damaged
+        print(f"{procedure}: not stored: {err}", file=sys.stderr)
+        return 1
     print(f"stored as version {saved.version} in {store.root}")
     problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))

@@ -28,6 +28,7 @@ from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.recording import record
+from cellctl.calibration.set_lock import CalibrationStoreBusy
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
@@ -38,6 +39,7 @@ from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
 from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
+from cellctl.commissioning.recovery import recover_jobs
 from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
@@ -119,9 +121,8 @@ class JobManager:
     # -- lifecycle ------------------------------------------------------------------------------
 
     async def start(self) -> None:
-        """Mark jobs a dead process left running as interrupted; follow the state machine; keep the check schedule."""
-        for job_id in await self.store.recover_jobs():
-            log.warning("commissioning job %d was interrupted by a restart; its partial dataset may be incomplete", job_id)
+        """Recover the jobs a dead process left running (:mod:`.recovery`); follow the state machine; keep the check schedule."""
+        await recover_jobs(self.store, self.calibration_store)
         queue = self.machine.subscribe_queue()
         self._pump = asyncio.create_task(self._follow(queue))
         self.schedule = VerifySchedule(self.config.calibration.procedure.verify, self.store, self.alarms, self.events,
@@ -414,7 +415,7 @@ class JobManager:
             fields.update(state="cancelled", error=str(err))
         except CalibrationRefused as err:
             fields.update(state="refused", error=f"{err.reason}: {err.detail}")
-        except (DeviceError, PlanError) as err:
+        except (DeviceError, PlanError, CalibrationStoreBusy) as err:
             reason = run.cancel_reason
             fields.update(state="cancelled" if reason else "failed", error=reason or f"{type(err).__name__}: {err}")
         except Exception as err:  # noqa: BLE001 - any bug still ends the job with a record

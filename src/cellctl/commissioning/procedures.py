@@ -32,6 +32,7 @@ from cellctl.calibration.compute import (
 )
 from cellctl.calibration.dataset import Dataset, pose_list
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.taught_shot import taught_shot
 from cellctl.commissioning.context import DatasetDraft, JobContext
 from cellctl.commissioning.plans import (
     MotionPlan,
@@ -247,6 +248,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         plan=plan.summary(),
         recipe=recipe or config.default_recipe,
         wall_read={"mode": config.process.align.mode, "spots_mm": plan.details["spots_mm"]},  # the cycle must read it so
+        shot=taught_shot(config),  # the settings the shot stands on (a recompute checks them)
     )
     await confirm_start(ctx, plan, "the teaching alignment")
     spots_H, spots_d = [], []

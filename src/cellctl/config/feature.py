@@ -9,7 +9,7 @@ optical axis through the aim point ``vision.shot_aim_mm``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -119,16 +119,33 @@ def arc_corner_config(config: CellConfig) -> ArcCornerConfig:
 
 
 @dataclass(frozen=True)
+class CornerRadius:
+    """The opening's corner radius the corner detector's arc check expects (square px), and where it comes from."""
+
+    radius_px: float
+    source: str  # for the refusal: the setting and the scale it was converted with
+
+
+def corner_radius(config: CellConfig) -> CornerRadius:
+    """The recipe's ``layout.opening.corner_radius_mm`` in px at the nominal scale (working distance over fx)."""
+    r_mm = float(config.layout.opening.corner_radius_mm)
+    mm_per_px = _mm_per_px(config)[0]
+    return CornerRadius(r_mm / mm_per_px, f"layout.opening.corner_radius_mm {r_mm:g} mm at {mm_per_px:.4g} mm/px")
+
+
+@dataclass(frozen=True)
 class ShotFeature:
-    """What a recipe's shots measure: the arc detector's input (None: the corner method) and where
-    the feature lies in T (x, y; mm)."""
+    """What a recipe's shots measure: the arc detector's input (None: the corner method), where
+    the feature lies in T (x, y; mm) and, for the corner method, the radius its arc check expects."""
 
     arc: ArcCornerConfig | None = None
     point_mm: tuple[float, float] = (0.0, 0.0)
+    # Derived from the layout, not a choice of detector: left out of ==, which compares the feature.
+    corner_radius: CornerRadius | None = field(default=None, compare=False)
 
 
 def shot_feature(config: CellConfig) -> ShotFeature:
     """The recipe's shot feature (``config`` is a recipe's view, ``config.for_recipe(name)``)."""
     if feature_kind(config) == "corner":
-        return ShotFeature()
+        return ShotFeature(corner_radius=corner_radius(config))
     return ShotFeature(arc_corner_config(config), feature_point_mm(config))

@@ -20,7 +20,8 @@ class OpcUaUser(StrictModel):
 
     A password user gives exactly one of ``password_env``, ``password_file`` or ``password`` (the value
     in the file: the simulated cell only); a certificate user gives ``certificate`` (its X.509 file, DER or PEM).
-    ``role``: ``operator`` may call methods (commands, StartCycle, Acknowledge); ``viewer`` reads and subscribes.
+    ``role``: ``operator`` may call methods (commands, StartCycle, Acknowledge); ``viewer`` reads, subscribes and calls
+        only what changes nothing (ConditionRefresh, GetResult).
     """
 
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.@-]*$")

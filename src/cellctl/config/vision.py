@@ -107,6 +107,11 @@ class LimitsConfig(StrictModel):
     # at least this angle about its centre (90 deg is the whole arc of a square corner).
     max_arc_gap_px: Finite = Field(0.3, gt=0)
     min_arc_coverage_deg: Finite = Field(30.0, ge=0, le=90)
+    # |fitted arc radius / expected - 1|, the expected radius being the recipe's
+    # layout.opening.corner_radius_mm in px: a circle tangent to a second edge beside the true one
+    # (a shadow or sealant band) is far larger (35 % for a 60 px band at a 200 px radius); a good
+    # image's arc is within 0.3 %, the rest is left for the body's tolerance and the shooting distance.
+    arc_radius_tolerance: Finite = Field(0.1, gt=0, le=0.5)
 
 
 class FeatureConfig(StrictModel):

@@ -63,11 +63,11 @@ def teaching_alignment(
 def template_at(rig: SimRig, config: CellConfig, C_Pos_0: Pose, world: World, lens: Lens, repeats: int) -> CornerFeatures:
     """The mean feature (corner or arc) of ``repeats`` shots, each after a fresh move to C_Pos_0, through ``lens``."""
     features = []
-    arc = shot_feature(config).arc
+    feature = shot_feature(config)
     for _ in range(repeats):
         T_true = rig.cell.execute(C_Pos_0)
         frame = rig.renderer.render(T_true @ rig.cell.T_H_C, world, rng=rig.teach_rng)
-        measured = detect_feature(frame.image, lens, config.vision, arc)
+        measured = detect_feature(frame.image, lens, config.vision, feature.arc, corner_radius=feature.corner_radius)
         if measured.features is None:
             raise RuntimeError(f"teaching: the template shot was refused: {measured.message}")
         features.append(measured.features)

@@ -63,6 +63,39 @@ class CoarseFailure:
     segments: F64
 
 
+# The frame's levels when no edge was found: the brightest 1 % this dark, or the darkest 1 % this
+# bright, leave no room for an edge of the contrast the detector needs (LimitsConfig.min_contrast_dn).
+DARK_P99_DN = 20.0
+BRIGHT_P1_DN = 250.0
+DARK_HINT = "check the lighting, the lens cap and the camera's exposure (devices.camera.exposure_us)"
+BRIGHT_HINT = "shorten the camera's exposure (devices.camera.exposure_us) or check the lighting for glare"
+
+
+def level_problem(crop: NDArray[np.uint8]) -> str:
+    """Why a region without a straight edge shows none: too dark, saturated, or its levels (for the message)."""
+    mean = float(np.mean(crop))
+    p1, p99 = (float(v) for v in np.percentile(crop, [1.0, 99.0]))
+    levels = f"mean {mean:.0f} DN, 1st-99th percentile {p1:.0f}-{p99:.0f} DN"
+    if p99 < DARK_P99_DN:
+        return f"the frame is too dark ({levels}): {DARK_HINT}"
+    if p1 >= BRIGHT_P1_DN:
+        return f"the frame is saturated, too bright ({levels}): {BRIGHT_HINT}"
+    return f"no straight edge found in the region of interest ({levels})"
+
+
+def _tilt_note(ang: F64, cfg: CoarseConfig, missing: str) -> str:
+    """Why no edge along the rows (top) or columns (right) was kept, when segments leaning past the limit were dropped."""
+    lean = np.abs(ang) if missing == "top" else 90.0 - np.abs(ang)  # from the rows, or from the columns
+    leaning = lean[(lean > cfg.max_tilt_deg) & (lean < 45.0)]
+    if len(leaning) == 0:
+        return ""
+    return (
+        f"; {len(leaning)} straight segment(s) lean {leaning.min():.1f}-{leaning.max():.1f} deg from the image "
+        f"{'rows' if missing == 'top' else 'columns'}, past vision.coarse.max_tilt_deg ({cfg.max_tilt_deg:g} deg): "
+        "check the car body's posture or raise the limit"
+    )
+
+
 def _to_full(pts_small: F64, k: int, roi: RoiConfig) -> F64:
     """Map shrunk-image pixel centres to full-resolution raw pixel coordinates."""
     return (pts_small + 0.5) * k - 0.5 + np.array([roi.x_px, roi.y_px], dtype=float)
@@ -158,7 +191,7 @@ def find_coarse_corner(
         maxLineGap=cfg.hough_max_gap_px / k,
     )
     if found is None:
-        return CoarseFailure("corner", "no straight edge found in the region of interest", np.zeros((0, 4)))
+        return CoarseFailure("corner", level_problem(crop), np.zeros((0, 4)))
     segs_small = found.reshape(-1, 4).astype(float)
     segs = np.hstack([_to_full(segs_small[:, :2], k, roi), _to_full(segs_small[:, 2:], k, roi)])
     ang = np.degrees(np.arctan2(segs[:, 3] - segs[:, 1], segs[:, 2] - segs[:, 0]))
@@ -171,7 +204,8 @@ def find_coarse_corner(
     if not tops or not rights:
         missing = "top" if not tops else "right"
         what = "running along the image rows" if missing == "top" else "running along the image columns"
-        return CoarseFailure(missing, f"no {missing} edge found: no straight edge {what} in the region of interest", segs)
+        message = f"no {missing} edge found: no straight edge {what} in the region of interest"
+        return CoarseFailure(missing, message + _tilt_note(ang, cfg, missing), segs)
 
     x0, y0 = roi.x_px, roi.y_px
     x1, y1 = roi.x_px + roi.width_px - 1, roi.y_px + roi.height_px - 1

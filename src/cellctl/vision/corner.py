@@ -36,13 +36,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.config.vision import RoiConfig, VisionConfig
+from cellctl.config.feature import CornerRadius
+from cellctl.config.vision import FeatureConfig, LimitsConfig, RoiConfig, VisionConfig
 from cellctl.vision.arc import ArcMeasurement, estimate_radius, measure_arc
 from cellctl.vision.coarse import CoarseFailure, find_coarse_corner
 from cellctl.vision.lens import Lens
 from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, measure_edge
 from cellctl.vision.lines import Line2D, fit_line, intersect, ransac_line
-from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening
+from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening, pick_feature
 from cellctl.vision.quality import Check, Refusal, Refused, at_least, at_most
 
 F64 = NDArray[np.float64]
@@ -131,6 +132,30 @@ def _check_arc(
     )
 
 
+def _feature_inset_px(profiles: dict[str, EdgeProfile], dark: bool) -> float:
+    """How far the feature lies inside the wall's own edge (the default rule's step), mean of both edges (px)."""
+    insets = []
+    for prof in profiles.values():
+        wall, step = pick_feature(prof.steps, dark, FeatureConfig()), prof.feature_step
+        if wall is not None and step is not None:
+            insets.append(step.offset_px - prof.steps[wall].offset_px)
+    return float(np.mean(insets)) if insets else 0.0
+
+
+def _radius_check(arc: ArcMeasurement, expected: CornerRadius, inset_px: float, lim: LimitsConfig) -> tuple[Check, str]:
+    """The arc's radius against the opening's (less the feature's inset: its arc is concentric), and the refusal's words."""
+    want = max(expected.radius_px - inset_px, 1.0)  # an inset past the radius: nothing is expected
+    deviation = abs(arc.radius_px / want - 1.0)
+    inset = f", less the feature's {inset_px:.0f} px inset" if abs(inset_px) >= 0.5 else ""
+    words = (
+        f"refused: arc radius {arc.radius_px:.0f} px, expected {want:.0f} px ({expected.source}{inset}), "
+        f"off by {deviation:.0%} (limit: vision.limits.arc_radius_tolerance {lim.arc_radius_tolerance:g}): "
+        "an edge line may lie on another edge beside the opening's (a shadow, a sealant band, a reflection), "
+        "or the recipe's radius is not the opening's; check the image"
+    )
+    return at_most("arc radius deviation", deviation, lim.arc_radius_tolerance, Refusal.ARC_MISMATCH), words
+
+
 def _feature_profile(
     image: NDArray[np.uint8], lens: Lens, name: EdgeName, line: Line2D, corner: F64, config: VisionConfig, dark: bool
 ) -> EdgeProfile:
@@ -161,8 +186,13 @@ def _no_feature_message(name: str, profile: EdgeProfile, config: VisionConfig) -
     )
 
 
-def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) -> CornerMeasurement:
+def detect_corner(
+    image: NDArray[np.uint8], lens: Lens, config: VisionConfig, expected_radius: CornerRadius | None = None
+) -> CornerMeasurement:
     """Find the window's upper-right corner in a raw camera image.
+
+    With ``expected_radius`` (the recipe's, cellctl.config.feature.corner_radius) the arc check
+    also holds the fitted arc's radius to it (``limits.arc_radius_tolerance``).
 
     Raises ValueError only for a wrong call (not a 2-D uint8 image of the lens's size, or an ROI
     outside the image); whatever the image shows, the answer is a CornerMeasurement, refused
@@ -250,13 +280,19 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
         at_most("predicted corner sigma", sigma, lim.max_corner_sigma_px, Refusal.UNCERTAIN, " px"),
     ]
     arc = None
+    notes: dict[str, str] = {}  # a check's name: the refusal's words, where they say more than describe()
     if config.fit.check_arc:
         arc = _check_arc(img, lens, corner, top, right, coarse.edge_pixels, coarse.opening_darker, config, 2.0 * k + 1.0)
         if arc is None:
             checks.append(at_least("arc points", 0, 10, Refusal.ARC_NOT_SEEN))
         else:
+            checks.append(at_least("arc coverage", arc.coverage_deg, lim.min_arc_coverage_deg, Refusal.ARC_NOT_SEEN, " deg"))
+            if expected_radius is not None:
+                inset = _feature_inset_px(profiles, coarse.opening_darker)
+                radius_check, words = _radius_check(arc, expected_radius, inset, lim)
+                checks.append(radius_check)
+                notes[radius_check.name] = words
             checks += [
-                at_least("arc coverage", arc.coverage_deg, lim.min_arc_coverage_deg, Refusal.ARC_NOT_SEEN, " deg"),
                 at_most("top edge gap to the arc", abs(arc.gap_top_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
                 at_most("right edge gap to the arc", abs(arc.gap_right_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
             ]
@@ -281,5 +317,6 @@ def detect_corner(image: NDArray[np.uint8], lens: Lens, config: VisionConfig) ->
         return CornerMeasurement(Refusal.CORNER_NOT_FOUND, "the corner lies outside the region of interest", **result)  # type: ignore[arg-type]
     failed = [c for c in checks if not c.passed]
     if failed:
-        return CornerMeasurement(failed[0].refusal, f"refused: {failed[0].describe()}", **result)  # type: ignore[arg-type]
+        message = notes.get(failed[0].name, f"refused: {failed[0].describe()}")
+        return CornerMeasurement(failed[0].refusal, message, **result)  # type: ignore[arg-type]
     return CornerMeasurement(None, "corner found", **result)  # type: ignore[arg-type]

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.config.arc_vision import ArcCornerConfig
+from cellctl.config.feature import CornerRadius
 from cellctl.config.vision import VisionConfig
 from cellctl.vision.arc_corner import ArcCornerMeasurement, detect_arc_corner
 from cellctl.vision.corner import CornerFeatures, CornerMeasurement, detect_corner
@@ -71,15 +72,23 @@ def first_shot_limits(
 
 
 def detect_feature(
-    image: NDArray[np.uint8], lens: Lens, vision: VisionConfig, arc: ArcCornerConfig | None, *, need_orientation: bool = True
+    image: NDArray[np.uint8],
+    lens: Lens,
+    vision: VisionConfig,
+    arc: ArcCornerConfig | None,
+    *,
+    need_orientation: bool = True,
+    corner_radius: CornerRadius | None = None,
 ) -> FeatureShot:
     """The corner (``arc`` None) or the arc's centre with the top edge's orientation in a raw image.
+
+    ``corner_radius`` (the recipe's ShotFeature.corner_radius) is the radius the corner's arc check expects.
 
     Without ``need_orientation`` an arc seen without a straight edge still answers, its angles NaN
     (the offset then turns by 0: a first shot that only aims the next).
     """
     if arc is None:
-        m = detect_corner(image, lens, vision)
+        m = detect_corner(image, lens, vision, corner_radius)
         return FeatureShot(m, m.features if m.ok else None, m.corner_sigma_px, m.refusal, m.message)
     a = detect_arc_corner(image, lens, arc)
     if not a.ok:

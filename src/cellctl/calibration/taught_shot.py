@@ -1,0 +1,62 @@
+"""The settings a teaching's shot stood on, recorded with it and checked against the configuration.
+
+T0 comes from the feature seen at the shooting pose: its kind and place in T (the corner, or the arc's
+centre at the corner radius), the camera's working distance and its aim. A change to any of them
+after teaching leaves T0, the template and the pixel map describing another shot.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.set_parts import TaughtShot
+from cellctl.config.feature import feature_kind, shot_aim_mm
+
+if TYPE_CHECKING:
+    from cellctl.config.schema import CellConfig
+
+SAME_MM = 0.01  # settings this near are the same
+
+
+def taught_shot(config: CellConfig) -> dict[str, object]:
+    """What teaching records of the recipe's shot (``config`` is the recipe's view)."""
+    return TaughtShot(
+        working_distance_mm=float(config.process.working_distance_mm),
+        feature=feature_kind(config),
+        corner_radius_mm=float(config.layout.opening.corner_radius_mm),
+        aim_mm=shot_aim_mm(config),
+    ).model_dump(mode="json")
+
+
+def shot_problem(taught: TaughtShot | None, config: CellConfig, recipe: str) -> str | None:
+    """Why the recipe's shot now differs from the taught one (None: as taught, or not recorded)."""
+    if taught is None:
+        return None
+    now = TaughtShot.model_validate(taught_shot(config))
+    changed = []
+    if abs(now.working_distance_mm - taught.working_distance_mm) > SAME_MM:
+        changed.append(f"process.working_distance_mm was {taught.working_distance_mm:g} mm, now {now.working_distance_mm:g}")
+    if abs(now.corner_radius_mm - taught.corner_radius_mm) > SAME_MM:
+        changed.append(
+            f"the opening's corner_radius_mm ([layout.opening], or recipe {recipe}'s [process.recipes.opening]) was "
+            f"{taught.corner_radius_mm:g} mm, now {now.corner_radius_mm:g}"
+        )
+    if now.feature != taught.feature:
+        changed.append(f"the shot measured the {taught.feature}, now the {now.feature}")
+    if max(abs(a - b) for a, b in zip(now.aim_mm, taught.aim_mm)) > SAME_MM:
+        changed.append(
+            f"the camera aimed at ({taught.aim_mm[0]:.1f}, {taught.aim_mm[1]:.1f}) mm in T, now at "
+            f"({now.aim_mm[0]:.1f}, {now.aim_mm[1]:.1f}) (vision.shot_aim_mm)"
+        )
+    if not changed:
+        return None
+    return f"taught with other settings: {'; '.join(changed)}; set them back, or teach the recipe again"
+
+
+def refuse_changed_shot(manifest: dict[str, Any], config: CellConfig) -> None:
+    """Refuse to compute a teaching dataset whose shot stood on other settings than ``config``'s."""
+    taken = manifest.get("shot")  # None in a dataset from before it was recorded
+    recipe = manifest.get("recipe") or config.default_recipe
+    if taken is not None and (why := shot_problem(TaughtShot.model_validate(taken), config, recipe)) is not None:
+        raise CalibrationRefused("teaching", "settings_changed", f"the dataset was {why}")
