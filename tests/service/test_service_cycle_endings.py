@@ -80,6 +80,7 @@ async def test_an_abort_ends_the_cycles_queued_behind_the_running_one_with_the_r
         rec_b = await service.store.cycle(b)
         assert rec_b.state.value == "failed" and rec_b.started_at is None
         assert rec_b.error is not None and "not started" in rec_b.error and "aborting" in rec_b.error
+        assert "in Execute, request it again with a new request id" in rec_b.error, rec_b.error
         assert (await client.get("/status")).json()["queued_cycles"] == 0
         slow_moves(service, 1.0 / 30.0)
         for cmd in ("clear", "reset", "start"):

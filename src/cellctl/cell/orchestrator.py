@@ -43,7 +43,7 @@ from cellctl.config.schema import CellConfig
 from cellctl.domain import AlarmCode, CycleStep, PackMLCommand, PackMLState
 from cellctl.memory import release_free_memory
 from cellctl.ports import DeviceError
-from cellctl.store import AsyncCellStore, CycleRecord, CycleRequest, SubmitResult
+from cellctl.store import REQUEST_AGAIN, AsyncCellStore, CycleRecord, CycleRequest, SubmitResult
 
 log = logging.getLogger(__name__)
 
@@ -262,7 +262,7 @@ class CellOrchestrator:
         cycle must not start by itself once the cell is back in Execute, perhaps long after its requester gave up."""
         dropped, self._pending = self._pending, []
         for cid in dropped:
-            reason = f"not started: {why}; request it again in Execute"
+            reason = f"not started: {why}; in Execute, {REQUEST_AGAIN}"
             await self.store.fail_cycle(cid, error=reason, result={"error_code": self._stop_code(AlarmCode.CYCLE_STOPPED)})
             self.events.publish("cycle", {"cycle_id": cid, "state": "failed", "error": reason})
             self._ended(cid)

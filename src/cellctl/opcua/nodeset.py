@@ -46,7 +46,8 @@ class Arg:
 
 @dataclass(frozen=True)
 class Method:
-    """A method below the cell object; ``command`` is the PackML command it issues, if it is one."""
+    """A method below the cell object; ``command`` is the PackML command it issues, if it is one;
+    ``read_only``: it changes nothing, so a viewer user may call it too."""
 
     path: str
     ns: Namespace
@@ -54,6 +55,7 @@ class Method:
     inputs: tuple[Arg, ...] = ()
     outputs: tuple[Arg, ...] = ()
     command: PackMLCommand | None = None
+    read_only: bool = False
 
 
 STATE_MACHINES = ("BaseStateMachine", "BaseStateMachine/MachineState", "BaseStateMachine/MachineState/ExecuteState")
@@ -168,7 +170,8 @@ METHODS: tuple[Method, ...] = (
                     Arg("ErrorCode", "UInt16", "0 when Ok, else the alarm id"),
                     Arg("Reason", "String", "why it is not Ok"),
                     Arg("MeasuredDeviation", "Double", "[dx, dy, dz mm, drx, dry, drz deg], empty if not measured", array=True),
-                    Arg("CycleTime", "Double", "s"))),
+                    Arg("CycleTime", "Double", "s")),
+           read_only=True),
 )  # fmt: skip
 
 UNIT_MODES = (UnitMode.PRODUCTION, UnitMode.MAINTENANCE, UnitMode.MANUAL)

@@ -20,6 +20,7 @@ from typing import Any
 from asyncua import ua
 from asyncua.crypto import cert_gen, uacrypto
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -47,13 +48,33 @@ def caller() -> str:
     return "opcua:unknown" if user is None or not user.name else user.name
 
 
+VIEWER_METHODS = frozenset({ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                            ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh2)})  # fmt: skip
+"""The standard methods that change nothing in the cell (they replay the retained alarms): viewers may call them."""
+
+
+def called_methods(body: Any) -> list[ua.NodeId] | None:
+    """The MethodIds of a Call request (its body not yet decoded, as asyncua checks it); None if it does not decode."""
+    try:
+        params = body if isinstance(body, ua.CallParameters) else struct_from_binary(ua.CallParameters, body.copy())
+    except Exception:  # a malformed request: refused here, and asyncua answers it with its own error
+        return None
+    return [m.MethodId for m in params.MethodsToCall or []]
+
+
 class CellRuleset(SimpleRoleRuleset):
-    """Operators may call methods; viewers read, browse and subscribe; nobody writes the address space."""
+    """Operators may call methods; viewers read, browse, subscribe and call the methods that change nothing
+    (:data:`VIEWER_METHODS` and the cell's own added with :meth:`allow_viewers`); nobody writes the address space."""
 
     def __init__(self) -> None:
         super().__init__()
         self._call = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
         self._write = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+        self._viewer_methods: set[ua.NodeId] = set(VIEWER_METHODS)
+
+    def allow_viewers(self, *methods: ua.NodeId) -> None:
+        """Let viewers call these methods too (the cell's read-only ones, known once its namespace is registered)."""
+        self._viewer_methods.update(methods)
 
     def check_validity(self, user: Any, action_type_id: ua.NodeId, body: Any) -> bool:
         if not isinstance(user, CellUser):
@@ -62,8 +83,12 @@ class CellRuleset(SimpleRoleRuleset):
         if action_type_id == self._write:
             return False
         if action_type_id == self._call:
-            return user.may_call
+            return user.may_call or self._read_only_call(body)
         return bool(super().check_validity(user, action_type_id, body))
+
+    def _read_only_call(self, body: Any) -> bool:
+        methods = called_methods(body)
+        return bool(methods) and all(m in self._viewer_methods for m in methods or ())
 
 
 class CellUserManager:

@@ -59,7 +59,9 @@ def _six(measured: dict[str, Any]) -> list[float]:
 
 
 def _text(v: Any) -> str:
-    return str(v.Value if isinstance(v, ua.Variant) else v or "")
+    """A string argument as text; a null one (Variant of type Null) is empty, i.e. not given."""
+    value = v.Value if isinstance(v, ua.Variant) else v
+    return "" if value is None else str(value)
 
 
 class CellOpcUaServer:
@@ -108,7 +110,8 @@ class CellOpcUaServer:
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"cellctl {self._cell.cell_id}")
         await server.set_application_uri(self.application_uri)
-        server.set_security_policy([_POLICY[p] for p in cfg.security_policies], permission_ruleset=CellRuleset())
+        ruleset = CellRuleset()
+        server.set_security_policy([_POLICY[p] for p in cfg.security_policies], permission_ruleset=ruleset)
         tokens: list[type] = [ua.UserNameIdentityToken, ua.X509IdentityToken]
         if cfg.allow_anonymous:
             tokens.append(ua.AnonymousIdentityToken)
@@ -125,6 +128,7 @@ class CellOpcUaServer:
             server.set_certificate_validator(CertificateValidator(options, store))  # type: ignore[arg-type]
         space = CellAddressSpace(server, self._cell.cell_id)
         cell_node = await space.build(self._callbacks())
+        ruleset.allow_viewers(*(space.nodes[m.path].nodeid for m in METHODS if m.read_only))
         self._alarms = AlarmConditions(server, space.nodes["Alarms"], cell_node, space.ns["cellctl"], self._cell.cell_id,
                                        self._acknowledge)  # fmt: skip
         await self._alarms.install()

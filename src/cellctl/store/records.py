@@ -16,6 +16,9 @@ MAX_TEXT_LEN = 128
 # The one definition of the text a request's names and ids may hold; the REST API's request bodies carry the same
 # patterns (so its OpenAPI document says it) and check them with text_problem (so its 422 says it in words).
 _CONTROL = r"\x00-\x1f"  # control characters, U+0000 to U+001F (tab, newline, carriage return, ...)
+# How a requester retries a cycle that never installed: each interface's request id answers its first cycle again.
+REQUEST_AGAIN = ("request it again with a new request id (REST Idempotency-Key, PLC cycle_req_id, OPC UA RequestId): "
+                 "the same id answers this cycle again")
 TEXT_PATTERN = rf"^[^{_CONTROL}]*$"
 """Optional text (a car body's id): no control characters."""
 NAME_PATTERN = rf"^[^{_CONTROL}]*[^{_CONTROL}\s][^{_CONTROL}]*$"
@@ -276,6 +279,6 @@ class AuditChainBroken(StoreError):
 __all__ = [
     "AuditChainBroken", "AuditEntry", "CycleRecord", "CycleRequest", "CycleState", "CycleStateError",
     "IdempotencyConflict", "IdempotencyInFlight", "ImageRef", "InstallAlreadyStarted", "InterruptedCycle",
-    "RecoveryReport", "SchemaTooNew", "StepRecord", "StoredResponse", "StoreError", "SubmitResult",
+    "RecoveryReport", "REQUEST_AGAIN", "SchemaTooNew", "StepRecord", "StoredResponse", "StoreError", "SubmitResult",
     "UnknownCycle",
 ]
