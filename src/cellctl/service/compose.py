@@ -253,7 +253,7 @@ async def assemble_service(
     # -- issue 15 item 7: retention, disk-space alarms and the /status "storage" figures (cellctl.service.retention)
     retention = StorageRetention(
         config.store.retention, store, alarms, image_dir=orch.image_dir, db_path=db_path, events=events,
-        cycle_step=lambda: machine.cycle_step,
+        cycle_step=lambda: machine.cycle_step, mqtt_results=config.mqtt.enabled,
     )  # fmt: skip
     orch.add_status("storage", retention.status)
     service.extras["retention"] = retention

@@ -26,7 +26,9 @@ below ``disk_stop_free_gb`` :attr:`AlarmCode.DISK_SPACE_CRITICAL`, whose reactio
 production while records can still be written. That alarm waits while the robot installs a
 glass (the install step writes almost nothing; stopping it halfway would leave the glass
 unfinished) and is raised as soon as the step ends. Both are conditions: they clear when the
-free space is back above their threshold (plus a margin, so they do not flap).
+free space is back above their threshold (plus a margin, so they do not flap). A file system
+that cannot be measured makes ``disk`` "unknown" (with no free figure when none answered) and is
+named with its cause in ``last_error``: the alarms cannot guard it until it answers again.
 
 :meth:`StorageRetention.status` is the ``storage`` part of /status (cached figures of the last
 pass or check, never a scan per request).
@@ -50,6 +52,7 @@ from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
 from cellctl.config.store import RetentionConfig, days_or_none
 from cellctl.domain import AlarmCode, CycleStep
+from cellctl.service.retention_disk import DiskReading, read_free
 from cellctl.service.retention_plan import (
     GB,
     MB,
@@ -114,6 +117,7 @@ class _Figures:
     last_pass: datetime | None = None
     last_error: str | None = None
     images_problem: str | None = None  # the image folder looks unmounted: the image part is skipped
+    disk_problem: str | None = None  # a file system the last disk check could not measure
     deferred: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -131,6 +135,7 @@ class StorageRetention:
         cycle_step: the cycle step running now (the stop alarm waits out INSTALL).
         clock: UTC wall clock (ages of images and records).
         disk_usage: ``shutil.disk_usage`` (tests give a fake).
+        mqtt_results: MQTT publication is on: keep cycles whose result is not queued yet (else count them dropped).
     """
 
     def __init__(
@@ -145,6 +150,7 @@ class StorageRetention:
         cycle_step: Callable[[], CycleStep] = lambda: CycleStep.NONE,
         clock: Callable[[], datetime] = _utcnow,
         disk_usage: Callable[[Path], Any] = shutil.disk_usage,
+        mqtt_results: bool = False,
     ) -> None:
         self.config = config
         self.store = store
@@ -155,6 +161,7 @@ class StorageRetention:
         self._cycle_step = cycle_step
         self._clock = clock
         self._disk_usage = disk_usage
+        self.mqtt_results = mqtt_results
         self._fig = _Figures()
         self._totals = PassReport()  # every pass since start, summed
         self._task: asyncio.Task[None] | None = None
@@ -206,7 +213,7 @@ class StorageRetention:
             "disk": f.disk,  # ok | low | critical | unknown
             "checked_utc": _iso(f.disk_checked),
             "last_pass_utc": _iso(f.last_pass),
-            "last_error": "; ".join(e for e in (f.images_problem, f.last_error) if e) or None,
+            "last_error": "; ".join(e for e in (f.images_problem, f.disk_problem, f.last_error) if e) or None,
             "pruned_since_start": {
                 "images": self._totals.images_pruned, "orphan_files": self._totals.orphans_deleted,
                 "cycles": self._totals.cycles_deleted, "alarms": self._totals.alarms_deleted,
@@ -228,26 +235,21 @@ class StorageRetention:
 
     # -- the disk -----------------------------------------------------------------------------
 
-    def _free(self) -> tuple[int, str]:
-        """The least free space of the file systems holding the database and the images."""
-        seen: dict[int, tuple[int, str]] = {}
-        for p in (self.db_path.parent, self.image_dir):
-            q = p
-            while not q.exists() and q != q.parent:
-                q = q.parent
-            try:
-                dev = q.stat().st_dev
-                if dev not in seen:
-                    seen[dev] = (int(self._disk_usage(q).free), str(q))
-            except OSError:
-                continue
-        if not seen:
-            raise OSError(f"cannot read the free space of {self.db_path.parent}")
-        return min(seen.values())
+    def _read_disk(self) -> DiskReading:
+        """The least free space of the file systems holding the database and the images, and those that failed."""
+        return read_free([("database", self.db_path.parent), ("images", self.image_dir)], self._disk_usage)
 
     async def check_disk(self) -> str:
-        """Measure the free space; raise or clear the disk-space alarms. Returns ok, low or critical."""
-        free, where = await asyncio.to_thread(self._free)
+        """Measure the free space; raise or clear the disk-space alarms. Returns ok, low, critical or unknown
+        (a file system not measured); raises OSError, naming each path and its cause, when none was."""
+        reading = await asyncio.to_thread(self._read_disk)
+        self._fig.disk_checked = self._clock()
+        self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
+        if reading.free is None or reading.where is None:
+            self._fig.free_bytes, self._fig.free_path, self._fig.disk = None, None, "unknown"
+            self._fig.deferred, self._fig.disk_problem = False, None  # the error goes to last_error (_guarded)
+            raise OSError(reading.unread())
+        free, where = reading.free, reading.where
         c = self.config
         warn, stop = c.disk_warn_free_gb * GB, c.disk_stop_free_gb * GB
         level = "critical" if free < stop else "low" if free < warn else "ok"
@@ -264,9 +266,10 @@ class StorageRetention:
             await self._condition(AlarmCode.DISK_SPACE_CRITICAL, free < stop, free > _clear_at(stop),
                                   f"{detail} (below {c.disk_stop_free_gb:g} GB)")  # fmt: skip
         self._fig.deferred = deferred
+        self._fig.disk_problem = reading.problem()
+        if reading.failed and level == "ok":
+            level = "unknown"  # the file system not measured may be the full one
         self._fig.free_bytes, self._fig.free_path, self._fig.disk = free, where, level
-        self._fig.disk_checked = self._clock()
-        self._fig.database_bytes = await asyncio.to_thread(self.database_bytes)
         return level
 
     async def _condition(self, code: AlarmCode, raise_it: bool, clear_it: bool, detail: str) -> None:
@@ -388,19 +391,24 @@ class StorageRetention:
             return 0
         cutoff = now - timedelta(days=days)
         deleted: list[int] = []
+        hwm = None if self.mqtt_results else (await self.store.outbox_counts()).result_hwm
         while True:
-            ids, uris = await self.store.prune_cycles(created_before=cutoff)
+            ids, uris = await self.store.prune_cycles(created_before=cutoff, keep_unpublished=self.mqtt_results)
             if not ids:
                 break
             deleted += ids
             if uris:
                 await asyncio.to_thread(unlink_all, self.image_dir, uris)
             await asyncio.sleep(0)  # let the cycle's own writes in between batches
+        unpublished = 0 if hwm is None else sum(i > hwm for i in deleted)
+        if unpublished:
+            log.warning("retention: deleted %d cycles whose MQTT result was never queued ([mqtt] enabled = false): "
+                        "counted as dropped results; enable [mqtt] or raise cycles_days to publish them", unpublished)
         if deleted:
             await self.store.append_audit(
                 actor="system", source="retention", action="retention.prune_cycles",
                 params={"cycles": len(deleted), "first_id": min(deleted), "last_id": max(deleted),
-                        "created_before": cutoff.isoformat(), "cycles_days": days},
+                        "created_before": cutoff.isoformat(), "cycles_days": days, "unpublished_results": unpublished},
             )  # fmt: skip
         return len(deleted)
 

@@ -12,7 +12,10 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
   (:meth:`RetentionRows.restore_missing_images`);
 - cycle records older than a cutoff, deleted with their steps, image references, idempotency
   keys and closed-loop history rows, in batches so no single transaction holds the write lock for long
-  (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`);
+  (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`).
+  A cycle whose MQTT result was never queued (above the results' high-water mark, once MQTT
+  publication was set up) is kept while publication is configured; otherwise its deletion is
+  counted as a dropped result, which the next MQTT connection reports to the plant (``outbox/dropped``);
 - alarm records older than a cutoff (inactive ones only);
 - the database's size (pages used, free pages, per-table bytes where SQLite has ``dbstat``).
 
@@ -67,6 +70,17 @@ class DatabaseSize:
 def _chunks(items: Sequence[Any], n: int = 500) -> Iterable[Sequence[Any]]:
     for i in range(0, len(items), n):
         yield items[i : i + n]
+
+
+def _count_unpublished(c: Any, n: int) -> None:
+    """``n`` deleted cycles' results were never queued for MQTT: count them as dropped results, to report."""
+    if n:
+        c.execute(
+            "UPDATE mqtt_outbox_state SET dropped_total = dropped_total + ?, dropped_results = dropped_results + ?, "
+            "unreported_dropped = unreported_dropped + ?, unreported_dropped_results = unreported_dropped_results + ? "
+            "WHERE id = 1",
+            (n, n, n, n),
+        )
 
 
 class RetentionRows(Database):
@@ -128,17 +142,25 @@ class RetentionRows(Database):
 
     # -- records ------------------------------------------------------------------------------
 
-    def prune_cycles(self, *, created_before: datetime, batch: int = 500) -> tuple[list[int], list[str]]:
+    def prune_cycles(
+        self, *, created_before: datetime, batch: int = 500, keep_unpublished: bool = False
+    ) -> tuple[list[int], list[str]]:
         """Delete up to ``batch`` finished cycles created before the cutoff, oldest first, with their
         steps, image references, idempotency keys and closed-loop history rows. Returns (the ids deleted, the image files
-        they still referenced: delete those too). Call again until it returns no ids."""
+        they still referenced: delete those too). Call again until it returns no ids.
+
+        A cycle above the MQTT results' high-water mark (its result never queued) is kept with
+        ``keep_unpublished`` (publication is configured); else its deletion counts as a dropped result."""
         cutoff = ts(created_before)
         with self._tx() as c:
+            hwm = c.execute("SELECT result_hwm FROM mqtt_outbox_state WHERE id = 1").fetchone()[0]
+            held = keep_unpublished and hwm is not None
             ids = [
                 int(r[0])
                 for r in c.execute(
-                    f"SELECT id FROM cycles WHERE created_at < ? AND state IN {FINISHED_CYCLE_STATES} ORDER BY id LIMIT ?",
-                    (cutoff, int(batch)),
+                    f"SELECT id FROM cycles WHERE created_at < ? AND state IN {FINISHED_CYCLE_STATES} "
+                    f"{'AND id <= ? ' if held else ''}ORDER BY id LIMIT ?",
+                    (cutoff, *((int(hwm),) if held else ()), int(batch)),
                 )
             ]
             if not ids:
@@ -153,6 +175,7 @@ class RetentionRows(Database):
             for table in ("idempotency_keys", "cycle_images", "cycle_steps", "spc_history"):
                 c.execute(f"DELETE FROM {table} WHERE cycle_id IN ({marks})", ids)
             c.execute(f"DELETE FROM cycles WHERE id IN ({marks})", ids)
+            _count_unpublished(c, 0 if held or hwm is None else sum(i > int(hwm) for i in ids))
             # A file that a kept reference of another cycle still names stays.
             kept = {
                 u for u in uris
