@@ -34,13 +34,25 @@ class ServiceError(RuntimeError):
     """The service answered with an error (the message carries its detail) or could not be reached."""
 
 
+def _detail(r: httpx.Response) -> str:
+    """The ``detail`` of an error answer, else its text."""
+    try:
+        body = r.json()
+    except ValueError:
+        return r.text
+    return str(body.get("detail", r.text)) if isinstance(body, dict) else r.text
+
+
 class CellClient:
     """Talks to a running ``cellctl serve``. ``token`` defaults to $CELLCTL_TOKEN."""
 
     def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0) -> None:
         self.url = url.rstrip("/")
         self._token = token if token is not None else os.environ.get(TOKEN_ENV)
-        self._http = httpx.Client(base_url=self.url, timeout=timeout_s)
+        try:
+            self._http = httpx.Client(base_url=self.url, timeout=timeout_s)
+        except (httpx.InvalidURL, ValueError) as err:  # e.g. "Invalid port: '19x'"
+            raise ServiceError(f"--url {url!r} (or ${URL_ENV}) is not a valid URL ({err}): give e.g. {DEFAULT_URL}") from None
 
     def close(self) -> None:
         self._http.close()
@@ -52,17 +64,31 @@ class CellClient:
         return h
 
     def _call(self, method: str, path: str, **kw: Any) -> Any:
+        """One request with the token (when given), its JSON answer; a :class:`ServiceError` that says what went wrong."""
+        kw["headers"] = self._headers(kw.get("headers"))
         try:
             r = self._http.request(method, path, **kw)
         except httpx.HTTPError as err:
             raise ServiceError(f"cannot reach the cell service at {self.url}: {err} (is `cellctl serve` running?)") from None
+        except httpx.InvalidURL as err:
+            raise ServiceError(f"{method} {path}: not a valid URL under --url {self.url!r} ({err})") from None
         if r.status_code >= 400:
-            try:
-                detail = r.json().get("detail", r.text)
-            except ValueError:
-                detail = r.text
-            raise ServiceError(f"{method} {path} -> {r.status_code}: {detail}")
-        return r.json()
+            raise ServiceError(f"{method} {path} -> {r.status_code}: {_detail(r)}{self._token_hint(r.status_code)}")
+        try:
+            return r.json()
+        except ValueError:
+            raise ServiceError(
+                f"{method} {path}: {self.url} answered something that is not JSON "
+                f"({r.headers.get('content-type', 'no content type')}): is --url the cell service?"
+            ) from None
+
+    def _token_hint(self, status_code: int) -> str:
+        """What the CLI user can do about a 401: which token source to check, or that none was given."""
+        if status_code != 401:
+            return ""
+        if self._token:
+            return f" (the token given by --token or ${TOKEN_ENV} was refused: check it)"
+        return f" (no token given: set ${TOKEN_ENV} or pass --token)"
 
     def status(self) -> dict[str, Any]:
         return self._call("GET", "/status")
@@ -138,7 +164,7 @@ class CellClient:
         try:
             with self._http.stream("GET", "/events", headers=self._headers({"Accept": "text/event-stream"}), timeout=timeout) as r:
                 if r.status_code >= 400:
-                    raise ServiceError(f"GET /events -> {r.status_code}")
+                    raise ServiceError(f"GET /events -> {r.status_code}{self._token_hint(r.status_code)}")
                 kind, data = "message", ""
                 for line in r.iter_lines():
                     if line.startswith("event:"):

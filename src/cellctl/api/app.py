@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any
 
-from fastapi import APIRouter, FastAPI, Request
+from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse
@@ -25,6 +25,7 @@ from cellctl.api import (
 )
 from cellctl.api.auth import SECURITY_SCHEMES, TokenBeforeBody, TokenGuard
 from cellctl.api.limits import BodySizeLimit
+from cellctl.api.query_params import refuse_unknown_query
 from cellctl.api.schemas import ErrorBody
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.commissioning.jobs import JobManager
@@ -46,9 +47,28 @@ def _field_errors(exc: RequestValidationError) -> list[dict[str, Any]]:
     for e in exc.errors():
         loc = [str(p) for p in e.get("loc", ())]
         where = loc[0] if loc else "request"
+        if e.get("type") == "json_invalid":  # its loc is ('body', <character offset>), not a field
+            out.append({"in": where, "field": where, "message": _json_invalid_message(e), "type": "json_invalid"})
+            continue
         field = ".".join(loc[1:]) or where
         out.append({"in": where, "field": field, "message": e.get("msg", "invalid"), "type": e.get("type")})
     return out
+
+
+def _json_invalid_message(error: dict[str, Any]) -> str:
+    """Where and why a body is not JSON: pydantic puts the character offset in ``loc`` and the reason in ``ctx``."""
+    loc = error.get("loc", ())
+    at = f" at character {loc[1]}" if len(loc) > 1 else ""
+    reason = (error.get("ctx") or {}).get("error")
+    return f"not valid JSON{at}" + (f" ({reason})" if reason else "") + "; send a JSON object"
+
+
+def _summary(errors: list[dict[str, Any]]) -> str:
+    """The 422's ``detail``: each error as "<in> field '<name>': <message>" (or "<in>: <message>" for the whole body)."""
+    return "; ".join(
+        f"{e['in']}: {e['message']}" if e["field"] == e["in"] else f"{e['in']} field '{e['field']}': {e['message']}"
+        for e in errors
+    )
 
 
 def document_error_bodies(schema: dict[str, Any]) -> dict[str, Any]:
@@ -100,6 +120,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
         docs_url=None,
         redoc_url=None,
         responses=ERROR_RESPONSES,
+        dependencies=[Depends(refuse_unknown_query)],  # every route: a query parameter it does not declare is a 422
     )
     guard = TokenGuard(config)
     app.state.orchestrator = orch
@@ -107,8 +128,7 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = _field_errors(exc)
-        summary = "; ".join(f"{e['in']} field '{e['field']}': {e['message']}" for e in errors)
-        return JSONResponse(status_code=422, content={"detail": summary, "errors": errors})
+        return JSONResponse(status_code=422, content={"detail": _summary(errors), "errors": errors})
 
     routers: list[APIRouter] = [
         routes_cycles.build_router(orch, guard, config.cycle_wait_max_s),

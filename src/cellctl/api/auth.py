@@ -32,6 +32,15 @@ SECURITY_SCHEMES = {
 UNAUTHORIZED_DETAIL = (
     "this route needs a bearer token: send 'Authorization: Bearer <token>' with a token from [api].tokens"
 )
+WRONG_TOKEN_DETAIL = (
+    "the token sent is not one of [api].tokens (or the header is not 'Authorization: Bearer <token>'): "
+    "send a token configured there"
+)
+
+
+def unauthorized_detail(authorization: str) -> str:
+    """The 401's detail: no Authorization header at all, or one whose token is not accepted."""
+    return WRONG_TOKEN_DETAIL if authorization.strip() else UNAUTHORIZED_DETAIL
 
 
 @dataclass(frozen=True)
@@ -73,7 +82,8 @@ class TokenGuard:
         """The caller of a mutating route: a valid bearer token, or 401."""
         caller = self.identify(request)
         if caller is None:
-            raise HTTPException(status.HTTP_401_UNAUTHORIZED, detail=UNAUTHORIZED_DETAIL, headers={"WWW-Authenticate": "Bearer"})
+            detail = unauthorized_detail(request.headers.get("authorization", ""))
+            raise HTTPException(status.HTTP_401_UNAUTHORIZED, detail=detail, headers={"WWW-Authenticate": "Bearer"})
         return caller
 
     def read(self, request: Request) -> Caller:
@@ -125,13 +135,13 @@ class TokenBeforeBody:
         self._needs: dict[int, bool] = {}
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if (
-            scope["type"] == "http"
-            and self._route_needs_token(scope)
-            and self.guard.actor_for(Headers(scope=scope).get("authorization", "")) is None
-        ):
+        if scope["type"] != "http" or not self._route_needs_token(scope):
+            await self.app(scope, receive, send)
+            return
+        authorization = Headers(scope=scope).get("authorization", "")
+        if self.guard.actor_for(authorization) is None:
             response = JSONResponse(
-                {"detail": UNAUTHORIZED_DETAIL}, status_code=status.HTTP_401_UNAUTHORIZED,
+                {"detail": unauthorized_detail(authorization)}, status_code=status.HTTP_401_UNAUTHORIZED,
                 headers={"WWW-Authenticate": "Bearer"},
             )  # fmt: skip
             await response(scope, receive, send)

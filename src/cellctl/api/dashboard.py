@@ -36,7 +36,7 @@ from fastapi.staticfiles import StaticFiles
 from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import SSE_STATUS_PERIOD_S
 from cellctl.api.routes_cycles import image_file
-from cellctl.api.schemas import CycleId
+from cellctl.api.schemas import CycleId, ErrorBody
 from cellctl.api.schemas_dashboard import (
     CycleDigest,
     DashboardConfig,
@@ -245,7 +245,10 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
     @reads.get(
         "/dashboard/thumbs/{cycle_id}/{name}", response_class=Response,
-        responses={200: {"content": {"image/png": {}}, "description": "the image scaled down (PNG)"}},
+        responses={
+            200: {"content": {"image/png": {}}, "description": "the image scaled down (PNG)"},
+            410: {"model": ErrorBody, "description": "the image was pruned or its file is no longer on disk"},
+        },
     )  # fmt: skip
     async def thumb(cycle_id: CycleId, name: str, width: int = Query(256, ge=32, le=1024)) -> Response:
         key = (cycle_id, name, width)

@@ -133,6 +133,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
         timeout_s: float = Query(120.0, gt=0, description="how long ?wait=true waits"),
         caller: Caller = Depends(guard.require),
     ) -> CycleAccepted | CycleView:
+        if not idempotency_key.strip():  # the store's rule (a key of white space only, e.g. U+00A0, is no key)
+            raise HTTPException(422, detail="header field 'Idempotency-Key': blank; send one non-blank key per intended cycle (e.g. a UUID)")
         known = sorted(orch.config.process.recipe_names().values())
         if body.recipe not in known:
             raise HTTPException(
@@ -154,15 +156,16 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -
             raise HTTPException(status.HTTP_409_CONFLICT, detail=err.reason) from None
         except IdempotencyConflict as err:
             raise HTTPException(422, detail=str(err)) from None
-        cid = sub.cycle.id
+        cid, state = sub.cycle.id, sub.cycle.state
         if wait:
             record = await orch.wait_cycle(cid, min(timeout_s, wait_max_s))
             if record.state in (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED):
                 response.status_code = status.HTTP_200_OK
                 return cycle_view(record)
+            state = record.state  # the wait timed out: the state the cycle is in now, not when it was queued
         return CycleAccepted(
             cycle_id=cid,
-            state=sub.cycle.state.value,
+            state=state.value,
             created=sub.created,
             links={"self": f"/cycles/{cid}", "events": "/events"},
         )

@@ -121,7 +121,11 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
 
     @reads.get("/jobs/{job_id}/image", response_class=Response,
                responses={200: {"content": {"image/png": {}}, "description": "the job's last frame, scaled"}, 404: {"description": "no frame yet"}})  # fmt: skip
-    async def job_image(job_id: JobId, width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX)) -> Response:
+    async def job_image(
+        job_id: JobId,
+        width: int = Query(640, ge=16, le=IMAGE_WIDTH_MAX),
+        frame_count: int | None = Query(None, alias="frame", ge=0, description="not used: gives each new frame its own URL"),
+    ) -> Response:
         frame = jobs.latest_frame(job_id)
         if frame is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"job {job_id} has no frame (yet)")

@@ -88,7 +88,7 @@ class StorageStatus(BaseModel):
     oldest_image_utc: str | None
     database_mb: float | None
     free_disk_gb: float | None
-    disk: str = Field(description="ok, low, critical or unknown")
+    disk: str = Field(description="ok, low, critical or unknown (a file system not measured: last_error names it)")
     checked_utc: str | None
     last_pass_utc: str | None
     last_error: str | None

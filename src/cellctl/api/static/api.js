@@ -1,6 +1,7 @@
-/* cellctl dashboard: talking to the cell controller. Reads are plain GETs; commands are POSTs with
-   the operator token, which the page keeps in sessionStorage (this browser tab only); live changes
-   come as server-sent events from /events. */
+/* cellctl dashboard: talking to the cell controller. Reads are GETs, commands POSTs; both carry
+   the operator token when one was entered (the page keeps it in sessionStorage, this browser tab
+   only), so the page also works with [api] open_reads = false. Live changes come as server-sent
+   events from /events, read with fetch (an EventSource cannot send the token). */
 
 import { $, showMessage } from "./dom.js";
 
@@ -17,10 +18,24 @@ async function detailOf(response) {
   }
 }
 
+let readsRefused = false; // the newest read was answered 401: the cell wants a (valid) token, it is not gone
+
+// Whether the cell refuses this page's reads for want of a token ([api] open_reads = false).
+export function readsNeedToken() {
+  return readsRefused;
+}
+
 export async function getJSON(url) {
-  const r = await fetch(url, { headers: { Accept: "application/json" }, cache: "no-store" });
+  const r = await fetch(url, { headers: withToken({ Accept: "application/json" }), cache: "no-store" });
+  readsRefused = r.status === 401;
   if (!r.ok) throw new Error(`${url}: ${r.status} ${await detailOf(r)}`);
   return r.json();
+}
+
+// Request headers with the operator token, if one was entered.
+function withToken(headers) {
+  const t = token();
+  return t ? { ...headers, Authorization: `Bearer ${t}` } : headers;
 }
 
 const asked = new Map(); // slot -> number of the newest request
@@ -89,22 +104,66 @@ export function thumbUrl(cycleId, name, width) {
 
 // -- the event stream -----------------------------------------------------------------------------
 
+const EVENTS_RETRY_MS = 2000; // after a failed or ended stream, as an EventSource would reconnect
+
 // Opens /events: onEvent(kind, data) for each event the page listens to, onError() when the
-// connection fails (the browser reconnects by itself).
+// connection fails or ends; it reconnects by itself (with the token of that moment). Returns { close() }.
 export function openEvents(onEvent, onError) {
-  const es = new EventSource("/events");
-  for (const kind of EVENT_KINDS) {
-    es.addEventListener(kind, (e) => {
-      let data;
-      try {
-        data = JSON.parse(e.data);
-      } catch (err) {
-        console.warn(`bad ${kind} event`, err);
-        return;
-      }
-      onEvent(kind, data);
-    });
+  const stream = { closed: false, abort: null };
+  const dispatch = (kind, text) => {
+    if (!EVENT_KINDS.includes(kind)) return;
+    let data;
+    try {
+      data = JSON.parse(text);
+    } catch (err) {
+      console.warn(`bad ${kind} event`, err);
+      return;
+    }
+    onEvent(kind, data);
+  };
+  const connect = async () => {
+    stream.abort = new AbortController();
+    try {
+      const init = { headers: withToken({ Accept: "text/event-stream" }), cache: "no-store", signal: stream.abort.signal };
+      const r = await fetch("/events", init);
+      readsRefused = r.status === 401;
+      if (r.ok && r.body) await readEvents(r.body, dispatch);
+    } catch (_) {
+      // a failed connection is reported below, as one that ended
+    }
+    if (stream.closed) return;
+    onError();
+    setTimeout(() => stream.closed || connect(), EVENTS_RETRY_MS);
+  };
+  connect();
+  return {
+    close() {
+      stream.closed = true;
+      if (stream.abort) stream.abort.abort();
+    },
+  };
+}
+
+// Reads a server-sent event stream to its end: dispatch(kind, data) for each event (a blank line ends one).
+async function readEvents(body, dispatch) {
+  const reader = body.pipeThrough(new TextDecoderStream()).getReader();
+  let buffer = "";
+  let kind = "message";
+  let data = [];
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    buffer += value;
+    let end;
+    while ((end = buffer.indexOf("\n")) >= 0) {
+      const line = buffer.slice(0, end).replace(/\r$/, "");
+      buffer = buffer.slice(end + 1);
+      if (line === "") {
+        if (data.length) dispatch(kind, data.join("\n"));
+        kind = "message";
+        data = [];
+      } else if (line.startsWith("event:")) kind = line.slice(6).trim();
+      else if (line.startsWith("data:")) data.push(line.slice(5).replace(/^ /, ""));
+    }
   }
-  es.addEventListener("error", () => onError());
-  return es;
 }

@@ -27,7 +27,7 @@ import { bindCycles, refreshCycleTable, refreshDetail } from "./cycles.js";
 import { $, showMessage } from "./dom.js";
 import { refreshDigest, renderLastImage, renderTrends } from "./overview.js";
 import { refreshShifts } from "./shifts.js";
-import { DEFAULT_CONFIG, PAGES, currentPage, emit, model, schedule } from "./state.js";
+import { DEFAULT_CONFIG, PAGES, currentPage, emit, model, on, schedule } from "./state.js";
 import {
   bindControls,
   refreshStatus,
@@ -152,17 +152,23 @@ function bind() {
   });
 }
 
-async function init() {
-  installCommissioning();
-  bind();
-  renderTokenState();
+async function readConfig() {
   try {
     model.config = Object.assign({}, DEFAULT_CONFIG, await getJSON("/dashboard/config"));
   } catch (err) {
     showMessage(`Could not read the dashboard settings (${err.message}); using defaults.`, true);
   }
+}
+
+async function init() {
+  installCommissioning();
+  bind();
+  renderTokenState();
+  await readConfig();
   route();
   model.source = openEvents(onEvent, renderLive);
+  // With [api] open_reads = false the reads before the token were refused: read everything again with it.
+  on("token", (set) => set && readConfig().then(() => schedule("all", refreshAll, 0)));
   await refreshAll();
   setInterval(renderLive, 500);
   setInterval(() => schedule("shifts", refreshShifts, 0), SHIFT_POLL_MS); // a new shift begins without a cycle

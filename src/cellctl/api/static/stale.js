@@ -4,10 +4,13 @@
    refresh and set their own rules, e.g. the commands the state allows). Runs on every live tick,
    so controls a view draws while the data is stale are caught too. */
 
+import { readsNeedToken } from "./api.js";
 import { $ } from "./dom.js";
 import { clock } from "./format.js";
 
 const CONTROLS = "button, input, select, textarea";
+// Kept on while the cell answers reads 401: the data comes back only with a token (the cell is there).
+const TOKEN_FORM = "#token-form";
 
 export function applyStale(stale, lastMessageAt) {
   const note = $("stale-note");
@@ -19,7 +22,13 @@ export function applyStale(stale, lastMessageAt) {
     note.hidden = true;
     return;
   }
+  const needToken = readsNeedToken();
   for (const n of document.querySelectorAll(CONTROLS)) {
+    if (needToken && n.closest(TOKEN_FORM)) {
+      if (n.dataset.staleOff) n.disabled = false;
+      delete n.dataset.staleOff;
+      continue;
+    }
     if (n.disabled) continue;
     n.disabled = true;
     n.dataset.staleOff = "1";
@@ -28,6 +37,7 @@ export function applyStale(stale, lastMessageAt) {
   const text = lastMessageAt
     ? `Commands and forms are off: no data from the cell controller since ${clock(new Date(lastMessageAt).toISOString())} (${age} s ago). They come back by themselves when the data does.`
     : "Commands and forms are off until the first data from the cell controller arrives.";
-  if (note.textContent !== text) note.textContent = text;
+  const ask = needToken ? " The cell controller answers only with a valid token: enter the operator token." : "";
+  if (note.textContent !== text + ask) note.textContent = text + ask;
   note.hidden = false;
 }
