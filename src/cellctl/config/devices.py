@@ -85,6 +85,7 @@ class GenicamCameraDevice(StrictModel):
     gain_db: Finite | None = Field(None, ge=-20, le=48)
     trigger_mode: Literal["software", "free_run"] = "software"  # software: one trigger per grab
     timeout_s: Finite = Field(5.0, gt=0, le=120)  # opening the camera and writing its settings
+    frame_lost_after_s: Finite = Field(1.0, gt=0, le=60)  # beyond the exposure: a triggered frame not come by then is lost
 
 
 class AbbRobotDevice(StrictModel):
