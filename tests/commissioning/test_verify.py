@@ -118,7 +118,9 @@ async def _wait_job(client: Any, job_id: int, timeout_s: float = 300.0) -> dict[
     raise AssertionError(f"job {job_id} did not end")
 
 
-async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_the_camera_moved(tmp_path: Path) -> None:
+async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_the_camera_moved(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     cfg = sim_config(
         calibration={"source": "set", "auto_calibrate_in_sim": False},
         plc={"enabled": False},
@@ -150,6 +152,20 @@ async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_th
         drift = [a for a in service.orchestrator.alarms.current() if a.code == AlarmCode.CALIBRATION_DRIFT]
         assert drift and drift[0].active
         assert service.jobs.current_calibration().version == version  # a check never changes the set
+        # The same board measured again 0.3 % larger would read as the camera having moved: refused, naming both sizes.
+        from cellctl.commissioning.prompts import PromptKind
+        from cellctl.sim.operator import SimulatedOperator
+
+        act = SimulatedOperator.act
+        monkeypatch.setattr(SimulatedOperator, "act",
+                            lambda op, p: act(op, p) * 1.003 if p.kind is PromptKind.PLACE_BOARD else act(op, p))  # fmt: skip
+        r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
+        job = await _wait_job(client, r.json()["id"])
+        import re
+
+        sizes = re.search(r"calibrated with \((\d+\.\d+) mm squares\), but (\d+\.\d+) mm was given", job["error"] or "")
+        assert job["state"] == "refused" and sizes is not None, job
+        assert float(sizes[2]) / float(sizes[1]) == pytest.approx(1.003, abs=2e-4)
 
 
 async def test_the_reminder_is_raised_after_n_glasses_and_taken_down_by_a_passed_check(tmp_path: Path) -> None:

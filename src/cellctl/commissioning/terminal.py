@@ -67,6 +67,25 @@ class ProgressLine:
             self._shown = False
 
 
+def _drop_typed_ahead(lines: queue.Queue[str | None], out: TextIO, stdin: TextIO | None) -> TextIO | None:
+    """Drop the lines typed before a prompt is shown: only what is typed after reading it answers it
+    (an Enter pressed early must never confirm the next prompt, e.g. that the robot's path is clear).
+    Returns None once the input has ended, else ``stdin``."""
+    dropped = 0
+    while True:
+        try:
+            line = lines.get_nowait()
+        except queue.Empty:
+            break
+        if line is None:
+            stdin = None
+        else:
+            dropped += 1
+    if dropped:
+        out.write(f"    ({dropped} line(s) typed before this prompt were dropped: answer it now)\n")
+    return stdin
+
+
 def _read_lines(stream: TextIO, lines: "queue.Queue[str | None]") -> None:
     for line in stream:
         lines.put(line.rstrip("\n"))
@@ -178,6 +197,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 if job.get("prompt") and (prompt is None or prompt["id"] != job["prompt"]["id"]):
                     prompt = job["prompt"]
                     bar.clear()
+                    stdin = _drop_typed_ahead(lines, out, stdin)
                     _show_prompt(out, prompt)
             elif kind == "lost":
                 job = client.job(job_id)
@@ -195,6 +215,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 if data["open"]:
                     prompt = p
                     bar.clear()
+                    stdin = _drop_typed_ahead(lines, out, stdin)
                     _show_prompt(out, p)
                 else:
                     if prompt is not None and prompt["id"] == p["id"]:

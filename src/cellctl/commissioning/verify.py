@@ -124,6 +124,9 @@ def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose |
     return make_plan(config, "verify", poses, labels, [], start, details)
 
 
+SAME_BOARD = 0.0005  # a measured square size this near the calibration's (0.05 %) is the same board
+
+
 async def collect_verify(ctx: JobContext) -> Dataset:
     """Revisit the planned subset with the board on the wall, then the laser poses; save the dataset."""
     plan = await asyncio.to_thread(plan_verify, ctx.config, ctx.calibration, start=await current_pose(ctx))
@@ -131,6 +134,13 @@ async def collect_verify(ctx: JobContext) -> Dataset:
     await car_body_in_place(ctx, "A car body stands clamped in the cell at its nominal place (as when the cell was calibrated); confirm.")
     square = await place_board(ctx, plan.details["board"], "checkerboard")
     b = plan.details["board"]["board"]
+    if abs(square / float(b["square_mm"]) - 1.0) > SAME_BOARD:  # a scale error reads as the camera having moved
+        raise CalibrationRefused(
+            "verify", "other_board",
+            f"the check compares with the board the cell was calibrated with ({float(b['square_mm']):.3f} mm squares), "
+            f"but {square:.3f} mm was given: confirm that board's size, or for another board calibrate again "
+            "(cellctl calibrate camera, then hand-eye)",
+        )  # fmt: skip
     draft = ctx.begin(
         "verify",
         board={"inner_corners": b["inner_corners"], "square_mm": square, "border_mm": b["border_mm"]},

@@ -1,0 +1,68 @@
+"""`cellctl calibrate` at the keyboard: only what is typed after a prompt is shown answers it.
+
+An Enter pressed twice at the car-body prompt must not confirm the next prompt (that the robot's way to
+its first pose is clear) before the engineer has read it. Real `cellctl serve` and `cellctl calibrate`
+processes; the service's own job record is the judge.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+from service_test_support import free_port, sim_toml, start_serve, wait_up
+
+TOKEN = "sim-operator-token-change-me"  # config/sim.toml's operator token
+
+
+def _wait_for(out: list[str], text: str, proc: subprocess.Popen[str], timeout_s: float = 60.0) -> None:
+    t0 = time.monotonic()
+    while not any(text in line for line in out):
+        assert proc.poll() is None and time.monotonic() - t0 < timeout_s, "".join(out)
+        time.sleep(0.05)
+
+
+def test_an_enter_typed_ahead_does_not_confirm_the_next_prompt(tmp_path: Path) -> None:
+    port = free_port()
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False).replace('answers = "all"', 'answers = "none"', 1))
+    serve = start_serve(cfg, tmp_path)
+    url, env = f"http://127.0.0.1:{port}", {**os.environ, "CELLCTL_TOKEN": TOKEN}
+    cli = None
+    try:
+        wait_up(url, serve, tmp_path)
+        run = [sys.executable, "-m", "cellctl.cli", "--config", str(cfg)]
+        subprocess.run([*run, "command", "clear"], env=env, check=True, capture_output=True)
+        cli = subprocess.Popen([*run, "calibrate", "laser", "--poses", "100"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        out: list[str] = []
+        threading.Thread(target=lambda: out.extend(cli.stdout or ()), daemon=True).start()
+        _wait_for(out, "[car_body_in_place]", cli)
+        assert cli.stdin is not None
+        cli.stdin.write("\n\n")  # Enter twice at the car-body prompt
+        cli.stdin.flush()
+        _wait_for(out, "[confirm_start]", cli)
+        _wait_for(out, "typed before this prompt were dropped", cli)
+        time.sleep(1.0)  # what a taken Enter would have needed to confirm it
+        job = httpx.get(f"{url}/jobs", headers={"Authorization": f"Bearer {TOKEN}"}).json()
+        (mine,) = [j for j in (job if isinstance(job, list) else job["jobs"]) if j["procedure"] == "laser"]
+        current = httpx.get(f"{url}/jobs/{mine['id']}", headers={"Authorization": f"Bearer {TOKEN}"}).json()
+        assert current["state"] == "running" and (current.get("prompt") or {}).get("kind") == "confirm_start", current
+    finally:
+        if cli is not None and cli.poll() is None:
+            cli.send_signal(signal.SIGINT)
+            try:
+                cli.wait(15)
+            except subprocess.TimeoutExpired:
+                cli.kill()
+        serve.send_signal(signal.SIGINT)
+        try:
+            serve.wait(30)
+        except subprocess.TimeoutExpired:
+            serve.kill()
