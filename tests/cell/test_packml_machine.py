@@ -190,6 +190,16 @@ async def test_mode_changes_only_in_stopped_idle_aborted(state: S) -> None:
         assert m.mode == UnitMode.PRODUCTION
 
 
+@pytest.mark.parametrize("state", [S.EXECUTE, S.HELD, S.COMPLETE], ids=lambda x: x.name)
+async def test_asking_for_the_mode_the_cell_is_in_is_taken_in_any_state(state: S) -> None:
+    """A PLC that sends its mode selector again (after its own restart, say) changes nothing and is not refused."""
+    m = await drive_to(state)
+    ev = await m.change_mode(UnitMode.PRODUCTION, actor="plc", source="plc")
+    assert (ev.kind, ev.mode_before, ev.mode_after, ev.state_after) == (EventKind.MODE, UnitMode.PRODUCTION, UnitMode.PRODUCTION, state)
+    with pytest.raises(ModeChangeNotAllowed):
+        await m.change_mode(UnitMode.MANUAL, actor="plc", source="plc")
+
+
 async def test_mode_change_states_are_configurable_and_invalid_mode_refused() -> None:
     m = PackMLMachine(initial_state=S.STOPPED, mode_change_states={S.STOPPED})
     await m.change_mode(UnitMode.MANUAL, actor="bob", source="hmi")

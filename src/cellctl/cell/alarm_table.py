@@ -117,7 +117,7 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
             FaultClass.WARNING, "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised)", False
         ),
         AlarmCode.NOT_IN_EXECUTE: AlarmSpec(
-            FaultClass.WARNING, "Cycle refused: the cell is not in Execute (the code of that refusal; never raised)", False
+            FaultClass.WARNING, "Cycle refused: the cell is not in Execute, or is in Manual mode (the code of that refusal; never raised)", False
         ),
         AlarmCode.RECIPE_NOT_TAUGHT: AlarmSpec(
             FaultClass.WARNING, "Cycle refused: its recipe is not taught, `cellctl teach --recipe NAME` (the code of that refusal; never raised)", False

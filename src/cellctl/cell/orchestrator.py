@@ -36,7 +36,7 @@ from cellctl.cell.quality_loop import InstallQualityLoop
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.sources import CalibrationSource, SimTruth
-from cellctl.cell.tags import TO_EXECUTE
+from cellctl.cell.tags import not_ready_for_cycle
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
@@ -271,7 +271,7 @@ class CellOrchestrator:
 
     def ready_for_cycle(self) -> bool:
         """The cell takes a cycle now: Execute (production or maintenance); it queues behind a running one."""
-        return self.machine.state is PackMLState.EXECUTE
+        return not_ready_for_cycle(self.machine.state, self.machine.mode) is None
 
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
         """Queue a cycle under an idempotency key; the same key returns the same cycle, never a second one.
@@ -279,11 +279,8 @@ class CellOrchestrator:
         Raises CycleRefused, for a key it has not seen, when the cell is not in Execute or the recipe is not taught.
         """
         existing = await self.store.cycle_for_key(scope, key)
-        if existing is None and not self.ready_for_cycle():
-            state = self.machine.state
-            steps = TO_EXECUTE.get(state)
-            how = (" then ".join(c.name.lower() for c in steps) + " (POST /commands/<name>)") if steps else "wait until it settles"
-            raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, f"the cell is {state.name}, not EXECUTE: {how}")
+        if existing is None and (why := not_ready_for_cycle(self.machine.state, self.machine.mode)) is not None:
+            raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, why)
         untaught = None if existing is not None else self.calibration.untaught(request.recipe)
         if untaught is not None:
             raise CycleRefused(AlarmCode.RECIPE_NOT_TAUGHT, untaught)

@@ -386,7 +386,7 @@ class PackMLMachine:
             return await self._move(EventKind.STATE_COMPLETE, target, actor, source, None)
 
     async def change_mode(self, mode: UnitMode | int, *, actor: str, source: str) -> MachineEvent:
-        """Switch the unit mode; only in ``mode_change_states``."""
+        """Switch the unit mode; only in ``mode_change_states`` (asking for the mode it is in is no change: taken anywhere)."""
         try:
             new = UnitMode(mode)
         except ValueError:
@@ -394,7 +394,7 @@ class PackMLMachine:
         if new == UnitMode.INVALID:
             raise ValueError("unit mode 0 (Invalid) cannot be requested: use 1, 2 or 3")
         async with self._lock:
-            if self._state not in self.mode_change_states:
+            if self._state not in self.mode_change_states and new != self._mode:
                 raise ModeChangeNotAllowed(self._state, self._mode, new, self.mode_change_states)
             before = self._mode
             self._mode = new

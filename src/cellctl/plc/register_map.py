@@ -78,10 +78,10 @@ PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
                                   "(another id's result, a value out of range).",
     PlcErrorCode.UNKNOWN_RECIPE: "Refused: recipe_id is not one of the cell's recipe numbers (see Recipes). "
                                  "Nothing ran; send the request again with a valid recipe_id and a new id.",
-    PlcErrorCode.NOT_READY: "Refused: the cell did not take a cycle then; it takes one only in Execute "
-                            "(state_current = 6, `ready` = 1) and the cell's log says why. Nothing ran; bring "
-                            "the cell to Execute (Clear, Reset, Start as the state asks) and request again "
-                            "with a new id.",
+    PlcErrorCode.NOT_READY: "Refused: the cell did not take a cycle then; it takes one only in Execute and "
+                            "not in Manual mode (state_current = 6, `ready` = 1) and the cell's log says why. "
+                            "Nothing ran; bring the cell to Execute (Clear, Reset, Start as the state asks; in "
+                            "Manual, switch to Production first) and request again with a new id.",
     PlcErrorCode.ID_IN_USE: "Refused: the cell's store holds this cycle_req_id for another request it could "
                             "not match. Nothing ran; use a new id.",
     PlcErrorCode.RECIPE_NOT_TAUGHT: "Refused: the recipe is one of the cell's but is not taught yet (`cellctl teach "
@@ -182,8 +182,9 @@ _C = Access.CELL_WRITES
 _U16, _I16, _U32, _F32 = RegType.UINT16, RegType.INT16, RegType.UINT32, RegType.FLOAT32
 
 CYCLE_FLAG_BITS: tuple[Bit, ...] = (
-    Bit(0, "ready", "The cell would accept a cycle request now: 1 only in Execute (`state_current` = 6), "
-        "while no request is being served and `cycle_request` = 0; 0 in every other state."),
+    Bit(0, "ready", "The cell would accept a cycle request now: 1 only in Execute (`state_current` = 6) in "
+        "Production or Maintenance (not Manual), while no request is being served and `cycle_request` = 0; "
+        "0 otherwise."),
     Bit(1, "busy", "A cycle for `cycle_ack_id` is running."),
     Bit(2, "done", "The result registers hold the result of `cycle_ack_id`; stays on until the "
         "PLC drops `cycle_request`."),
