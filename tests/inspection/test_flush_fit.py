@@ -63,8 +63,10 @@ def test_a_spot_off_the_surface_is_refused_with_its_reason() -> None:
     glass_T = np.column_stack([glass_xy, np.zeros(len(SPOTS))])
     glass_T[2, 2] += 1.5  # a reading off the glass's edge
     wall_T = np.column_stack([np.array([s.wall_mm for s in SPOTS]), np.zeros(len(SPOTS))])
-    with pytest.raises(FlushError, match="glass spots do not lie on one plane"):
-        fit_flush(glass_T, wall_T, max_rms_mm=0.15)
+    with pytest.raises(FlushError, match="glass spots do not lie on one plane"):  # the fit's own limit
+        fit_flush(glass_T, wall_T, max_rms_mm=0.15, outlier_mm=None)
+    kept = fit_flush(glass_T, wall_T, max_rms_mm=0.15)  # the spot checked against the others: left out, named
+    assert [(r.index, r.surface) for r in kept.rejected] == [(2, "glass")] and abs(kept.dz_mm) < 1e-9
 
 
 def test_collinear_spots_are_refused() -> None:

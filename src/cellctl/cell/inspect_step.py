@@ -31,6 +31,7 @@ from cellctl.inspection import (
     MeasuredDeviation,
     fit_flush,
 )
+from cellctl.inspection.flush import on_layout
 from cellctl.ports import DeviceError, LaserStatus
 from cellctl.vision.annotate_gap import annotate_gaps
 from cellctl.vision.gap import GapMeasurement, measure_gaps
@@ -135,11 +136,29 @@ async def measure_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str,
             f"only {len(glass_pts)} of {len(cfg.flush_spots)} flush spots gave both readings (missing {missing}; "
             f"at least {cfg.min_flush_spots} needed): is the glass in the opening, are the spots on glass and wall?"
         )
+    used = [r["index"] for r in rows if "missing" not in r]
     try:
-        flush = fit_flush(np.stack(glass_pts), np.stack(wall_pts), max_rms_mm=cfg.max_flush_rms_mm)
+        flush = fit_flush(
+            np.stack(glass_pts), np.stack(wall_pts), max_rms_mm=cfg.max_flush_rms_mm, outlier_mm=cfg.flush_outlier_mm,
+            min_spots=cfg.min_flush_spots, spots=used,
+        )  # fmt: skip
     except FlushError as err:
         raise _failed(str(err)) from err
-    return flush, {"flush_spots": rows, "flush_mm": list(flush.flush_mm)}
+    flush = on_layout(flush, used, [s.glass_mm for s in cfg.flush_spots])
+    return flush, {"flush_spots": rows, "flush_mm": list(flush.flush_mm)} | spot_check_figures(flush)
+
+
+def spot_check_figures(flush: FlushResult) -> dict[str, Any]:
+    """The spots left out, those the others cannot check, and why the result may not feed the quality loop."""
+    out: dict[str, Any] = {
+        "flush_rejected": [{"index": r.index, "surface": r.surface, "off_mm": round(r.off_mm, 4),
+                            "limit_mm": round(r.limit_mm, 4)} for r in flush.rejected],
+        "flush_unverifiable": [{"index": u.index, "detects_above_mm": None if u.detects_above_mm is None
+                                else round(u.detects_above_mm, 3)} for u in flush.unverifiable],
+    }  # fmt: skip
+    if flush.unreliable is not None:
+        out["flush_unreliable"] = flush.unreliable
+    return out
 
 
 async def inspect_install(run: CycleRun, T2: Pose, reached: Pose) -> MeasuredDeviation:

@@ -103,6 +103,7 @@ class InstallQualityLoop:
         recipe: str,
         calibration_version: Any,
         applied: dict[str, float],
+        reliable: bool = True,
     ) -> tuple[dict[str, Any], SpcUpdate]:
         """Feed one cycle's result to its recipe's loop; persist, audit and publish. Returns the record's
         ``spc`` fields.
@@ -113,7 +114,7 @@ class InstallQualityLoop:
         slot = self.slot(recipe)
         up = self.loop.update(
             self.states[recipe], measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
-            applied=applied, at=now,
+            applied=applied, at=now, reliable=reliable,
         )  # fmt: skip
         if up.record is not None:
             await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now, recipe=slot)
@@ -157,6 +158,7 @@ class InstallQualityLoop:
             return await self.after_cycle(
                 cycle_id, None if measured is None else measured.deviation, recipe=recipe,
                 calibration_version=calibration_read.get("version"), applied=applied,
+                reliable=measured is None or measured.reliable,
             )  # fmt: skip
         except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
             log.exception("cycle %d: the closed loop could not take its result", cycle_id)

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cellctl.align import plan_spot_poses
+from cellctl.align import AlignmentError, plan_spot_poses
 from cellctl.align.beam_timing import estimate_latency_at_spot
 from cellctl.align.laser_points import laser_points, sweep_route
 from cellctl.align.onthefly import (
@@ -131,10 +131,18 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     R_flange = shooting_pose_in(cal.taught, T2)[:3, :3]  # the camera parallel to the wall, as when shooting
     corners = plan_spot_poses(T2, insp.sweep_path_mm, R_flange, cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm)
     swept = await sweep_path(run, CycleStep.INSPECT, corners, latency_s=run.sweep_latency_s)
-    pts = apply_pose(invert_pose(T2), laser_points(swept.poses, cal.laser_r, cal.laser_l, swept.distances, cal.laser_range_mm))
+    lo, hi = cal.laser_range_mm
+    inside = (swept.distances >= lo) & (swept.distances <= hi)  # beyond the range (through the gap, say): left out, counted
+    try:
+        pts = apply_pose(
+            invert_pose(T2), laser_points(swept.poses[inside], cal.laser_r, cal.laser_l, swept.distances[inside], cal.laser_range_mm)
+        )  # fmt: skip
+    except AlignmentError as err:
+        raise CycleFailed(CycleStep.INSPECT, AlarmCode.INSPECTION_FAILED, f"the flush sweep's readings gave no points: {err}") from err
+    legs = np.where(swept.moving[inside], swept.legs[inside], -1)
     try:
         flush, crossings, missing = await asyncio.to_thread(  # the settle at a leg's end is not mirrored at its start: left out
-            flush_from_sweep, pts, np.where(swept.moving, swept.legs, -1), insp.sweep_path_mm,
+            flush_from_sweep, pts, legs, insp.sweep_path_mm,
             gap_mm=insp.nominal_gap_mm, margin_mm=insp.sweep_margin_mm, max_rms_mm=insp.max_flush_rms_mm,
         )  # fmt: skip
     except FlushError as err:
@@ -142,7 +150,8 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     surface = surface_at(pts[:, :2], insp.nominal_gap_mm, insp.sweep_margin_mm)
     rows = [{"at_mm": [round(c.x_mm, 1), round(c.y_mm, 1)], "step_mm": c.step_mm, "glass_readings": c.glass_readings,
              "wall_readings": c.wall_readings} for c in crossings]  # fmt: skip
-    figures = swept.figures | {"glass_readings": int(np.count_nonzero(surface > 0)), "wall_readings": int(np.count_nonzero(surface < 0)),
+    figures = swept.figures | {"readings_out_of_range": int(np.count_nonzero(~inside)),
+                               "glass_readings": int(np.count_nonzero(surface > 0)), "wall_readings": int(np.count_nonzero(surface < 0)),
                                "crossings": rows} | ({"crossings_missing": missing} if missing else {})  # fmt: skip
     return flush, figures
 

@@ -75,6 +75,9 @@ class InspectionConfig(StrictModel):
         reads_per_spot: readings tried at a standing pose before a spot counts as missing (a glass
             returns less light: a reading may come back without a value).
         max_flush_rms_mm: the glass's and the wall's plane fits must leave no larger residual.
+        flush_outlier_mm: a flush spot whose step (glass - wall) is off the plane of the other spots' steps by
+            more than 4 of its predicted sigmas, and by at least this much, is left out and named (a seal, an
+            edge or a reflection under the beam); the floor keeps a near-perfect fit from rejecting noise.
         back_off_mm: the glass is released, then the flange backs away along the wall normal
             this far before it goes to the shooting pose.
     """
@@ -85,6 +88,7 @@ class InspectionConfig(StrictModel):
     min_flush_spots: int = Field(8, ge=3)
     reads_per_spot: int = Field(3, ge=1, le=10)
     max_flush_rms_mm: Finite = Field(0.15, gt=0)
+    flush_outlier_mm: Finite = Field(0.1, gt=0, le=5.0)
     back_off_mm: Finite = Field(100.0, ge=0)
     # On the move (process.align.mode = "on_the_fly", where the devices can): the laser sweeps these
     # corners in T instead of standing at the flush spots. A leg from the glass (inside its edge) to

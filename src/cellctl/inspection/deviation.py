@@ -37,13 +37,19 @@ class MeasuredDeviation:
     def outside(self, position_mm: float, orientation_deg: float) -> list[str]:
         """The figures outside +-tolerance, as readable ``name=value`` items (empty when the part is OK)."""
         d = self.deviation
-        out = [f"{k}={v:+.3f}" for k, v in (("dx_mm", d.dx_mm), ("dy_mm", d.dy_mm), ("dz_mm", d.dz_mm)) if abs(v) > position_mm]
+        # not (|v| <= tol): a NaN or infinite figure is outside too
+        out = [f"{k}={v:+.3f}" for k, v in (("dx_mm", d.dx_mm), ("dy_mm", d.dy_mm), ("dz_mm", d.dz_mm)) if not abs(v) <= position_mm]
         out += [
             f"{k}={v:+.3f}"
             for k, v in (("drx_deg", d.drx_deg), ("dry_deg", d.dry_deg), ("drz_deg", d.drz_deg))
-            if abs(v) > orientation_deg
+            if not abs(v) <= orientation_deg
         ]
         return out
+
+    @property
+    def reliable(self) -> bool:
+        """False when the flush marked itself unreliable (a tilt-setting spot missing or left out)."""
+        return self.flush.unreliable is None
 
 
 def measured_deviation(
