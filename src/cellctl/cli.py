@@ -35,7 +35,7 @@ from cellctl.cli_args import (
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
-from cellctl.logsetup import FORMATS, LEVELS, configure_logging
+from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
 from cellctl.service.compose import ServiceError as BuildError
 
 CONFIG_ENV = "CELLCTL_CONFIG"
@@ -375,24 +375,34 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``cellctl`` console script (and ``python -m cellctl``)."""
     args = build_parser().parse_args(argv)
     try:
-        configure_logging(args.log_level, args.log_format)
+        handler = configure_logging(args.log_level, args.log_format)
     except ValueError as err:  # $CELLCTL_LOG_LEVEL or $CELLCTL_LOG_FORMAT
         print(f"cellctl: error: {err}", file=sys.stderr)
         return 2
+    as_json = isinstance(handler.formatter, JsonFormatter)
+
+    def refuse(text: str) -> None:  # with JSON logs a refusal is one JSON record too (a log pipeline reads stderr)
+        logging.getLogger("cellctl").error(text) if as_json else print(text, file=sys.stderr)
+
     try:
         return int(args.func(args))
     except (ConfigError, TokenUnavailable) as err:
-        print(f"configuration refused:\n{err}", file=sys.stderr)
+        refuse(f"configuration refused:\n{err}")
         return 2
     except (ServiceError, BuildError) as err:
-        print(f"error: {err}", file=sys.stderr)
+        refuse(f"error: {err}")
         return 1
     except UsageError as err:
-        print(f"error: {err}", file=sys.stderr)
+        refuse(f"error: {err}")
         return 2
     except OSError as err:  # a file or socket the command needs: one line, no traceback
         logging.getLogger("cellctl").debug("command failed", exc_info=True)
-        print(f"error: {err}", file=sys.stderr)
+        refuse(f"error: {err}")
+        return 1
+    except Exception:
+        if not as_json:
+            raise
+        logging.getLogger("cellctl").critical("cellctl stopped on an unexpected error", exc_info=True)
         return 1
     except KeyboardInterrupt:
         return 130
