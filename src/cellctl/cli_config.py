@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -72,16 +74,94 @@ def wall_reading_in_use(config: CellConfig) -> str:
 
 
 def _check_files(config: CellConfig, workdir: Path) -> None:
-    """The files the service reads at start beside its secrets (the OPC UA users' certificates and trusted
-    clients' folder), paths taken from ``workdir`` as ``serve`` takes them; ConfigError naming each problem."""
-    if not config.opcua.enabled:
-        return
-    from cellctl.opcua.security import file_problems  # asyncua and cryptography only when asked
+    """The files and folders the service reads or makes at start beside its secrets, as ``serve`` does (the same
+    functions, nothing created), paths taken from ``workdir``, then its listen ports; ConfigError naming each problem."""
+    problems = _store_problems(config, workdir) + _mqtt_problems(config, workdir)
+    if config.opcua.enabled:
+        from cellctl.opcua.security import file_problems  # asyncua and cryptography only when asked
 
-    problems = file_problems(config.opcua, workdir)
+        problems += file_problems(config.opcua, workdir)
+    running = _running_service(config, workdir)
+    if running is not None:  # its ports are its own: checked when it is stopped
+        print(f"note: the service of this configuration is running (pid {running}): its listen ports were not checked")
+    else:
+        problems += [p for setting, host, port in _listeners(config) if (p := port_problem(setting, host, port))]
     if problems:
-        raise ConfigError("\n".join([f"{len(problems)} file(s) the OPC UA server reads at start (from {workdir}):",
+        raise ConfigError("\n".join([f"{len(problems)} problem(s) `serve` would refuse at start (from {workdir}):",
                                      *(f"  - {p}" for p in problems)]))
+
+
+def _store_path(config: CellConfig, workdir: Path) -> Path:
+    db_path = Path(config.store.path)
+    return db_path if db_path.is_absolute() else workdir.resolve() / db_path
+
+
+def _running_service(config: CellConfig, workdir: Path) -> str | None:
+    """The pid of a ``serve`` running on this configuration's store (it holds the store's lock), else None."""
+    from cellctl.service.store_lock import StoreLock
+
+    return StoreLock(_store_path(config, workdir)).holder()
+
+
+def _store_problems(config: CellConfig, workdir: Path) -> list[str]:
+    """The store's folder as ``serve`` makes it (make_store_folder), checked without creating it."""
+    from cellctl.store.connection import StorePathError, check_store_path
+
+    try:
+        check_store_path(_store_path(config, workdir), creatable=True)
+    except StorePathError as err:
+        return [str(err)]
+    return []
+
+
+def _mqtt_problems(config: CellConfig, workdir: Path) -> list[str]:
+    """The MQTT password and TLS files, read as ``serve`` reads them at start."""
+    if not config.mqtt.enabled:
+        return []
+    from cellctl.mqtt.publication import MqttSetupError, read_password, tls_parameters
+
+    problems: list[str] = []
+    for read in (read_password, tls_parameters):
+        try:
+            read(config.mqtt, workdir.resolve())
+        except MqttSetupError as err:
+            problems.append(str(err))
+    return problems
+
+
+def _listeners(config: CellConfig) -> list[tuple[str, str, int]]:
+    """(setting, host, port) of each server ``serve`` opens on a fixed port (0: any free one, not checked)."""
+    out = [("[api] port", config.api.host, config.api.port)]
+    if config.plc.enabled:
+        out.append(("[plc] port", config.plc.host, config.plc.port))
+    if config.opcua.enabled:
+        out.append(("[opcua] port", config.opcua.host, config.opcua.port))
+    return [(setting, host, port) for setting, host, port in out if port != 0]
+
+
+def port_problem(setting: str, host: str, port: int) -> str | None:
+    """Why a server could not listen on ``host``:``port`` now (tried with a bind, closed at once); None if it could."""
+    section = setting.split()[0]
+    try:
+        family, kind, proto, _, addr = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM,
+                                                           flags=socket.AI_PASSIVE)[0]  # fmt: skip
+        with socket.socket(family, kind, proto) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers do: TIME_WAIT is no obstacle
+            sock.bind(addr)
+    except socket.gaierror as err:
+        return f"{section} host {host!r} is not an address of this machine ({err.strerror}); set it to one of them"
+    except OSError as err:
+        if err.errno == errno.EADDRINUSE:
+            return f"another program listens on {host}:{port} ({setting}): stop it or choose another port"
+        if err.errno == errno.EACCES:
+            return (f"cannot listen on {host}:{port} ({setting}): {err.strerror}; choose a port of 1024 or above, or "
+                    "give the service CAP_NET_BIND_SERVICE (as deploy/cellctl.service does)")
+        return f"cannot listen on {host}:{port} ({setting}): {err.strerror}; set {section} host to an address of this machine"
+    return None
+
+
+SECRETS_READ = ("every API token, OPC UA password and certificate could be read, and the MQTT files; the store's and the"
+                " OPC UA certificate's folders can be made, and every listen port is free now")
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
@@ -101,8 +181,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
         plan = [f"cannot be predicted from process.align on [layout]: {err}"]
     print("  wall readings           " + "\n                          ".join(plan))
-    print("  secrets                 " + ("every API token, OPC UA password and certificate could be read" if args.secrets
-                                          else "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip
+    print("  secrets                 " + (SECRETS_READ if args.secrets else
+                                          "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip
     return 0
 
 
@@ -115,8 +195,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description="Exit status 0: the configuration is valid; 2: it is not (each problem names its field).",
     )  # fmt: skip
     p.add_argument("--secrets", action="store_true",
-                   help="also read every API token and OPC UA password (environment variables, files) and the OPC UA "
-                        "users' certificates and trusted clients' folder, as `serve` does")  # fmt: skip
+                   help="also read every API token and OPC UA password (environment variables, files), the OPC UA "
+                        "certificates and trusted clients' folder and the MQTT files, check the folders the service "
+                        "makes (store, OPC UA certificate) and that its ports are free now, as `serve` does at start")  # fmt: skip
     p.add_argument("--workdir", type=Path, default=default_workdir(),
                    help="where `serve --workdir` will run: relative paths are taken from it (default: $CELLCTL_WORKDIR, "
                         "else the current folder)")  # fmt: skip

@@ -26,6 +26,7 @@ from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from cellctl.config.opcua import OpcUaConfig, OpcUaUser
+from cellctl.store.connection import folder_problem
 
 log = logging.getLogger(__name__)
 
@@ -155,7 +156,7 @@ def trusted_clients_problem(folder: Path) -> str | None:
 
 def file_problems(cfg: OpcUaConfig, root: Path) -> list[str]:
     """What the server would refuse at start among the files it reads (the certificate users', the trusted
-    clients' folder), paths taken from ``root`` as ``serve --workdir`` takes them; [] when none."""
+    clients' folder, its own certificate or the folders to make it in), paths taken from ``root`` as ``serve --workdir`` takes them; [] when none."""
     problems: list[str] = []
     for u in cfg.users:
         if u.certificate is not None:
@@ -167,7 +168,71 @@ def file_problems(cfg: OpcUaConfig, root: Path) -> list[str]:
         folder = cfg.trusted_clients if cfg.trusted_clients.is_absolute() else root / cfg.trusted_clients
         if (problem := trusted_clients_problem(folder)) is not None:
             problems.append(problem)
+    cert, key = (p if p.is_absolute() else root / p for p in (cfg.certificate, cfg.private_key))
+    if (problem := server_certificate_problem(cert, key)) is not None:
+        problems.append(problem)
     return problems
+
+
+class ServerCertificateError(ValueError):
+    """The server's certificate (opcua.certificate) or key (opcua.private_key) cannot be read or made; names the fix."""
+
+
+def _folder_message(field: str, path: Path, why: str) -> str:
+    return (f"{field} {path}: its folder {path.parent} cannot be created or written ({why}); set opcua.certificate and "
+            "opcua.private_key to files in a folder the service can write (e.g. /var/lib/cellctl/opcua/server-cert.der"
+            " and server-key.pem), or create that folder for the service's user")
+
+
+def _writable_folder_problem(folder: Path) -> str | None:
+    """Why the service could not write a file into ``folder`` (creating it if absent) now; None if it could."""
+    if (why := folder_problem(folder)) is not None:
+        return why
+    if folder.is_dir() and not os.access(folder, os.W_OK | os.X_OK):
+        return f"no right to write in {folder}"
+    return None
+
+
+def server_certificate_problem(cert_path: Path, key_path: Path) -> str | None:
+    """What :func:`ensure_certificate` and :func:`certificate_uri` would refuse at start (dry run); None if nothing."""
+    if cert_path.is_file() and key_path.is_file():
+        try:
+            load_server_certificate(cert_path)
+        except ServerCertificateError as err:
+            return str(err)
+        return None
+    for field, path in (("opcua.private_key", key_path), ("opcua.certificate", cert_path)):  # ensure_certificate's order
+        if (why := _writable_folder_problem(path.parent)) is not None:
+            return _folder_message(field, path, why)
+    return None
+
+
+def _is_pem_name(path: Path) -> bool:
+    """asyncua's rule (``Server.load_certificate``): a file whose name ends in .pem is PEM, any other DER."""
+    return path.suffix.lower() == ".pem"
+
+
+def load_server_certificate(cert_path: Path) -> x509.Certificate:
+    """The server's certificate as asyncua will load it (PEM if named .pem, else DER); ServerCertificateError if not."""
+    try:
+        data = cert_path.read_bytes()
+    except OSError as err:
+        raise ServerCertificateError(f"opcua.certificate {cert_path} cannot be read ({err.strerror or err}); let the "
+                                     "service's user read it, or delete it and its key to have new ones made") from None
+    try:
+        cert = x509.load_pem_x509_certificate(data) if _is_pem_name(cert_path) else uacrypto.x509_from_der(data)
+    except (ValueError, IndexError):  # IndexError: a truncated DER chain
+        cert = None
+    if cert is not None:
+        return cert
+    if _is_pem_name(cert_path):
+        raise ServerCertificateError(f"opcua.certificate {cert_path} is not a PEM X.509 certificate; give the server's "
+                                     "certificate, or delete it and its key to have new ones made") from None
+    pem = b"-----BEGIN CERTIFICATE-----" in data
+    raise ServerCertificateError(
+        f"opcua.certificate {cert_path} is not a DER X.509 certificate" + (" (it holds PEM text)" if pem else "")
+        + f"; convert it to DER: openssl x509 -in {cert_path} -outform der -out {cert_path}.new && mv {cert_path}.new "
+        f"{cert_path} (or name a PEM file *.pem), or delete it and its key to have new ones made") from None
 
 
 def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) -> bool:
@@ -186,18 +251,29 @@ def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) ->
         key, f"cellctl {host}", {"organizationName": "cellctl"}, names,
         extended=[ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH], days=CERT_VALID_DAYS,
     )  # fmt: skip
-    for p in (cert_path, key_path):
-        p.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(cert_gen.dump_private_key_as_pem(key))
-    cert_path.write_bytes(cert.public_bytes(Encoding.DER))
+    for field, path in (("opcua.private_key", key_path), ("opcua.certificate", cert_path)):
+        try:
+            if path is key_path:
+                _write_new(path, cert_gen.dump_private_key_as_pem(key), 0o600)  # the service's user only
+            else:
+                _write_new(path, cert.public_bytes(Encoding.PEM if _is_pem_name(path) else Encoding.DER), 0o644)
+        except OSError as err:
+            why = _writable_folder_problem(path.parent) or err.strerror or str(err)
+            raise ServerCertificateError(_folder_message(field, path, why)) from None
     return True
 
 
+def _write_new(path: Path, data: bytes, mode: int) -> None:
+    """Write ``data`` to ``path``, its folders created; ``mode`` for a new file (the umask applies)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+
+
 def certificate_uri(cert_path: Path) -> str | None:
-    """The application URI in a certificate's SubjectAltName (None if it has none)."""
-    cert = uacrypto.x509_from_der(cert_path.read_bytes())
+    """The application URI in a certificate's SubjectAltName (None if it has none); ServerCertificateError if unreadable."""
+    cert = load_server_certificate(cert_path)
     try:
         san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
     except x509.ExtensionNotFound:

@@ -85,6 +85,7 @@ class Service:
             self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
         if self.config.opcua.enabled:
+            from cellctl.opcua.security import ServerCertificateError
             from cellctl.opcua.server import CellOpcUaServer, OpcUaStartError
             from cellctl.service.opcua_link import OpcUaCellLink
 
@@ -93,7 +94,7 @@ class Service:
                                     root=self.workdir)  # fmt: skip
             try:
                 await opcua.start()
-            except (OpcUaStartError, OSError) as err:
+            except (OpcUaStartError, ServerCertificateError, OSError) as err:  # each names its setting and fix
                 await opcua.stop()
                 await self.stop()
                 raise ServiceError(f"the OPC UA server cannot start: {err}") from None

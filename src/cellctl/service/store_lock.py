@@ -41,6 +41,20 @@ class StoreLock:
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         self._fd = fd
 
+    def holder(self) -> str | None:
+        """The pid of the service running on this store now (None: none; the lock file is never created here)."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+        finally:
+            os.close(fd)  # (a shared lock taken here goes with it)
+        return None
+
     def release(self) -> None:
         """Let the store go (after it is closed). Idempotent."""
         if self._fd is not None:

@@ -16,6 +16,7 @@ microseconds (:func:`ts`); figures, requests and responses are stored as canonic
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -92,16 +93,34 @@ class StorePathError(StoreError, OSError):
 _FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
 
 
-def check_store_path(path: Path) -> None:
-    """Raise :class:`StorePathError` unless ``path`` can be the database file: not a folder, in an existing folder."""
+def folder_problem(folder: Path) -> str | None:
+    """Why ``folder`` could not be created (``mkdir -p``) by this process now, without creating it; None if it could."""
+    for p in (folder, *folder.parents):
+        if not p.exists():
+            continue
+        if not p.is_dir():
+            return f"{p} is a file, not a folder"
+        if p != folder and not os.access(p, os.W_OK | os.X_OK):
+            return f"no right to create a folder in {p}"
+        return None
+    return None
+
+
+def check_store_path(path: Path, *, creatable: bool = False) -> None:
+    """Raise :class:`StorePathError` unless ``path`` can be the database file: not a folder, in an existing folder
+    (``creatable``: or in one :func:`make_store_folder` could create, the dry run of ``config check --secrets``)."""
     if path.is_dir():
         raise StorePathError(f"[store] path {path} is a folder; the store is one SQLite file: give a file's path, "
                              f"e.g. path = \"{path / 'cellctl.db'}\"")
     for folder in path.parents:
         if folder.exists() and not folder.is_dir():
             raise StorePathError(f"[store] path {path} lies under {folder}, which is a file, not a folder; {_FIX}")
-    if not path.parent.is_dir():
+    if path.parent.is_dir():
+        return
+    if not creatable:
         raise StorePathError(f"[store] path {path}: its folder {path.parent} does not exist: create it or {_FIX}")
+    if (why := folder_problem(path.parent)) is not None:
+        raise StorePathError(f"[store] path {path}: its folder cannot be created ({why}); {_FIX}")
 
 
 def make_store_folder(path: Path) -> None:
