@@ -1,13 +1,15 @@
-"""`cellctl calibrate` at the keyboard: only what is typed after a prompt is shown answers it.
+"""`cellctl calibrate` at the keyboard (a terminal): only what is typed after a prompt is shown answers it.
 
 An Enter pressed twice at the car-body prompt must not confirm the next prompt (that the robot's way to
 its first pose is clear) before the engineer has read it. Real `cellctl serve` and `cellctl calibrate`
-processes; the service's own job record is the judge.
+processes, the latter's input a pseudo-terminal; the service's own job record is the judge. (Piped input is
+a script's answers, taken in order: tests/hardware pipes them.)
 """
 
 from __future__ import annotations
 
 import os
+import pty
 import signal
 import subprocess
 import sys
@@ -34,19 +36,19 @@ def test_an_enter_typed_ahead_does_not_confirm_the_next_prompt(tmp_path: Path) -
     cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False).replace('answers = "all"', 'answers = "none"', 1))
     serve = start_serve(cfg, tmp_path)
     url, env = f"http://127.0.0.1:{port}", {**os.environ, "CELLCTL_TOKEN": TOKEN}
-    cli = None
+    cli, keyboard = None, -1
     try:
         wait_up(url, serve, tmp_path)
         run = [sys.executable, "-m", "cellctl.cli", "--config", str(cfg)]
         subprocess.run([*run, "command", "clear"], env=env, check=True, capture_output=True)
-        cli = subprocess.Popen([*run, "calibrate", "laser", "--poses", "100"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        keyboard, terminal = pty.openpty()
+        cli = subprocess.Popen([*run, "calibrate", "laser", "--poses", "100"], stdin=terminal, stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
+        os.close(terminal)
         out: list[str] = []
         threading.Thread(target=lambda: out.extend(cli.stdout or ()), daemon=True).start()
         _wait_for(out, "[car_body_in_place]", cli)
-        assert cli.stdin is not None
-        cli.stdin.write("\n\n")  # Enter twice at the car-body prompt
-        cli.stdin.flush()
+        os.write(keyboard, b"\n\n")  # Enter twice at the car-body prompt
         _wait_for(out, "[confirm_start]", cli)
         _wait_for(out, "typed before this prompt were dropped", cli)
         time.sleep(1.0)  # what a taken Enter would have needed to confirm it
@@ -61,6 +63,8 @@ def test_an_enter_typed_ahead_does_not_confirm_the_next_prompt(tmp_path: Path) -
                 cli.wait(15)
             except subprocess.TimeoutExpired:
                 cli.kill()
+        if keyboard >= 0:
+            os.close(keyboard)
         serve.send_signal(signal.SIGINT)
         try:
             serve.wait(30)

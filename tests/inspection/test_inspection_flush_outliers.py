@@ -47,29 +47,21 @@ def test_a_near_reading_off_its_surface_is_left_out_and_named(k: int, surface: s
 
 
 @pytest.mark.parametrize("k, off", [(10, 1.0), (11, 1.0), (11, 2.0), (10, -0.5)])
-def test_a_far_reading_off_is_left_out_and_the_result_marked_unreliable(k: int, off: float) -> None:
+def test_a_far_reading_off_is_kept_and_named_unverifiable(k: int, off: float) -> None:
+    """A spot that alone sets a tilt cannot be checked by the near ones (in a real cell the robot's accuracy differs
+    more between far places than their scatter says): it is kept, and named with what the check could not see."""
     g, w = _readings(1)
     g[k, 2] += off
     f = on_layout(_fit(g, w), range(len(SPOTS)), GLASS_XY)
-    assert [r.index for r in f.rejected] == [k]
-    assert f.unreliable is not None and str(k) in f.unreliable
-    # the tilt now rests on the near spots: noisier, but no longer carrying the stray reading
-    assert np.degrees(f.drx_rad) == pytest.approx(np.degrees(DRX), abs=0.01)
-    assert np.degrees(f.dry_rad) == pytest.approx(np.degrees(DRY), abs=0.01)
+    assert not f.rejected and k in [u.index for u in f.unverifiable]
 
 
-def test_normal_scatter_rejects_no_near_spot_and_rarely_a_far_one() -> None:
-    """The far spots' limit rests on a scale from 8 degrees of freedom: |t_8| > 4 has about 0.4 % a spot."""
-    far = 0
+def test_normal_scatter_rejects_no_spot() -> None:
     for seed in range(400):
         f = on_layout(_fit(*_readings(seed)), range(len(SPOTS)), GLASS_XY)
-        assert all(r.index in (10, 11) for r in f.rejected), f"seed {seed}: {f.rejected}"
-        far += len(f.rejected)
-        if not f.rejected:
-            assert f.unreliable is None
-            assert [u.index for u in f.unverifiable] == [10, 11]
-            assert all(u.detects_above_mm is not None and u.detects_above_mm >= FLOOR for u in f.unverifiable)
-    assert far <= 8, f"{far} far spots of 400 layouts rejected on scatter alone"
+        assert not f.rejected and f.unreliable is None, f"seed {seed}: {f.rejected}"
+        assert [u.index for u in f.unverifiable] == [10, 11]
+        assert all(u.detects_above_mm is not None and u.detects_above_mm >= FLOOR for u in f.unverifiable)
 
 
 def test_the_floor_keeps_a_near_perfect_fit_from_rejecting_a_small_step() -> None:

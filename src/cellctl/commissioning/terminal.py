@@ -68,9 +68,11 @@ class ProgressLine:
 
 
 def _drop_typed_ahead(lines: queue.Queue[str | None], out: TextIO, stdin: TextIO | None) -> TextIO | None:
-    """Drop the lines typed before a prompt is shown: only what is typed after reading it answers it
-    (an Enter pressed early must never confirm the next prompt, e.g. that the robot's path is clear).
-    Returns None once the input has ended, else ``stdin``."""
+    """At a keyboard (a terminal), drop the lines typed before a prompt is shown: only what is typed after
+    reading it answers it (an Enter pressed early must never confirm the next prompt, e.g. that the robot's
+    path is clear). Piped input is a script's answers, taken in order. Returns None once the input has ended."""
+    if stdin is None or not stdin.isatty():
+        return stdin
     dropped = 0
     while True:
         try:

@@ -26,7 +26,7 @@ from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
 from cellctl.config.opcua import OpcUaConfig, OpcUaUser
-from cellctl.store.connection import folder_problem
+from cellctl.folders import folder_problem
 
 log = logging.getLogger(__name__)
 

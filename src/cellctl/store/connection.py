@@ -16,7 +16,6 @@ microseconds (:func:`ts`); figures, requests and responses are stored as canonic
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -28,6 +27,7 @@ from typing import Any, Literal, Self
 
 import numpy as np
 
+from cellctl.folders import folder_problem
 from cellctl.store.records import StoreError
 from cellctl.store.schema import migrate, schema_version
 
@@ -91,19 +91,6 @@ class StorePathError(StoreError, OSError):
 
 
 _FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
-
-
-def folder_problem(folder: Path) -> str | None:
-    """Why ``folder`` could not be created (``mkdir -p``) by this process now, without creating it; None if it could."""
-    for p in (folder, *folder.parents):
-        if not p.exists():
-            continue
-        if not p.is_dir():
-            return f"{p} is a file, not a folder"
-        if p != folder and not os.access(p, os.W_OK | os.X_OK):
-            return f"no right to create a folder in {p}"
-        return None
-    return None
 
 
 def check_store_path(path: Path, *, creatable: bool = False) -> None:
