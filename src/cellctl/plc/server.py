@@ -236,8 +236,11 @@ class PlcServer:
         """Stop the handshakes and close the listener and every PLC connection. Cycles keep running
         in the cell; a restarted server picks their results up by cycle_req_id."""
         tasks, self._tasks = self._tasks, []
-        for task in tasks:
-            task.cancel()
+        pending = set(tasks)
+        while pending:  # a cancel can be lost (asyncio.wait_for on 3.11 swallows one that meets its inner answer): send it again
+            for task in pending:
+                task.cancel()
+            _, pending = await asyncio.wait(pending, timeout=0.1)
         await asyncio.gather(*tasks, return_exceptions=True)
         server, self._server = self._server, None
         if server is not None:
