@@ -30,17 +30,23 @@ def test_a_glass_recessed_past_the_tolerance_is_outside() -> None:
     assert _md(dz_mm=0.6).outside(0.5, 1.0) == ["dz_mm=+0.600"]
 
 
+def _done_cycle(tmp_path: Path, result: dict[str, object]) -> tuple[CellStore, int]:
+    """A store holding one cycle, finished with ``result``."""
+    store = CellStore.open(tmp_path / "cell.db")
+    cid = store.submit_cycle(CycleRequest(recipe="side-window", part_id="7", car_id="C", source="plc"),
+                             scope="plc", key="7", actor="plc").cycle.id  # fmt: skip
+    store.start_cycle(cid)
+    store.complete_cycle(cid, result=result)
+    return store, cid
+
+
 # insp_part_nok_summarized_ok: a done cycle whose part was measured outside the tolerance is not OK for the PLC/MQTT/OPC UA
 def test_a_part_measured_outside_the_tolerance_is_published_nok_with_1311(tmp_path: Path) -> None:
-    store = CellStore.open(tmp_path / "cell.db")
+    m = dict(dx_mm=-0.8, dy_mm=0.0, dz_mm=0.0, drx_deg=0.0, dry_deg=0.0, drz_deg=0.0)
+    store, cid = _done_cycle(tmp_path, {"ok": False, "part_ok": False, "error_code": int(AlarmCode.INSTALL_OUT_OF_TOLERANCE),
+                                        "not_ok_reason": "dx_mm=-0.800", "measured_deviation": m,
+                                        "correction_mm": [0, 0, 0], "correction_deg": [0, 0, 0], "cycle_time_s": 40.0})  # fmt: skip
     try:
-        cid = store.submit_cycle(CycleRequest(recipe="side-window", part_id="7", car_id="C", source="plc"),
-                                 scope="plc", key="7", actor="plc").cycle.id
-        store.start_cycle(cid)
-        m = dict(dx_mm=-0.8, dy_mm=0.0, dz_mm=0.0, drx_deg=0.0, dry_deg=0.0, drz_deg=0.0)
-        store.complete_cycle(cid, result={"ok": False, "part_ok": False, "error_code": int(AlarmCode.INSTALL_OUT_OF_TOLERANCE),
-                                          "not_ok_reason": "dx_mm=-0.800", "measured_deviation": m,
-                                          "correction_mm": [0, 0, 0], "correction_deg": [0, 0, 0], "cycle_time_s": 40.0})
         s = summarize(store.cycle(cid))
         assert s is not None and s.ok is False and s.error_code == int(AlarmCode.INSTALL_OUT_OF_TOLERANCE)
     finally:
@@ -49,12 +55,8 @@ def test_a_part_measured_outside_the_tolerance_is_published_nok_with_1311(tmp_pa
 
 # store_done_cycle_can_be_failed: a finished cycle's result is final
 def test_a_done_cycle_cannot_be_failed_afterwards(tmp_path: Path) -> None:
-    store = CellStore.open(tmp_path / "cell.db")
+    store, cid = _done_cycle(tmp_path, {"ok": True})
     try:
-        cid = store.submit_cycle(CycleRequest(recipe="r", part_id="1", car_id="C", source="t"),
-                                 scope="t", key="k", actor="t").cycle.id
-        store.start_cycle(cid)
-        store.complete_cycle(cid, result={"ok": True})
         with pytest.raises(CycleStateError):
             store.fail_cycle(cid, error="late failure")
         assert store.cycle(cid).result == {"ok": True}
