@@ -214,6 +214,9 @@ async def test_config_check_secrets_reads_the_opcua_certificates_as_serve_would(
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
     text = SIM.read_text(encoding="utf-8")
+    for default in ("\nport = 8080\n", "\nport = 5020\n"):  # listen ports nobody holds (the check tries them)
+        text = text.replace(default, f"\nport = {free_port()}\n", 1)
+    text = re.sub(r"\nport = 4840 ", f"\nport = {free_port()} ", text, count=1)
     users = '[[opcua.users]]\nname = "operator"\n'
     assert text.count(users) == 1 and text.count("\nallow_anonymous = true\n") == 1
     text = text.replace("\nallow_anonymous = true\n", '\nallow_anonymous = true\ntrusted_clients = "opcua/trusted"\n')
