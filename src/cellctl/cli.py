@@ -382,7 +382,10 @@ def main(argv: list[str] | None = None) -> int:
     as_json = isinstance(handler.formatter, JsonFormatter)
 
     def refuse(text: str) -> None:  # with JSON logs a refusal is one JSON record too (a log pipeline reads stderr)
-        logging.getLogger("cellctl").error(text) if as_json else print(text, file=sys.stderr)
+        if as_json:
+            logging.getLogger("cellctl").error(text)
+        else:
+            print(text, file=sys.stderr)
 
     try:
         return int(args.func(args))
