@@ -219,8 +219,8 @@ def _check_majority(
     on it, or another group of as many spots agrees on a plane it does not (a member beyond 2 x threshold)."""
     n = P.shape[0]
     residual = plane.distance(P)
-    off = [i for i in range(n) if i not in set(inliers.tolist())]
     if inliers.size < 4 or 2 * inliers.size <= n:
+        off = sorted(set(range(n)) - set(inliers.tolist()))
         spots = ", ".join(f"{i} ({residual[i]:+.2f} mm)" for i in off) or "none"
         raise AlignmentError(
             f"only {inliers.size} of {n} spots agree on one plane within {threshold} mm (need at least 4 and more "
