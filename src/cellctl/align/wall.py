@@ -166,11 +166,7 @@ def fit_wall_plane(
     except PlaneFitError as err:
         raise AlignmentError(str(err)) from None
     n = P.shape[0]
-    rivals: list[NDArray[np.intp]] = []
-    if n > 3:
-        inliers, rivals = _consensus(P, inlier_threshold_mm, min_collinearity)
-    else:
-        inliers = np.arange(n)
+    inliers, rivals = _consensus(P, inlier_threshold_mm, min_collinearity) if n > 3 else (np.arange(n), [])
     plane = first
     for _ in range(10):
         try:

@@ -11,18 +11,16 @@ takes it with ``link`` (never over an existing one), the pointer with ``rename``
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 from cellctl.calibration.set_parts import CalibrationSetError
+from cellctl.pidlock import LockHeld, take
 
 LOCK_NAME = ".lock"
 LOCK_WAIT_S = 10.0  # a commit holds the lock for milliseconds; this long means the other writer is stuck
-LOCK_POLL_S = 0.02
 TEMP_SUFFIX = ".tmp"
 
 
@@ -34,32 +32,18 @@ class CalibrationStoreBusy(CalibrationSetError):
 def store_lock(root: Path, timeout_s: float | None = None) -> Iterator[None]:
     """Hold the exclusive lock of the store in ``root`` (which must exist); wait at most ``timeout_s`` s
     (default :data:`LOCK_WAIT_S`) for it."""
-    path = root / LOCK_NAME
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    wait_s = LOCK_WAIT_S if timeout_s is None else timeout_s
     try:
-        _acquire(fd, root, LOCK_WAIT_S if timeout_s is None else timeout_s)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        fd = take(root / LOCK_NAME, wait_s=wait_s)
+    except LockHeld as held:
+        who = f"pid {held.holder}" if held.holder.isdigit() else "pid unknown"
+        raise CalibrationStoreBusy(
+            f"the calibration store {root} is in use by another process ({who}) for more than {wait_s:g} s; try again"
+        ) from None
+    try:
         yield
     finally:
         os.close(fd)  # closing the descriptor releases the flock
-
-
-def _acquire(fd: int, root: Path, timeout_s: float) -> None:
-    deadline = time.monotonic() + max(0.0, timeout_s)
-    while True:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            return
-        except BlockingIOError:
-            if time.monotonic() >= deadline:
-                holder = os.pread(fd, 32, 0).decode(errors="replace").strip()
-                who = f"pid {holder}" if holder.isdigit() else "pid unknown"
-                raise CalibrationStoreBusy(
-                    f"the calibration store {root} is in use by another process ({who}) for more than {timeout_s:g} s; "
-                    "try again"
-                ) from None
-            time.sleep(LOCK_POLL_S)
 
 
 def write_file(path: Path, text: str, *, exclusive: bool) -> None:

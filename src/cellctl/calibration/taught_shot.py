@@ -19,21 +19,25 @@ if TYPE_CHECKING:
 SAME_MM = 0.01  # settings this near are the same
 
 
-def taught_shot(config: CellConfig) -> dict[str, object]:
-    """What teaching records of the recipe's shot (``config`` is the recipe's view)."""
+def _shot(config: CellConfig) -> TaughtShot:
     return TaughtShot(
         working_distance_mm=float(config.process.working_distance_mm),
         feature=feature_kind(config),
         corner_radius_mm=float(config.layout.opening.corner_radius_mm),
         aim_mm=shot_aim_mm(config),
-    ).model_dump(mode="json")
+    )
+
+
+def taught_shot(config: CellConfig) -> dict[str, object]:
+    """What teaching records of the recipe's shot (``config`` is the recipe's view)."""
+    return _shot(config).model_dump(mode="json")
 
 
 def shot_problem(taught: TaughtShot | None, config: CellConfig, recipe: str) -> str | None:
     """Why the recipe's shot now differs from the taught one (None: as taught, or not recorded)."""
     if taught is None:
         return None
-    now = TaughtShot.model_validate(taught_shot(config))
+    now = _shot(config)
     changed = []
     if abs(now.working_distance_mm - taught.working_distance_mm) > SAME_MM:
         changed.append(f"process.working_distance_mm was {taught.working_distance_mm:g} mm, now {now.working_distance_mm:g}")

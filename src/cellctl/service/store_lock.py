@@ -9,9 +9,10 @@ process dies, so a killed service never leaves a stale lock.
 
 from __future__ import annotations
 
-import fcntl
 import os
 from pathlib import Path
+
+from cellctl.pidlock import LockHeld, holder, take
 
 
 class StoreInUse(RuntimeError):
@@ -27,33 +28,17 @@ class StoreLock:
 
     def acquire(self) -> None:
         """Take the lock, or raise StoreInUse naming the process that has it."""
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-            os.close(fd)
+            self._fd = take(self.path)
+        except LockHeld as held:
             raise StoreInUse(
-                f"another cellctl service (pid {holder}) is running on the store {self.path.with_suffix('')}: stop it "
+                f"another cellctl service (pid {held.holder}) is running on the store {self.path.with_suffix('')}: stop it "
                 "first, or give this one its own [store] path"
             ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        self._fd = fd
 
     def holder(self) -> str | None:
-        """The pid of the service running on this store now (None: none; the lock file is never created here)."""
-        try:
-            fd = os.open(self.path, os.O_RDONLY)
-        except OSError:
-            return None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
-        finally:
-            os.close(fd)  # (a shared lock taken here goes with it)
-        return None
+        """The pid of the service running on this store now (None: none)."""
+        return holder(self.path)
 
     def release(self) -> None:
         """Let the store go (after it is closed). Idempotent."""
