@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import os
 import socket
+import time
+from collections.abc import Awaitable, Callable
 from typing import NoReturn
 
 import numpy as np
@@ -67,3 +70,13 @@ def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, s
         rc = int(stop.code or 0)
     out, err = capsys.readouterr()
     return rc, out, err
+
+
+async def eventually(what: str, check: Callable[[], Awaitable[bool]], timeout_s: float = 20.0) -> None:
+    """Wait until ``check()`` is true (polled every 50 ms); fail naming ``what`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if await check():
+            return
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"not within {timeout_s} s: {what}")

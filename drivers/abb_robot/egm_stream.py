@@ -13,6 +13,13 @@ constant the cell's laser-to-robot latency estimate absorbs. The instant is then
 the driver was given (its offset from ``time.monotonic``, measured when the stream starts; the
 clock must run at the host's rate). Without ``tm`` the stream uses ``feedBack.time`` (same clock,
 s), without either the receive times.
+
+The one offset holds only while the controller's clock runs on without a step. Each datagram is
+checked against it (:class:`ClockGuard`): its stamp must come after the previous one's, and its
+(receive - stamp) must not fall below the envelope by more than :data:`STEP_TOL_S` plus the jitter
+the stream showed. A step (the controller's clock set, its EGM restarted with other stamps) breaks
+the stream: :meth:`EgmStream.latest` gives None from then on (a supervising caller stops the robot)
+and :meth:`EgmStream.stop` raises :class:`~cellctl.ports.DeviceProtocolError` naming it.
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from abb_robot import protocol as P
 from abb_robot.egm.peer import EgmPeer
 from abb_robot.egm.peer_core import F_FB_TIME, F_GEN, F_POS, F_QUAT, F_RX, F_SEQNO, F_TM, STREAM_WIDTH
 from abb_robot.link import RapidLink, deadline_in
-from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceRejected, PoseSample
+from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceProtocolError, DeviceRejected, PoseSample
 
 MAX_SAMPLES = 262_144
 """A stream keeps its newest samples, at most this many (about 17 min at 4 ms)."""
@@ -40,6 +47,17 @@ STOP_POLLS = 12
 BUSY_TAG = f"{int(P.ErrorCode.BUSY)} BUSY"
 _CTL = STREAM_WIDTH  # the record's stamp on the controller's clock (s since the stream's first sample)
 _U32 = float(1 << 32)
+STEP_TOL_S = 0.005
+"""How far (s) a datagram's (receive - stamp) may fall below the stream's envelope, beyond the jitter the
+stream showed while its envelope settled, before it counts as a forward step of the controller's clock.
+Measured with the fake on a loaded 2-core host (3-4 busy processes besides, both EGM isolations): once
+settled, the envelope never fell by more than 2 ms; only the first few datagrams, delayed together,
+lower it by more (up to 26 ms), which the settling takes in."""
+SETTLE_SAMPLES = 10
+SETTLE_S = 0.040
+"""The envelope counts as settled once this many datagrams within ``STEP_TOL_S`` of it have come over at
+least this long (s, controller clock) without it falling by more; a step before that is taken in
+unnoticed (the stream's first 40 ms or so: the robot has not started its moves yet)."""
 
 
 @dataclass(frozen=True)
@@ -48,8 +66,8 @@ class PoseStreamStats:
 
     Attributes:
         received: datagrams collected (duplicates and stale ones are the peer's, see ``EgmPeer.stats``).
-        lost: datagrams missing: seqno gaps between those received, and before the first (a stream
-            starts at seqno 0); losses after the last one received cannot be seen.
+        lost: datagrams missing: seqno gaps between those received (losses before the first and after
+            the last one received cannot be seen).
         gap_events: gaps of one or more datagrams.
         overwritten: datagrams the peer's ring dropped before they were read.
         stamp: what timed the samples: "tm", "feedBack.time" or "receive".
@@ -58,6 +76,7 @@ class PoseStreamStats:
         delay_p50_s, delay_max_s: receive time minus mapped instant (s): the receive jitter the mapping removed.
         max_interval_s: longest time between two samples received (s, controller clock).
         clock_offset_s: the driver's clock minus ``time.monotonic`` (s).
+        clock_break: why the stream was refused (the controller's clock stepped), "" if it was not.
     """
 
     received: int
@@ -70,6 +89,7 @@ class PoseStreamStats:
     delay_max_s: float
     max_interval_s: float
     clock_offset_s: float
+    clock_break: str = ""
 
 
 @dataclass(frozen=True)
@@ -92,6 +112,59 @@ class PoseStreamRecords:
     t_s: np.ndarray
     position_mm: np.ndarray
     quaternion_wxyz: np.ndarray
+
+
+class ClockGuard:
+    """Checks that a stream's stamps keep to one offset from their receive times (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self.floor = math.inf  # the envelope: the least (receive - stamp) so far (s)
+        self.last = -math.inf  # the previous datagram's stamp (s, controller clock)
+        self.jitter = math.nan  # median (receive - stamp) above the envelope while it settled (s; NaN: settling)
+        self._settling: list[float] = []  # (receive - stamp) of the datagrams near the envelope since it last fell
+        self._settle_from = math.nan
+
+    def check(self, ctl: np.ndarray, rx: np.ndarray, seq: np.ndarray) -> str | None:
+        """Take a chunk's stamps (s, controller clock) and receive times, in receive order; why they break the stream."""
+        back = np.flatnonzero(np.diff(np.concatenate([[self.last], ctl])) <= 0)
+        if back.size:
+            i = int(back[0])
+            went = 1e3 * ((self.last if i == 0 else ctl[i - 1]) - ctl[i])
+            return _clock_break(f"went back: header.tm of seqno {int(seq[i])} is {went:.0f} ms before the previous one's")
+        self.last = float(ctl[-1])
+        d = rx - ctl
+        k = 0
+        while math.isnan(self.jitter) and k < len(d):
+            self._settle(float(d[k]), float(ctl[k]))
+            k += 1
+        if k == len(d):
+            return None
+        tol = STEP_TOL_S + self.jitter
+        before = np.minimum.accumulate(np.concatenate([[self.floor], d[k:]]))[:-1]
+        fell = np.flatnonzero(d[k:] < before - tol)
+        if fell.size:
+            i = int(fell[0])
+            ahead = 1e3 * (before[i] - d[k + i])
+            return _clock_break(f"stepped forward: from seqno {int(seq[k + i])} on, header.tm runs at least {ahead:.0f} ms "
+                                f"ahead of the stream's receive times (tolerance {1e3 * tol:.1f} ms)")
+        self.floor = min(self.floor, float(d[k:].min()))
+        return None
+
+    def _settle(self, d: float, t: float) -> None:
+        """One datagram while the envelope settles: a fall of more than the tolerance starts it anew."""
+        if d < self.floor - STEP_TOL_S:  # those before came late together (a stall of the host): not a step
+            self._settling, self._settle_from = [], t
+        self.floor = min(self.floor, d)
+        if d <= self.floor + STEP_TOL_S:
+            self._settling.append(d)
+        if len(self._settling) >= SETTLE_SAMPLES and t - self._settle_from >= SETTLE_S:
+            self.jitter = float(np.median(np.asarray(self._settling) - self.floor))
+
+
+def _clock_break(what: str) -> str:
+    return (f"the controller's EGM clock {what}: the poses cannot be put on the cell's clock, so the position "
+            "stream is refused. Start the stream again; if it recurs, look for what steps the controller's clock "
+            "(its time being set, EGM restarted mid-stream)")
 
 
 class EgmStream:
@@ -124,6 +197,8 @@ class EgmStream:
         self._last: np.ndarray | None = None
         self._latest: PoseSample | None = None  # built from _last when asked (latest() is polled every few ms)
         self._ended = False  # the controller ended the stream (a STOP); its samples wait for stop()
+        self._guard = ClockGuard()
+        self._broken = ""  # why the stream was refused (its clock stepped); latest() is None, stop() raises
 
     @property
     def active(self) -> bool:
@@ -170,7 +245,8 @@ class EgmStream:
 
         A link that is down already ended the stream on the controller: the samples come all the
         same. Any other error (refused while the robot moves, no answer) is raised and the stream
-        goes on, collected as before: stop it again.
+        goes on, collected as before: stop it again. A stream whose controller clock stepped is
+        stopped and refused: :class:`DeviceProtocolError` (its records stay for inspection).
         """
         if self._gen is None or self.peer is None:
             raise DeviceRejected(self.name, "no position stream was started; call start_stream first")
@@ -179,6 +255,8 @@ class EgmStream:
             await self._end_on_controller(deadline)
             self.peer.end_stream()
         self._gen, self._ended = None, False
+        if self._broken:
+            raise DeviceProtocolError(self.name, self._broken)
         return self.samples()
 
     async def _end_on_controller(self, deadline: float) -> None:
@@ -200,10 +278,13 @@ class EgmStream:
         """The newest sample of the running stream (None before its first, and when none runs).
 
         Its instant uses the envelope so far, which later samples can only lower (by the jitter at most).
+        None too once the controller's clock has stepped (the stream is broken: stop it).
         """
         if self._gen is None or self._ended:
             return None
         self._drain()
+        if self._broken:
+            return None
         if self._latest is None and self._last is not None and math.isfinite(self._last[_CTL]):
             self._latest = PoseSample(float(self._to_clock(self._last[_CTL])), _pose(self._last))
         return self._latest
@@ -242,6 +323,7 @@ class EgmStream:
         self._chunks, self._count, self._overwritten, self._last, self._latest = [], 0, 0, None, None
         self._stamp, self._stamp0, self._offset = "", math.nan, math.inf
         self._clock_offset = clock_offset
+        self._guard, self._broken = ClockGuard(), ""
 
     def _drain(self) -> int:
         """Take the peer's new records of this stream; how many came."""
@@ -263,6 +345,8 @@ class EgmStream:
         ok = np.isfinite(ctl)
         if ok.any():
             self._offset = min(self._offset, float(np.min(rows[ok, F_RX] - ctl[ok])))
+            if not self._broken and self._stamp != "receive":
+                self._broken = self._guard.check(ctl[ok], rows[ok, F_RX], rows[ok, F_SEQNO]) or ""
         self._chunks.append(chunk)
         self._count += len(chunk)
         self._last, self._latest = chunk[-1], None
@@ -314,8 +398,8 @@ class EgmStream:
         lost, gaps = 0, 0
         if len(seq):
             steps = np.mod(np.diff(seq), 1 << 32)
-            missing = steps[steps > 1] - 1
-            lost, gaps = int(seq[0] + missing.sum()), int((seq[0] > 0) + missing.size)
+            missing = steps[(steps > 1) & (steps < 1 << 31)] - 1  # a step back: the controller restarted at 0
+            lost, gaps = int(missing.sum()), int(missing.size)
         ok = np.isfinite(rows[:, _CTL])
         ctl = np.sort(rows[ok, _CTL])
         delay = rows[ok, F_RX] - (rows[ok, _CTL] + self._offset)
@@ -325,7 +409,7 @@ class EgmStream:
             delay_p50_s=float(np.median(delay)) if delay.size else math.nan,
             delay_max_s=float(delay.max()) if delay.size else math.nan,
             max_interval_s=float(np.diff(ctl).max()) if ctl.size > 1 else math.nan,
-            clock_offset_s=self._clock_offset,
+            clock_offset_s=self._clock_offset, clock_break=self._broken,
         )
 
 

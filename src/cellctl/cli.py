@@ -11,6 +11,7 @@ import asyncio
 import json
 import logging
 import os
+import select
 import signal
 import sys
 import tempfile
@@ -35,8 +36,10 @@ from cellctl.cli_args import (
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
+from cellctl.folders import calibration_folder_problem
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
 from cellctl.service.compose import ServiceError as BuildError
+from cellctl.store.records import StoreError
 
 CONFIG_ENV = "CELLCTL_CONFIG"
 _CHECKOUT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim.toml"  # a source checkout's one copy
@@ -75,6 +78,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if args.host is not None or args.port is not None:
         api = config.api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
         config = config.model_copy(update={"api": api})
+    if (problem := calibration_folder_problem(config.calibration.directory, Path(args.workdir))) is not None:
+        raise BuildError(problem)  # the first calibration would fail long after a start that said nothing
 
     async def run() -> int | None:
         service = await build_service(config, workdir=Path(args.workdir))
@@ -371,6 +376,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+SIGPIPE_EXIT = 128 + signal.SIGPIPE
+"""The exit status when the reader of standard output stopped (`cellctl config check | head -1`): quiet, as a
+Unix tool ended by SIGPIPE."""
+
+
+def stdout_closed() -> bool:
+    """Whether standard output is a pipe or socket whose reader has gone."""
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
+    except (OSError, ValueError):  # no descriptor (replaced stdout)
+        return False
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``cellctl`` console script (and ``python -m cellctl``)."""
     args = build_parser().parse_args(argv)
@@ -388,17 +408,22 @@ def main(argv: list[str] | None = None) -> int:
             print(text, file=sys.stderr)
 
     try:
-        return int(args.func(args))
+        rc = int(args.func(args))
+        sys.stdout.flush()  # a reader that stopped (`| head`) shows here, not in a message at exit
+        return rc
     except (ConfigError, TokenUnavailable) as err:
         refuse(f"configuration refused:\n{err}")
         return 2
-    except (ServiceError, BuildError) as err:
+    except (ServiceError, BuildError, StoreError) as err:  # StoreError: a database file serve cannot use, named
         refuse(f"error: {err}")
         return 1
     except UsageError as err:
         refuse(f"error: {err}")
         return 2
     except OSError as err:  # a file or socket the command needs: one line, no traceback
+        if isinstance(err, BrokenPipeError) and stdout_closed():  # our reader stopped: nothing to say to it
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nor at exit's flush
+            return SIGPIPE_EXIT
         logging.getLogger("cellctl").debug("command failed", exc_info=True)
         refuse(f"error: {err}")
         return 1

@@ -15,6 +15,7 @@ from cellctl.config.devices import AbbRobotDevice, SimAbbDevice
 from cellctl.config.loader import check_tokens
 from cellctl.cli_args import default_workdir
 from cellctl.commissioning.wall_plan import wall_plan
+from cellctl.folders import calibration_folder_problem
 
 
 def _device(dev: Any) -> str:
@@ -31,11 +32,13 @@ def summary(config: CellConfig) -> list[str]:
     return [
         f"mode {config.mode}, cell_id {config.cell_id}",
         f"REST API and dashboard  http://{api.host}:{api.port}/  ({len(api.tokens)} API token(s))",
-        "PLC Modbus TCP          " + (f"{plc.host}:{plc.port}, unit {plc.unit_id}" if plc.enabled else "off"),
+        "API token roles         " + "\n                          ".join(api.role_notes()),
+        "PLC Modbus TCP          " + (f"{plc.host}:{plc.port}, unit {plc.unit_id}; {plc.clients_note()}" if plc.enabled else "off"),
         "OPC UA                  " + (f"opc.tcp://{ua.host}:{ua.port}{ua.path}" if ua.enabled else "off"),
         "MQTT                    " + (f"{mq.host}:{mq.port}" + (" (TLS)" if mq.tls else "") if mq.enabled else "off"),
         f"devices                 robot {_device(d.robot)}, laser {_device(d.laser)}, camera {_device(d.camera)}",
-        f"calibration store       {config.calibration.directory} (relative to the service's --workdir)",
+        f"calibration store       {config.calibration.directory}"
+        + ("" if Path(config.calibration.directory).is_absolute() else " (relative to the service's --workdir)"),
         "recipes                 " + "\n                          ".join(_recipe(config, r.name) for r in config.process.recipes),
         "robot speeds            " + _speeds(config),
     ]
@@ -77,6 +80,8 @@ def _check_files(config: CellConfig, workdir: Path) -> None:
     """The files and folders the service reads or makes at start beside its secrets, as ``serve`` does (the same
     functions, nothing created), paths taken from ``workdir``, then its listen ports; ConfigError naming each problem."""
     problems = _store_problems(config, workdir) + _mqtt_problems(config, workdir)
+    if (problem := calibration_folder_problem(config.calibration.directory, workdir)) is not None:
+        problems.append(problem)
     if config.opcua.enabled:
         from cellctl.opcua.security import file_problems  # asyncua and cryptography only when asked
 

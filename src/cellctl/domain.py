@@ -175,6 +175,7 @@ class AlarmCode(enum.IntEnum):
     DEVICE_SLOW = 1601
     DISK_SPACE_LOW = 1701
     DISK_SPACE_CRITICAL = 1702
+    RECORD_WRITE_FAILED = 1703
 
 
 @dataclass(frozen=True)

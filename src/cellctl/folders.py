@@ -1,4 +1,5 @@
-"""Whether a folder the service needs (the store's, the OPC UA certificates') could be made, without making it."""
+"""Whether a folder the service needs (the store's, the OPC UA certificates', the calibration store's) could be
+made, without making it."""
 
 from __future__ import annotations
 
@@ -17,3 +18,13 @@ def folder_problem(folder: Path) -> str | None:
             return f"no right to create a folder in {p}"
         return None
     return None
+
+
+def calibration_folder_problem(directory: str | Path, workdir: Path) -> str | None:
+    """Why the calibration store's folder (``calibration.directory``, a relative one taken from ``workdir`` as
+    ``serve --workdir`` takes it) could not be made; None if it exists or could be."""
+    folder = Path(directory) if Path(directory).is_absolute() else workdir.resolve() / directory
+    if (why := folder_problem(folder)) is None:
+        return None
+    return (f"calibration.directory {folder}: the folder cannot be created ({why}); set calibration.directory to a "
+            "folder the service can write (e.g. \"var/calibration\" under --workdir, or /var/lib/cellctl/calibration)")

@@ -24,6 +24,9 @@ LEVEL_ENV = "CELLCTL_LOG_LEVEL"
 FORMAT_ENV = "CELLCTL_LOG_FORMAT"
 TEXT_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 REPEAT_WINDOW_S = 60.0
+CHATTY_LOGGERS = ("asyncua",)
+"""Libraries that log at info what only debugging needs (asyncua: ~1,400 address-space lines at each OPC UA start):
+capped at warning unless the level is debug. pymodbus logs one line at start and is left alone."""
 
 
 class JsonFormatter(logging.Formatter):
@@ -112,7 +115,8 @@ def level_from(text: str | None) -> int:
 def configure_logging(level: str | None = None, fmt: str | None = None, *, stream: TextIO | None = None,
                       window_s: float = REPEAT_WINDOW_S) -> logging.Handler:  # fmt: skip
     """Route every logger to one handler on ``stream`` (stderr): ``level`` (else $CELLCTL_LOG_LEVEL, else
-    warning), ``fmt`` ``text`` or ``json`` (else $CELLCTL_LOG_FORMAT, else text); repeats collapsed.
+    warning), ``fmt`` ``text`` or ``json`` (else $CELLCTL_LOG_FORMAT, else text); repeats collapsed; the
+    :data:`CHATTY_LOGGERS` at warning unless ``level`` is debug.
 
     Replaces the handlers a previous call installed, so it may be called again (tests do)."""
     lvl = level_from(level or os.environ.get(LEVEL_ENV))
@@ -129,4 +133,6 @@ def configure_logging(level: str | None = None, fmt: str | None = None, *, strea
         old.close()
     root.addHandler(handler)
     root.setLevel(lvl)
+    for name in CHATTY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET if lvl <= logging.DEBUG else logging.WARNING)
     return handler

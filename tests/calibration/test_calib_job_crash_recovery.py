@@ -47,7 +47,7 @@ async def main():
     await service.start()
     await service.orchestrator.command(PackMLCommand.CLEAR, actor="test", source="test")
     await settle(service.orchestrator)
-    rec = await service.jobs.submit("laser", {"poses": 100}, actor="test", source="test")
+    rec = await service.jobs.submit("laser", {"poses": 120}, actor="test", source="test")
     job_id = rec.id
     await service.jobs.wait(rec.id, 60)
     print("the job ended without storing a version", flush=True)

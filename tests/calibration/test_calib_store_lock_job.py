@@ -39,7 +39,7 @@ async def test_a_job_refused_by_a_busy_store_fails_naming_the_other_process(tmp_
             assert (await client.post("/commands/clear", headers=AUTH)).status_code == 200
             while (await client.get("/status")).json()["state"].endswith("ING"):
                 await asyncio.sleep(0.01)
-            r = await client.post("/jobs", json={"procedure": "laser", "options": {"poses": 100}}, headers=AUTH)
+            r = await client.post("/jobs", json={"procedure": "laser", "options": {"poses": 120}}, headers=AUTH)
             assert r.status_code == 201, r.text
             job = await _finished(client, r.json()["id"])
         finally:

@@ -61,7 +61,7 @@ def test_missing_mqtt_files_are_refused_as_serve_refuses_them(tmp_path: Path, ca
     assert (f"mqtt.password_file {tmp_path / 'nope'}: cannot be read (No such file or directory); create it with the "
             "broker password on one line") in err  # fmt: skip
     assert f"mqtt.tls.ca_file {tmp_path / 'missing-ca.pem'}: not a readable file; give the path of the PEM file" in err
-    (tmp_path / "nope").write_text("broker-password\n")
+    (tmp_path / "nope").write_text("Kq7-broker-pass-2026\n")  # the token rules: 16+ characters
     (tmp_path / "nope").chmod(0o600)
     (tmp_path / "missing-ca.pem").write_text("-----BEGIN CERTIFICATE-----\n")
     rc, out, err = _check(capsys, cfg, tmp_path)

@@ -29,7 +29,7 @@ async def test_a_start_while_a_job_starts_is_held_back(tmp_path: Path) -> None:
             return read()
 
         store.current = slow_read  # type: ignore[method-assign]
-        submit = asyncio.create_task(client.post("/jobs", json={"procedure": "laser", "options": {"poses": 100}}, headers=AUTH))
+        submit = asyncio.create_task(client.post("/jobs", json={"procedure": "laser", "options": {"poses": 120}}, headers=AUTH))
         await asyncio.sleep(0.1)  # its state check passed; it is reading the set
         start = await client.post("/commands/start", headers=AUTH)  # the PLC's Start, say
         assert (await submit).status_code == 201
@@ -49,7 +49,7 @@ async def test_a_cancel_while_the_new_version_is_written_ends_the_job_done_with_
     monkeypatch.setattr(jobs_mod, "record", slow_record)
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
         await _command(client, "clear")
-        job = await _start(client, "laser", poses=100)
+        job = await _start(client, "laser", poses=120)
         while not writing.is_set():
             await asyncio.sleep(0.01)
         assert (await client.post(f"/jobs/{job['id']}/cancel", headers=AUTH)).status_code == 200

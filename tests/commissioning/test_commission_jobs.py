@@ -80,7 +80,7 @@ async def _wait_done(client: httpx.AsyncClient, job_id: int, timeout_s: float = 
 async def test_jobs_run_only_in_stopped_or_idle_one_at_a_time_and_start_waits_for_them(tmp_path: Path) -> None:
     async with running_service(tmp_path, _config()) as service, api_client(service) as client:
         # The cell starts Aborted: no job, and the refusal says what to send.
-        r = await client.post("/jobs", json={"procedure": "laser", "options": {"poses": 100}}, headers=AUTH)
+        r = await client.post("/jobs", json={"procedure": "laser", "options": {"poses": 120}}, headers=AUTH)
         assert r.status_code == 409 and "ABORTED" in r.json()["detail"] and "Clear" in r.json()["detail"]
         assert await _command(client, "clear") == "STOPPED"
         # Bad options name the field and what it takes; unknown procedures list the known ones.
@@ -94,7 +94,7 @@ async def test_jobs_run_only_in_stopped_or_idle_one_at_a_time_and_start_waits_fo
         # Teaching needs the sensors calibrated first.
         r = await client.post("/jobs", json={"procedure": "teaching"}, headers=AUTH)
         assert r.status_code == 409 and "camera" in r.json()["detail"]
-        job = await _start(client, "laser", poses=100)
+        job = await _start(client, "laser", poses=120)
         await _wait_prompt(client, job["id"], "confirm_start")
         # One job at a time; no Start (so no cycle) while it runs; /status shows it.
         r = await client.post("/jobs", json={"procedure": "camera"}, headers=AUTH)
@@ -250,9 +250,9 @@ async def test_every_move_of_a_job_is_at_the_reduced_speed(tmp_path: Path) -> No
 
         inner.move = recording  # type: ignore[method-assign]
         await _command(client, "clear")
-        job = await _start(client, "laser", poses=100)
+        job = await _start(client, "laser", poses=120)
         assert (await _wait_done(client, job["id"]))["state"] == "done"
-        assert len(seen) == 100
+        assert len(seen) == 120
         assert max(r.speed_mm_s for r in seen) <= 180.0 and max(r.speed_deg_s for r in seen) <= 20.0
 
 
@@ -267,7 +267,7 @@ async def test_a_refused_result_leaves_the_set_unchanged_and_says_why(tmp_path: 
     cfg = _config(answers="all", **{"calibration.procedure.laser": {"max_rms_mm": 0.001}})
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
         await _command(client, "clear")
-        job = await _start(client, "laser", poses=100)
+        job = await _start(client, "laser", poses=120)
         done = await _wait_done(client, job["id"])
         assert done["state"] == "refused" and "rms" in done["error"].lower(), done
         assert done["version_after"] is None
@@ -295,7 +295,7 @@ async def test_the_event_stream_carries_job_progress_and_prompts(tmp_path: Path)
     async with running_service(tmp_path, _config(answers="all")) as service, api_client(service) as client:
         await _command(client, "clear")
         queue = service.orchestrator.events.subscribe()
-        job = await _start(client, "laser", poses=100)
+        job = await _start(client, "laser", poses=120)
         await _wait_done(client, job["id"])
         kinds: dict[str, int] = {}
         prompts = []

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import httpx
-from service_test_support import free_port, sim_toml, start_serve, wait_up
+from service_test_support import serve_to_commission, wait_up
 
 TOKEN = "sim-operator-token-change-me"  # config/sim.toml's operator token
 
@@ -31,18 +31,15 @@ def _wait_for(out: list[str], text: str, proc: subprocess.Popen[str], timeout_s:
 
 
 def test_an_enter_typed_ahead_does_not_confirm_the_next_prompt(tmp_path: Path) -> None:
-    port = free_port()
-    cfg = tmp_path / "cell.toml"
-    cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False).replace('answers = "all"', 'answers = "none"', 1))
-    serve = start_serve(cfg, tmp_path)
-    url, env = f"http://127.0.0.1:{port}", {**os.environ, "CELLCTL_TOKEN": TOKEN}
+    serve, url = serve_to_commission(tmp_path)
+    env = {**os.environ, "CELLCTL_TOKEN": TOKEN}
     cli, keyboard = None, -1
     try:
         wait_up(url, serve, tmp_path)
-        run = [sys.executable, "-m", "cellctl.cli", "--config", str(cfg)]
+        run = [sys.executable, "-m", "cellctl.cli", "--config", str(tmp_path / "cell.toml")]
         subprocess.run([*run, "command", "clear"], env=env, check=True, capture_output=True)
         keyboard, terminal = pty.openpty()
-        cli = subprocess.Popen([*run, "calibrate", "laser", "--poses", "100"], stdin=terminal, stdout=subprocess.PIPE,
+        cli = subprocess.Popen([*run, "calibrate", "laser", "--poses", "120"], stdin=terminal, stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True, env=env)  # fmt: skip
         os.close(terminal)
         out: list[str] = []

@@ -38,7 +38,7 @@ pytestmark = [
 if _missing is None:
     from playwright.sync_api import Page, expect
 
-LASER_POSES = 100
+LASER_POSES = 120
 """Enough for the laser result to pass its gates on the simulated cell (40 poses plan and run, but
 r and l come out too uncertain and the result is refused), and still about a second of robot time."""
 

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 from service_test_support import AUTH, api_client, running_service, sim_config, slow_moves
+from shared_support import eventually
 
 from cellctl.cell.alarms import AlarmCode
 
@@ -40,21 +40,12 @@ def _config(**extra: dict[str, Any]) -> Any:
     return sim_config(**sections)
 
 
-async def _eventually(what: str, check: Callable[[], Awaitable[bool]], timeout_s: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if await check():
-            return
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"not within {timeout_s} s: {what}")
-
-
 async def _state(client: httpx.AsyncClient) -> str:
     return str((await client.get("/status")).json()["state"])
 
 
 async def _settled(client: httpx.AsyncClient) -> str:
-    await _eventually("the cell leaves its acting state", lambda: _not_acting(client))
+    await eventually("the cell leaves its acting state", lambda: _not_acting(client))
     return await _state(client)
 
 
@@ -98,7 +89,7 @@ async def _finished(client: httpx.AsyncClient, cycle_id: int, timeout_s: float =
         rec = (await client.get(f"/cycles/{cycle_id}")).json()
         return rec["state"] in ("done", "failed", "interrupted")
 
-    await _eventually(f"cycle {cycle_id} ends", done, timeout_s)
+    await eventually(f"cycle {cycle_id} ends", done, timeout_s)
     return rec
 
 
@@ -126,7 +117,7 @@ async def _while_moving(service: Any) -> None:
     async def moving() -> bool:
         return bool(robot.moving)
 
-    await _eventually("the robot moves", moving)
+    await eventually("the robot moves", moving)
 
 
 async def test_laser_silence_holds_then_recovers_when_it_answers_again(tmp_path: Path) -> None:
@@ -142,11 +133,11 @@ async def test_laser_silence_holds_then_recovers_when_it_answers_again(tmp_path:
         al = await _alarms(client)
         assert al["stop_reason"]["code"] in (int(AlarmCode.LASER_READ_FAILED), int(AlarmCode.LASER_LOST))
         assert rec["state"] == "failed" and rec["result"]["error_code"] == al["stop_reason"]["code"], rec
-        await _eventually("the watchdog sees the laser lost", lambda: _has(client, AlarmCode.LASER_LOST, active=True))
+        await eventually("the watchdog sees the laser lost", lambda: _has(client, AlarmCode.LASER_LOST, active=True))
         r = await client.post("/commands/unhold", headers=AUTH)
         assert r.status_code == 409  # not while the laser is silent
         laser.speak()
-        await _eventually("the watchdog sees the laser back", lambda: _has(client, AlarmCode.LASER_LOST, active=False))
+        await eventually("the watchdog sees the laser back", lambda: _has(client, AlarmCode.LASER_LOST, active=False))
         await _recover(client)
         await _installs_once(client)
 
@@ -168,7 +159,7 @@ async def test_laser_garbage_holds_then_recovers(tmp_path: Path) -> None:
         assert al["stop_reason"]["code"] in (int(AlarmCode.LASER_READ_FAILED), int(AlarmCode.LASER_LOST))
         assert rec["state"] == "failed" and rec["result"]["error_code"] == al["stop_reason"]["code"], rec
         laser.clear_faults()
-        await _eventually("the laser answers the watchdog", lambda: _has(client, AlarmCode.LASER_LOST, active=False))
+        await eventually("the laser answers the watchdog", lambda: _has(client, AlarmCode.LASER_LOST, active=False))
         await _recover(client)
         await _installs_once(client)
 
@@ -208,7 +199,7 @@ async def test_the_robot_link_dropped_mid_move_aborts_then_recovers(tmp_path: Pa
         assert await _settled(client) == "ABORTED"
         assert (await _alarms(client))["stop_reason"]["code"] == int(AlarmCode.ROBOT_FAULT)
         slow_moves(service, 1.0 / 300.0)
-        await _eventually("the robot link is back", lambda: _device_up(client, "robot"))
+        await eventually("the robot link is back", lambda: _device_up(client, "robot"))
         await _recover(client)
         await _installs_once(client)
 

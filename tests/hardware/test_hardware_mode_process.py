@@ -141,6 +141,7 @@ def _hardware_config(tmp: Path, ready: dict[str, Any], tlsimu: str, api_port: in
     data["plc"].update(host=LOOPBACK, port=0, heartbeat_alarm=False)
     data["opcua"].update(enabled=False, host=LOOPBACK)  # tests/opcua runs the OPC UA server with the hardware security settings
     data["api"].update(host=LOOPBACK, port=api_port)
+    data["api"]["tokens"][0]["role"] = "engineer"  # this test commissions the cell with $CELLCTL_TOKEN
     return data
 
 

@@ -48,6 +48,7 @@ def _retention(store: AsyncCellStore, tmp: Path, clock: Clock, *, mqtt_results: 
     return StorageRetention(
         RetentionConfig(images_days=10, cycles_days=30), store, alarms, image_dir=tmp / "images", db_path=tmp / "cell.db",
         clock=clock, disk_usage=lambda _p: DiskUsage(500 * GB, 100 * GB, 400 * GB), mqtt_results=mqtt_results,
+        monotonic=lambda: clock.t.timestamp(),
     )  # fmt: skip
 
 
@@ -65,14 +66,15 @@ async def test_with_publication_on_a_cycle_whose_result_is_not_queued_is_kept_un
         await (b := _bridge(store)).start()  # the mark at cycle 1
         await b.stop()
         waiting = [await store.call(_finish, sync, n) for n in (2, 3)]  # ended, the bridge not running yet
+        await (ret := _retention(store, tmp_path, clock, mqtt_results=True)).run_once()
         clock.t += timedelta(days=40)
-        report = await _retention(store, tmp_path, clock, mqtt_results=True).run_once()
+        report = await ret.run_once()
         assert report.cycles_deleted == 1 and [c.id for c in await store.cycles()] == sorted(waiting, reverse=True)
         assert history not in [c.id for c in await store.cycles()]
         await (b := _bridge(store)).start()  # the catch-up queues both, in order
         await b.stop()
         assert await _results(store) == waiting and (await store.outbox_counts()).dropped_results == 0
-        report = await _retention(store, tmp_path, clock, mqtt_results=True).run_once()
+        report = await ret.run_once()
         assert report.cycles_deleted == 2  # queued now: retention may take them
     finally:
         await store.close()
@@ -88,9 +90,10 @@ async def test_with_publication_off_pruned_results_are_counted_and_reported_to_t
         await (b := _bridge(store)).start()  # publication was set up once: the mark at the newest cycle (none)
         await b.stop()
         lost = [await store.call(_finish, sync, n) for n in (1, 2, 3)]  # run with [mqtt] enabled = false
+        await (ret := _retention(store, tmp_path, clock, mqtt_results=False)).run_once()
         clock.t += timedelta(days=40)
         caplog.set_level(logging.WARNING, logger="cellctl.service.retention")
-        assert (await _retention(store, tmp_path, clock, mqtt_results=False).run_once()).cycles_deleted == 3
+        assert (await ret.run_once()).cycles_deleted == 3
         newer = await store.call(_finish, sync, 4)
         with running_broker(tmp_path) as broker:
             cfg = publisher_config(broker.port)

@@ -113,6 +113,15 @@ def sim_toml(port: int, *, oracle: bool = True, auto_calibrate: bool = True, tim
     return text.replace("[plc]                                  # Modbus TCP server for the line PLC\nenabled = true", "[plc]\nenabled = false")
 
 
+def serve_to_commission(workdir: Path) -> tuple[Any, str]:
+    """`cellctl serve` of the uncommissioned simulated cell whose simulated engineer answers no prompt: (process, URL);
+    its config is ``workdir/cell.toml``."""
+    port = free_port()
+    cfg = workdir / "cell.toml"
+    cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False).replace('answers = "all"', 'answers = "none"', 1))
+    return start_serve(cfg, workdir), f"http://127.0.0.1:{port}"
+
+
 def start_serve(config: Path, workdir: Path) -> Any:
     """`cellctl serve` in a subprocess; its output goes to ``workdir/service.log``."""
     import subprocess

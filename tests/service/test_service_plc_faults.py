@@ -138,7 +138,7 @@ async def test_a_plc_heartbeat_lost_while_the_robot_stands_holds_and_unhold_resu
         held = await plc.wait_cell(lambda c: c["state_current"] == PackMLState.HELD, "Held", 10.0)
         assert held["stop_reason_id"] == HEARTBEAT_LOST and not held["plc_heartbeat_ok"] and not held["ready"]
         refused = await plc.command(PackMLCommand.UNHOLD)  # its cause is still there
-        assert refused["cmd_result"] == 1
+        assert refused["cmd_result"] == 5  # blocked: the table allows it, the alarm holds it back (map 1.4)
         plc.start_heartbeat(0.05)
         await until("alarm 1201 cleared by its source", lambda: not heartbeat_alarm_active(service))
         assert (await plc.command(PackMLCommand.UNHOLD))["cmd_result"] == 0

@@ -39,11 +39,8 @@ def test_a_missing_folder_is_still_named(tmp_path: Path) -> None:
     CellStore.open(tmp_path / "missing" / "cell.db").close()
 
 
-@pytest.mark.parametrize("case", ["folder", "under_a_file"])
-def test_serve_says_which_setting_to_change(tmp_path: Path, case: str) -> None:
-    (tmp_path / "afolder").mkdir()
-    (tmp_path / "afile").write_text("x")
-    store = tmp_path / "afolder" if case == "folder" else tmp_path / "afile" / "cellctl.db"
+def serve_config(tmp_path: Path, store: Path) -> Path:
+    """config/sim.toml with every port 0, no self-commissioning and ``[store] path = store``, as tmp_path/cell.toml."""
     text = (ROOT / "config" / "sim.toml").read_text()
     for old, new in [("port = 5020", "port = 0"), ("port = 4840 ", "port = 0 "), ("port = 8080", "port = 0"),
                      ("auto_calibrate_in_sim = true", "auto_calibrate_in_sim = false"),
@@ -52,6 +49,15 @@ def test_serve_says_which_setting_to_change(tmp_path: Path, case: str) -> None:
         text = text.replace(old, new)
     cfg = tmp_path / "cell.toml"
     cfg.write_text(text)
+    return cfg
+
+
+@pytest.mark.parametrize("case", ["folder", "under_a_file"])
+def test_serve_says_which_setting_to_change(tmp_path: Path, case: str) -> None:
+    (tmp_path / "afolder").mkdir()
+    (tmp_path / "afile").write_text("x")
+    store = tmp_path / "afolder" if case == "folder" else tmp_path / "afile" / "cellctl.db"
+    cfg = serve_config(tmp_path, store)
     run = subprocess.run([sys.executable, "-m", "cellctl", "--config", str(cfg), "serve", "--workdir", str(tmp_path / "wd")],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert run.returncode == 1, run.stderr[-2000:]

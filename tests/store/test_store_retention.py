@@ -207,7 +207,7 @@ async def rig(tmp_path: Path) -> AsyncIterator[SimpleNamespace]:
     def make(**cfg: Any) -> StorageRetention:
         return StorageRetention(
             RetentionConfig(**cfg), store, alarms, image_dir=tmp_path / "images", db_path=tmp_path / "cell.db",
-            clock=clock, disk_usage=disk, cycle_step=lambda: step.value,
+            clock=clock, disk_usage=disk, cycle_step=lambda: step.value, monotonic=lambda: clock().timestamp(),
         )  # fmt: skip
 
     def sync(fn: Callable[[CellStore], Any]) -> Any:

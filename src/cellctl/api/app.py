@@ -23,7 +23,7 @@ from cellctl.api import (
     routes_parts,
     routes_quality,
 )
-from cellctl.api.auth import SECURITY_SCHEMES, TokenBeforeBody, TokenGuard
+from cellctl.api.auth import ROUTE_ROLES, SECURITY_SCHEMES, TokenBeforeBody, TokenGuard
 from cellctl.api.limits import BodySizeLimit
 from cellctl.api.query_params import refuse_unknown_query
 from cellctl.api.schemas import ErrorBody
@@ -99,16 +99,27 @@ def api_routes_of(routes: list[BaseRoute]) -> Iterator[APIRoute]:
 
 
 def document_security(schema: dict[str, Any], guard: TokenGuard, routes: list[BaseRoute]) -> dict[str, Any]:
-    """The bearer scheme in the OpenAPI document (so /docs has *Authorize*) and, per operation, whether it needs it."""
+    """The bearer scheme in the OpenAPI document (so /docs has *Authorize*), per operation whether it needs it, and
+    the 403 of each route that needs a role (``ROUTE_ROLES``)."""
     schema.setdefault("components", {}).setdefault("securitySchemes", {}).update(SECURITY_SCHEMES)
     for route in api_routes_of(routes):
-        security = guard.security(route)
+        security, role = guard.security(route), guard.needs_role(route)
         ops = schema.get("paths", {}).get(route.path_format, {})
         for method in route.methods:
             op = ops.get(method.lower())
             if op is not None and security is not None:
                 op["security"] = security
+            if op is not None and role is not None:
+                op.setdefault("responses", {})["403"] = {"description": (
+                    f"the token's role is below {role.value}: this route needs the {role.value} role (its `role` in "
+                    "[api].tokens); `detail` names both")}  # fmt: skip
     return schema
+
+
+def unlisted_routes(guard: TokenGuard, routes: list[BaseRoute]) -> list[str]:
+    """The routes that need a role but have no line in ``ROUTE_ROLES`` (each must have one)."""
+    return [f"{m} {r.path_format}" for r in api_routes_of(routes) if guard.needs_role(r) is not None
+            for m in sorted(r.methods) if (m, r.path_format) not in ROUTE_ROLES]  # fmt: skip
 
 
 def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | None = None) -> FastAPI:
@@ -141,6 +152,9 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
     for router in routers:
         app.include_router(router)
     dashboard.install(app, orch, guard)
+    unlisted = unlisted_routes(guard, list(app.routes))
+    if unlisted:
+        raise RuntimeError(f"routes that need a token but have no role in cellctl.api.auth.ROUTE_ROLES: {unlisted}")
 
     # Outermost first: the body limit, then the token; both act before the application reads the body.
     api_routes = [r for router in routers for r in router.routes if isinstance(r, APIRoute)]
@@ -157,14 +171,13 @@ def create_app(orch: CellOrchestrator, config: ApiConfig, jobs: JobManager | Non
             swagger_js_url="/static/swagger-ui/swagger-ui-bundle.js",
             swagger_css_url="/static/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/static/swagger-ui/favicon-32x32.png",
-            swagger_ui_parameters={"persistAuthorization": True},
-        )
+        )  # no persistAuthorization: the token stays in the page, never in localStorage (shared HMI PCs)
 
     generate_openapi = app.openapi
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
-            app.openapi_schema = document_security(document_error_bodies(generate_openapi()), guard, list(app.routes))
+            app.openapi_schema = document_error_bodies(document_security(generate_openapi(), guard, list(app.routes)))
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

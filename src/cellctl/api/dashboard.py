@@ -29,7 +29,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, FastAPI, Query
+from fastapi import APIRouter, FastAPI, Header, HTTPException, Query
 from fastapi.responses import HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
 
@@ -86,10 +86,13 @@ def _utc(t: datetime) -> datetime:
 
 
 def count_shift(records: list[CycleRecord], start: datetime, end: datetime) -> tuple[int, int, float | None]:
-    """Good and not OK cycles that finished in [start, end), and the median cycle time of the good ones."""
+    """Good and not OK cycles that ended in [start, end), and the median cycle time of the good ones.
+
+    A cycle a restart interrupted has no ``finished_at``: it ended when recovery marked it (``interrupted_at``)."""
     good, not_ok, times = 0, 0, []
     for r in records:
-        if r.finished_at is None or not (start <= _utc(r.finished_at) < end):
+        ended = r.finished_at or r.interrupted_at
+        if ended is None or not (start <= _utc(ended) < end):
             continue
         res = dict(r.result or {})
         if r.state is CycleState.DONE and res.get("part_ok", True) is not False:
@@ -250,16 +253,30 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             410: {"model": ErrorBody, "description": "the image was pruned or its file is no longer on disk"},
         },
     )  # fmt: skip
-    async def thumb(cycle_id: CycleId, name: str, width: int = Query(256, ge=32, le=1024)) -> Response:
+    async def thumb(
+        cycle_id: CycleId, name: str, width: int = Query(256, ge=32, le=1024), if_none_match: str | None = Header(None),
+    ) -> Response:
+        """The image scaled down. Checked against the store on every request (the browser revalidates
+        by ETag), so once the image is pruned or its file deleted the thumbnail is a 410 too."""
+        try:
+            path = await image_file(orch, cycle_id, name)
+        except HTTPException:
+            for key in [k for k in thumbs if k[:2] == (cycle_id, name)]:
+                del thumbs[key]
+            raise
+        st = path.stat()
+        headers = {"Cache-Control": "private, no-cache", "ETag": f'"{cycle_id}-{width}-{st.st_mtime_ns}-{st.st_size}"'}
+        if if_none_match == headers["ETag"]:
+            return Response(status_code=304, headers=headers)
         key = (cycle_id, name, width)
         png = thumbs.get(key)
         if png is None:
-            path = await image_file(orch, cycle_id, name)
             png = await asyncio.to_thread(lambda: scale_png(path.read_bytes(), width))
             thumbs[key] = png
             while len(thumbs) > THUMB_CACHE_SIZE:
                 thumbs.popitem(last=False)
-        return Response(png, media_type="image/png", headers={"Cache-Control": "private, max-age=3600"})
+        thumbs.move_to_end(key)
+        return Response(png, media_type="image/png", headers=headers)
 
     router.include_router(reads)
     return router

@@ -11,10 +11,13 @@ at once.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 import platform
 import time
 from collections.abc import Iterator
-from datetime import UTC, datetime
+from typing import Any
 
 from prometheus_client import (
     CONTENT_TYPE_LATEST,
@@ -28,12 +31,14 @@ from prometheus_client.core import GaugeMetricFamily, Metric
 
 import cellctl
 from cellctl.cell.orchestrator import CellOrchestrator
+from cellctl.cell.watchdog import LinkState
 from cellctl.store import CycleState
 from cellctl.store.records import CycleRecord
 
 CYCLE_TIME_BUCKETS_S = (0.5, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 45.0, 60.0)
 """Buckets of ``cellctl_cycle_time_seconds``: a simulated cycle takes about a second, a real one 10-40 s."""
 CYCLE_PAGE = 200
+log = logging.getLogger(__name__)
 
 __all__ = ["CONTENT_TYPE_LATEST", "CellMetrics"]
 
@@ -44,8 +49,13 @@ class CellMetrics:
     def __init__(self, orch: CellOrchestrator) -> None:
         self._orch = orch
         self._cycle_counts: dict[CycleState, int] = {}
-        self._since = datetime.now(UTC)  # the histogram counts cycles finished from here on
-        self._seen_id = 0  # the newest finished cycle already in the histogram
+        # "Since the service started" by cycle id, not wall time (a clock stepped back must not hide cycles):
+        # the newest cycle now is the mark; the histogram counts the cycles after it.
+        self._seen_id: int | None = None  # the newest cycle already in the histogram (or before the start)
+        self._mark: asyncio.Task[int] | None = None
+        with contextlib.suppress(RuntimeError):  # no running loop: the first scrape takes the mark
+            self._mark = asyncio.get_running_loop().create_task(self._newest_id())
+            self._mark.add_done_callback(lambda t: t.cancelled() or t.exception())  # its error is the first scrape's
         self.registry = CollectorRegistry()
         self.registry.register(self)
         self.cycle_time = Histogram(
@@ -67,13 +77,14 @@ class CellMetrics:
         """Put the cycles finished since the last scrape into the histogram (newest first, a page at a time).
 
         Cycles run one at a time in id order, so every finished cycle newer than the last one seen
-        is new; a cycle created before this service started is never counted.
+        is new; a cycle older than the newest one at this service's start is never counted.
         """
+        seen = self._seen_id = await self._start_mark() if self._seen_id is None else self._seen_id
         fresh: list[CycleRecord] = []
         before: int | None = None
         while True:
             page = await self._orch.store.cycles(limit=CYCLE_PAGE, before_id=before)
-            new = [r for r in page if r.id > self._seen_id and r.created_at >= self._since]
+            new = [r for r in page if r.id > seen]
             fresh += [r for r in new if r.finished_at is not None and r.state in (CycleState.DONE, CycleState.FAILED)]
             if len(new) < CYCLE_PAGE:  # reached what was seen (or the start): no older page has anything new
                 break
@@ -81,6 +92,20 @@ class CellMetrics:
         for rec in sorted(fresh, key=lambda r: r.id):
             self.cycle_time.labels(outcome=rec.state.value).observe(_cycle_seconds(rec))
             self._seen_id = rec.id
+
+    async def _newest_id(self) -> int:
+        page = await self._orch.store.cycles(limit=1)
+        return page[0].id if page else 0
+
+    async def _start_mark(self) -> int:
+        """The newest cycle id when this service started (read at once then; at the first scrape if that failed)."""
+        mark, self._mark = self._mark, None
+        if mark is not None:
+            try:
+                return await mark
+            except Exception as err:  # noqa: BLE001 - the store was not readable then: count from now on
+                log.warning("metrics: the newest cycle at start could not be read (%s); the histogram counts from now", err)
+        return await self._newest_id()
 
     def collect(self) -> Iterator[Metric]:
         """The gauges as of now (prometheus_client calls this while it renders the registry)."""
@@ -92,18 +117,25 @@ class CellMetrics:
             cycles.add_metric([s.value], self._cycle_counts.get(s, 0))
         yield cycles
         yield _gauge("cellctl_alarms_active", "Active alarms", sum(a.active for a in self._orch.alarms.current()))
-        up = GaugeMetricFamily("cellctl_device_up", "1 while the watchdog sees the device", labels=["device"])
-        age = GaugeMetricFamily("cellctl_device_heartbeat_age_seconds", "Time since the device last answered", labels=["device"])
-        for name, d in st["devices"].items():
-            up.add_metric([name], 1.0 if d["link"] == "up" else 0.0)
-            if d["heartbeat_age_s"] is not None:
-                age.add_metric([name], d["heartbeat_age_s"])
-        yield up
-        yield age
+        yield from _device_gauges(st["devices"])
         yield _gauge("cellctl_scrape_timestamp_seconds", "Wall time of this scrape", time.time())
         build = GaugeMetricFamily("cellctl_build_info", "The running cellctl: its version (always 1)", labels=["version", "python_version"])
         build.add_metric([cellctl.__version__, platform.python_version()], 1.0)
         yield build
+
+
+def _device_gauges(devices: dict[str, dict[str, Any]]) -> Iterator[Metric]:
+    """Up: 0 only once the watchdog lost the device, as /health judges; its link state as a label. Heartbeat age."""
+    up = GaugeMetricFamily(
+        "cellctl_device_up", "0 once the watchdog lost the device (as /health), else 1; state: unknown, up, degraded or lost",
+        labels=["device", "state"],
+    )  # fmt: skip
+    age = GaugeMetricFamily("cellctl_device_heartbeat_age_seconds", "Time since the device last answered", labels=["device"])
+    for name, d in devices.items():
+        up.add_metric([name, d["link"]], 0.0 if d["link"] == LinkState.LOST.value else 1.0)
+        if d["heartbeat_age_s"] is not None:
+            age.add_metric([name], d["heartbeat_age_s"])
+    yield from (up, age)
 
 
 def _cycle_seconds(rec: CycleRecord) -> float:

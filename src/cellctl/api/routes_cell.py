@@ -60,7 +60,7 @@ def alarm_view(a: Alarm) -> AlarmView:
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
-    """The cell routes: mutating ones need the token, ``reads`` need read access, ``/health`` is open."""
+    """The cell routes: mutating ones a token of the role ``auth.ROUTE_ROLES`` names, ``reads`` read access; ``/health`` is open."""
     router = APIRouter(tags=["cell"])
     reads = APIRouter(tags=["cell"], dependencies=guard.reads())
     cell_metrics = CellMetrics(orch)

@@ -107,7 +107,7 @@ async def image_file(orch: CellOrchestrator, cycle_id: int, name: str) -> Path:
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard, wait_max_s: float) -> APIRouter:
-    """``POST /cycle`` (needs the token) and the cycle records (``reads``: read access)."""
+    """``POST /cycle`` (an operator's token, ``auth.ROUTE_ROLES``) and the cycle records (``reads``: read access)."""
     router = APIRouter(tags=["cycles"])
     reads = APIRouter(tags=["cycles"], dependencies=guard.reads())
 

@@ -24,6 +24,7 @@ from cellctl.api.schemas_jobs import (
 )
 from cellctl.calibration.calibration_set import COMMANDS
 from cellctl.commissioning.jobs import JobManager
+from cellctl.commissioning.plans import laser_poses_floor
 from cellctl.commissioning.prompts import Answer, PromptError, UnknownPrompt
 from cellctl.commissioning.registry import (
     ALL_PROCEDURES,
@@ -37,7 +38,7 @@ IMAGE_WIDTH_MAX = 2048
 
 
 def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
-    """Starting, cancelling and answering jobs needs the token; ``reads`` (planning too) need read access."""
+    """Starting, cancelling and answering jobs needs an engineer's token (``auth.ROUTE_ROLES``); ``reads`` (planning too) need read access."""
     router = APIRouter(tags=["commissioning"])
     reads = APIRouter(tags=["commissioning"], dependencies=guard.reads())
 
@@ -57,7 +58,7 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
         defaults = {"views": c.camera.n_views, "poses": c.laser.n_poses, "store": True, "method": c.hand_eye.method,
                     "recipe": jobs.config.default_recipe}  # fmt: skip
         recipes = list(jobs.config.process.recipe_names().values())
-        limits = {"views": [3.0, 200.0], "poses": [float(c.laser.min_poses), 5000.0]}
+        limits = {"views": [3.0, 200.0], "poses": [float(laser_poses_floor(jobs.config)), 5000.0]}
         out = []
         for name, p in ALL_PROCEDURES.items():
             options = p.option_names()

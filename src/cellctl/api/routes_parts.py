@@ -17,7 +17,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, status
 from fastapi import Path as PathParam
-from pydantic import AfterValidator
+from pydantic import AfterValidator, BeforeValidator
 
 from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import alarm_view
@@ -46,7 +46,18 @@ def aware_utc(t: datetime) -> datetime:
         raise ValueError(f"{t.isoformat()} is out of range once converted to UTC") from None
 
 
-Moment = Annotated[datetime, AfterValidator(aware_utc)]
+def not_a_number(v: object) -> object:
+    """Refuse a number: pydantic would read it as Unix seconds (milliseconds above 2e10), not the ISO 8601 promised."""
+    if isinstance(v, bool) or not isinstance(v, str | int | float):
+        return v
+    try:
+        float(v)
+    except ValueError:
+        return v
+    raise ValueError(f"{v!r} is a number, not a time; give {TIME_FORMAT}")
+
+
+Moment = Annotated[datetime, BeforeValidator(not_a_number), AfterValidator(aware_utc)]
 
 
 def file_sha256(path: Path) -> str:

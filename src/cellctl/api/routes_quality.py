@@ -13,7 +13,7 @@ RECIPE = Query(None, description="a recipe's name (each recipe has its own loop)
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
-    """``/spc`` needs read access, its reset the operator's token."""
+    """``/spc`` needs read access, its reset an engineer's token (``auth.ROUTE_ROLES``)."""
     router = APIRouter(tags=["quality"])
     reads = APIRouter(tags=["quality"], dependencies=guard.reads())
 

@@ -9,7 +9,11 @@ view's RMS, the standard deviations of the parameters (OpenCV's ``stdDeviationsI
 how much of the image the corners covered, and the board pose in each view.
 
 Refused (CalibrationRefused, with the reason) when fewer than ``min_views`` views are left, when
-no view showed the board, or when the RMS stays above ``max_rms_px``.
+no view showed the board, when the RMS stays above ``max_rms_px``, when the board's tilt hardly
+changed between views (``min_tilt_spread_deg``: parallel views leave the focal length unobservable,
+however small the RMS), when the focal length's standard deviation is zero, not finite or above
+``max_focal_std_ratio`` of it, and when the views disagree on the focal length (each view's own
+fit scatters beyond ``max_view_focal_sigma`` of its uncertainty: focus or zoom changed mid-way).
 """
 
 from __future__ import annotations
@@ -62,6 +66,9 @@ class CameraCalibration:
         coverage: share of the image's 8 x 8 cells that held at least one corner.
         board_poses: T_C_P of each used view, by name.
         flags: the OpenCV flags used.
+        tilt_spread_deg, max_tilt_deg: RMS angle of the board's normal from its mean over the views; its largest
+            angle from square-on.
+        view_focal_sigma: RMS scatter of the single views' fx in units of their own standard deviations.
     """
 
     intrinsics: Lens
@@ -72,6 +79,9 @@ class CameraCalibration:
     coverage: float
     board_poses: dict[str, Pose] = field(repr=False)
     flags: int = 0
+    tilt_spread_deg: float = float("nan")
+    max_tilt_deg: float = float("nan")
+    view_focal_sigma: float = float("nan")
 
 
 _STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -85,6 +95,83 @@ def _coverage(points: Sequence[F64], size: tuple[int, int]) -> float:
         j = np.clip((p[:, 0] / w * COVERAGE_GRID).astype(int), 0, COVERAGE_GRID - 1)
         hit[i, j] = True
     return float(hit.mean())
+
+
+def _tilts_deg(rvecs: Sequence[ArrayLike]) -> tuple[float, float]:
+    """RMS angle of the board's normal from its mean over the views, and its largest angle from square-on."""
+    n = np.array([cv2.Rodrigues(np.asarray(rv, dtype=float))[0][:, 2] for rv in rvecs])
+    mean = n.mean(axis=0) / np.linalg.norm(n.mean(axis=0))
+    spread = np.arccos(np.clip(n @ mean, -1.0, 1.0))
+    tilt = np.arccos(np.clip(np.abs(n[:, 2]), 0.0, 1.0))
+    return float(np.degrees(np.sqrt(np.mean(spread**2)))), float(np.degrees(tilt.max()))
+
+
+def _refuse_unobservable(K: F64, std: F64, tilt: tuple[float, float], limits: CameraCalibrationConfig) -> None:
+    """Refuse views too alike in tilt, and a focal length or principal point OpenCV cannot pin down."""
+    spread, largest = tilt
+    if spread < limits.min_tilt_spread_deg:
+        raise CalibrationRefused(
+            "camera", "tilt_too_small",
+            f"the board's tilt hardly changed between the views (its normal spread {spread:.2f} deg, need at least "
+            f"{limits.min_tilt_spread_deg:g} deg; largest tilt from square-on {largest:.2f} deg), so the focal length "
+            "cannot be told from the distance: add views tilted 15-35 deg in different directions, about two axes",
+        )
+    names = ("fx", "fy", "cx", "cy")
+    bad = [n for n, s in zip(names, std[:4]) if not np.isfinite(s) or s <= 0.0]
+    ratio = max(float(std[0] / K[0, 0]), float(std[1] / K[1, 1])) if not bad else float("nan")
+    if bad or ratio > limits.max_focal_std_ratio:
+        what = f"the standard deviation of {', '.join(bad)} is zero or not finite" if bad else (
+            f"fx and fy are uncertain by up to {ratio:.1e} of their value (std fx {std[0]:.2f} px, fy {std[1]:.2f} px; "
+            f"limit max_focal_std_ratio {limits.max_focal_std_ratio:g})")
+        raise CalibrationRefused(
+            "camera", "focal_uncertain",
+            f"{what}: the views do not determine the lens (largest tilt {largest:.1f} deg); add views tilted 15-35 deg "
+            "about two axes, at different distances, with the board reaching the image's corners",
+        )
+
+
+_SINGLE_VIEW_FLAGS = (
+    cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO
+    | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_TANGENT_DIST
+)  # fmt: skip
+
+
+def view_focal_lengths(op: F64, ip: Sequence[F64], size: tuple[int, int], K: F64, D: F64) -> tuple[F64, F64]:
+    """Each view's own fx (the other intrinsics held at K, D) and its standard deviation (px)."""
+    f, s = [], []
+    for pts in ip:
+        _, Kv, _, _, _, std, _, _ = cv2.calibrateCameraExtended(
+            [op], [pts], size, K.copy(), D.copy(), flags=_SINGLE_VIEW_FLAGS,
+            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+        )
+        f.append(float(Kv[0, 0]))
+        s.append(float(np.asarray(std, dtype=float).reshape(-1)[1]) * float(K[0, 0] / K[1, 1]))  # fy is the free one
+    return np.asarray(f), np.asarray(s)
+
+
+def _refuse_mixed_views(names: Sequence[str], f: F64, s: F64, limits: CameraCalibrationConfig) -> float:
+    """The views' fx scatter in their own sigmas; refused beyond ``max_view_focal_sigma`` (focus or zoom changed)."""
+    ok = np.isfinite(f) & np.isfinite(s) & (s > 0.0)
+    if ok.sum() < 3:
+        return float("nan")
+    w = 1.0 / s[ok] ** 2
+    mean = np.sum(w * f[ok]) / np.sum(w)
+    chi = float(np.sqrt(np.sum(w * (f[ok] - mean) ** 2) / (ok.sum() - 1)))
+    spread = float(np.sqrt(np.sum(w * (f[ok] - mean) ** 2) / np.sum(w)) / mean)
+    if chi <= limits.max_view_focal_sigma or spread <= limits.min_view_focal_spread:
+        return chi
+    half = len(f) // 2
+    means = [float(np.average(f[sl][ok[sl]], weights=1.0 / s[sl][ok[sl]] ** 2)) if ok[sl].any() else float("nan")
+             for sl in (slice(0, half), slice(half, None))]  # fmt: skip
+    lo, hi = int(np.nanargmin(np.where(ok, f, np.nan))), int(np.nanargmax(np.where(ok, f, np.nan)))
+    raise CalibrationRefused(
+        "camera", "views_disagree",
+        f"the views disagree on the focal length: single views give fx from {f[lo]:.1f} px ({names[lo]}) to "
+        f"{f[hi]:.1f} px ({names[hi]}), the first and second half of the collection {means[0]:.1f} and {means[1]:.1f} px; "
+        f"they scatter {chi:.1f} times their own uncertainty and {100 * spread:.2f} % of fx (limits max_view_focal_sigma "
+        f"{limits.max_view_focal_sigma:g}, min_view_focal_spread {limits.min_view_focal_spread:g}): "
+        "was the focus or zoom changed during collection? collect again with the lens locked",
+    )
 
 
 def calibrate_camera(
@@ -102,8 +189,9 @@ def calibrate_camera(
         object_points: the board's inner corners (N, 3) in the board frame (mm).
         image_size: (width, height) in pixels.
         fix_k3: keep k3 at 0 (for a lens whose r^6 term the views cannot resolve).
-        limits: the refusal thresholds (``min_views``, ``max_rms_px``, ``reject_factor``,
-            ``reject_floor_px``); the other fields are the procedure's and not read here.
+        limits: the refusal thresholds (``min_views``, ``max_rms_px``, ``reject_factor``, ``reject_floor_px``,
+            ``min_tilt_spread_deg``, ``max_focal_std_ratio``, ``max_view_focal_sigma``); the other fields are the
+            procedure's and not read here.
     """
     obj = np.asarray(object_points, dtype=np.float64)
     if obj.ndim != 2 or obj.shape[1] != 3:
@@ -159,6 +247,10 @@ def calibrate_camera(
             "square size, focus and that the camera and lens were fixed during the views",
         )
     std = np.asarray(std_in, dtype=float).reshape(-1)
+    tilt = _tilts_deg(rvecs)
+    _refuse_unobservable(np.asarray(K, dtype=float), std, tilt, limits)
+    f, s = view_focal_lengths(op[0], ip, (w, h), np.asarray(K, dtype=float), np.asarray(D, dtype=float))
+    chi = _refuse_mixed_views([v.name for v in used], f, s, limits)
     poses = {}
     for v, rv, tv in zip(used, rvecs, tvecs):
         R, _ = cv2.Rodrigues(rv)
@@ -172,4 +264,7 @@ def calibrate_camera(
         coverage=_coverage([np.asarray(v.corners_px, dtype=float) for v in used], (w, h)),
         board_poses=poses,
         flags=flags,
+        tilt_spread_deg=tilt[0],
+        max_tilt_deg=tilt[1],
+        view_focal_sigma=chi,
     )

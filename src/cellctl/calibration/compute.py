@@ -24,7 +24,7 @@ from cellctl.calibration.calibration_set import CalibrationSet, recipe_slot
 from cellctl.calibration.camera import ViewCorners, calibrate_camera
 from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.hand_eye import board_pose, solve_hand_eye
+from cellctl.calibration.hand_eye import board_pose, refuse_disagreement, solve_hand_eye
 from cellctl.calibration.laser import calibrate_laser
 from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
 from cellctl.calibration.summary import summary_lines
@@ -34,12 +34,11 @@ from cellctl.calibration.template_figures import corner_angle_deg, taught_featur
 from cellctl.compensate import deviation_in_frame
 from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
-from cellctl.geometry.pose import invert_pose, make_pose, mean_pose, pose_error
+from cellctl.geometry.pose import check_pose, invert_pose, make_pose, mean_pose, pose_error
 from cellctl.geometry.rotation import angle_between_vectors, rotation_angle_between
 from cellctl.vision.feature import detect_feature
 from cellctl.vision.ninepoint import NinePointError
 from cellctl.vision.scale import ScaleCalibrationError, checkerboard_scale
-
 
 
 @dataclass
@@ -108,6 +107,7 @@ def compute_camera(
         "views_total": len(views),
         "std": res.std,
         "coverage": res.coverage,
+        "tilt_spread_deg": res.tilt_spread_deg, "max_tilt_deg": res.max_tilt_deg, "view_focal_sigma": res.view_focal_sigma,
         "fix_k3": cc.fix_k3,
         "board_sharpness_px": float(np.median(sharp)) if sharp else None,
         "detection_s": float(sum(d.seconds for _, d in dets)),
@@ -168,16 +168,8 @@ def compute_hand_eye(
         pnp.append(rms)
     if not H:
         raise CalibrationRefused("hand_eye", "board_not_found", f"the board was not found in any of the {len(ds.manifest['views'])} views")
-    rep = solve_hand_eye(H, C, chosen=hc.method, limits=hc, object_points=obj, corners_px=corners, K=K, dist=D)
-    worst_mm = max(rep.agreement_mm.values())
-    worst_deg = max(rep.agreement_deg.values())
-    if worst_mm > hc.max_translation_disagreement_mm or worst_deg > hc.max_rotation_disagreement_deg:
-        raise CalibrationRefused(
-            "hand_eye", "methods_disagree",
-            f"the methods disagree by up to {worst_mm:.2f} mm and {worst_deg:.3f} deg (limits "
-            f"{hc.max_translation_disagreement_mm:g} mm, {hc.max_rotation_disagreement_deg:g} deg): the data is "
-            "inconsistent (board moved, poses and images mismatched, or poor motion); collect the views again",
-        )
+    rep = solve_hand_eye(H, C, chosen=hc.method, limits=hc, object_points=obj, corners_px=corners, K=K, dist=D, names=names)
+    worst_mm, worst_deg = refuse_disagreement(rep, hc)  # among the methods that agree; an outlier is a warning
     X = rep.T_H_C
     warnings = list(rep.warnings)
     if missing:
@@ -212,6 +204,7 @@ def compute_hand_eye(
         },
         "max_disagreement_mm": worst_mm,
         "max_disagreement_deg": worst_deg,
+        "methods_left_out": rep.outliers,
     }
     truth = ds.manifest.get("twin_truth", {}).get("T_H_C")
     if truth is not None:
@@ -237,15 +230,30 @@ def compute_hand_eye(
 # -- laser --------------------------------------------------------------------------------------
 
 
+def _readings(rows: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """T_B_H, distance and group of every reading with a value; a field that is not a finite number refused, named."""
+    H, d, g = [], [], []
+    for k, r in enumerate(rows):
+        try:
+            if r["status"] == "ok" and r["distance_mm"] is not None:
+                H.append(check_pose(pose_array(r["T_B_H"], "T_B_H"), "T_B_H"))
+                d.append(float(r["distance_mm"]))
+                g.append(int(r.get("group", 0)))
+                if not np.isfinite(d[-1]):
+                    raise ValueError(f"distance_mm is {r['distance_mm']!r}")
+        except (TypeError, ValueError) as err:
+            raise CalibrationRefused(
+                "laser", "bad_dataset", f"readings[{k}]: {err}: correct that reading in the dataset's manifest (a finite "
+                "distance_mm, a rigid 4x4 T_B_H) or record the dataset again") from None
+    return np.array(H).reshape(-1, 4, 4), np.array(d, dtype=float), np.array(g, dtype=int)
+
+
 def compute_laser(ds: Dataset, config: CellConfig) -> Outcome:
     """r and l from a laser_plane dataset."""
     lc = config.calibration.procedure.laser
     rows = ds.manifest["readings"]
-    ok = [r for r in rows if r["status"] == "ok" and r["distance_mm"] is not None]
-    dropped = len(rows) - len(ok)
-    H = np.array([pose_array(r["T_B_H"], "reading.T_B_H") for r in ok]).reshape(-1, 4, 4)
-    d = np.array([float(r["distance_mm"]) for r in ok])
-    g = np.array([int(r.get("group", 0)) for r in ok], dtype=int)
+    H, d, g = _readings(rows)
+    dropped = len(rows) - len(d)
     lo, hi = ds.manifest["sensor_range_mm"]
     res = calibrate_laser(
         H, d, ds.manifest["r_nominal"], ds.manifest["l_nominal"],
@@ -486,12 +494,4 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
     )
 
 
-__all__ = [
-    "Outcome",
-    "compute_camera",
-    "compute_hand_eye",
-    "compute_laser",
-    "compute_nine_point",
-    "compute_teaching",
-    "detect_views",
-]
+__all__ = ["Outcome", "compute_camera", "compute_hand_eye", "compute_laser", "compute_nine_point", "compute_teaching", "detect_views"]

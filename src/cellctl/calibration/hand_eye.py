@@ -10,6 +10,9 @@ then ``(R_A - I) t_X = R_X t_B - t_A``; a second pass on the rotation left after
 it well conditioned near 180 deg. OpenCV's five methods run beside it (method passed by keyword,
 DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion sets that cannot
 determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
+A method far (by its median distance) from the others is left out of the agreement check and named
+in a warning: OpenCV's Andreff is 58 mm off on an orbit around the board even with exact data,
+where the other methods agree to 0.01 mm. :func:`refuse_disagreement` refuses when the chosen one is.
 """
 
 from __future__ import annotations
@@ -216,7 +219,9 @@ class HandEyeReport:
     """Every method on the same data; ``chosen`` is the one the calibration set takes.
 
     ``agreement_mm``/``agreement_deg``: for each method, the distance of its X from the chosen
-    one. ``warnings``: weak but usable data (few views, little axis spread).
+    one. ``warnings``: weak but usable data (few views, little axis spread, an outlier method).
+    ``median_mm``/``median_deg``: each method's median distance from the other methods.
+    ``outliers``: methods whose median distance exceeds the limits, or that failed, with why.
     """
 
     chosen: HandEyeMethod
@@ -225,6 +230,9 @@ class HandEyeReport:
     agreement_mm: dict[str, float]
     agreement_deg: dict[str, float]
     warnings: list[str] = field(default_factory=list)
+    median_mm: dict[str, float] = field(default_factory=dict)
+    median_deg: dict[str, float] = field(default_factory=dict)
+    outliers: dict[str, str] = field(default_factory=dict)
 
     @property
     def T_H_C(self) -> Pose:
@@ -286,7 +294,11 @@ def opencv_hand_eye(T_B_H: Sequence[ArrayLike], T_C_P: Sequence[ArrayLike], meth
     tg = [np.asarray(h, dtype=float)[:3, 3].reshape(3, 1) for h in T_B_H]
     Rc = [np.asarray(c, dtype=float)[:3, :3] for c in T_C_P]
     tc = [np.asarray(c, dtype=float)[:3, 3].reshape(3, 1) for c in T_C_P]
-    R, t = cv2.calibrateHandEye(Rg, tg, Rc, tc, method=_OPENCV_METHOD[method])
+    try:
+        R, t = cv2.calibrateHandEye(Rg, tg, Rc, tc, method=_OPENCV_METHOD[method])
+    except cv2.error as err:  # e.g. Andreff's "Rotation normalization issue" on an orbit around the board
+        why = (err.err or str(err)).strip().splitlines()[-1]
+        raise CalibrationRefused("hand_eye", "solver_failed", f"OpenCV's {method} failed on this data ({why})") from None
     R = np.asarray(R, dtype=float)
     t = np.asarray(t, dtype=float).reshape(3)
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
@@ -324,6 +336,57 @@ def check_motion(diversity: MotionDiversity, limits: HandEyeCalibrationConfig) -
     return warnings
 
 
+def _checked_poses(T_B_H: Sequence[ArrayLike], T_C_P: Sequence[ArrayLike], names: Sequence[str] | None) -> None:
+    """Refuse a flange or board pose that is not a rigid transform, naming its view."""
+    for k, (h, c) in enumerate(zip(T_B_H, T_C_P)):
+        view = names[k] if names is not None else f"view {k}"
+        for pose, what in ((h, "T_B_H"), (c, "board pose")):
+            try:
+                check_pose(pose, f"{view}.{what}")
+            except ValueError as err:
+                raise CalibrationRefused(
+                    "hand_eye", "bad_pose", f"{err}: correct that pose in the dataset's manifest, or leave the view out"
+                ) from None
+
+
+def _median_distances(solutions: dict[str, HandEyeSolution]) -> tuple[dict[str, float], dict[str, float]]:
+    """Each method's median distance (mm, deg) from the other methods' X."""
+    mm: dict[str, float] = {}
+    deg: dict[str, float] = {}
+    for m, s in solutions.items():
+        others = [o.T_H_C for n, o in solutions.items() if n != m]
+        X = s.T_H_C
+        mm[m] = float(np.median([np.linalg.norm(X[:3, 3] - Y[:3, 3]) for Y in others])) if others else 0.0
+        deg[m] = float(np.median([np.degrees(rotation_angle_between(X[:3, :3], Y[:3, :3])) for Y in others])) if others else 0.0
+    return mm, deg
+
+
+def refuse_disagreement(rep: HandEyeReport, limits: HandEyeCalibrationConfig) -> tuple[float, float]:
+    """The largest distance (mm, deg) of the agreeing methods from the chosen one; refused when the chosen is an outlier."""
+    if rep.chosen in rep.outliers:
+        agree = [m for m in rep.solutions if m not in rep.outliers]
+        raise CalibrationRefused(
+            "hand_eye", "methods_disagree",
+            f"the methods disagree: the chosen {rep.chosen} is {rep.median_mm[rep.chosen]:.2f} mm and "
+            f"{rep.median_deg[rep.chosen]:.3f} deg from the others (median; limits {limits.max_translation_disagreement_mm:g} mm, "
+            f"{limits.max_rotation_disagreement_deg:g} deg)"
+            + (f"; {', '.join(agree)} agree among themselves: choose one of them (hand_eye.method)" if len(agree) > 1 else
+               ": the data is inconsistent (board moved, poses and images mismatched, or poor motion); collect the views again"),
+        )
+    used = [m for m in rep.solutions if m not in rep.outliers]
+    return max(rep.agreement_mm[m] for m in used), max(rep.agreement_deg[m] for m in used)
+
+
+def _outliers(rep_mm: dict[str, float], rep_deg: dict[str, float], limits: HandEyeCalibrationConfig) -> dict[str, str]:
+    """The methods whose median distance from the others exceeds the disagreement limits, with why."""
+    lim_mm, lim_deg = limits.max_translation_disagreement_mm, limits.max_rotation_disagreement_deg
+    return {
+        m: f"{rep_mm[m]:.2f} mm / {rep_deg[m]:.3f} deg from the other methods (median), beyond {lim_mm:g} mm / {lim_deg:g} deg"
+        for m in rep_mm
+        if rep_mm[m] > lim_mm or rep_deg[m] > lim_deg
+    }
+
+
 def solve_hand_eye(
     T_B_H: Sequence[ArrayLike],
     T_C_P: Sequence[ArrayLike],
@@ -335,8 +398,9 @@ def solve_hand_eye(
     corners_px: Sequence[ArrayLike] | None = None,
     K: ArrayLike | None = None,
     dist: ArrayLike | None = None,
+    names: Sequence[str] | None = None,
 ) -> HandEyeReport:
-    """T_H_C by every method in ``methods`` on the same data, refusing degenerate motion sets.
+    """T_H_C by every method in ``methods`` on the same data, refusing degenerate motion sets and bad poses.
 
     Args:
         T_B_H: flange poses as the robot reported them, one per view.
@@ -344,6 +408,7 @@ def solve_hand_eye(
         chosen: the method whose X the report gives as the result (default the paper's Tsai).
         methods: the methods to run and compare (``chosen`` is always run).
         object_points, corners_px, K, dist: optional, for the chain reprojection figure.
+        names: the views' names, for the refusal of a pose that is not a rigid transform.
     """
     if len(T_B_H) != len(T_C_P):
         raise ValueError(f"{len(T_B_H)} flange poses but {len(T_C_P)} board poses; give one of each per view")
@@ -352,19 +417,30 @@ def solve_hand_eye(
     for m in methods:
         if m not in METHODS:
             raise ValueError(f"unknown hand-eye method {m!r}; choose one of {list(METHODS)}")
+    _checked_poses(T_B_H, T_C_P, names)
     diversity = motion_diversity(T_B_H, min_pair_angle_rad=np.deg2rad(limits.min_pair_angle_deg))
     warnings = check_motion(diversity, limits)
     pairs = motion_pairs(T_B_H, T_C_P, min_pair_angle_rad=np.deg2rad(limits.min_pair_angle_deg))
     run = [chosen] + [m for m in methods if m != chosen]
     solutions: dict[str, HandEyeSolution] = {}
+    failed: dict[str, str] = {}
     for m in run:
-        X = tsai_lenz(pairs.A, pairs.B) if m == "tsai" else opencv_hand_eye(T_B_H, T_C_P, m)
+        try:
+            X = tsai_lenz(pairs.A, pairs.B) if m == "tsai" else opencv_hand_eye(T_B_H, T_C_P, m)
+        except CalibrationRefused as err:
+            if m == chosen:
+                raise
+            failed[m] = err.detail
+            continue
         res = evaluate_hand_eye(X, T_B_H, T_C_P, pairs, object_points=object_points, corners_px=corners_px, K=K, dist=dist)
         solutions[m] = HandEyeSolution(m, X, res)
     ref = solutions[chosen].T_H_C
     agree_mm = {m: float(np.linalg.norm(s.T_H_C[:3, 3] - ref[:3, 3])) for m, s in solutions.items()}
     agree_deg = {m: float(np.degrees(rotation_angle_between(s.T_H_C[:3, :3], ref[:3, :3]))) for m, s in solutions.items()}
-    return HandEyeReport(chosen, solutions, diversity, agree_mm, agree_deg, warnings)
+    med_mm, med_deg = _median_distances(solutions)
+    outliers = {**_outliers(med_mm, med_deg, limits), **failed}
+    warnings += [f"{m} left out of the comparison between methods: {why}" for m, why in outliers.items() if m != chosen]
+    return HandEyeReport(chosen, solutions, diversity, agree_mm, agree_deg, warnings, med_mm, med_deg, outliers)
 
 
 def board_pose(object_points: ArrayLike, corners_px: ArrayLike, K: ArrayLike, dist: ArrayLike) -> tuple[Pose, float]:

@@ -141,6 +141,13 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
             "Disk almost full: production held before the store's writes fail; free space, then Unhold",
             True,
         ),
+        # A finished cycle's record the store refused (disk full, lock held): kept in memory and written again;
+        # production held meanwhile, so no glass is installed without its record. Cleared once it is written.
+        AlarmCode.RECORD_WRITE_FAILED: AlarmSpec(
+            FaultClass.OPERATOR_INTERVENTION,
+            "A finished cycle's record could not be written to the store: production held until it is",
+            True,
+        ),
     }
 )
 

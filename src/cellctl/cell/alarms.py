@@ -64,6 +64,9 @@ C = PackMLCommand
 _STRENGTH: Mapping[PackMLCommand, int] = {C.SUSPEND: 1, C.HOLD: 2, C.STOP: 3, C.ABORT: 4}
 """How strong a reaction is: entering Execute applies the strongest pending one."""
 
+_STANDING_STOPS = frozenset({PackMLState.ABORTED, PackMLState.STOPPED})
+"""States a fault cannot stop further: an alarm with a reaction raised there names the stop if nothing did."""
+
 
 # --- Events --------------------------------------------------------------------------------------
 
@@ -141,7 +144,8 @@ class AlarmManager:
 
     @property
     def stop_reason(self) -> Alarm | None:
-        """The first-out alarm: the first whose reaction stopped production, kept until reset."""
+        """The first-out alarm: the first whose reaction stopped production (in Aborted or Stopped, the first
+        with a reaction raised there), kept until reset."""
         if self._stop_reason is None:
             return None
         return self._alarms.get(self._stop_reason.uid, self._stop_reason)
@@ -291,7 +295,10 @@ class AlarmManager:
 
     async def _react(self, uid: str, command: PackMLCommand | None) -> None:
         m = self._machine
-        if m is None or command is None or next_state(m.state, command) is None:
+        if m is None or command is None:
+            return
+        if next_state(m.state, command) is None:
+            self._name_standing_stop(uid, m.state)
             return
         alarm = self._alarms.get(uid)
         if alarm is None or not alarm.active:
@@ -303,6 +310,13 @@ class AlarmManager:
         if self._stop_reason is None:
             self._stop_reason = alarm
         self._update(self._alarms.get(uid, alarm), AlarmEventKind.REACTED, self._clock(), reaction=command)
+
+    def _name_standing_stop(self, uid: str, state: PackMLState) -> None:
+        """An alarm with a reaction while the cell already stands in Aborted or Stopped (its start state, say) with
+        no stop reason becomes the first-out stop reason: the one fault that keeps it there, until a Reset."""
+        alarm = self._alarms.get(uid)
+        if self._stop_reason is None and state in _STANDING_STOPS and alarm is not None and alarm.active:
+            self._stop_reason = alarm
 
     def _on_machine_event(self, ev: MachineEvent) -> None:
         if ev.command in STOP_REASON_RESET_COMMANDS:

@@ -24,6 +24,7 @@ from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.events import EventHub
+from cellctl.cell.final_record import FinalRecord, FinalRecords, despite_store_fault
 from cellctl.cell.outcome import part_verdict, result_fields
 from cellctl.cell.packml import (
     CycleStepNotAllowed,
@@ -125,6 +126,7 @@ class CellOrchestrator:
         self._links: dict[str, dict[str, Any]] = {}
         self._status_parts: dict[str, Callable[[], Any]] = {}
         self.quality = InstallQualityLoop(config, store, alarms, events)
+        self.records = FinalRecords(store, alarms, events)  # a cycle's end, kept and retried while the store refuses it
         self._calibration_read: dict[str, Any] = {}  # the running cycle's calibration reference, once read
         self._applied_offset: dict[str, float] = {}
         self._loop_recipe: str | None = None  # the running cycle's recipe, whose closed loop its result feeds
@@ -190,6 +192,7 @@ class CellOrchestrator:
                 self._worker_task = None
             if self._recording is not None:  # a finished cycle's record is written before the store closes
                 await asyncio.gather(self._recording, return_exceptions=True)
+            await self.records.stop()
         finally:
             await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
             self._tasks.clear()
@@ -206,7 +209,7 @@ class CellOrchestrator:
 
     async def _on_machine_event(self, ev: MachineEvent) -> None:
         if ev.kind is not EventKind.CYCLE_STEP:  # the steps are in the cycle's record; the audit log keeps what people and faults did
-            await self.store.append_machine_event(ev, cycle_id=self._current)
+            await despite_store_fault(self.store.append_machine_event(ev, cycle_id=self._current), "a machine event")
         state_event: dict[str, Any] = {
             "state": ev.state_after.name,
             "mode": ev.mode_after.name,
@@ -418,15 +421,14 @@ class CellOrchestrator:
                     await self.alarms.raise_alarm(
                         AlarmCode.INSTALL_OUT_OF_TOLERANCE, source="inspection", detail=not_ok, cycle_id=cycle_id
                     )
-                await rec.close_step(ok=True)
+                await despite_store_fault(rec.close_step(ok=True), f"cycle {cycle_id}'s last step")
                 fields = result_fields(result, elapsed, not_ok=not_ok) | times | {"step_time_s": rec.step_times_s()}
                 fields["calibration_version"] = self._calibration_read.get("version")
                 fields["spc"], update = await self.quality.feed_cycle(
                     cycle_id, result.measured, recipe=self._loop_recipe, calibration_read=self._calibration_read,
                     applied=self._applied_offset,
                 )  # fmt: skip
-                await self.store.complete_cycle(cycle_id, result=fields, true_error=self._true_error())
-                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "done", "part_ok": not_ok is None})
+                await self.records.write(FinalRecord.done(cycle_id, fields, self._true_error(), part_ok=not_ok is None))
                 if update is not None:
                     await self.quality.raise_drift(cycle_id, update, self._loop_recipe or "")
             elif failure is not None:
@@ -436,18 +438,14 @@ class CellOrchestrator:
                     # cause: this alarm, or one that stopped the cell first (e.g. the watchdog's link lost).
                     await self.alarms.raise_alarm(alarm, source="cycle", detail=reason, cycle_id=cycle_id)
                     code = self._stop_code(code)
-                await rec.close_step(ok=False, error=reason)
+                await despite_store_fault(rec.close_step(ok=False, error=reason), f"cycle {cycle_id}'s last step")
                 spc, _ = await self.quality.feed_cycle(
                     cycle_id, None, recipe=self._loop_recipe, calibration_read=self._calibration_read,
                     applied=self._applied_offset, failed=True,
                 )  # fmt: skip
-                await self.store.fail_cycle(
-                    cycle_id, error=reason,
-                    result={"error_code": code, "cycle_time_s": elapsed, **times, "step_time_s": rec.step_times_s(),
-                            "spc": spc, "calibration_version": self._calibration_read.get("version")},
-                    true_error=self._true_error(),
-                )
-                self.events.publish("cycle", {"cycle_id": cycle_id, "state": "failed", "error": reason})
+                figures = {"error_code": code, "cycle_time_s": elapsed, **times, "step_time_s": rec.step_times_s(),
+                           "spc": spc, "calibration_version": self._calibration_read.get("version")}
+                await self.records.write(FinalRecord.failed(cycle_id, reason, figures, self._true_error()))
         finally:
             self._current = self._busy = None
             with contextlib.suppress(Exception):

@@ -166,7 +166,7 @@ class PackMLError(Exception):
 
 
 class CommandRefused(PackMLError):
-    """A command was not carried out (the API answers 409, the PLC gets cmd_result = 1)."""
+    """A command was not carried out (the API answers 409; the PLC gets cmd_result 1, or 5 for an interlock)."""
 
     def __init__(self, state: PackMLState, command: PackMLCommand, reason: str) -> None:
         super().__init__(f"{command.name.title()} refused in {state.name.title()}: {reason}")

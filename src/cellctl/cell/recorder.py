@@ -85,7 +85,8 @@ class StoreRecorder:
         figures["time_s"] = spent = self._clock() - self._opened_at
         name = step.name.lower()
         self._step_s[name] = self._step_s.get(name, 0.0) + spent
-        await self._store.finish_step(self.cycle_id, step, ok=ok, figures=figures, error=error)
+        # The step's duration on the cell's monotonic clock: a wall-clock step in between changes nothing.
+        await self._store.finish_step(self.cycle_id, step, ok=ok, figures=figures, error=error, duration_s=spent)
 
     def step_times_s(self) -> dict[str, float]:
         """Seconds on the cell's clock spent in each step so far (a step entered again adds up), in order of first entry."""

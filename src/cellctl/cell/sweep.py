@@ -206,7 +206,7 @@ async def sweep_path(
         raise
     window = (approach[0], approach[1])
     instants, distances = stored_instants(stored)
-    t, T = pose_samples_arrays(samples)
+    t, T = await asyncio.to_thread(pose_samples_arrays, samples)  # thousands of matrices: off the loop
     latency: LatencyEstimate | None = None
     if latency_s is None:  # plane fits: off the loop
         latency = await asyncio.to_thread(_latency, run, step, instants, distances, (t, T), window, check_s)
@@ -273,11 +273,21 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
         await run.dev.robot.stop(timeout_s=run.motion.read_timeout_s)
     except DeviceError as err:
         raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"the position feedback stopped and the robot did not stop: {err}") from err
+    why = await _stream_fault(stream, run.motion.read_timeout_s)
     raise CycleFailed(
         step, AlarmCode.POSITION_FEEDBACK_LOST,
-        f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s): "
+        f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s{why}): "
         "the robot was stopped and no wall plane was fitted",
     )  # fmt: skip
+
+
+async def _stream_fault(stream: PoseStream, timeout_s: float) -> str:
+    """Why the stream ended, as its stop refuses it (a stepped controller clock, a lost link); '' when it stops cleanly."""
+    try:
+        await stream.stop_stream(timeout_s=timeout_s)
+    except DeviceError as err:
+        return f"; {err}"
+    return ""
 
 
 async def _leave_nothing_running(stream: PoseStream, laser: StoringSensor, timeout_s: float, path_s: float) -> None:

@@ -16,6 +16,7 @@ from cellctl.calibration.calibration_set import RECIPE_PART_NAMES, check_ready
 from cellctl.cell.packml import PackMLMachine
 from cellctl.commissioning.jobs import JOB_STATES_ALLOWED, JobManager
 from cellctl.commissioning.procedures import ORDER
+from cellctl.commissioning.registry import JobRefused
 from cellctl.domain import PackMLCommand, PackMLState
 from cellctl.store import JobRecord
 
@@ -59,8 +60,9 @@ async def commission_missing(
 ) -> list[JobRecord]:
     """Run the needed procedures one after the other; returns their job records.
 
-    An Aborted cell is cleared first (jobs run in Stopped or Idle). Raises CommissioningFailed
-    at the first job that does not end ``done``.
+    An Aborted cell is cleared first (jobs run in Stopped or Idle). A job still running after
+    ``job_timeout_s`` is cancelled as an operator's cancel would. Raises CommissioningFailed at the
+    first job that does not end ``done``.
     """
     done: list[JobRecord] = []
     if not parts_needed(jobs):
@@ -73,7 +75,20 @@ async def commission_missing(
         log.info("commissioning %s (missing, failed or out of date)", nxt)
         rec = await jobs.submit(nxt.part, {} if nxt.recipe is None else {"recipe": nxt.recipe}, actor=actor, source=source)
         rec = await jobs.wait(rec.id, job_timeout_s)
+        if not rec.finished:
+            rec = await _cancel_overdue(jobs, rec, job_timeout_s, actor=actor, source=source)
         done.append(rec)
         if rec.state != "done":
             raise CommissioningFailed(f"job {rec.id} ({nxt}) ended {rec.state}: {rec.error}")
     return done
+
+
+async def _cancel_overdue(jobs: JobManager, rec: JobRecord, timeout_s: float, *, actor: str, source: str) -> JobRecord:
+    """Cancel a job that outlived ``timeout_s`` (its prompt closes, the robot stops, Start is free again)."""
+    reason = (f"no end within {timeout_s:g} s (job_timeout_s of cellctl.commissioning.auto.commission_missing): "
+              "cancelled; answer its prompts sooner or give a longer job_timeout_s")  # fmt: skip
+    log.warning("commissioning job %d (%s): %s", rec.id, rec.procedure, reason)
+    try:
+        return await jobs.cancel(rec.id, actor=actor, source=source, reason=reason)
+    except JobRefused:  # it ended between the wait and the cancel
+        return await jobs.job(rec.id)

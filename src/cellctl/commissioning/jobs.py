@@ -33,7 +33,7 @@ from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import PackMLMachine
+from cellctl.cell.packml import CYCLE_STATES, PackMLMachine
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.plans import MotionPlan, PlanError
@@ -56,6 +56,14 @@ JOB_STATES_ALLOWED = frozenset({PackMLState.STOPPED, PackMLState.IDLE})
 _CANCELLING_STATES = frozenset({PackMLState.STOPPING, PackMLState.ABORTING})
 PROGRESS_PERSIST_EVERY = 10
 LAST_FRAMES_KEPT = 4
+
+
+def _way_to_a_job(state: PackMLState) -> str:
+    """What to send to reach Stopped or Idle (a Stop in Execute, Held or Suspended ends the cycle in progress)."""
+    if state is PackMLState.ABORTED:
+        return "send Clear first"
+    return "send Stop first" + ("" if state not in CYCLE_STATES else ", once the cycle in progress has ended: "
+                                "Stop ends a running (or held) cycle at once and drops the queued ones")  # fmt: skip
 
 
 @dataclass
@@ -251,7 +259,7 @@ class JobManager:
             if state not in JOB_STATES_ALLOWED:
                 raise JobRefused(
                     f"the cell is {state.name}: commissioning jobs run in STOPPED or IDLE only (no cycle can run then); "
-                    + ("send Clear first" if state is PackMLState.ABORTED else "send Stop first"),
+                    + _way_to_a_job(state),
                     conflict=True,
                 )
             self._starting = procedure  # from here a Start waits: no cycle may begin beside the job

@@ -11,6 +11,7 @@ calibrate ... --dry-run`` prints it; a job shows it before the first move.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,6 +32,9 @@ from cellctl.geometry.pose import Pose, pose_in_plane, pose_to_xyz_fixed
 
 PROCEDURE_NAMES = ("camera", "hand_eye", "laser", "teaching", "pixel_map", "verify")
 SPREAD_POSES = 60
+LASER_SPARE = 0.2
+"""Laser poses a job plans beyond the gate's ``calibration.procedure.laser.min_poses`` readings, as a share of
+it: a few readings out of the sensor's range (or poses the robot refuses) must not leave the job short."""
 
 
 class PlanError(ValueError):
@@ -208,8 +212,9 @@ def plan_laser(config: CellConfig, *, poses: int | None = None, start: Pose | No
     R_nom = T0[:3, :3] @ lay.camera_mount.T_H_C()[:3, :3].T
     lo, hi = lay.laser_mount.range_min_mm + lc.range_margin_mm, lay.laser_mount.range_max_mm - lc.range_margin_mm
     n = poses if poses is not None else lc.n_poses
-    if n < lc.min_poses:
-        raise PlanError(f"poses: the laser calibration needs at least {lc.min_poses} poses (calibration.procedure.laser.min_poses), got {n}")
+    if n < laser_poses_floor(config):
+        field_name = "poses" if poses is not None else "calibration.procedure.laser.n_poses"
+        raise PlanError(f"{field_name}: a laser job plans at least {laser_poses_floor(config)} poses ({laser_floor_why(config)}), got {n}")
     plan = plan_laser_poses(
         T0, lc.aim_mm, R_nom, r_nom, l_nom, n, _reach_check(config),
         pivot_H_mm=lc.wrist_in_flange_mm, standoff_mm=lc.standoff_mm, wrist_depths_mm=lc.wrist_depths_mm(),
@@ -221,6 +226,30 @@ def plan_laser(config: CellConfig, *, poses: int | None = None, start: Pose | No
                "tilt_deg": list(lc.tilt_deg), "distance_mm": [min(plan.distance_mm, default=0.0), max(plan.distance_mm, default=0.0)],
                "r_nominal": r_nom.tolist(), "l_nominal": l_nom.tolist()}  # fmt: skip
     return make_plan(config, "laser", plan.flange_poses, labels, plan.dropped, start, details)
+
+
+def laser_poses_floor(config: CellConfig) -> int:
+    """The fewest poses a laser job may ask for: the gate's readings and :data:`LASER_SPARE` more."""
+    gate = config.calibration.procedure.laser.min_poses
+    return gate + math.ceil(gate * LASER_SPARE)
+
+
+def laser_floor_why(config: CellConfig) -> str:
+    """Why :func:`laser_poses_floor` is what it is, naming the setting."""
+    gate = config.calibration.procedure.laser.min_poses
+    return (f"the calibration needs {gate} usable readings, calibration.procedure.laser.min_poses, and "
+            f"{laser_poses_floor(config) - gate} more are planned for readings out of range")  # fmt: skip
+
+
+def more_laser_poses(config: CellConfig, planned: int, usable: int) -> str:
+    """What to ask for after a laser job came back with too few usable readings: ``--poses``, and how many more."""
+    if usable <= 0:
+        return ("no pose gave a usable reading: check calibration.procedure.laser.aim_mm and the sensor's range "
+                "before asking for more poses")  # fmt: skip
+    gate = config.calibration.procedure.laser.min_poses
+    ask = max(laser_poses_floor(config), math.ceil(planned * gate * (1.0 + LASER_SPARE) / usable))
+    return (f"{planned - usable} of the {planned} planned poses gave no usable reading: run it again with "
+            f"--poses {ask} (options.poses; {ask - planned} more)")  # fmt: skip
 
 
 def _need(cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str | None = None) -> CalibrationSet:

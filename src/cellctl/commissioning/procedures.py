@@ -37,6 +37,7 @@ from cellctl.commissioning.context import DatasetDraft, JobContext
 from cellctl.commissioning.plans import (
     MotionPlan,
     board_place,
+    more_laser_poses,
     nominal_T0,
     plan_board,
     plan_laser,
@@ -396,6 +397,19 @@ def _hand_eye(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outco
     return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
 
 
+def _laser(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
+    """compute_laser; a refusal for too few readings also says how many poses to ask for (``--poses``)."""
+    try:
+        return compute_laser(ds, cfg)
+    except CalibrationRefused as err:
+        if err.reason != "too_few_poses":
+            raise
+        rows = ds.manifest["readings"]
+        usable = sum(1 for r in rows if r["status"] == "ok" and r["distance_mm"] is not None)
+        planned = int((ds.manifest.get("plan") or {}).get("poses", len(rows)))
+        raise CalibrationRefused("laser", err.reason, f"{err.detail}; {more_laser_poses(cfg, planned, usable)}") from None
+
+
 PROCEDURES: dict[str, Procedure] = {
     "camera": Procedure(
         "camera", "board_views", "zhang", (),
@@ -410,7 +424,7 @@ PROCEDURES: dict[str, Procedure] = {
     "laser": Procedure(
         "laser", "laser_plane", "plane constraint", (),
         lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
-        collect_laser_plane, lambda ds, cal, cfg: compute_laser(ds, cfg), ("poses",),
+        collect_laser_plane, _laser, ("poses",),
     ),
     "teaching": Procedure(
         "teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"),

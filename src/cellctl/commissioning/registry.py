@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from cellctl.calibration.hand_eye import METHODS as HAND_EYE_METHODS
+from cellctl.commissioning.plans import laser_floor_why, laser_poses_floor
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
 from cellctl.config.calibration_procedure import MotionSettings
@@ -44,9 +45,10 @@ def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig
             if not isinstance(value, int) or isinstance(value, bool) or not 3 <= value <= 200:
                 raise JobRefused(f"options.views: give a whole number of board views from 3 to 200, got {value!r}")
         elif key == "poses":
-            lo = config.calibration.procedure.laser.min_poses
+            lo = laser_poses_floor(config)
             if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= 5000:
-                raise JobRefused(f"options.poses: give a whole number of laser poses from {lo} to 5000, got {value!r}")
+                raise JobRefused(f"options.poses: give a whole number of laser poses from {lo} to 5000 "
+                                 f"({laser_floor_why(config)}), got {value!r}")  # fmt: skip
         elif key == "store":
             if not isinstance(value, bool):
                 raise JobRefused(f"options.store: true or false, got {value!r}")

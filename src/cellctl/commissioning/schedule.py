@@ -54,8 +54,7 @@ class VerifySchedule:
     async def start(self) -> None:
         if not self.enabled:
             return
-        done = await self.store.cycles(limit=1000, state=CycleState.DONE)
-        self.cycles_since = sum(1 for c in done if c.finished_at is not None and c.finished_at >= self.since)
+        self.cycles_since = await self.store.count_finished(CycleState.DONE, since=self.since)  # all of them, in SQL
         queue = self.events.subscribe()
         self._task = asyncio.create_task(self._follow(queue))
         await self.review()

@@ -94,12 +94,23 @@ def _read_lines(stream: TextIO, lines: "queue.Queue[str | None]") -> None:
     lines.put(None)
 
 
-def _show_prompt(out: TextIO, prompt: dict[str, Any]) -> None:
+def _show_prompt(out: TextIO, prompt: dict[str, Any], *, asks: bool = True) -> None:
     out.write(f"\n  ? [{prompt['kind']}] {prompt['text']}\n")
+    if not asks:
+        return
     if prompt.get("value_label"):
         out.write(f"    {prompt['value_label']} [{prompt.get('default')}]  (Enter keeps it, a number answers, c cancels): ")
     else:
         out.write("    [Enter] confirm, c cancel: ")
+    out.flush()
+
+
+def _answer_elsewhere(out: TextIO, url: str, job_id: int, prompt: dict[str, Any]) -> None:
+    """Say once that this terminal takes no more answers and where the open prompt can be answered."""
+    pid = prompt["id"]
+    out.write(f"\n    no more input here (stdin closed): prompt {pid} stays open; answer it on the dashboard "
+              f"({url}/#/commissioning) or with POST {url}/jobs/{job_id}/prompts/{pid} (action confirm, cancel or value); "
+              f"still following job {job_id} (Ctrl-C cancels it)\n")  # fmt: skip
     out.flush()
 
 
@@ -185,6 +196,15 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
     out.flush()
     prompt: dict[str, Any] | None = None
     synced = False
+
+    def _open(p: dict[str, Any]) -> TextIO | None:
+        """Show a prompt that opened; without input (any more) say where it can be answered instead."""
+        now = _drop_typed_ahead(lines, out, stdin)
+        _show_prompt(out, p, asks=now is not None)
+        if now is None:
+            _answer_elsewhere(out, client.url, job_id, p)
+        return now
+
     try:
         while True:
             try:
@@ -199,8 +219,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 if job.get("prompt") and (prompt is None or prompt["id"] != job["prompt"]["id"]):
                     prompt = job["prompt"]
                     bar.clear()
-                    stdin = _drop_typed_ahead(lines, out, stdin)
-                    _show_prompt(out, prompt)
+                    stdin = _open(prompt)
             elif kind == "lost":
                 job = client.job(job_id)
                 if job["state"] in FINISHED:
@@ -217,8 +236,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 if data["open"]:
                     prompt = p
                     bar.clear()
-                    stdin = _drop_typed_ahead(lines, out, stdin)
-                    _show_prompt(out, p)
+                    stdin = _open(p)
                 else:
                     if prompt is not None and prompt["id"] == p["id"]:
                         prompt = None
@@ -234,8 +252,9 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                     line = lines.get_nowait()
                 except queue.Empty:
                     continue
-                if line is None:  # no more input: others must answer
+                if line is None:  # no more input: others must answer, and the engineer is told where
                     stdin = None
+                    _answer_elsewhere(out, client.url, job_id, prompt)
                     continue
                 parsed = _parse(line, prompt)
                 if isinstance(parsed, str):

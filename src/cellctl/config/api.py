@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import enum
 import os
 import stat
 from pathlib import Path
+from typing import Any
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from cellctl.config.types import ListenHost, StrictModel, check_unique
 
@@ -25,6 +27,33 @@ MAKE_A_TOKEN = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
 DEFAULT_MAX_BODY_BYTES = 64 * 1024
 """The largest request body (bytes): the API's bodies (a cycle request, a job request, a prompt answer) are
 below 1 kB each; 64 kB leaves room for long ids and options without letting a client fill the memory."""
+
+
+class ApiRole(enum.StrEnum):
+    """What a bearer token may do (the OPC UA users' role names; ``cellctl.api.auth.ROUTE_ROLES`` is the route table).
+
+    Each role may do all that the roles before it may: ``viewer`` reads (where reads are closed),
+    ``operator`` runs production, ``engineer`` also changes what production runs on.
+    """
+
+    viewer = "viewer"
+    operator = "operator"
+    engineer = "engineer"
+
+    def allows(self, needed: ApiRole) -> bool:
+        """Whether a token of this role may use a route that needs ``needed``."""
+        order = list(ApiRole)
+        return order.index(self) >= order.index(needed)
+
+
+ROLE_RIGHTS = {
+    ApiRole.viewer: "reads only, where reads are closed",
+    ApiRole.operator: "also cycles, PackML commands, unit mode changes and alarm acknowledgement",
+    ApiRole.engineer: "also SPC reset, calibration and teaching jobs and their prompts",
+}
+"""What each role adds, in words (errors, ``cellctl config check``, docs)."""
+DEFAULT_ROLE = ApiRole.engineer
+"""A token without ``role`` may do everything, as before roles existed; shipped configs name the role."""
 
 
 class TokenUnavailable(ValueError):
@@ -52,7 +81,7 @@ def token_weakness(value: str) -> str | None:
 
 
 class ApiToken(StrictModel):
-    """A bearer token. ``name`` is the actor recorded in the audit log.
+    """A bearer token. ``name`` is the actor recorded in the audit log; ``role`` says what it may do (:class:`ApiRole`).
 
     Exactly one source: ``token_env`` (an environment variable, e.g. set from /etc/cellctl/cellctl.env),
     ``token_file`` (a file whose content is the token; not readable by every user), or ``token``
@@ -64,6 +93,16 @@ class ApiToken(StrictModel):
     token: str | None = None
     token_env: str | None = Field(None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=128)
     token_file: Path | None = None
+    role: ApiRole = DEFAULT_ROLE
+
+    @field_validator("role", mode="before")
+    @classmethod
+    def _known_role(cls, value: Any, info: ValidationInfo) -> Any:
+        if value not in [r.value for r in ApiRole]:
+            rights = "; ".join(f"{r.value}: {ROLE_RIGHTS[r]}" for r in ApiRole)
+            raise ValueError(f"token '{info.data.get('name', '?')}': {value!r} is not a role; give 'viewer', 'operator' "
+                             f"or 'engineer' ({rights})")
+        return value
 
     @model_validator(mode="after")
     def _one_source(self) -> ApiToken:
@@ -189,6 +228,18 @@ class ApiConfig(StrictModel):
             elif t.token_file is not None and not t.token_file.is_absolute():
                 problems.append(f"api.tokens.{i}.token_file: give an absolute path (got '{t.token_file}')")
         return problems
+
+    def roles(self) -> dict[str, ApiRole]:
+        """Each token's role by its name."""
+        return {t.name: t.role for t in self.tokens}
+
+    def role_notes(self) -> list[str]:
+        """Each token's role, and a word when every token is an engineer (lines for ``cellctl config check``)."""
+        lines = [", ".join(f"{t.name}: {t.role.value}" for t in self.tokens)]
+        if all(t.role is ApiRole.engineer for t in self.tokens):
+            lines.append('every API token is an engineer (all rights): for least privilege give the line\'s tokens '
+                         'role = "operator" (or "viewer") in [[api.tokens]]')
+        return lines
 
     def secrets(self) -> tuple[tuple[str, str], ...]:
         """Every token as (name, value), read now. Raises :class:`TokenUnavailable` naming every token that cannot be used."""

@@ -54,6 +54,17 @@ class CameraCalibrationConfig(StrictModel):
     max_rms_px: Finite = Field(0.5, gt=0)
     reject_factor: Finite = Field(3.0, gt=1)  # a view above this times the median per-view RMS ...
     reject_floor_px: Finite = Field(0.1, gt=0)  # ... and above this absolute RMS is rejected
+    # Refused when the board's normal scatters less than this (RMS angle from its mean over the views): parallel
+    # views leave the focal length unobservable (Zhang 3.1). The planned views (tilts 12-35 deg) scatter 15-25 deg.
+    min_tilt_spread_deg: Finite = Field(5.0, ge=0, le=60)
+    # Refused when OpenCV's std of fx or fy exceeds this share of it (1e-3: about 0.4 mm of depth at 430 mm).
+    max_focal_std_ratio: Finite = Field(1e-3, gt=0)
+    # Refused when the single views' focal lengths (the other intrinsics held) scatter by more than this many of
+    # their own standard deviations (RMS): views taken at two focus or zoom settings. Consistent views give about 1.
+    max_view_focal_sigma: Finite = Field(3.0, gt=0)
+    # ... and by more than this share of fx (weighted RMS): a real lens's model error may scatter the views beyond
+    # their corner noise alone; a spread below 5e-4 (0.2 mm of depth at 430 mm) is never refused.
+    min_view_focal_spread: Finite = Field(5e-4, ge=0)
 
 
 HandEyeMethod = Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"]

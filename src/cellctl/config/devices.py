@@ -6,11 +6,25 @@ The composition root maps these sections to driver constructors; the core never 
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+import ipaddress
+from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, field_validator, model_validator
 
 from cellctl.config.types import Finite, StrictModel
+
+
+def is_loopback(host: object) -> bool:
+    """Whether ``host`` (a name or an address) is this machine's loopback: localhost, 127.0.0.0/8 or ::1."""
+    if not isinstance(host, str):
+        return False
+    name = host.strip().strip("[]").lower()
+    if name == "localhost" or name.endswith(".localhost"):
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
 
 
 class SimLaserDevice(StrictModel):
@@ -100,7 +114,7 @@ class AbbRobotDevice(StrictModel):
     host: str = Field(min_length=1)  # the controller's LAN/WAN address (not the service port)
     rapid_port: int = Field(30100, ge=1, le=65535)  # CELLCTL_PORT in CellctlServer.mod
     egm_port: int | None = Field(6511, ge=0, le=65535)  # UDP port the PC binds (UDPUC remote port); 0: no EGM
-    egm_bind_host: str = Field("0.0.0.0", min_length=1)
+    egm_bind_host: str = Field("0.0.0.0", min_length=1)  # unset: 127.0.0.1 for a loopback host (a virtual controller)
     connect_timeout_s: Finite = Field(3.0, gt=0, le=60)
     request_timeout_s: Finite = Field(2.0, gt=0, le=60)  # handshake and settings after each connection
     heartbeat_period_s: Finite = Field(1.0, gt=0, le=60)  # PING after this much quiet (the module drops a client after 10 s)
@@ -128,6 +142,14 @@ class AbbRobotDevice(StrictModel):
     @classmethod
     def _zero_is_off(cls, v: int | None) -> int | None:
         return None if v == 0 else v  # TOML has no null: egm_port = 0 switches EGM off
+
+    @model_validator(mode="before")
+    @classmethod
+    def _egm_bind_follows_host(cls, data: Any) -> Any:
+        """A robot on this machine (RobotStudio's virtual controller) sends EGM over loopback: bind only there."""
+        if isinstance(data, dict) and "egm_bind_host" not in data and is_loopback(data.get("host")):
+            return {**data, "egm_bind_host": "127.0.0.1"}
+        return data
 
     @model_validator(mode="after")
     def _heartbeat_fits(self) -> "AbbRobotDevice":

@@ -111,6 +111,16 @@ class MqttConfig(StrictModel):
             raise ValueError("mqtt.password_file is set but mqtt.username is not: give the user name the password belongs to")
         return self
 
+    def hardware_problems(self) -> list[str]:
+        """What a hardware cell refuses in this section: a broker password sent without TLS (field: message)."""
+        if self.enabled and self.password_file is not None and self.tls is None:
+            return [(
+                f"mqtt.tls: mqtt.username '{self.username}' logs in with mqtt.password_file but [mqtt.tls] is not set, "
+                "so the password would cross the plant network in clear; add [mqtt.tls] with ca_file (the CA of the "
+                "broker's certificate) and the broker's TLS port (usually 8883), or remove password_file"
+            )]
+        return []
+
     @property
     def effective_client_id(self) -> str:
         """The MQTT client id: ``client_id``, else ``cellctl-<isa95.cell>``."""

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import ipaddress
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from cellctl.config.types import Finite, ListenHost, StrictModel
 
@@ -25,6 +26,31 @@ class PlcConfig(StrictModel):
     scan_period_s: Finite = Field(0.02, gt=0, le=1.0)  # PLC block read and status publish period
     facade_timeout_s: Finite = Field(5.0, gt=0)  # longest wait for one answer from the cell
     cycle_result_timeout_s: Finite = Field(900.0, gt=0)  # longest wait for an accepted cycle's result
+    # Modbus TCP has no authentication: only these client addresses or networks may connect ("10.1.2.3",
+    # "10.1.2.0/24"); others are closed at once. Empty: any host that reaches the port (README, "Security").
+    allowed_clients: tuple[str, ...] = ()
+
+    @field_validator("allowed_clients")
+    @classmethod
+    def _networks(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for entry in value:
+            try:
+                ipaddress.ip_network(entry, strict=True)
+            except ValueError as err:
+                raise ValueError(f"plc.allowed_clients: {entry!r} is not an IP address or network ({err}); give e.g. "
+                                 '"10.1.2.3" (the PLC) or "10.1.2.0/24" (its network, host bits zero)') from None
+        return value
+
+    def client_networks(self) -> tuple[ipaddress.IPv4Network | ipaddress.IPv6Network, ...]:
+        """``allowed_clients`` as networks (an address is a network of one)."""
+        return tuple(ipaddress.ip_network(entry) for entry in self.allowed_clients)
+
+    def clients_note(self) -> str:
+        """Who may command the cell over Modbus, in a line (``cellctl config check``)."""
+        if self.allowed_clients:
+            return "clients " + ", ".join(self.allowed_clients) + " only (plc.allowed_clients)"
+        return ("any host that reaches the port may command the cell (Modbus has no authentication): list the "
+                "PLC's address in plc.allowed_clients and firewall the port (README, Security)")
 
     @model_validator(mode="after")
     def _periods_fit(self) -> "PlcConfig":

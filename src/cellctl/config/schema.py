@@ -113,7 +113,7 @@ class CellConfig(StrictModel):
                 )
             if self.calibration.source == "oracle":
                 raise ValueError('calibration.source = "oracle" exists only in the simulated cell; use "set"')
-            problems = self.api.hardware_problems() + self.opcua.hardware_problems()
+            problems = self.api.hardware_problems() + self.opcua.hardware_problems() + self.mqtt.hardware_problems()
             if problems:
                 raise ValueError('mode = "hardware": ' + "; ".join(problems))
         return self

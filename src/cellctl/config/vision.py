@@ -87,6 +87,10 @@ class FitConfig(StrictModel):
     # undisturbed ratio by more than this: lighting scales both alike, light added by a glare
     # spot does not, and it biases the crossing (0.1 is a veil of about 17 DN on a 150/20 DN scene).
     background_tolerance: Finite = Field(0.1, gt=0, le=1)
+    # Refuse an edge whose median normalised profile overshoots, undershoots or turns back by more
+    # than this share of its contrast (or 8 sigmas of that median's noise if more): a highlight or
+    # a glint beside the edge shifts the crossing (about 6 px per unit: 0.03 is 0.2 px).
+    max_edge_bump: Finite = Field(0.03, gt=0, le=1)
     seed: int = Field(0, ge=0)  # RANSAC's random stream: the detector is deterministic
     check_arc: bool = True  # measure the corner arc, check both lines touch it (off for a sharp corner)
 
@@ -169,6 +173,7 @@ class GapVisionConfig(StrictModel):
     min_contrast_dn: Finite = Field(10.0, gt=0)  # across each edge, median over its profiles
     ransac_band_px: Finite = Field(0.5, gt=0, le=10)
     robust_k: Finite = Field(3.5, gt=1, le=10)
+    max_edge_bump: Finite = Field(0.06, gt=0, le=1)  # as vision.fit.max_edge_bump; the glass's edge is fainter and less clean
     seed: int = Field(0, ge=0)  # RANSAC's random stream: the measurement is deterministic
 
 

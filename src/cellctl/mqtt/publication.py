@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import logging
 import os
-import stat
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import aiomqtt
 
+from cellctl.config.api import TokenUnavailable, read_secret
 from cellctl.config.mqtt import MqttConfig
 from cellctl.mqtt.bridge import EventBridge
 from cellctl.mqtt.outbox import Outbox
@@ -40,12 +40,11 @@ def _resolve(path: Path, workdir: Path) -> Path:
 
 
 def read_password(config: MqttConfig, workdir: Path) -> str | None:
-    """The password from ``mqtt.password_file`` (None without one)."""
+    """The password from ``mqtt.password_file`` (None without one), checked as the API token files are."""
     if config.password_file is None:
         return None
     path = _resolve(config.password_file, workdir)
     try:
-        st = path.stat()
         with path.open("rb") as f:
             raw = f.read(PASSWORD_FILE_MAX_BYTES + 1)
     except OSError as err:
@@ -54,9 +53,10 @@ def read_password(config: MqttConfig, workdir: Path) -> str | None:
     text = raw.decode("utf-8", errors="replace").strip()
     if not text or len(raw) > PASSWORD_FILE_MAX_BYTES or "\n" in text:
         raise MqttSetupError(f"mqtt.password_file {path}: must hold the password on one line (and nothing else)")
-    if st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
-        log.warning("mqtt.password_file %s is readable by others than its owner: chmod 600 it", path)
-    return text
+    try:  # the API token files' checks: not readable by every user, not short, a placeholder or a default
+        return read_secret("mqtt", env=("password_env", None), file=("password_file", path), what="password")
+    except TokenUnavailable as err:
+        raise MqttSetupError(str(err)) from None
 
 
 def tls_parameters(config: MqttConfig, workdir: Path) -> aiomqtt.TLSParameters | None:

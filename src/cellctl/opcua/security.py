@@ -22,6 +22,8 @@ from asyncua.crypto import cert_gen, uacrypto
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
@@ -198,6 +200,7 @@ def server_certificate_problem(cert_path: Path, key_path: Path) -> str | None:
     if cert_path.is_file() and key_path.is_file():
         try:
             load_server_certificate(cert_path)
+            load_server_private_key(key_path)
         except ServerCertificateError as err:
             return str(err)
         return None
@@ -235,13 +238,35 @@ def load_server_certificate(cert_path: Path) -> x509.Certificate:
         f"{cert_path} (or name a PEM file *.pem), or delete it and its key to have new ones made") from None
 
 
+def load_server_private_key(key_path: Path) -> rsa.RSAPrivateKey:
+    """The server's key as asyncua will load it (PEM if named .pem, else DER, no password); ServerCertificateError if not."""
+    fix = "or delete it and its certificate to have new ones made"
+    try:
+        data = key_path.read_bytes()
+    except OSError as err:
+        raise ServerCertificateError(f"opcua.private_key {key_path} cannot be read ({err.strerror or err}); let the "
+                                     f"service's user read it (chmod 600, owned by that user), {fix}") from None
+    kind = "PEM" if _is_pem_name(key_path) else "DER"
+    try:
+        load = serialization.load_pem_private_key if kind == "PEM" else serialization.load_der_private_key
+        key = load(data, password=None)
+    except (ValueError, TypeError):  # TypeError: the key is encrypted (asyncua is given no password)
+        key = None
+    if not isinstance(key, rsa.RSAPrivateKey):
+        raise ServerCertificateError(f"opcua.private_key {key_path} is not an unencrypted RSA private key ({kind}, "
+                                     f"as its name {key_path.name!r} says); give the certificate's key, {fix}")
+    return key
+
+
 def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) -> bool:
     """Create the server's self-signed certificate and key if either is absent; True if it created them.
+    Existing ones are checked: ServerCertificateError naming the setting if the key cannot be loaded.
 
     RSA 2048 / SHA-256, SubjectAltName the application URI, this host's name, localhost and
     127.0.0.1, valid ten years; the key is written readable by the service's user only.
     """
     if cert_path.is_file() and key_path.is_file():
+        load_server_private_key(key_path)  # asyncua's own load would end the start in a traceback
         return False
     key = cert_gen.generate_private_key()
     host = socket.gethostname()

@@ -27,6 +27,7 @@ from cellctl.domain import (
 )
 from cellctl.opcua.address_space import NULL_TIME, CellAddressSpace
 from cellctl.opcua.alarms import AlarmConditions
+from cellctl.opcua.channel_guard import NoneDiscoveryOnlyServer
 from cellctl.opcua.nodeset import METHODS, STATE_MACHINES, UNIT_MODES, state_path
 from cellctl.opcua.port import OpcUaCell, Refused
 from cellctl.opcua.security import (
@@ -104,7 +105,8 @@ class CellOpcUaServer:
             raise OpcUaStartError(
                 f"opcua.certificate {cert} is issued to '{uri}' but opcua.application_uri is '{self.application_uri}': "
                 "delete the certificate and key to have new ones made, or set application_uri to the certificate's")
-        server = self._server = Server(user_manager=users)  # type: ignore[arg-type]
+        server_class = Server if "None" in cfg.security_policies else NoneDiscoveryOnlyServer
+        server = self._server = server_class(user_manager=users)  # type: ignore[arg-type]
         server.iserver.bind_condition_methods = True  # ConditionRefresh; must precede init()
         await server.init()
         server.set_endpoint(self.endpoint)

@@ -9,6 +9,7 @@ from cellctl.domain import AlarmCode, PackMLState
 from cellctl.plc.register_map import (
     BLOCKS,
     CELL_BLOCK,
+    COMMAND_REPLY_TEXT,
     MAP_VERSION,
     PLC_BLOCK,
     PLC_ERROR_CODE_RANGE,
@@ -63,9 +64,10 @@ A unit mode request (`unit_mode_request`, 1 production, 2 maintenance, 3 manual)
 in the states of `[packml] mode_change_states`, by default {mode_states};
 in any other state the cell answers `unit_mode_result` = 1 (invalid in this state) and the mode
 stays. A PackML command the state model does not allow in the current state gets `cmd_result` =
-1 the same way ([PackML states](packml_states.md));
-{recovery} are also refused while an alarm with a reaction is active
-([alarm reactions](alarm_reactions.md)).
+1 the same way ([PackML states](packml_states.md)). A command the state model allows but an
+interlock holds back gets `cmd_result` = {blocked} (blocked), and the cell's log names the interlock:
+{recovery} while an alarm with a reaction is active ([alarm reactions](alarm_reactions.md)),
+Complete while a cycle runs, Start while a commissioning job runs.
 
 ## Handshakes
 
@@ -149,8 +151,8 @@ def _ranges(addresses: list[int]) -> str:
 
 
 def _codes() -> list[str]:
-    lines = ["## Codes", "", "`cmd_result` and `unit_mode_result`:", "", "| Value | Meaning |", "|---|---|"]
-    lines += [f"| {m.value} | {m.name.lower().replace('_', ' ')} |" for m in CommandReply]
+    lines = ["## Codes", "", "`cmd_result` and `unit_mode_result`:", "", "| Value | Name | Meaning |", "|---|---|---|"]
+    lines += [f"| {m.value} | `{m.name.lower()}` | {COMMAND_REPLY_TEXT[m]} |" for m in CommandReply]
     lines += ["", f"`error_code` values of the PLC interface itself ({PLC_ERROR_CODE_RANGE.start}-"
               f"{PLC_ERROR_CODE_RANGE.stop - 1}); every other nonzero value is the cell's alarm / stop-reason "
               "id: the first-out alarm that failed or stopped the cycle, e.g. "
@@ -189,7 +191,7 @@ def render_markdown() -> str:
         stored_codes=_code_list(sorted(STORED_REFUSALS)),
         unstored_codes=_code_list([c for c in PlcErrorCode if c not in STORED_REFUSALS]),
         recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
-        hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST),
+        hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST), blocked=int(CommandReply.BLOCKED),
         recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
     )
     parts = [text]

@@ -19,12 +19,14 @@ from dataclasses import dataclass
 
 from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 
-MAP_VERSION: tuple[int, int] = (1, 3)
+MAP_VERSION: tuple[int, int] = (1, 4)
 """(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
 1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
 stored under their cycle_req_id, exception 11 for another unit id; no register moved.
 1.2: the inspection's measured result (inspection_status, meas_* at 137-149); no register moved.
-1.3: refusal code 908, a recipe of the cell not taught yet; no register moved."""
+1.3: refusal code 908, a recipe of the cell not taught yet; no register moved.
+1.4: ``cmd_result`` 5 (blocked): a command the state model allows but an interlock holds back, told
+apart from 1 (not allowed in this state); no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -39,6 +41,24 @@ class CommandReply(enum.IntEnum):
     BUSY = 2
     BAD_PARAMETER = 3
     NO_ANSWER = 4
+    BLOCKED = 5
+
+
+COMMAND_REPLY_TEXT: dict[CommandReply, str] = {
+    CommandReply.ACCEPTED: "Accepted: the command (or mode change) was carried out.",
+    CommandReply.INVALID_IN_STATE: "Refused: the PackML state model does not allow this command in the current "
+                                   "state (a unit mode request: not in this state; see Start-up and states). Send "
+                                   "a command the state allows.",
+    CommandReply.BUSY: "Not sent by this cell (reserved).",
+    CommandReply.BAD_PARAMETER: "Refused: `cntrl_cmd` or `unit_mode_request` is not a valid value.",
+    CommandReply.NO_ANSWER: "The cell's controller did not answer within facade_timeout_s (or failed); send "
+                            "the request again.",
+    CommandReply.BLOCKED: "Refused by an interlock: the state model allows the command, but the cell holds "
+                          "it back now (an active alarm with a reaction, Complete while a cycle runs, Start "
+                          "while a commissioning job runs); the cell's log names it. Remove the cause "
+                          "(acknowledge the alarm, clear its cause, wait for the cycle), then send it again.",
+}
+"""What each ``cmd_result`` / ``unit_mode_result`` code means, for the generated docs."""
 
 
 class PlcErrorCode(enum.IntEnum):
@@ -281,7 +301,8 @@ CELL_BLOCK = Block(
                  "drops cmd_change_request."),
         Register("cmd_ack_cmd", 131, _U16, _C, "PackMLCommand", "Echo of the command that cmd_ack answers."),
         Register("cmd_result", 132, _U16, _C, "code",
-                 f"{_enum_list(CommandReply)}."),
+                 f"{_enum_list(CommandReply)} (see Codes): 1 when the state model does not allow the "
+                 "command now, 5 when an interlock holds it back."),
         Register("unit_mode_ack", 133, _U16, _C, "0/1",
                  "1 once the latched mode request was handled; 0 after the PLC drops "
                  "unit_mode_change_request."),
@@ -349,6 +370,8 @@ def check_map(blocks: tuple[Block, ...] = BLOCKS) -> None:
 
 
 check_map()
+if set(COMMAND_REPLY_TEXT) != set(CommandReply):
+    raise RuntimeError("every CommandReply needs a text in COMMAND_REPLY_TEXT")
 if set(PLC_ERROR_TEXT) != set(PlcErrorCode) or not all(c in PLC_ERROR_CODE_RANGE for c in PlcErrorCode):
     raise RuntimeError("every PlcErrorCode needs a text in PLC_ERROR_TEXT and a value in PLC_ERROR_CODE_RANGE")
 if not STORED_REFUSALS <= set(PlcErrorCode):

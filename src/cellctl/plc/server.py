@@ -10,7 +10,8 @@ touches the cell block is refused with exception 2 and counted, and the cell's o
 block, supervises the PLC heartbeat, publishes the cell's status words and heartbeat, and feeds
 the handshakes; its first round runs before the listener opens, so the PLC never reads an
 unfilled cell block. ``start`` raises OSError, naming the ``[plc]`` setting, when it cannot
-listen (pymodbus itself only logs that and raises a RuntimeError without the cause).
+listen (pymodbus itself only logs that and raises a RuntimeError without the cause). A client whose
+address is outside ``[plc] allowed_clients`` is closed when it connects (``cellctl.plc.client_guard``).
 
 Use::
 
@@ -35,11 +36,11 @@ from collections.abc import Callable
 from types import TracebackType
 
 from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from cellctl.config.plc import PlcConfig
 from cellctl.domain import PackMLCommand, UnitMode
+from cellctl.plc.client_guard import GuardedTcpServer
 from cellctl.plc.codec import decode_block
 from cellctl.plc.facade import CellFacade, CellStatus
 from cellctl.plc.handshake import CycleHandshake, HandshakeTiming, LatchedRequest
@@ -147,7 +148,7 @@ class PlcServer:
         self._clock = clock
         self._feed = InputFeed()
         self._image = CellImage()
-        self._server: ModbusTcpServer | None = None
+        self._server: GuardedTcpServer | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._wake = asyncio.Event()
         self._refused_writes = 0
@@ -173,9 +174,12 @@ class PlcServer:
 
     # --- life cycle -------------------------------------------------------------------------
 
-    async def start(self) -> None:
+    async def start(self, *, watch_heartbeat: bool = True) -> None:
         """Listen on the configured address and start serving; raises OSError (within
-        ``START_TIMEOUT_S``) if it cannot listen, naming the ``[plc]`` setting to change."""
+        ``START_TIMEOUT_S``) if it cannot listen, naming the ``[plc]`` setting to change.
+
+        ``watch_heartbeat`` False defers the PLC heartbeat's first window to :meth:`watch_heartbeat`
+        (the service calls it once it is up, so its own start-up does not count against the PLC)."""
         if self._server is not None:
             raise RuntimeError("the PLC server is already running")
         cfg = self._config
@@ -188,14 +192,14 @@ class PlcServer:
             ],
             action=self._on_access,
         )
-        server = ModbusTcpServer(device, address=(cfg.host, cfg.port))
+        server = GuardedTcpServer(device, address=(cfg.host, cfg.port), networks=cfg.client_networks())
         self._gate = _UnitGate(server.context, cfg.unit_id)
         server.context = self._gate  # type: ignore[assignment]
         self._server = server
         self._wake = asyncio.Event()
         self._fault = None
         now = self._clock()
-        self._watch = HeartbeatWatch(cfg.heartbeat_timeout_s, now)
+        self._watch = HeartbeatWatch(cfg.heartbeat_timeout_s, now if watch_heartbeat else None)
         self._next_beat_s = now
         try:
             # The first scan fills the cell block before anyone can connect: the PLC's first read
@@ -229,8 +233,12 @@ class PlcServer:
         ]
         for task in self._tasks:
             task.add_done_callback(self._task_ended)
-        log.info("PLC interface listening on %s:%d (unit id %d, word order %s)",
-                 cfg.host, self.port, cfg.unit_id, cfg.float_word_order)
+        log.info("PLC interface listening on %s:%d (unit id %d, word order %s; %s)",
+                 cfg.host, self.port, cfg.unit_id, cfg.float_word_order, cfg.clients_note())
+
+    def watch_heartbeat(self) -> None:
+        """Open the PLC heartbeat's first window now (after ``start(watch_heartbeat=False)``); once."""
+        self._watch.arm(self._clock())
 
     async def stop(self) -> None:
         """Stop the handshakes and close the listener and every PLC connection. Cycles keep running

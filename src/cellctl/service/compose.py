@@ -77,7 +77,7 @@ class Service:
 
             server = PlcServer(self.config.plc, self.plc_link)
             try:
-                await server.start()
+                await server.start(watch_heartbeat=False)  # its first window opens once the service is up
             except OSError as err:
                 await self.stop()  # devices, jobs and the store too: a failed start leaves nothing running
                 raise ServiceError(f"the PLC Modbus server cannot start: {err}") from None
@@ -102,6 +102,8 @@ class Service:
             log.info("OPC UA server on %s", opcua.endpoint)
         for hook in self.after_start:
             await hook(self)
+        if self.plc_server is not None:  # the PLC's heartbeat counts from now, not from before the OPC UA start
+            self.plc_server.watch_heartbeat()  # type: ignore[attr-defined]
 
     async def ready_for_production(self, timeout_s: float | None = None) -> None:
         """Wait for a commissioning the root started on its own (the simulated cell's) to finish; raises its failure."""

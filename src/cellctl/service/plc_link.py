@@ -15,7 +15,7 @@ from dataclasses import astuple
 
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.cell.outcome import summarize
-from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
+from cellctl.cell.packml import CommandNotAllowed, CommandRefused, ModeChangeNotAllowed
 from cellctl.domain import AlarmCode, PackMLCommand, UnitMode
 from cellctl.plc.facade import (
     CellStatus,
@@ -135,16 +135,21 @@ class PlcCellLink:
         )
 
     async def command(self, command: PackMLCommand) -> CommandReply:
+        """1 (invalid in state) when the state model has no such edge, 5 (blocked) when an interlock holds it back."""
         try:
             await self._orch.command(command, actor=PLC_ACTOR, source="plc")
-        except CommandRefused:
-            return CommandReply.INVALID_IN_STATE
+        except CommandRefused as err:
+            reply = CommandReply.INVALID_IN_STATE if isinstance(err, CommandNotAllowed) else CommandReply.BLOCKED
+            log.warning("PLC command %s refused (cmd_result %d %s): %s", command.name, reply, reply.name, err)
+            return reply
         return CommandReply.ACCEPTED
 
     async def change_mode(self, mode: UnitMode) -> CommandReply:
         try:
             await self._orch.machine.change_mode(mode, actor=PLC_ACTOR, source="plc")
-        except ModeChangeNotAllowed:
+        except ModeChangeNotAllowed as err:
+            log.warning("PLC unit mode %s refused (unit_mode_result %d): %s", mode.name,
+                        CommandReply.INVALID_IN_STATE, err)
             return CommandReply.INVALID_IN_STATE
         return CommandReply.ACCEPTED
 

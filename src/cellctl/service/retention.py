@@ -14,6 +14,8 @@ What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]
 - **cycle records** (steps, image references, idempotency keys) after ``cycles_days``, and
   **alarm records** after ``alarms_days`` (inactive ones); each deletion of records is written to
   the audit log.
+- pruning by **age** is held while the wall clock is in doubt (:mod:`cellctl.service.retention_clock`: stepped
+  since the last pass, or far ahead of the newest record), said in the log and ``last_error``; by size it goes on.
 - the **audit log** is never pruned. It is append-only and hash-chained from its first entry
   (the database refuses deletes, :meth:`cellctl.store.CellStore.verify_audit_chain` checks
   that no entry is missing), it is the record of who commanded what, and it is small beside the
@@ -39,11 +41,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -52,10 +54,13 @@ from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
 from cellctl.config.store import RetentionConfig, days_or_none
 from cellctl.domain import AlarmCode, CycleStep
+from cellctl.service.retention_clock import ClockGuard
 from cellctl.service.retention_disk import DiskReading, read_free
+from cellctl.service.retention_figures import Figures, PassReport, clear_at, iso_utc
 from cellctl.service.retention_plan import (
     GB,
     MB,
+    ORPHAN_GRACE_S,
     FileInfo,
     ImageFolderUnavailable,
     ImagePlan,
@@ -77,49 +82,8 @@ NEAR_BOUND = 0.9  # a finished cycle triggers a pass when the images reach this 
 ALARM_SOURCE = "storage"
 
 
-@dataclass
-class PassReport:
-    """What one retention pass did."""
-
-    images_pruned: int = 0
-    images_missing: int = 0
-    images_restored: int = 0
-    orphans_deleted: int = 0
-    cycles_deleted: int = 0
-    alarms_deleted: int = 0
-    seconds: float = 0.0
-
-    def add(self, other: PassReport) -> None:
-        """Count ``other`` in as well (the totals since start are one report summed over the passes)."""
-        for f in fields(self):
-            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
-
-
 def _utcnow() -> datetime:
     return datetime.now(timezone.utc)
-
-
-def _iso(t: datetime | None) -> str | None:
-    return None if t is None else t.astimezone(timezone.utc).isoformat(timespec="seconds")
-
-
-@dataclass
-class _Figures:
-    images_bytes: int | None = None
-    images_count: int | None = None
-    oldest_image: datetime | None = None
-    images_checked: datetime | None = None
-    database_bytes: int | None = None
-    free_bytes: int | None = None
-    free_path: str | None = None
-    disk: str = "unknown"
-    disk_checked: datetime | None = None
-    last_pass: datetime | None = None
-    last_error: str | None = None
-    images_problem: str | None = None  # the image folder looks unmounted: the image part is skipped
-    disk_problem: str | None = None  # a file system the last disk check could not measure
-    deferred: bool = False
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 class StorageRetention:
@@ -133,7 +97,8 @@ class StorageRetention:
         db_path: the database file (its -wal and -shm files count too).
         events: the cell's event hub; a finished cycle may trigger a pass.
         cycle_step: the cycle step running now (the stop alarm waits out INSTALL).
-        clock: UTC wall clock (ages of images and records).
+        clock: UTC wall clock (ages of images and records; held while in doubt, :mod:`.retention_clock`).
+        monotonic: the monotonic clock the wall clock is checked against between passes.
         disk_usage: ``shutil.disk_usage`` (tests give a fake).
         mqtt_results: MQTT publication is on: keep cycles whose result is not queued yet (else count them dropped).
     """
@@ -151,6 +116,7 @@ class StorageRetention:
         clock: Callable[[], datetime] = _utcnow,
         disk_usage: Callable[[Path], Any] = shutil.disk_usage,
         mqtt_results: bool = False,
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config
         self.store = store
@@ -160,9 +126,12 @@ class StorageRetention:
         self.events = events
         self._cycle_step = cycle_step
         self._clock = clock
+        self._monotonic = monotonic
+        self._guard = ClockGuard()
+        self._newest: tuple[int, datetime] | None = None  # the newest cycle record the last pass saw
         self._disk_usage = disk_usage
         self.mqtt_results = mqtt_results
-        self._fig = _Figures()
+        self._fig = Figures()
         self._totals = PassReport()  # every pass since start, summed
         self._task: asyncio.Task[None] | None = None
         self._wake = asyncio.Event()
@@ -207,13 +176,13 @@ class StorageRetention:
         return {
             "images_mb": mb(f.images_bytes),
             "images_count": f.images_count,
-            "oldest_image_utc": _iso(f.oldest_image),
+            "oldest_image_utc": iso_utc(f.oldest_image),
             "database_mb": mb(f.database_bytes),
             "free_disk_gb": None if f.free_bytes is None else round(f.free_bytes / GB, 3),
             "disk": f.disk,  # ok | low | critical | unknown
-            "checked_utc": _iso(f.disk_checked),
-            "last_pass_utc": _iso(f.last_pass),
-            "last_error": "; ".join(e for e in (f.images_problem, f.disk_problem, f.last_error) if e) or None,
+            "checked_utc": iso_utc(f.disk_checked),
+            "last_pass_utc": iso_utc(f.last_pass),
+            "last_error": "; ".join(e for e in (f.images_problem, f.disk_problem, self.clock_hold, f.last_error) if e) or None,
             "pruned_since_start": {
                 "images": self._totals.images_pruned, "orphan_files": self._totals.orphans_deleted,
                 "cycles": self._totals.cycles_deleted, "alarms": self._totals.alarms_deleted,
@@ -224,6 +193,12 @@ class StorageRetention:
                 "disk_warn_free_gb": c.disk_warn_free_gb, "disk_stop_free_gb": c.disk_stop_free_gb,
             },  # fmt: skip
         }
+
+    @property
+    def clock_hold(self) -> str | None:
+        """Why pruning by age is held now (the wall clock is in doubt), with the fix; None while it is not."""
+        held = self._guard.held
+        return held and f"retention: {held}: pruning by age held; correct the clock, pruning resumes by itself"
 
     def database_bytes(self) -> int:
         """The database's files on disk: the file, its write-ahead log and shared memory."""
@@ -254,7 +229,7 @@ class StorageRetention:
         warn, stop = c.disk_warn_free_gb * GB, c.disk_stop_free_gb * GB
         level = "critical" if free < stop else "low" if free < warn else "ok"
         detail = f"{free / GB:.2f} GB free on {where}"
-        await self._condition(AlarmCode.DISK_SPACE_LOW, free < warn, free > _clear_at(warn),
+        await self._condition(AlarmCode.DISK_SPACE_LOW, free < warn, free > clear_at(warn),
                               f"{detail} (below {c.disk_warn_free_gb:g} GB)")  # fmt: skip
         deferred = False
         if free < stop and self.alarms.find_active(AlarmCode.DISK_SPACE_CRITICAL, ALARM_SOURCE) is None:
@@ -263,7 +238,7 @@ class StorageRetention:
                 if not self._fig.deferred:
                     log.warning("disk space critical (%s); the stop alarm waits for the install step to end", detail)
         if not deferred:
-            await self._condition(AlarmCode.DISK_SPACE_CRITICAL, free < stop, free > _clear_at(stop),
+            await self._condition(AlarmCode.DISK_SPACE_CRITICAL, free < stop, free > clear_at(stop),
                                   f"{detail} (below {c.disk_stop_free_gb:g} GB)")  # fmt: skip
         self._fig.deferred = deferred
         self._fig.disk_problem = reading.problem()
@@ -290,11 +265,12 @@ class StorageRetention:
             report = PassReport()
             now = self._clock()
             c = self.config
+            by_age = c.enabled and await self._clock_trusted(now)
             kept = await self.store.kept_images()
             files = await self._scan_for_pass(kept)
             if files is not None:  # None: the folder looks unmounted; no image is pruned, none marked missing
-                await self._images(kept, files, report, now)
-            if c.enabled:
+                await self._images(kept, files, report, now, by_age=by_age)
+            if by_age:
                 report.cycles_deleted = await self._prune_cycles(now)
                 report.alarms_deleted = await self._prune_alarms(now)
             self._fig.last_pass = now
@@ -311,10 +287,22 @@ class StorageRetention:
                 )  # fmt: skip
             return report
 
+    async def _clock_trusted(self, now: datetime) -> bool:
+        """Whether the wall clock may age records in this pass (:class:`ClockGuard`); a hold is logged as it starts and ends."""
+        self._newest = await self.store.newest_cycle(at_most_id=self._guard.trusted_id)
+        c, was = self.config, self._guard.held
+        periods = [d for d in (c.images_days, days_or_none(c.cycles_days), days_or_none(c.alarms_days)) if d is not None]
+        held = self._guard.review(now, self._monotonic(), self._newest, min(periods, default=None))
+        if held and not was:
+            log.warning("%s (images over their size bound still go)", self.clock_hold)
+        elif was and not held:
+            log.info("retention: the wall clock agrees with the records again; pruning by age resumes")
+        return held is None
+
     async def _images(
-        self, kept: list[KeptImage], files: dict[str, FileInfo], report: PassReport, now: datetime
+        self, kept: list[KeptImage], files: dict[str, FileInfo], report: PassReport, now: datetime, *, by_age: bool
     ) -> None:
-        """The image part of a pass (only measuring when disabled) and its figures."""
+        """The image part of a pass (only measuring when disabled; by size only while the clock is in doubt)."""
         c = self.config
         kept, leftovers = await self._reconcile(kept, files, report)
         files = {n: f for n, f in files.items() if n not in leftovers}
@@ -322,8 +310,9 @@ class StorageRetention:
             self._headroom = cycle_headroom(kept, files, int(c.images_max_gb * GB))
             target = int(c.images_max_gb * GB) - self._headroom
             plan = plan_images(
-                kept, files, now=now, images_days=c.images_days, max_bytes=target, stated_bound=int(c.images_max_gb * GB)
-            )
+                kept, files, now=now, images_days=c.images_days if by_age else None, max_bytes=target,
+                stated_bound=int(c.images_max_gb * GB), orphan_grace_s=ORPHAN_GRACE_S if by_age else math.inf,
+            )  # fmt: skip
             await self._apply(plan, sorted(leftovers), report, now)
         else:
             plan = plan_images(kept, files, now=now, images_days=None, max_bytes=None)
@@ -492,7 +481,3 @@ class StorageRetention:
             if ev.kind == "cycle" and ev.data.get("state") in ("done", "failed"):
                 self._wake.set()
 
-
-def _clear_at(threshold: float) -> float:
-    """A disk alarm clears only this far above its threshold (no flapping around it)."""
-    return threshold + max(0.1 * threshold, 50 * MB) if threshold > 0 else 0.0

@@ -113,6 +113,8 @@ class AsyncCellStore:
     cycle = _on_store_thread(CellStore.cycle)
     cycles = _on_store_thread(CellStore.cycles)
     cycle_counts = _on_store_thread(CellStore.cycle_counts)
+    count_finished = _on_store_thread(CellStore.count_finished)
+    newest_cycle = _on_store_thread(CellStore.newest_cycle)
 
     # idempotency of other requests (CycleRows)
     claim_key = _on_store_thread(CellStore.claim_key)

@@ -28,7 +28,7 @@ from typing import Any, Literal, Self
 import numpy as np
 
 from cellctl.folders import folder_problem
-from cellctl.store.records import StoreError
+from cellctl.store.records import SchemaTooNew, StoreError
 from cellctl.store.schema import migrate, schema_version
 
 Synchronous = Literal["FULL", "NORMAL"]
@@ -90,6 +90,10 @@ class StorePathError(StoreError, OSError):
     """``[store] path`` cannot hold the database file; the message names the setting and the fix."""
 
 
+class StoreDamaged(StorePathError):
+    """The file at ``[store] path`` is not a SQLite database, or a damaged one; the message names the file and the fix."""
+
+
 _FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
 
 
@@ -129,6 +133,29 @@ class StoreInfo:
     synchronous: str
 
 
+_DAMAGED_FIX = (
+    "restore it from a backup, or move it aside to start an empty store (`sqlite3 OLD .recover | sqlite3 NEW` "
+    "saves what is still readable)"
+)
+
+
+def check_intact(conn: sqlite3.Connection, path: Path) -> None:
+    """Refuse a damaged database file (``PRAGMA quick_check``: every page and row read once, no index cross-check)."""
+    rows = conn.execute("PRAGMA quick_check(3)").fetchall()  # up to 3 faults, each on one line
+    found = [" ".join(str(r[0]).replace("*** in database main ***", "").split()) for r in rows]
+    if found != ["ok"]:
+        raise StoreDamaged(f"[store] path {path} is damaged (quick_check: {'; '.join(found)}): {_DAMAGED_FIX}")
+
+
+def _naming_the_file(err: BaseException, path: Path) -> StoreError | None:
+    """A newer schema, or a file that is not (intact) SQLite, said with the file and the fix; None for other faults."""
+    if isinstance(err, SchemaTooNew):
+        return SchemaTooNew(f"[store] path {path}: {err}")
+    if isinstance(err, sqlite3.DatabaseError) and not isinstance(err, sqlite3.OperationalError):
+        return StoreDamaged(f"[store] path {path} is not a SQLite database, or a damaged one ({err}): {_DAMAGED_FIX}")
+    return None
+
+
 class Database:
     """One open database: its connection, its path and the clock that stamps its rows.
 
@@ -149,9 +176,10 @@ class Database:
         busy_timeout_s: float = 5.0,
         clock: Callable[[], datetime] = utcnow,
     ) -> Self:
-        """Open (creating if needed) the database at ``path``, switch it to WAL and migrate it.
+        """Open (creating if needed) the database at ``path``, switch it to WAL, check it is intact and migrate it.
 
-        ``busy_timeout_s`` (seconds) is how long a write waits for another connection's lock.
+        ``busy_timeout_s`` (seconds) is how long a write waits for another connection's lock. A file that is not
+        SQLite or is damaged raises :class:`StoreDamaged`, a newer schema :class:`SchemaTooNew`, both naming the file.
         """
         p = Path(path)
         if str(path) == ":memory:" or not str(path):
@@ -170,9 +198,12 @@ class Database:
             conn.execute(f"PRAGMA synchronous = {synchronous}")
             conn.execute("PRAGMA foreign_keys = ON")
             conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_s * 1000)}")
+            check_intact(conn, p)
             migrate(conn)
-        except BaseException:
+        except BaseException as err:
             conn.close()
+            if (named := _naming_the_file(err, p)) is not None:
+                raise named from None
             raise
         return cls(conn, p, clock)
 

@@ -131,8 +131,13 @@ class CycleRows(Database):
         ok: bool,
         figures: Mapping[str, Any],
         error: str | None = None,
+        duration_s: float | None = None,
     ) -> StepRecord:
-        """Close the latest attempt of ``step`` with its figures (any JSON-able mapping; numpy ok)."""
+        """Close the latest attempt of ``step`` with its figures (any JSON-able mapping; numpy ok).
+
+        ``duration_s``: the step's time on a monotonic clock (the recorder's); without it, finished minus
+        started on the store's wall clock, never below 0 (a clock stepped back in between would make it negative).
+        """
         step = CycleStep(step)
         fig_json = to_json(f"figures of step {step.name.lower()}", dict(figures))
         now = self._clock()
@@ -148,7 +153,7 @@ class CycleRows(Database):
             if row[3] is not None:
                 raise CycleStateError(cycle_id, f"step {step.name.lower()} attempt {row[1]} is already finished")
             started = datetime.fromisoformat(row[2])
-            duration = (now - started).total_seconds()
+            duration = max(0.0, (now - started).total_seconds()) if duration_s is None else float(duration_s)
             c.execute(
                 "UPDATE cycle_steps SET finished_at = ?, duration_s = ?, ok = ?, figures_json = ?, error = ? "
                 "WHERE id = ?",
@@ -257,6 +262,21 @@ class CycleRows(Database):
             sql += " WHERE " + " AND ".join(where)
         sql += " ORDER BY id DESC LIMIT ?"
         return [_cycle_from_row(r, (), ()) for r in self._conn.execute(sql, (*args, limit))]
+
+    def count_finished(self, state: CycleState, *, since: datetime) -> int:
+        """How many cycles in ``state`` finished at or after ``since`` (counted in SQL, however many)."""
+        row = self._conn.execute(
+            "SELECT COUNT(*) FROM cycles WHERE state = ? AND finished_at >= ?", (CycleState(state).value, ts(since))
+        ).fetchone()
+        return int(row[0])
+
+    def newest_cycle(self, *, at_most_id: int | None = None) -> tuple[int, datetime] | None:
+        """The newest cycle by id (of those up to ``at_most_id``): its id and creation time, or None if none."""
+        row = self._conn.execute(
+            "SELECT id, created_at FROM cycles WHERE id <= ? ORDER BY id DESC LIMIT 1",
+            (2**63 - 1 if at_most_id is None else int(at_most_id),),
+        ).fetchone()
+        return None if row is None else (int(row[0]), datetime.fromisoformat(row[1]))
 
     def cycle_counts(self) -> dict[CycleState, int]:
         """How many cycles are in each state (every state listed, 0 included)."""

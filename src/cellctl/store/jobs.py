@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any, Literal
 
-from cellctl.store.connection import Database, dt, from_json, to_json
+from cellctl.store.connection import Database, dt, from_json, to_json, ts
 from cellctl.store.records import StoreError
 
 JobState = Literal["running", "computing", "done", "refused", "failed", "cancelled", "interrupted"]
@@ -77,7 +77,7 @@ class JobRows(Database):
             cur = c.execute(
                 "INSERT INTO jobs (procedure, state, actor, source, options_json, version_before, created_at) "
                 "VALUES (?, 'running', ?, ?, ?, ?, ?)",
-                (procedure, actor, source, to_json("options", dict(options)), version_before, self._clock().isoformat()),
+                (procedure, actor, source, to_json("options", dict(options)), version_before, ts(self._clock())),
             )
             job_id = int(cur.lastrowid or 0)
         return self.job(job_id)
@@ -121,7 +121,7 @@ class JobRows(Database):
                 args.append(state)
                 if state in FINISHED_JOB_STATES:
                     sets.append("finished_at = ?")
-                    args.append(self._clock().isoformat())
+                    args.append(ts(self._clock()))
             if sets:
                 c.execute(f"UPDATE jobs SET {', '.join(sets)} WHERE id = ?", (*args, job_id))
         return self.job(job_id)
@@ -146,7 +146,7 @@ class JobRows(Database):
                 "UPDATE jobs SET state = 'interrupted', finished_at = ?, "
                 "error = COALESCE(error, 'interrupted: the service stopped while the job ran') "
                 "WHERE state IN ('running', 'computing')",
-                (self._clock().isoformat(),),
+                (ts(self._clock()),),
             )
         return ids
 

@@ -41,7 +41,7 @@ from cellctl.config.vision import FeatureConfig, LimitsConfig, RoiConfig, Vision
 from cellctl.vision.arc import ArcMeasurement, estimate_radius, measure_arc
 from cellctl.vision.coarse import CoarseFailure, find_coarse_corner
 from cellctl.vision.lens import Lens
-from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, measure_edge
+from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, measure_edge, too_near_border
 from cellctl.vision.lines import Line2D, fit_line, intersect, ransac_line
 from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening, pick_feature
 from cellctl.vision.quality import Check, Refusal, Refused, at_least, at_most
@@ -158,8 +158,8 @@ def _radius_check(arc: ArcMeasurement, expected: CornerRadius, inset_px: float, 
 
 def _feature_profile(
     image: NDArray[np.uint8], lens: Lens, name: EdgeName, line: Line2D, corner: F64, config: VisionConfig, dark: bool
-) -> EdgeProfile:
-    """The median profile across a seed line's straight part, beyond the arc, inside the ROI."""
+) -> EdgeProfile | None:
+    """The median profile across a seed line's straight part, beyond the arc, inside the ROI (None: no part inside)."""
     roi = config.roi
     margin = float(config.fit.border_margin_px)
     t_corner = float(line.along(corner[None, :])[0])
@@ -171,8 +171,9 @@ def _feature_profile(
     inside = np.all((raw >= lo) & (raw <= hi), axis=1)
     stop = int(np.argmin(inside)) if not np.all(inside) else len(inside)
     t = t[:stop]
-    n = config.feature.cross_sections
-    along = np.linspace(t[0], t[-1], n) if len(t) >= 2 else t
+    if len(t) < 2:
+        return None
+    along = np.linspace(t[0], t[-1], config.feature.cross_sections)
     return edge_profile(image, lens, line, name, along, dark, config.feature)
 
 
@@ -231,6 +232,11 @@ def detect_corner(
     profiles: dict[str, EdgeProfile] = {}
     for name in ("top", "right"):
         prof = _feature_profile(img, lens, name, seeds[name], corner, config, coarse.opening_darker)
+        if prof is None:
+            return CornerMeasurement(
+                Refusal.EDGE_MISSING, too_near_border(lens, name, seeds[name], corner, config),  # type: ignore[arg-type]
+                roi, exclusion, segments=coarse.segments, coarse_corner_px=corner,
+            )
         profiles[name] = prof
         step = prof.feature_step
         if step is None:

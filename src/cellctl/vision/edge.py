@@ -22,12 +22,13 @@ from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, LineFit, fit_line, line_angle_to_u, ransac_line
 from cellctl.vision.profile import EdgeProfile
 from cellctl.vision.quality import Check, EdgeQuality, Refusal, Refused, at_least, at_most
-from cellctl.vision.subpixel import EdgeCrossings, measure_crossings
+from cellctl.vision.subpixel import EdgeCrossings, measure_crossings, shape_bump
 
 F64 = NDArray[np.float64]
 EdgeName = Literal["top", "right"]
 
 MIN_SEED_POINTS = 10
+BUMP_NOISE_SIGMAS = 8.0  # the median profile's noise alone stays under about 4 of its sigmas (max over the window)
 AWAY = {"top": np.array([-1.0, 0.0]), "right": np.array([0.0, 1.0])}
 """Each edge's line direction points away from the corner: left for the top edge, down for the right."""
 
@@ -51,6 +52,18 @@ class EdgeMeasurement:
     quality: EdgeQuality
     sigma_at_corner_px: float
     profile: EdgeProfile | None = None
+
+
+@dataclass(frozen=True)
+class SettingNames:
+    """Where the settings a refusal names live: the corner detector's, or the inspection's (vision.gap)."""
+
+    start: str = "vision.fit.arc_exclusion_px"
+    max_blur: str = "vision.fit.max_blur_sigma_px"
+    max_bump: str = "vision.fit.max_edge_bump"
+
+
+INSPECTION_SETTINGS = SettingNames("vision.gap.start_px", "vision.gap.max_blur_sigma_px", "vision.gap.max_edge_bump")
 
 
 def _edge_angle(name: EdgeName, direction: F64) -> float:
@@ -113,6 +126,26 @@ def _measure_profiles(
     else:
         pts = np.column_stack([cr.position, fixed.astype(float)])
     return pts, cr
+
+
+def too_near_border(
+    lens: Lens, name: EdgeName, line: Line2D, corner: F64, config: VisionConfig, names: SettingNames = SettingNames()
+) -> str:
+    """The refusal's words when an edge's straight part (beyond the arc) is not inside the ROI."""
+    roi, fit = config.roi, config.fit
+    start = lens.distort((corner + fit.arc_exclusion_px * line.direction)[None, :])[0]
+    m = float(fit.border_margin_px)
+    out = {
+        "left": start[0] < roi.x_px + m, "right": start[0] > roi.x_px + roi.width_px - 1 - m,
+        "top": start[1] < roi.y_px + m, "bottom": start[1] > roi.y_px + roi.height_px - 1 - m,
+    }
+    sides = " and ".join(k for k, v in out.items() if v) or {"top": "left", "right": "bottom"}[name]
+    return (
+        f"refused: the corner at ({corner[0]:.0f}, {corner[1]:.0f}) px lies too near the {sides} border of the "
+        f"region of interest: the {name} edge's straight part, from {names.start} = "
+        f"{fit.arc_exclusion_px:g} px beyond the corner, is not inside it; re-aim the camera (check the "
+        "shooting pose and vision.roi) so that the corner lies nearer the image centre"
+    )
 
 
 def background_consistent(
@@ -187,16 +220,14 @@ def measure_edge(
     search_px: float,
     expect_dark: bool,
     rng: np.random.Generator,
+    names: SettingNames = SettingNames(),
 ) -> tuple[EdgeMeasurement, list[Check]]:
+    """The edge's sub-pixel points and robust line with its checks; raises Refused (naming ``names``) when it has too few points."""
     lim = config.limits
     points_all, prof = _measure_profiles(image, lens, line, corner, name, config, search_px)
     n_prof = len(prof.valid)
     if n_prof == 0:
-        raise Refused(
-            Refusal.EDGE_MISSING,
-            f"the {name} edge has no straight part inside the region of interest beyond the arc "
-            f"(arc_exclusion_px = {config.fit.arc_exclusion_px:g}); check the ROI and the corner radius",
-        )
+        raise Refused(Refusal.EDGE_MISSING, too_near_border(lens, name, line, corner, config, names))
     # Contrast sign seen along growing v (top edge) or u (right edge): opening darker means the
     # level falls into the opening below the top edge (negative) and rises out of it to the
     # right of the right edge (positive).
@@ -204,8 +235,8 @@ def measure_edge(
     valid = prof.valid
     contrast_dn = float(np.median(sign * prof.contrast[valid])) if np.any(valid) else 0.0
     saturated_fraction = float(np.mean(prof.saturated)) if n_prof else 0.0
-    good = valid & ~prof.saturated & (sign * prof.contrast >= 0.5 * lim.min_contrast_dn)
-    good &= prof.blur_sigma_px <= config.fit.max_blur_sigma_px
+    usable = valid & ~prof.saturated & (sign * prof.contrast >= 0.5 * lim.min_contrast_dn)
+    good = usable & (prof.blur_sigma_px <= config.fit.max_blur_sigma_px)
     flat = background_consistent((prof.level_before, prof.level_after), good, config.fit.background_tolerance)
     uneven = int(np.sum(good & ~flat))
     good &= flat
@@ -215,10 +246,16 @@ def measure_edge(
     ]
     pts_raw = points_all[good]
     blur = float(np.median(prof.blur_sigma_px[good])) if np.any(good) else float("nan")
+    if len(pts_raw) < max(lim.min_edge_points, MIN_SEED_POINTS, 2):
+        words = _blurred_words(name, prof.blur_sigma_px, usable, len(pts_raw), config, names)
+        if words is not None:
+            raise_first(checks)  # a faint or saturated edge is named first, as before
+            raise Refused(Refusal.EDGE_MISSING, words)
     if len(pts_raw) < max(MIN_SEED_POINTS, 2):
         checks.append(at_least(f"{name} edge points", len(pts_raw), lim.min_edge_points, Refusal.EDGE_MISSING))
         raise_first(checks)
         raise Refused(Refusal.EDGE_MISSING, f"the {name} edge gave only {len(pts_raw)} sub-pixel points")
+    _check_bump(name, prof.normalised[good] if len(prof.normalised) else prof.normalised, checks, config, names)
     pts_ideal = lens.undistort(pts_raw)
     fitted = robust_line_fit(pts_ideal, config, rng)
     if fitted is None:
@@ -252,6 +289,39 @@ def measure_edge(
         name, new_line, _edge_angle(name, new_line.direction), pts_raw, pts_ideal, mask, quality, sigma_c
     )
     return edge, checks
+
+
+def _blurred_words(
+    name: EdgeName, spread: F64, usable: NDArray[np.bool_], points: int, config: VisionConfig, names: SettingNames
+) -> str | None:
+    """The refusal's words when most usable profiles were dropped for blur (None: blur is not the cause)."""
+    limit = config.fit.max_blur_sigma_px
+    blurred = usable & (spread > limit)
+    if not np.any(blurred) or 2 * int(blurred.sum()) <= int(usable.sum()):
+        return None
+    return (
+        f"refused: the {name} edge is blurred: its spread is {float(np.median(spread[blurred])):.1f} px on "
+        f"{int(blurred.sum())} of {int(usable.sum())} profiles, over {names.max_blur} = {limit:g} px, "
+        f"leaving {points} edge points (limit: at least {config.limits.min_edge_points}); check the camera's focus "
+        "and that the robot has come to rest before the shot (motion blur)"
+    )
+
+
+def _check_bump(name: EdgeName, normalised: F64, checks: list[Check], config: VisionConfig, names: SettingNames) -> None:
+    """Refuse an edge whose mean shape is not one step: a highlight or a glint beside it biases every crossing."""
+    bump, noise = shape_bump(normalised, config.fit.level_samples)
+    limit = max(config.fit.max_edge_bump, BUMP_NOISE_SIGMAS * noise)
+    if bump <= limit:
+        return
+    raise_first(checks)  # a faint or saturated edge is named first
+    raise Refused(
+        Refusal.POOR_FIT,
+        f"refused: the {name} edge's profile is not one clean step: it overshoots or turns back by {bump:.2f} of its "
+        f"contrast beside the edge (limit: {limit:.2f}, the larger of {names.max_bump} = {config.fit.max_edge_bump:g} and "
+        f"{BUMP_NOISE_SIGMAS:g} sigmas of the profile's noise); a highlight, a glint or a thin line runs "
+        "along the edge and would shift it; check the lighting (reflections of the ring light on the hem or the "
+        "glass's arris) and the edge for paint lines or seal lips",
+    )
 
 
 def raise_first(checks: list[Check]) -> None:

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from cellctl.config.vision import FeatureConfig, FitConfig, GapVisionConfig, LimitsConfig, RoiConfig, VisionConfig
 from cellctl.vision.corner import CornerFeatures
-from cellctl.vision.edge import AWAY, EdgeMeasurement, EdgeName, measure_edge
+from cellctl.vision.edge import AWAY, INSPECTION_SETTINGS, EdgeMeasurement, EdgeName, measure_edge
 from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, intersect
 from cellctl.vision.gap_figures import GapLines, InPlaneGaps, in_plane_from_gaps
@@ -159,6 +159,7 @@ def _edge_config(config: GapVisionConfig, lens: Lens, name: EdgeName, line: Line
     fit = FitConfig(
         arc_exclusion_px=config.start_px, border_margin_px=m, max_blur_sigma_px=config.max_blur_sigma_px,
         subpixel_band_px=config.ransac_band_px, robust_k=config.robust_k, seed=config.seed,
+        max_edge_bump=config.max_edge_bump,
     )
     limits = LimitsConfig(
         min_edge_points=config.min_points, max_fit_rms_px=config.max_rms_px, min_contrast_dn=config.min_contrast_dn,
@@ -239,7 +240,9 @@ def measure_gaps(
                 cfg = _edge_config(config, lens, name, lines[name], corner)
                 dark = opening_dark[name] if which == "opening" else glass_dark[name]
                 try:
-                    edge, edge_checks = measure_edge(img, lens, name, lines[name], corner, cfg, SUBPIXEL_SEARCH_PX, dark, rng)
+                    edge, edge_checks = measure_edge(
+                        img, lens, name, lines[name], corner, cfg, SUBPIXEL_SEARCH_PX, dark, rng, INSPECTION_SETTINGS
+                    )
                 except Refused as r:
                     raise GapRefused(_as_gap_refusal(r.refusal.value), f"the {which}'s {name} edge: {r.message}") from None
                 edges[f"{which}_{name}"] = edge

@@ -15,7 +15,7 @@ background (uneven lighting, a glare veil) then cancels to first order.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,7 +40,8 @@ class EdgeCrossings:
     up to 15 % high below 1 px of blur, and high on a sloping background), ``valid`` whether the profile gave
     a crossing inside its window with both plateaus inside the image and nothing else in the
     window (a mark or a spot crossing it: see ``_foreign``), ``saturated`` whether a sample reached
-    the sensor's top value.
+    the sensor's top value. ``normalised`` holds each profile's final window scaled to 0 and 1 on
+    its plateaus and centred on its crossing (rows align: their median is the edge's mean shape).
     """
 
     position: F64
@@ -50,6 +51,7 @@ class EdgeCrossings:
     saturated: NDArray[np.bool_]
     level_before: F64
     level_after: F64
+    normalised: F64 = field(default_factory=lambda: np.zeros((0, 0)))
 
     @classmethod
     def empty(cls) -> "EdgeCrossings":
@@ -158,4 +160,26 @@ def measure_crossings(
         if not np.any(ok) or float(np.percentile(step[ok], 90)) < _CENTRING_TOLERANCE_PX:
             break
     ok &= ~_foreign(values, lo, contrast, m)
-    return EdgeCrossings(centre, contrast, spread, ok, saturated, lo, lo + contrast)
+    safe = np.where(np.abs(contrast) > 1e-9, contrast, 1e-9)
+    normalised = (values - lo[:, None]) / safe[:, None]
+    return EdgeCrossings(centre, contrast, spread, ok, saturated, lo, lo + contrast, normalised)
+
+
+def shape_bump(normalised: F64, level_samples: int) -> tuple[float, float]:
+    """How far the median normalised profile strays from one monotonic step, and that median's noise (contrast shares).
+
+    A blurred step rises from 0 to 1 without overshoot or dip; a highlight or a glint beside the
+    edge adds a bump the area estimator takes for a shift of the edge. The median over many
+    profiles shows it though each profile's noise would hide it; its own noise is taken from the
+    plateau samples (as in ``_foreign``), over the square root of the number of profiles.
+    """
+    n, m = normalised.shape[0], level_samples
+    if n == 0 or normalised.shape[1] < 2 * m:
+        return 0.0, 0.0
+    med = np.median(normalised, axis=0)
+    dip = float(np.max(np.maximum.accumulate(med) - med))
+    bump = max(float(med.max()) - 1.0, -float(med.min()), dip)
+    ends = (normalised[:, :m], normalised[:, -m:])
+    plateau = np.concatenate([e - e.mean(axis=1, keepdims=True) for e in ends], axis=1)
+    sample_noise = 1.4826 * float(np.median(np.abs(plateau))) * np.sqrt(m / max(m - 1, 1)) if m > 1 else 0.0
+    return bump, 1.2533 * sample_noise / np.sqrt(n)

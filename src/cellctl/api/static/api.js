@@ -32,6 +32,14 @@ export async function getJSON(url) {
   return r.json();
 }
 
+// An image (or any file) read with the token, as a Blob; throws like getJSON.
+export async function getBlob(url) {
+  const r = await fetch(url, { headers: withToken({ Accept: "image/png" }) });
+  readsRefused = r.status === 401;
+  if (!r.ok) throw new Error(`${url}: ${r.status} ${await detailOf(r)}`);
+  return r.blob();
+}
+
 // Request headers with the operator token, if one was entered.
 function withToken(headers) {
   const t = token();

@@ -5,6 +5,7 @@
 import { post, token } from "./api.js";
 import { figureList } from "./figures.js";
 import { $, el, setClass, showMessage } from "./dom.js";
+import { clearImage, showImage, shownUrl } from "./images.js";
 import { clock, dateTime, figure, isNum } from "./format.js";
 import { ACTIVE, ALARM_JOBS, WARN_JOBS, fresh, liveOf, noteLive, page, shownId, visible } from "./comm-state.js";
 
@@ -154,20 +155,20 @@ export function renderImage() {
   const im = page.image;
   if (!job || im.job !== job.id || im.frames === 0) {
     img.hidden = true;
-    img.removeAttribute("src");
+    clearImage(img);
     $("comm-image-caption").textContent = job && ACTIVE.has(job.state) ? "No camera frame from this job yet." : "No camera frame from this job.";
     return;
   }
   if (!visible()) return; // frames load only while the page is shown
   const want = `/jobs/${job.id}/image?width=${IMAGE_WIDTH}&frame=${im.frames}`;
-  if (img.getAttribute("src") !== want) {
+  if (shownUrl(img) !== want) {
     if (im.loading) {
       im.again = true; // one request at a time: the newest frame follows when this one is in
       return;
     }
     im.loading = true;
     img.dataset.frames = String(im.frames);
-    img.src = want;
+    showImage(img, want);
     img.alt = `Camera frame ${im.frames} of job ${job.id} (${job.procedure})`;
   }
   $("comm-image-caption").textContent = `Frame ${img.dataset.frames} of job ${job.id}${ACTIVE.has(job.state) ? " (live)" : ""}.`;

@@ -9,6 +9,8 @@ import { model } from "./state.js";
 import { JOB_STATES, NUMBER_OPTIONS, page, seconds } from "./comm-state.js";
 import { renderJobButtons } from "./comm-job.js";
 
+const CYCLE_STATES = new Set(["EXECUTE", "HELD", "HOLDING", "SUSPENDED", "SUSPENDING", "UNHOLDING", "UNSUSPENDING"]); // a cycle may be in progress
+
 function partStatus(name) {
   const cur = model.calibration && model.calibration.current;
   const p = cur && cur.parts ? cur.parts[name] : null;
@@ -79,7 +81,7 @@ function startBlocked(proc) {
   const st = model.status;
   if (page.running !== null) return `job ${page.running} is running: one job at a time; wait for it or cancel it`;
   if (st && !JOB_STATES.has(st.state)) {
-    return `jobs start in STOPPED or IDLE only; the cell is ${st.state} (${st.state === "ABORTED" ? "send Clear" : "send Stop"} first)`;
+    return `jobs start in STOPPED or IDLE only; the cell is ${st.state} (${st.state === "ABORTED" ? "send Clear first" : CYCLE_STATES.has(st.state) ? "send Stop once the cycle in progress has ended: Stop ends it at once" : "send Stop first"})`;
   }
   const missing = proc.needs.filter((n) => partStatus(n) !== "ok");
   if (missing.length) return `${proc.name} needs ${missing.join(", ")} calibrated first`;

@@ -3,6 +3,7 @@
    install error (simulation), images and steps. */
 
 import { getJSON, getLatest, thumbUrl } from "./api.js";
+import { tokenImage } from "./images.js";
 import { figureList } from "./figures.js";
 import { $, el, setClass } from "./dom.js";
 import { dateTime, isNum, num, signed } from "./format.js";
@@ -122,8 +123,8 @@ function renderDetail(rec) {
   const images = (rec.images || []).map((i) =>
     el(
       "a",
-      { href: i.url, target: "_blank", rel: "noopener" },
-      el("img", { src: thumbUrl(rec.id, i.name, 320), alt: `Annotated image ${i.name} of cycle ${rec.id} (${i.step})`, loading: "lazy" }),
+      { href: i.url, target: "_blank", rel: "noopener", "data-token-open": true },
+      tokenImage(thumbUrl(rec.id, i.name, 320), { alt: `Annotated image ${i.name} of cycle ${rec.id} (${i.step})` }),
       `${i.name} (${i.step})`,
     ),
   );

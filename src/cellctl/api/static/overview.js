@@ -4,6 +4,7 @@
 
 import { getLatest, thumbUrl } from "./api.js";
 import { $, el } from "./dom.js";
+import { showImage, shownUrl, tokenImage } from "./images.js";
 import { chart, chartWidth } from "./chart.js";
 import { clock, isNum } from "./format.js";
 import { AXES, NOK_CYCLES, model } from "./state.js";
@@ -93,8 +94,8 @@ export function renderLastImage() {
   img.hidden = !shown;
   if (!shown) return;
   const src = thumbUrl(shown.cycle_id, shown.name, 640);
-  if (img.getAttribute("src") !== src) {
-    img.src = src;
+  if (shownUrl(img) !== src) {
+    showImage(img, src);
     img.alt = `Annotated camera image ${shown.name} of cycle ${shown.cycle_id}, with the vision overlay`;
     img.dataset.cycle = String(shown.cycle_id);
     link.href = `/cycles/${shown.cycle_id}/images/${encodeURIComponent(shown.name)}`;
@@ -106,7 +107,7 @@ export function renderLastImage() {
 
 function filmItem(c, pinned) {
   const img = c.image
-    ? el("img", { src: thumbUrl(c.id, c.image.name, 240), alt: "", loading: "lazy", width: 240, height: 240 })
+    ? tokenImage(thumbUrl(c.id, c.image.name, 240), { alt: "", width: 240, height: 240 })
     : el("span", { class: "noimg", text: "no image" });
   const btn = el(
     "button",
