@@ -36,7 +36,6 @@ from cellctl.cli_args import (
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
-from cellctl.folders import calibration_folder_problem
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
 from cellctl.service.compose import ServiceError as BuildError
 from cellctl.store.records import StoreError
@@ -78,8 +77,6 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     if args.host is not None or args.port is not None:
         api = config.api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
         config = config.model_copy(update={"api": api})
-    if (problem := calibration_folder_problem(config.calibration.directory, Path(args.workdir))) is not None:
-        raise BuildError(problem)  # the first calibration would fail long after a start that said nothing
 
     async def run() -> int | None:
         service = await build_service(config, workdir=Path(args.workdir))

@@ -33,6 +33,7 @@ from cellctl.commissioning.context import Witness
 from cellctl.commissioning.jobs import JobManager
 from cellctl.config.schema import CellConfig
 from cellctl.domain import PackMLState, UnitMode
+from cellctl.folders import calibration_folder_problem
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
@@ -204,6 +205,8 @@ async def assemble_service(
     """
     root = (workdir or Path.cwd()).resolve()
     robot = TrackedRobot(robot)
+    if (problem := calibration_folder_problem(config.calibration.directory, root)) is not None:
+        raise ServiceError(problem)  # else the first calibration would fail long after a start that said nothing
     cal_store = CalibrationStore(store_root(config.calibration.directory, root))
     source = calibration if calibration is not None else CalibrationSetSource(cal_store, config)
     db_path = Path(config.store.path)
