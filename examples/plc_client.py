@@ -37,7 +37,8 @@ CELL_FLOAT32 = {
     "dx_mm": 116, "dy_mm": 118, "dz_mm": 120, "drx_deg": 122, "dry_deg": 124, "drz_deg": 126,
     "meas_dx_mm": 138, "meas_dy_mm": 140, "meas_dz_mm": 142, "meas_drx_deg": 144, "meas_dry_deg": 146, "meas_drz_deg": 148,
 }  # fmt: skip
-FLAG_BITS = {"ready": 0, "busy": 1, "done": 2, "ok": 3, "nok": 4, "replayed": 5, "plc_heartbeat_ok": 6, "request_mismatch": 7}
+FLAG_BITS = {"ready": 0, "busy": 1, "done": 2, "ok": 3, "nok": 4, "replayed": 5, "plc_heartbeat_ok": 6, "request_mismatch": 7,
+             "install_started": 8, "robot_clear": 9}
 
 # PackML (PackTags numbers): commands and states
 RESET, START, UNHOLD, CLEAR = 1, 2, 5, 9

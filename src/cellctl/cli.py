@@ -34,7 +34,7 @@ from cellctl.cli_args import (
     positive_number,
 )
 from cellctl.client import CellClient, ServiceError, service_url
-from cellctl.config import ConfigError, load_config
+from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
 from cellctl.service.compose import ServiceError as BuildError
@@ -87,8 +87,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     return 130 if received == signal.SIGINT else 0
 
 
-def _client(args: argparse.Namespace) -> CellClient:
-    config = load_config(args.config)
+def _client(args: argparse.Namespace, config: CellConfig | None = None) -> CellClient:
+    config = config or load_config(args.config)
     return CellClient(service_url(args.url, config.api.host, config.api.port), args.token)
 
 
@@ -128,13 +128,15 @@ def _fmt_six(d: dict[str, Any] | None) -> str:
 
 
 def _cmd_cycle(args: argparse.Namespace) -> int:
-    client = _client(args)
+    config = load_config(args.config)
+    client = _client(args, config)
+    recipe = args.recipe or config.default_recipe  # the configuration's first, as teach and nine-point take
     if args.start:
         print(f"cell state: {client.bring_to_execute()}")
     failed = 0
     for k in range(args.count):
         t0 = time.monotonic()
-        rec = client.start_cycle(args.recipe, f"{args.part}-{k + 1}" if args.count > 1 else args.part, key=args.key, timeout_s=args.timeout)
+        rec = client.start_cycle(recipe, f"{args.part}-{k + 1}" if args.count > 1 else args.part, key=args.key, timeout_s=args.timeout)
         if "steps" not in rec:
             print(f"cycle {rec['cycle_id']} queued (state {rec['state']}); follow it with GET /cycles/{rec['cycle_id']}")
             continue
@@ -331,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("cycle", help="run installation cycles on the running cell and print their results")
     add_remote_options(p)
-    p.add_argument("--recipe", default="side-window", help="the recipe each cycle installs (default: %(default)s)")
+    p.add_argument("--recipe", default=None, help="the recipe each cycle installs (a name of [[process.recipes]]; default: the first)")
     p.add_argument("--part", default="part", help="the glass's part id; with --count N, -1 ... -N are appended (default: %(default)s)")
     p.add_argument("--count", type=positive_int, default=1, metavar="N", help="how many cycles to run one after the other (default: 1)")
     p.add_argument("--key", default=None, help="Idempotency-Key (default: a new one per cycle)")

@@ -42,3 +42,15 @@ async def test_a_job_started_or_planned_on_a_damaged_set_is_refused_naming_the_f
             assert r.status_code == 409, (url, r.status_code, r.text)
             assert "the calibration set in use is damaged" in r.text and "set-000004.json" in r.text, r.text
         assert service.jobs.running() is None
+
+
+async def test_a_mistyped_pointer_is_a_damaged_set_not_a_failed_start(tmp_path: Path) -> None:
+    """The restore advice says to edit the pointer by hand; a typo or an empty file there starts the service with the
+    same advice, the newest set named (it used to end `serve` with a traceback, the error raised again inside its own handler)."""
+    cal_dir = tmp_path / "cal"
+    write_valid_set(cal_dir)
+    for k, pointer in enumerate(("set-000004.jsn\n", "")):
+        (cal_dir / "current").write_text(pointer)
+        async with running_service(tmp_path / f"work{k}", _cfg(cal_dir)) as service, api_client(service) as client:
+            problems = (await client.get("/status")).json()["calibration"]["problems"]
+            assert "the calibration set in use is damaged" in problems[0] and "(e.g. set-000005.json)" in problems[0], problems

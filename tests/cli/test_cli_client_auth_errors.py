@@ -3,22 +3,16 @@ message names $CELLCTL_TOKEN / --token, and a malformed --url or an answer that 
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import socket
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
-import uvicorn
+from live_cell import LiveCell
 from service_test_support import TOKEN, sim_config
 
-from cellctl.api.app import create_app
 from cellctl.cli import main
 from cellctl.client import CellClient, ServiceError
-from cellctl.service import build_service
 
 pytestmark = pytest.mark.timeout(120)
 SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
@@ -27,37 +21,8 @@ SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 @pytest.fixture(scope="module")
 def closed_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """The simulated cell with [api] open_reads = false, served by uvicorn on 127.0.0.1 (a free port)."""
-    loop = asyncio.new_event_loop()
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
-    config = sim_config(plc={"enabled": False}, api={"open_reads": False})
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-
-    async def start() -> tuple[object, uvicorn.Server, asyncio.Task[None]]:
-        service = await build_service(config, workdir=tmp_path_factory.mktemp("closed-cell"))
-        await service.start()
-        app = create_app(service.orchestrator, service.config.api, service.jobs)
-        server = uvicorn.Server(uvicorn.Config(app, lifespan="off", log_level="warning", timeout_graceful_shutdown=1))
-        task = asyncio.create_task(server.serve(sockets=[sock]))
-        while not server.started:
-            await asyncio.sleep(0.02)
-        return service, server, task
-
-    async def stop(service: object, server: uvicorn.Server, task: asyncio.Task[None]) -> None:
-        server.should_exit = True
-        await asyncio.wait_for(task, 15.0)
-        await service.stop()  # type: ignore[attr-defined]
-
-    service, server, task = asyncio.run_coroutine_threadsafe(start(), loop).result(60)
-    try:
-        yield f"http://127.0.0.1:{sock.getsockname()[1]}"
-    finally:
-        asyncio.run_coroutine_threadsafe(stop(service, server, task), loop).result(30)
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(10)
-        with contextlib.suppress(OSError):
-            sock.close()
+    with LiveCell(tmp_path_factory.mktemp("closed-cell"), sim_config(plc={"enabled": False}, api={"open_reads": False})) as live:
+        yield live.url
 
 
 def test_status_cycle_and_bring_to_execute_send_the_token(closed_cell: str) -> None:

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 from service_test_support import AUTH, api_client, running_service, sim_config
 
+import cellctl.commissioning.verify as verify
 from cellctl.cell.alarms import AlarmCode
 from cellctl.commissioning.schedule import check_due
 from cellctl.commissioning.verify import camera_drift, laser_ray_drift
 from cellctl.config.calibration_procedure import VerifyCalibrationConfig
 from cellctl.geometry.pose import invert_pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, minimal_rotation, rot_x
+from cellctl.ports import DeviceRejected
 
 RNG = np.random.default_rng(5)
 
@@ -118,22 +120,27 @@ async def _wait_job(client: Any, job_id: int, timeout_s: float = 300.0) -> dict[
     raise AssertionError(f"job {job_id} did not end")
 
 
+VERIFY_CELL = {"calibration": {"source": "set", "auto_calibrate_in_sim": False}, "plc": {"enabled": False},
+               "devices": {"laser": {"kind": "sim"}, "robot": {"kind": "sim"}},
+               "calibration.procedure.verify": {"laser_stands": 4}}  # fmt: skip
+"""The twin's devices, calibrated by the service's own jobs (:func:`calibrate_sensors`), then checked."""
+
+
+async def calibrate_sensors(client: Any) -> None:
+    """From Aborted: Clear, then the camera, hand-eye and laser jobs, each done."""
+    assert (await client.post("/commands/clear", headers=AUTH)).status_code == 200
+    await asyncio.sleep(0.1)
+    for procedure in ("camera", "hand_eye", "laser"):
+        r = await client.post("/jobs", json={"procedure": procedure}, headers=AUTH)
+        assert r.status_code == 201, r.text
+        assert (await _wait_job(client, r.json()["id"]))["state"] == "done"
+
+
 async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_the_camera_moved(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    cfg = sim_config(
-        calibration={"source": "set", "auto_calibrate_in_sim": False},
-        plc={"enabled": False},
-        devices={"laser": {"kind": "sim"}, "robot": {"kind": "sim"}},
-        **{"calibration.procedure.verify": {"laser_stands": 4}},
-    )
-    async with running_service(tmp_path, cfg) as service, api_client(service) as client:
-        assert (await client.post("/commands/clear", headers=AUTH)).status_code == 200
-        await asyncio.sleep(0.1)
-        for procedure in ("camera", "hand_eye", "laser"):
-            r = await client.post("/jobs", json={"procedure": procedure}, headers=AUTH)
-            assert r.status_code == 201, r.text
-            assert (await _wait_job(client, r.json()["id"]))["state"] == "done"
+    async with running_service(tmp_path, sim_config(**VERIFY_CELL)) as service, api_client(service) as client:
+        await calibrate_sensors(client)
         version = service.jobs.current_calibration().version
         r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
         job = await _wait_job(client, r.json()["id"])
@@ -201,3 +208,38 @@ def test_the_reminder_setting_is_refused_when_negative() -> None:
 
     with pytest.raises(ConfigError, match="calibration.procedure.verify.every_cycles"):
         sim_config(**{"calibration.procedure.verify": {"every_cycles": -1}})
+
+
+async def test_a_check_whose_laser_poses_were_all_refused_says_the_laser_was_not_checked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The laser head knocked 3 mm (three times the check's limit) and every laser pose of the check refused by the
+    robot (DeviceRejected, as a BUSY controller answers): the check ends refused, saying the laser was not checked
+    and why, with no drift alarm for a drift never measured (it used to pass)."""
+    async with running_service(tmp_path, sim_config(**VERIFY_CELL)) as service, api_client(service) as client:
+        await calibrate_sensors(client)
+        twin = service.extras["twin"].cell
+        twin.laser_model.r = twin.laser_model.r + np.array([3.0, 0.0, 0.0])  # the truth: the laser head moved 3 mm
+        # The robot refuses every laser pose of the check (its board views it takes).
+        at_laser = {"on": False}
+        real_skip, robot = verify.move_or_skip, service.jobs.devices.robot
+        real_move = robot.move
+
+        async def noting(ctx: Any, draft: Any, X: Any, label: str, *a: Any, **kw: Any) -> Any:
+            at_laser["on"] = label.startswith("laser reading")
+            return await real_skip(ctx, draft, X, label, *a, **kw)
+
+        async def refusing(request: Any, *, timeout_s: float) -> Any:
+            if at_laser["on"]:
+                raise DeviceRejected("robot", "BUSY: the controller takes no motion now")
+            return await real_move(request, timeout_s=timeout_s)
+
+        monkeypatch.setattr(verify, "move_or_skip", noting)
+        robot.move = refusing
+        r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
+        job = await _wait_job(client, r.json()["id"])
+        passed = (job.get("result") or {}).get("quality", {}).get("passed")
+        assert not (job["state"] == "done" and passed), f"the check passed a laser it never read: {job['result']}"
+        assert job["state"] == "refused", job
+        assert "the laser was not checked" in job["error"] and "skipped" in job["error"] and "BUSY" in job["error"], job["error"]
+        assert not any(a.code == AlarmCode.CALIBRATION_DRIFT for a in service.orchestrator.alarms.current())

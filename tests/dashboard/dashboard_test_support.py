@@ -1,32 +1,25 @@
 """The simulated cell service with its HTTP server on a free loopback port, for the dashboard tests.
 
-The service runs in a background thread with its own asyncio loop (the real composition from
-``build_service`` and the real ``create_app`` under uvicorn), so a test can drive it over HTTP
-like any client, drive a headless Chromium at it, and still reach into the orchestrator (e.g. to
-raise an alarm at a chosen moment) through :meth:`LiveCell.run`.
+The service runs in a background thread with its own asyncio loop (:class:`live_cell.LiveCell`: the
+real composition from ``build_service`` and the real ``create_app`` under uvicorn), so a test can
+drive it over HTTP like any client, drive a headless Chromium at it, and still reach into the
+orchestrator (e.g. to raise an alarm at a chosen moment) through :meth:`LiveCell.run`.
 """
 
 from __future__ import annotations
 
-import asyncio
 import shutil
-import socket
-import threading
 import time
-from collections.abc import Coroutine
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
-import uvicorn
+from live_cell import LiveCell  # noqa: F401  (the dashboard tests import it from here)
 from service_test_support import sim_config as service_sim_config
 from shared_support import on_ci
 
-from cellctl.api.app import create_app
 from cellctl.config import CellConfig
-from cellctl.service import build_service
-from cellctl.service.compose import Service
 
 ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "sim-operator-token-change-me"
@@ -43,8 +36,6 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
-
-T = TypeVar("T")
 
 
 def sim_config(**sections: dict[str, Any]) -> CellConfig:
@@ -69,99 +60,6 @@ def browser_marks(timeout_s: float = 120) -> list[Any]:
 
     missing = chromium_missing_reason()
     return [pytest.mark.skipif(missing is not None, reason=missing or ""), pytest.mark.timeout(timeout_s)]
-
-
-class LiveCell:
-    """The simulated cell served over HTTP on 127.0.0.1 from a background thread."""
-
-    def __init__(self, workdir: Path, config: CellConfig | None = None) -> None:
-        self.workdir = workdir
-        self.config = config or sim_config()
-        self.loop = asyncio.new_event_loop()
-        self.thread = threading.Thread(target=self.loop.run_forever, name="cell-service", daemon=True)
-        self.service: Service | None = None
-        self.port = 0
-        self._server: uvicorn.Server | None = None
-        self._serve_task: asyncio.Task[None] | None = None
-
-    @property
-    def url(self) -> str:
-        return f"http://127.0.0.1:{self.port}"
-
-    @property
-    def orch(self) -> Any:
-        assert self.service is not None
-        return self.service.orchestrator
-
-    def run(self, coro: Coroutine[Any, Any, T], timeout_s: float = 30.0) -> T:
-        """Run a coroutine in the service's loop and return its result."""
-        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout_s)
-
-    def start(self) -> None:
-        self.thread.start()
-        self.run(self._start(), timeout_s=90.0)
-
-    def __enter__(self) -> LiveCell:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def stop(self) -> None:
-        try:
-            self.run(self._stop(), timeout_s=30.0)
-        finally:
-            self.loop.call_soon_threadsafe(self.loop.stop)
-            self.thread.join(10.0)
-            if not self.thread.is_alive():
-                self.loop.close()
-
-    async def _start(self) -> None:
-        self.service = await build_service(self.config, workdir=self.workdir)
-        await self.service.start()
-        await self._start_http()
-
-    async def _stop(self) -> None:
-        await self._stop_http()
-        if self.service is not None:
-            await self.service.stop()
-
-    async def _start_http(self) -> None:
-        assert self.service is not None
-        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind(("127.0.0.1", self.port))
-        self.port = int(sock.getsockname()[1])
-        app = create_app(self.service.orchestrator, self.service.config.api, self.service.jobs)
-        self._server = uvicorn.Server(
-            uvicorn.Config(app, lifespan="off", log_level="warning", timeout_graceful_shutdown=1)
-        )
-        self._serve_task = asyncio.create_task(self._server.serve(sockets=[sock]))
-        deadline = time.monotonic() + 20.0
-        while not self._server.started:
-            if self._serve_task.done():
-                self._serve_task.result()
-                raise RuntimeError("uvicorn stopped before it started")
-            if time.monotonic() > deadline:
-                raise RuntimeError("uvicorn did not start within 20 s")
-            await asyncio.sleep(0.02)
-
-    async def _stop_http(self) -> None:
-        if self._server is None or self._serve_task is None:
-            return
-        self._server.should_exit = True
-        await asyncio.wait_for(self._serve_task, 15.0)
-        self._server = None
-        self._serve_task = None
-
-    def stop_http(self) -> None:
-        """Take the HTTP server away (the cell keeps running), as a lost network would."""
-        self.run(self._stop_http())
-
-    def start_http(self) -> None:
-        """Serve HTTP again on the same port."""
-        self.run(self._start_http())
 
 
 def settle(client: httpx.Client, deadline_s: float = 10.0) -> str:

@@ -30,6 +30,7 @@ from cellctl.commissioning.registry import (
     ALL_PROCEDURES,
     HAND_EYE_METHODS,
     JobRefused,
+    check_options,
     job_view,
 )
 from cellctl.store import UnknownJob
@@ -74,13 +75,39 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
     async def list_jobs(limit: int = Query(20, ge=1, le=500)) -> list[JobView]:
         return [JobView.model_validate(job_view(r, jobs.live(r.id))) for r in await jobs.store.jobs(limit=limit)]
 
-    @reads.post("/jobs/plan", response_model=PlanView, responses={422: {"description": "no plan: the reason names the setting"}})
+    planning: set[str] = set()  # the plan being worked out (one at a time)
+
+    @reads.post("/jobs/plan", response_model=PlanView,
+                responses={422: {"description": "no plan: the reason names the setting"},
+                           429: {"description": "another plan is being worked out: retry when it is answered"}})  # fmt: skip
     async def plan_job(body: JobRequestBody, poses: bool = Query(False, description="list every pose")) -> PlanView:
+        # Open to readers: one plan at a time, all of it off the event loop (thousands of poses take seconds).
+        options = body.options.model_dump(exclude_none=True)
         try:
-            plan = await jobs.plan(body.procedure, body.options.model_dump(exclude_none=True))
+            check_options(body.procedure, options, jobs.config)  # a bad option is a 422 even while another plan runs
         except JobRefused as err:
             raise refused(err) from None
-        return PlanView.model_validate(plan.summary(with_poses=poses))
+        if planning:
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, headers={"Retry-After": "1"}, detail=(
+                f"POST /jobs/plan: a plan of {next(iter(planning))} is being worked out; plans are worked out one at "
+                "a time (each takes the CPU a cycle needs): retry when it is answered"))  # fmt: skip
+
+        async def work() -> PlanView:
+            plan = await jobs.plan(body.procedure, options)
+            return await asyncio.to_thread(lambda: PlanView.model_validate(plan.summary(with_poses=poses)))
+
+        def done(t: asyncio.Future[PlanView]) -> None:  # when the work ends, even if the caller left before
+            planning.clear()
+            if not t.cancelled():
+                t.exception()  # retrieved: a refusal nobody waits for any more is not logged as lost
+
+        planning.add(body.procedure)
+        task = asyncio.ensure_future(work())
+        task.add_done_callback(done)
+        try:
+            return await asyncio.shield(task)
+        except JobRefused as err:
+            raise refused(err) from None
 
     @router.post("/jobs", response_model=JobView, status_code=status.HTTP_201_CREATED,
                  responses={409: {"description": "another job runs, or the cell is not in Stopped or Idle"}, 422: {"description": "bad options"}})  # fmt: skip

@@ -25,8 +25,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @reads.get("/spc", response_model=SpcPage)
     async def get_spc(limit: int = Query(100, ge=1, le=1000), recipe: str | None = RECIPE) -> SpcPage:
         loops = orch.quality
-        slot = ALL_RECIPES if known(recipe) is None else loops.slot(recipe)  # type: ignore[arg-type]
-        rows = await orch.store.spc_history(limit=limit, recipe=slot)
+        rows = await orch.store.spc_history(limit=limit, recipe=ALL_RECIPES if known(recipe) is None else recipe)
         history = [
             SpcHistoryEntry(
                 id=r.id, recorded_at=r.recorded_at.isoformat(), recipe=r.recipe or loops.first_recipe, cycle_id=r.cycle_id,

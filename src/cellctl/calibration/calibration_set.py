@@ -241,22 +241,11 @@ def make_part(
     status = "ok" if failure is None else "failed"
     pid = part_id(name, values or {"failure": failure}, when)
     try:
-        return PART_MODELS[name].model_validate(
-            {
-                "id": pid,
-                "status": status,
-                "calibrated_utc": when,
-                "valid_days": valid_days,
-                "method": method,
-                "software": software or {},
-                "inputs": inputs or {},
-                "dataset": dataset,
-                "quality": _jsonable(quality or {}),
-                "warnings": warnings or [],
-                "failure": failure,
-                "values": values,
-            }
-        )
+        return PART_MODELS[name].model_validate({
+            "id": pid, "status": status, "calibrated_utc": when, "valid_days": valid_days, "method": method,
+            "software": software or {}, "inputs": inputs or {}, "dataset": dataset, "quality": _jsonable(quality or {}),
+            "warnings": warnings or [], "failure": failure, "values": values,
+        })  # fmt: skip
     except ValidationError as err:
         raise CalibrationSetError(_set_errors(f"new {name} part", err)) from None
 
@@ -280,8 +269,21 @@ def _jsonable(x: Any) -> Any:
 
 
 def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
-    """Where a recipe's own parts are kept: None (``parts``) for the cell's first recipe, else its name."""
+    """Where a recipe's own parts are written: None (``parts``) for the cell's first recipe, else its name."""
     return None if recipe is None or recipe == first_recipe else recipe
+
+
+def parts_of(cal: CalibrationSet, recipe: str | None, first_recipe: str | None) -> str | None:
+    """Where ``recipe``'s (None: the first's) own parts are read: under its name, unless ``parts`` holds a teaching
+    recorded for it (or for none, and it is the first) and newer than its own (taught since it became the
+    first); a teaching there of another recipe is never its. None: ``parts``; a name with nothing there: untaught."""
+    name = recipe or first_recipe
+    own, common = cal.recipes.get(name or "", RecipeParts()).teaching, cal.parts.teaching
+    taught_for = getattr(getattr(common, "values", None), "recipe", None)
+    if name is None or (common is not None and (taught_for == name or (taught_for is None and name == first_recipe))
+                        and (own is None or common.calibrated_utc > own.calibrated_utc)):
+        return None
+    return name
 
 
 SAME_SPOT_MM = 1.0  # a taught reading place this near (mm in T0) to a configured one is the same place on the wall
@@ -333,7 +335,7 @@ def check_ready(
         raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
     if cal is None:
         return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
-    slot = recipe_slot(recipe, first_recipe)
+    slot = parts_of(cal, recipe, first_recipe)
     problems: list[str] = []
     for name in PART_NAMES:
         p = cal.part(name, slot)
@@ -354,7 +356,7 @@ def check_ready(
         if p.calibrated_utc > now + timedelta(minutes=5):
             problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
         taught_for = getattr(getattr(p, "values", None), "recipe", None)
-        wanted = slot if slot is not None else first_recipe
+        wanted = recipe or first_recipe
         if taught_for is not None and wanted is not None and taught_for != wanted:
             problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
         elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:

@@ -26,9 +26,9 @@ from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import board_pose, refuse_disagreement, solve_hand_eye
 from cellctl.calibration.laser import calibrate_laser
-from cellctl.calibration.pixel_map import nine_point_map, offsets_from_poses
+from cellctl.calibration.pixel_map import accept_nine_point_map, nine_point_map, offsets_from_poses
 from cellctl.calibration.summary import summary_lines
-from cellctl.calibration.taught_shot import refuse_changed_shot, taught_shot
+from cellctl.calibration.taught_shot import refuse_changed_shot, taught_profile, taught_shot
 from cellctl.calibration.teach import workpiece_frame_from_corner
 from cellctl.calibration.template_figures import corner_angle_deg, taught_feature
 from cellctl.compensate import deviation_in_frame
@@ -325,7 +325,7 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
     except ScaleCalibrationError as err:
         raise CalibrationRefused("pixel_map", "board_not_found", f"pixel scale: {err}") from None
     s = scale.mm_per_px
-    agree = abs(amap.mm_per_px / s - 1.0)
+    agree = accept_nine_point_map(amap, s)  # mirrored or off the scale s: refused
     quality: dict[str, Any] = {
         "map_rms_mm": amap.rms_mm,
         "map_max_mm": amap.max_mm,
@@ -472,6 +472,7 @@ def compute_teaching(ds: Dataset, cal: CalibrationSet | None, config: CellConfig
         "recipe": ds.manifest.get("recipe") or config.default_recipe,
         "wall_read": ds.manifest.get("wall_read"),  # None in a dataset from before it was recorded
         "shot": taught_shot(config),
+        "profile": taught_profile(shot.measurement, config.vision.feature),  # each shot's feature is found again by it
         "T0": T0.tolist(),
         "C_Pos_0": C_Pos_0.tolist(),
         "g_Pos_0": g_Pos_0.tolist(),

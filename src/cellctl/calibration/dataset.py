@@ -9,8 +9,12 @@ with the part computed from it.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
+import os
+import shutil
+import uuid
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -82,26 +86,43 @@ def default_dataset_dir(store_root: str | Path, kind: str, when: datetime | None
 
 
 def write_dataset(root: str | Path, kind: str, manifest: dict[str, Any], images: dict[str, NDArray[np.uint8]]) -> Dataset:
-    """Write the images and the manifest (with their checksums) into a new folder ``root``."""
+    """Write the images and the manifest (with their checksums) into a new folder ``root``.
+
+    They are written into a hidden folder beside it, renamed to ``root`` once complete: a dataset folder
+    is whole or absent, and of two writers to one ``root`` the second is refused (never mixed in).
+    """
     if kind not in KINDS:
         raise ValueError(f"unknown dataset kind {kind!r}; the kinds are {', '.join(KINDS)}")
     folder = Path(root)
     if folder.exists() and any(folder.iterdir()):
         raise DatasetError(f"{folder}: the folder is not empty; a dataset is never written over another one")
-    folder.mkdir(parents=True, exist_ok=True)
-    files = {}
-    for name, img in images.items():
+    for name in images:
         if not name.endswith(".png") or "/" in name:
             raise ValueError(f"image names must be plain '*.png' file names, got {name!r}")
-        ok, buf = cv2.imencode(".png", np.ascontiguousarray(img))
-        if not ok:
-            raise DatasetError(f"{name}: could not encode the image as PNG")
-        data = buf.tobytes()
-        (folder / name).write_bytes(data)
-        files[name] = hashlib.sha256(data).hexdigest()
-    doc = {"format": FORMAT, "kind": kind, "written_utc": datetime.now(timezone.utc).isoformat(), "files": files}
-    doc.update(_jsonable(manifest))
-    (folder / "manifest.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    work = folder.parent / f".{folder.name}.writing-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    work.mkdir()
+    try:
+        files = {}
+        for name, img in images.items():
+            ok, buf = cv2.imencode(".png", np.ascontiguousarray(img))
+            if not ok:
+                raise DatasetError(f"{name}: could not encode the image as PNG")
+            data = buf.tobytes()
+            (work / name).write_bytes(data)
+            files[name] = hashlib.sha256(data).hexdigest()
+        doc = {"format": FORMAT, "kind": kind, "written_utc": datetime.now(timezone.utc).isoformat(), "files": files}
+        doc.update(_jsonable(manifest))
+        (work / "manifest.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+        try:
+            os.rename(work, folder)  # onto a missing or empty folder only
+        except OSError as err:
+            if err.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+            raise DatasetError(f"{folder}: the folder is not empty; a dataset is never written over another one") from None
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
     return Dataset(folder, doc)
 
 

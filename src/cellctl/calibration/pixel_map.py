@@ -21,10 +21,15 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cellctl.calibration.errors import CalibrationRefused
 from cellctl.geometry.pose import Pose, check_pose, make_pose
 from cellctl.vision.ninepoint import AffineMap, fit_affine_map
 
 F64 = NDArray[np.float64]
+
+MAP_SCALE_TOLERANCE = 0.03
+"""How far (relative) the nine-point map's scale along any image direction may differ from the pixel
+scale s of eq. 15; the twin's maps agree within 0.2 % (seeds 1-5), a wrong board size or robot offset is far off."""
 
 
 def nine_point_offsets(step_mm: float) -> F64:
@@ -57,3 +62,32 @@ def nine_point_map(corners_ideal_px: ArrayLike, offsets_mm: ArrayLike) -> Affine
     P = np.asarray(corners_ideal_px, dtype=float)
     O = np.asarray(offsets_mm, dtype=float)
     return fit_affine_map(P, -O)
+
+
+def accept_nine_point_map(amap: AffineMap, s_mm_per_px: float, *, tolerance: float = MAP_SCALE_TOLERANCE) -> float:
+    """Check the map against the camera model; returns its mean scale's relative difference from s.
+
+    The camera looks square onto the wall, so the map is nearly a similarity: it keeps the image's
+    handedness (u right and v down onto T0's x right and y down: det of its 2 x 2 part > 0) and
+    scales every image direction (its singular values, mm/px) by the pixel scale s of eq. 15 within
+    ``tolerance``. Raises CalibrationRefused (reason ``mirrored_map`` or ``map_scale``) naming the figures.
+    """
+    if not np.isfinite(s_mm_per_px) or s_mm_per_px <= 0:
+        raise ValueError(f"s_mm_per_px must be a positive number, got {s_mm_per_px!r}")
+    L = amap.linear
+    det = float(np.linalg.det(L))
+    if not det > 0:
+        raise CalibrationRefused("pixel_map", "mirrored_map", (
+            f"the nine-point map is mirrored (det of its 2 x 2 part {det:.3g} mm^2/px^2, must be > 0: the image's u right "
+            "and v down map onto T0's x right and y down): check that the camera's ReverseX / ReverseY are as at the "
+            "camera calibration (off), and the signs of the robot's offsets (the flange poses along T0's x and y)"))
+    sv = np.linalg.svd(L, compute_uv=False)  # mm/px along the image's most and least stretched directions
+    worst = float(np.max(np.abs(sv / s_mm_per_px - 1.0)))
+    if worst > tolerance:
+        raise CalibrationRefused("pixel_map", "map_scale", (
+            f"the nine-point map scales the image by {sv[0]:.6f} to {sv[1]:.6f} mm/px, the pixel scale s (eq. 15, the "
+            f"scale board) is {s_mm_per_px:.6f} mm/px: {worst:.1%} apart, over the {tolerance:.0%} allowed "
+            "(cellctl.calibration.pixel_map.MAP_SCALE_TOLERANCE): check the square size given for the scale board, "
+            "the robot's offsets (units, tool and work object), the camera's binning or decimation since its "
+            "calibration, and that the camera shot from the taught pose"))
+    return abs(amap.mm_per_px / s_mm_per_px - 1.0)

@@ -126,10 +126,42 @@ class TaughtShot(StrictRecord):
     aim_mm: tuple[float, float]  # in T: the point on the camera's axis (vision.shot_aim_mm or its default)
 
 
+class TaughtStepValues(StrictRecord):
+    """One step of a template's edge profile: place from the feature step (px, + into the opening), change (DN), share of the range."""
+
+    offset_px: float
+    change_dn: float
+    fraction: float = Field(ge=0)
+
+
+class TaughtEdgeValues(StrictRecord):
+    """A template's profile across one straight edge: its steps, which is the feature, what it covered (px from the feature)."""
+
+    steps: list[TaughtStepValues] = Field(min_length=1)
+    feature: int = Field(ge=0)
+    seen_px: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _feature_in(self) -> "TaughtEdgeValues":
+        if self.feature >= len(self.steps):
+            raise ValueError(f"feature {self.feature} is not one of the {len(self.steps)} steps")
+        return self
+
+
+class TaughtProfileValues(StrictRecord):
+    """The template's profiles (cellctl.vision.taught_profile), by edge, and the [vision.feature] rule they were picked with."""
+
+    count_from: Literal["wall", "opening"]
+    index: int = Field(ge=0)
+    min_step_fraction: float = Field(gt=0, lt=1)
+    edges: dict[Literal["top", "right"], TaughtEdgeValues]
+
+
 class TeachingValues(StrictRecord):
     recipe: str | None = None  # the recipe taught (None: taught before recipes had their own teaching; the first)
     wall_read: WallRead | None = None  # None: taught before teachings recorded it (not checked)
     shot: TaughtShot | None = None  # None: taught before teachings recorded it (not checked)
+    profile: TaughtProfileValues | None = None  # None: taught before profiles were recorded (the rule alone counts)
     T0: list[list[float]]
     C_Pos_0: list[list[float]]
     g_Pos_0: list[list[float]]

@@ -37,10 +37,11 @@ from cellctl.calibration.calibration_set import (
     command,
     damage_text,
     history_row,
-    recipe_slot,
+    parts_of,
     store_root,
 )
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.taught_shot import taught_profile_of
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
 from cellctl.vision import AffineMap, CornerFeatures
@@ -63,6 +64,7 @@ def cycle_calibration_from_set(
     nine_point = AffineMap(cal.pixel_affine(recipe), residuals, float(q.get("map_rms_mm", 0.0)), float(q.get("map_max_mm", 0.0)))
     t = cal.template(recipe)
     template = CornerFeatures(t["u_d"], t["v_d"], t["theta_d"], t["top_angle_d"], t["right_angle_d"])
+    profile = getattr(getattr(cal.part("teaching", recipe), "values", None), "profile", None)
     return CycleCalibration(
         lens=cal.lens(),
         T_H_C=cal.T_H_C(),
@@ -72,6 +74,7 @@ def cycle_calibration_from_set(
         nine_point=nine_point,
         taught=cal.taught(recipe),
         template=template,
+        taught_profile=taught_profile_of(profile),
     )
 
 
@@ -193,8 +196,9 @@ class CalibrationSetSource:
 
     # -- the CalibrationSource ----------------------------------------------------------------
 
-    def _slot(self, recipe: str | None) -> str | None:
-        return recipe_slot(recipe, self.config.default_recipe)
+    def _slot(self, cal: CalibrationSet, recipe: str | None) -> str | None:
+        """Where ``recipe``'s own parts are read in ``cal``: by its name first (:func:`parts_of`)."""
+        return parts_of(cal, recipe, self.config.default_recipe)
 
     def problems(self, recipe: str | None = None) -> list[str]:
         snap = self._snapshot()
@@ -211,7 +215,7 @@ class CalibrationSetSource:
         cal = snap.cal
         if cal is None:
             raise CalibrationRefused("set", "missing_input", "there is no calibration set; calibrate the cell first")
-        slot = self._slot(recipe)
+        slot = self._slot(cal, recipe)
         cached = self._cached.get(slot)
         if cached is None or cached[0] is not snap:
             view = self.config.for_recipe(recipe or self.config.default_recipe)
@@ -236,7 +240,7 @@ class CalibrationSetSource:
         now = datetime.now(timezone.utc)
         first = self.config.default_recipe
         recipes = {r.name: {"ready": not check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config),
-                            "taught": cal.usable("teaching", self._slot(r.name))}
+                            "taught": cal.usable("teaching", self._slot(cal, r.name))}
                    for r in self.config.process.recipes}  # fmt: skip
         return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes}
 
@@ -270,12 +274,16 @@ class CalibrationSetSource:
         snap = self._snapshot()
         if snap.cal is None:  # no set yet, or a damaged one: the cycle fails with the set's own problem
             return None
-        slot = self._slot(recipe)
+        slot = self._slot(snap.cal, recipe)
         for name, what in (("teaching", "teaching"), ("pixel_map", "nine-point map")):
             part = snap.cal.part(name, slot)
             if part is None or part.status != "ok":
                 state = "is missing" if part is None else f"failed ({part.failure})"
                 return f"recipe {recipe} is not taught: its {what} {state}; run `{command(name, slot)}`"
+        taught_for = getattr(getattr(snap.cal.part("teaching", slot), "values", None), "recipe", None)
+        if taught_for not in (None, recipe):  # a set edited by hand, or written by an older cellctl
+            return (f"recipe {recipe} is not taught: the teaching it finds was taught for recipe {taught_for}; "
+                    f"run `{command('teaching', recipe)}`")
         return None
 
     def reference(self, recipe: str | None = None) -> dict[str, Any]:
@@ -285,7 +293,7 @@ class CalibrationSetSource:
             return {"source": str(self.store.root), "version": snap.version, "damaged": True}
         if cal is None:
             return {"source": str(self.store.root), "version": None}
-        slot = self._slot(recipe)
+        slot = self._slot(cal, recipe)
         parts = {name: (None if cal.part(name, slot) is None else cal.part(name, slot).id) for name in PART_NAMES}  # type: ignore[union-attr]
         return {"source": str(self.store.root), "version": cal.version, "parts": parts}
 

@@ -2,7 +2,8 @@
 
 T0 comes from the feature seen at the shooting pose: its kind and place in T (the corner, or the arc's
 centre at the corner radius), the camera's working distance and its aim. A change to any of them
-after teaching leaves T0, the template and the pixel map describing another shot.
+after teaching leaves T0, the template and the pixel map describing another shot. The template's
+edge profiles are recorded too: each shot's feature is found again by them (cellctl.vision.taught_profile).
 """
 
 from __future__ import annotations
@@ -10,8 +11,12 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.set_parts import TaughtShot
+from cellctl.calibration.set_parts import TaughtProfileValues, TaughtShot
 from cellctl.config.feature import feature_kind, shot_aim_mm
+from cellctl.config.vision import FeatureConfig
+from cellctl.vision.corner import CornerMeasurement
+from cellctl.vision.profile import ProfileStep
+from cellctl.vision.taught_profile import TaughtEdge, TaughtProfile, TaughtRule, taught_edge
 
 if TYPE_CHECKING:
     from cellctl.config.schema import CellConfig
@@ -64,3 +69,30 @@ def refuse_changed_shot(manifest: dict[str, Any], config: CellConfig) -> None:
     recipe = manifest.get("recipe") or config.default_recipe
     if taken is not None and (why := shot_problem(TaughtShot.model_validate(taken), config, recipe)) is not None:
         raise CalibrationRefused("teaching", "settings_changed", f"the dataset was {why}")
+
+
+def taught_profile(m: object, feature: FeatureConfig) -> dict[str, object] | None:
+    """What teaching records of the template's edge profiles (None: not a corner measurement, or no profile)."""
+    if not isinstance(m, CornerMeasurement):
+        return None  # the arc's centre: its profile is not checked
+    edges = {}
+    for edge in (m.top, m.right):
+        taught = taught_edge(edge.profile) if edge is not None and edge.profile is not None else None
+        if taught is not None:
+            steps = [{"offset_px": s.offset_px, "change_dn": s.change_dn, "fraction": s.fraction} for s in taught.steps]
+            edges[edge.name] = {"steps": steps, "feature": taught.feature, "seen_px": list(taught.seen_px)}  # type: ignore[union-attr]
+    if not edges:
+        return None
+    rule = {"count_from": feature.count_from, "index": feature.index, "min_step_fraction": feature.min_step_fraction}
+    return TaughtProfileValues.model_validate(rule | {"edges": edges}).model_dump(mode="json")
+
+
+def taught_profile_of(values: TaughtProfileValues | None) -> TaughtProfile | None:
+    """The recorded profiles as the corner detector takes them (None: taught before they were recorded)."""
+    if values is None:
+        return None
+    edges = {
+        name: TaughtEdge(tuple(ProfileStep(s.offset_px, s.change_dn, s.fraction) for s in e.steps), e.feature, e.seen_px)
+        for name, e in values.edges.items()
+    }
+    return TaughtProfile(TaughtRule(values.count_from, values.index, values.min_step_fraction), edges)

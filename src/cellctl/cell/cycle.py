@@ -69,6 +69,7 @@ from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, offset_fro
 from cellctl.vision.annotate_arc import annotate_arc
 from cellctl.vision.arc_corner import ArcCornerMeasurement
 from cellctl.vision.feature import FeatureShot, detect_feature, first_shot_limits
+from cellctl.vision.taught_profile import TaughtProfile
 from cellctl.vision.offset import turn_measured
 
 
@@ -98,6 +99,7 @@ class CycleCalibration:
     nine_point: AffineMap
     taught: TaughtPoses
     template: CornerFeatures
+    taught_profile: TaughtProfile | None = None  # the template's edge profiles (None: not recorded; the rule alone counts)
 
 
 class CycleRecorder(Protocol):
@@ -334,10 +336,11 @@ class CycleRun:
             T1 = workpiece_frame_after_alignment(cal.taught, await self.move(CycleStep.COMPENSATE, target))
             m, offset = await self._measure(0, first=True)
         T_est = await self._estimate(0, m, offset, T1)
-        # An arc shot without an edge the template has (top edge out of view, or only the right edge)
-        # corrected no turn: the first verification shot measures it, so the move after it may still
-        # be a first correction's size.
-        first_turned = m.features is not None and turn_measured(cal.template, m.features)
+        # The move after verification shot 1 corrects shot 0's error. An arc shot without an edge the template
+        # has (top edge out of view, or only the right edge) corrected no turn, and a shot taken with the relaxed
+        # first-shot limits (fewer edge points, a looser sigma: an arc's centre off the image turned 0.55 deg
+        # short) may be off by more than a verification step: that move may still be a first correction's size.
+        first_turned = m.features is not None and turn_measured(cal.template, m.features) and not self._first_shot_relaxed()
         shots: list[ShotRecord] = [self._last_shot]
         estimates: list[Pose] = []
         moved_mm = turned_rad = float("nan")
@@ -369,6 +372,14 @@ class CycleRun:
             f"{verify.residual_deg} deg): the robot does not hold its pose or the image is unstable",
         )
 
+    def _first_shot_relaxed(self) -> bool:
+        """Whether the first shot's limits (process.verify.first_shot_*) are looser than a verification shot's."""
+        verify, lim, arc = self.process.verify, self.vision.limits, self.feature.arc
+        looser = verify.first_shot_sigma_px > lim.max_corner_sigma_px or verify.first_shot_min_edge_points < lim.min_edge_points
+        if arc is not None:  # the arc's first-shot limits only ever loosen (a larger sigma, a shorter coverage)
+            looser |= first_shot_limits(self.vision, arc, verify.first_shot_sigma_px, verify.first_shot_min_edge_points)[1] != arc
+        return looser
+
     async def _measure(self, index: int, *, first: bool = False) -> tuple[FeatureShot, PlanarOffset | None]:
         """Grab, find the corner (or the arc) and turn it into T' (None when the detector refused)."""
         cal = self.cal
@@ -383,7 +394,8 @@ class CycleRun:
             verify = self.process.verify
             vision, arc = first_shot_limits(vision, arc, verify.first_shot_sigma_px, verify.first_shot_min_edge_points)
         radius = self.feature.corner_radius
-        m = await asyncio.to_thread(detect_feature, frame.image, cal.lens, vision, arc, need_orientation=not first, corner_radius=radius)
+        m = await asyncio.to_thread(detect_feature, frame.image, cal.lens, vision, arc, need_orientation=not first,
+                                   corner_radius=radius, taught=cal.taught_profile)  # fmt: skip
         point = self.feature.point_mm
         offset = offset_from_map(cal.template, m.features, cal.nine_point, point) if m.features is not None else None
         self._last_image = (index, frame.image, m, offset)

@@ -67,7 +67,7 @@ async def measure_gaps_at_shooting_pose(run: CycleRun, T2: Pose) -> tuple[np.nda
     gap_px = run.process.inspect.nominal_gap_mm / cal.nine_point.mm_per_px
     m = await asyncio.to_thread(
         measure_gaps, image, cal.lens, cal.template, run.vision.gap, gap_px_expected=gap_px, feature=run.vision.feature,
-        opening_polarity=run.vision.opening_polarity,
+        opening_polarity=run.vision.opening_polarity, taught=cal.taught_profile,
     )
     if not m.ok:
         await record_inspection_image(run, image, m, None)

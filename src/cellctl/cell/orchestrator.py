@@ -387,7 +387,7 @@ class CellOrchestrator:
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, "; ".join(problems))
         reference = self._calibration_read = self.calibration.reference(recipe)
         self._loop_recipe = recipe  # each recipe's installs feed its own closed loop
-        self._applied_offset = self.quality.offset_for_next(recipe, reference.get("version"))
+        self._applied_offset = self.quality.offset_for_next(recipe, reference)
         await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
         if self.truth is not None:
             self.truth.new_car_body(recipe)

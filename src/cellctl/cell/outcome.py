@@ -60,6 +60,11 @@ def result_fields(result: CycleResult, cycle_time_s: float, *, not_ok: str | Non
         "shots": len(result.shots),
         "cycle_time_s": cycle_time_s,
         "measured_deviation": None if result.measured is None else result.measured.as_dict(),
+        # the car body's wall as the alignment fitted it: normal . p = offset_mm (base frame, normal into the wall)
+        "wall_plane_B": {
+            "normal": [float(v) for v in result.alignment.wall.normal],
+            "offset_mm": float(result.alignment.wall.offset),
+        },
     }
     if result.measured is not None:
         fields["part_ok"] = not_ok is None

@@ -7,17 +7,20 @@ reset and the start of a drift to the audit trail, raises alarm 1313 when a drif
 publishes the loops' state for /status and the dashboard.
 
 One loop per recipe because each recipe's install pose (g_Pos_0) is taught on its own: its bias is
-its own, and one loop fed by a mix would average the recipes' biases and fit none of them.
+its own, and one loop fed by a mix would average the recipes' biases and fit none of them. A loop is
+kept under its recipe's name (never its place in ``[[process.recipes]]``) and learnt under the
+calibration parts its recipe's cycles use (:func:`calibration_key`): another recipe's new teaching
+leaves it alone.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from datetime import datetime, timezone
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from cellctl.calibration.calibration_set import recipe_slot
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.events import EventHub
 from cellctl.config.schema import CellConfig
@@ -64,18 +67,19 @@ class InstallQualityLoop:
     def first_recipe(self) -> str:
         return self.recipes[0]
 
-    def slot(self, recipe: str) -> str | None:
-        """The store's name of ``recipe``'s loop: the calibration set's slot (None for the cell's first recipe)."""
+    def known(self, recipe: str) -> str:
+        """``recipe``, the name its loop is kept under; KeyError for a recipe not configured."""
         if recipe not in self.states:
             raise KeyError(f"no recipe {recipe!r} in [[process.recipes]] (the recipes are: {', '.join(self.recipes)})")
-        return recipe_slot(recipe, self.first_recipe)
+        return recipe
 
     async def load(self) -> None:
-        """Take up the states the store kept (the offsets survive a restart); a loop of a recipe no longer
-        configured stays in the store, unused."""
-        saved = await self.store.spc_states()
+        """Take up the states the store kept, by recipe name (the offsets survive a restart and a new order of
+        the recipes); a loop of a recipe no longer configured stays in the store, unused. A loop kept unnamed
+        (before loops were named) becomes the first recipe's, once."""
+        saved = await self.store.spc_states(first_recipe=self.first_recipe)
         for name in self.recipes:
-            state = saved.get(self.slot(name))
+            state = saved.get(name)
             if state is not None:
                 self.states[name] = state_from_dict(state)
 
@@ -84,9 +88,10 @@ class InstallQualityLoop:
         """The offset of an install the loop does not correct: zeros on every axis."""
         return dict.fromkeys(AXES, 0.0)
 
-    def offset_for_next(self, recipe: str, calibration_version: Any) -> dict[str, float]:
-        """The offset (six figures, mm and deg) the next install of ``recipe`` takes out; zeros when none applies."""
-        return self.loop.offset(self.states[recipe], _version(calibration_version))
+    def offset_for_next(self, recipe: str, calibration: Mapping[str, Any]) -> dict[str, float]:
+        """The offset (six figures, mm and deg) the next install of ``recipe`` takes out under ``calibration`` (the
+        source's reference for that recipe); zeros when none applies."""
+        return self.loop.offset(self.states[recipe], calibration_key(calibration))
 
     @staticmethod
     def offset_as_pose(offset: dict[str, float]) -> Pose | None:
@@ -101,23 +106,23 @@ class InstallQualityLoop:
         measured: InstallDeviation | None,
         *,
         recipe: str,
-        calibration_version: Any,
+        calibration: str,
         applied: dict[str, float],
         reliable: bool = True,
     ) -> tuple[dict[str, Any], SpcUpdate]:
-        """Feed one cycle's result to its recipe's loop; persist, audit and publish. Returns the record's
-        ``spc`` fields.
+        """Feed one cycle's result to its recipe's loop, learnt under ``calibration`` (:func:`calibration_key`);
+        persist, audit and publish. Returns the record's ``spc`` fields.
 
         Raise the drift alarm with :meth:`raise_drift` once the cycle's record is written.
         """
         now = datetime.now(timezone.utc)
-        slot = self.slot(recipe)
+        self.known(recipe)
         up = self.loop.update(
-            self.states[recipe], measured, calibration_version=_version(calibration_version), cycle_id=cycle_id,
+            self.states[recipe], measured, calibration_version=calibration, cycle_id=cycle_id,
             applied=applied, at=now, reliable=reliable,
         )  # fmt: skip
         if up.record is not None:
-            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now, recipe=slot)
+            await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), at=now, recipe=recipe)
         self.states[recipe] = up.state
         if up.offset_changed or up.reset is not None or up.drift_started:
             await self.store.append_audit(
@@ -157,7 +162,7 @@ class InstallQualityLoop:
             assert recipe is not None  # set with the calibration's reference
             return await self.after_cycle(
                 cycle_id, None if measured is None else measured.deviation, recipe=recipe,
-                calibration_version=calibration_read.get("version"), applied=applied,
+                calibration=calibration_key(calibration_read), applied=applied,
                 reliable=measured is None or measured.reliable,
             )  # fmt: skip
         except Exception as err:  # noqa: BLE001 - logged with its trace; the record and the cell go on
@@ -173,7 +178,7 @@ class InstallQualityLoop:
         await self.alarms.raise_alarm(
             AlarmCode.SPC_DRIFT, source="spc", cycle_id=cycle_id,
             detail=f"{recipe}'s install offset drifts: {what}; the loop stops following it. Run `cellctl calibrate "
-            "verify`, recalibrate what it names, then the new calibration set resets the loop",
+            "verify`, recalibrate what it names, then the new calibration of this recipe's parts resets its loop",
         )  # fmt: skip
 
     async def reset(self, *, actor: str, source: str, recipe: str | None = None) -> None:
@@ -181,10 +186,10 @@ class InstallQualityLoop:
         drift (after a repair that needs no recalibration)."""
         before: dict[str, dict[str, float]] = {}
         for name in self.recipes if recipe is None else [recipe]:
-            slot = self.slot(name)
+            self.known(name)
             up = self.loop.reset(self.states[name], at=datetime.now(timezone.utc))
             if up.record is not None:
-                await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), recipe=slot)
+                await self.store.save_spc(state_to_dict(up.state), up.record.as_entry(), recipe=name)
             self.states[name] = up.state
             before[name] = dict(up.previous_offset)
         await self.store.append_audit(
@@ -219,8 +224,16 @@ class InstallQualityLoop:
         }
 
 
-def _version(v: Any) -> str:
-    """The calibration set's version as the loop keys it (the oracle has none: one fixed name)."""
+def calibration_key(reference: Mapping[str, Any]) -> str:
+    """What a recipe's loop is learnt under, from a calibration source's reference for that recipe: the
+    ids of the parts its cycles use (``parts-`` and 12 hex digits of their digest), so a new version of the
+    set that changes none of them (another recipe taught) keeps the loop; without part ids, the set's
+    version ("none": the oracle has none)."""
+    parts = reference.get("parts")
+    if isinstance(parts, Mapping) and parts:
+        ids = "\n".join(f"{name}={parts[name]}" for name in sorted(parts))
+        return "parts-" + hashlib.sha256(ids.encode("utf-8")).hexdigest()[:12]
+    v = reference.get("version")
     return "none" if v is None else str(v)
 
 

@@ -327,6 +327,16 @@ def _latency(
     t, T = feedback
     during = (instants >= approach[0]) & (instants <= approach[1])
     in_approach = int(np.count_nonzero(during & np.isfinite(distances)))
+    if t.size >= 2 and in_approach == 0:
+        x, y = cfg.path_mm[0]
+        raise CycleFailed(
+            step, AlarmCode.ALIGNMENT_FAILED,
+            f"the approach along the beam at the sweep's first corner ({x:g}, {y:g}) mm in T0 gave no laser reading at all, "
+            "so the laser could not be timed against the robot: the beam there may go through the window opening (this car "
+            "body stands further off its taught place than that corner's distance from the opening allows), or no wall is in "
+            "the laser's range. Move the first corner of process.align.sweep.path_mm (where the laser is timed) further from "
+            "the opening than the car body's placement varies and teach again; is the car body in position?",
+        )  # fmt: skip
     if t.size < 2 or in_approach < MIN_READINGS:
         raise CycleFailed(
             step, AlarmCode.ALIGNMENT_FAILED,

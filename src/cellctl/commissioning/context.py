@@ -4,7 +4,9 @@ A procedure only sees a :class:`JobContext`: the robot, laser and camera behind 
 robot wrapped so that no move exceeds the procedure's reduced speed), ``ask`` to pause for the
 engineer, ``progress`` to report, and a :class:`DatasetDraft` it fills as samples arrive. The job
 runner writes the draft as a complete dataset when the procedure finishes, or as a partial one
-(marked so) when it is cancelled or fails, so nothing collected is lost. The same code runs on
+(marked so) when it is cancelled or fails. The draft lives in memory until then: a process killed
+outright (SIGKILL, power loss) loses it, and the job is marked interrupted at the next start, to be
+run again. The same code runs on
 hardware and in the simulated cell; there, a :class:`Witness` adds the twin's truth to the
 manifest for the report (it is never read by a computation).
 """
@@ -23,6 +25,7 @@ from numpy.typing import NDArray
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.dataset import Dataset, write_dataset
 from cellctl.calibration.recording import software
+from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
 from cellctl.commissioning.plans import MotionPlan
 from cellctl.commissioning.prompts import Ask
@@ -106,6 +109,9 @@ class JobContext:
         progress: (done, total, message) as the procedure goes.
         on_frame: every frame grabbed (the dashboard's live image).
         on_plan: the plan, when the procedure shows it.
+        written: the complete dataset, once written.
+        robot_left: where the robot stands while nothing may move it as it is (the glass in the opening) and
+            what to do; a job ending meanwhile says it. None when the robot may move on.
     """
 
     job_id: int
@@ -122,6 +128,8 @@ class JobContext:
     on_plan: Callable[[MotionPlan], None] = _no_plan
     draft: DatasetDraft | None = None
     source: dict[str, Any] = field(default_factory=dict)
+    written: Dataset | None = None
+    robot_left: str | None = None
 
     def show_plan(self, plan: MotionPlan) -> None:
         """The plan the robot is about to follow (shown before the first move)."""
@@ -140,6 +148,9 @@ class JobContext:
             truth = self.witness.truth(self.draft.kind, facts or {})
             if truth:
                 self.draft.manifest["twin_truth"] = truth
-        ds = await asyncio.to_thread(self.draft.write, self.dest)
-        self.draft = None
+        draft, self.draft = self.draft, None  # taken: a cancel from here on writes no partial copy beside it
+        ds, cancelled = await to_the_end(asyncio.to_thread(draft.write, self.dest))
+        self.written = ds
+        if cancelled:  # the dataset is complete and kept; the job still ends cancelled
+            raise asyncio.CancelledError
         return ds

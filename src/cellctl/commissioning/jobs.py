@@ -23,12 +23,12 @@ from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready, damage_text, recipe_slot
+from cellctl.calibration.calibration_set import (CalibrationSet, CalibrationStore, check_ready, command, damage_text,
+                                                 recipe_slot)
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.recording import record
-from cellctl.calibration.set_lock import CalibrationStoreBusy
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
@@ -36,9 +36,10 @@ from cellctl.cell.events import EventHub
 from cellctl.cell.packml import CYCLE_STATES, PackMLMachine
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, Witness, describe_source
+from cellctl.commissioning.job_end import ended_by, keep_what_was_collected, say_where_the_robot_was_left
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
-from cellctl.commissioning.prompts import Answer, Prompt, PromptCancelled, PromptDesk
+from cellctl.commissioning.prompts import Answer, Prompt, PromptDesk
 from cellctl.commissioning.recovery import recover_jobs
 from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
 from cellctl.commissioning.schedule import VerifySchedule
@@ -225,8 +226,11 @@ class JobManager:
         try:
             return self.calibration_store.current()
         except (ValueError, OSError) as err:  # CalibrationSetError is a ValueError; alarm 1305 says the same
-            raise JobRefused(damage_text(self.calibration_store, err, self.calibration_store.current_version()),
-                             conflict=True) from None
+            try:
+                version = self.calibration_store.current_version()
+            except (ValueError, OSError):  # the pointer itself is what is damaged (mistyped, empty, unreadable)
+                version = None
+            raise JobRefused(damage_text(self.calibration_store, err, version), conflict=True) from None
 
     # -- plans ----------------------------------------------------------------------------------
 
@@ -277,7 +281,8 @@ class JobManager:
         missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
         if missing:
             of = "" if slot is None else f" (recipe {slot})"
-            raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first", conflict=True)
+            run = "; ".join(f"`{command(n, slot)}`" for n in missing)
+            raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first: run {run}", conflict=True)
         rec = await self.store.create_job(
             procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
         )
@@ -417,18 +422,9 @@ class JobManager:
             self._publish(run)
             outcome = await asyncio.to_thread(proc.compute, ds, cal, config)
             fields.update(await self._conclude(rec, proc, outcome, ds, config, opts, when))
-        except asyncio.CancelledError:
-            fields.update(state="cancelled", error=run.cancel_reason or "cancelled: the service is stopping")
-        except PromptCancelled as err:
-            fields.update(state="cancelled", error=str(err))
-        except CalibrationRefused as err:
-            fields.update(state="refused", error=f"{err.reason}: {err.detail}")
-        except (DeviceError, PlanError, CalibrationStoreBusy) as err:
-            reason = run.cancel_reason
-            fields.update(state="cancelled" if reason else "failed", error=reason or f"{type(err).__name__}: {err}")
-        except Exception as err:  # noqa: BLE001 - any bug still ends the job with a record
-            log.exception("commissioning job %d failed", rec.id)
-            fields.update(state="failed", error=f"software fault: {type(err).__name__}: {err}")
+        except (asyncio.CancelledError, Exception) as err:
+            fields.update(ended_by(err, run.cancel_reason, rec.id))
+        say_where_the_robot_was_left(fields, ctx.robot_left)
         # The record is written before the task ends: a cancel landing while it is written (the job saw
         # the cancel at its next step first) waits for it rather than answer with the job still running.
         _, cancelled = await to_the_end(self._finish(run, ctx, fields))
@@ -467,13 +463,7 @@ class JobManager:
     async def _finish(self, run: _Running, ctx: JobContext, fields: dict[str, Any]) -> None:
         rec = run.record
         try:
-            if ctx.draft is not None:  # ended before the dataset was complete: keep what was collected
-                reason = fields.get("error") or fields.get("state", "ended early")
-                try:
-                    ds = await asyncio.to_thread(ctx.draft.write, ctx.dest, partial_reason=str(reason))
-                    fields["dataset"] = str(ds.root)
-                except Exception:  # noqa: BLE001 - the record must still be written
-                    log.exception("job %d: writing the partial dataset failed", rec.id)
+            await keep_what_was_collected(ctx, fields, rec.id)
             if ctx.plan is not None:
                 fields.setdefault("plan", ctx.plan.summary())
             fields["progress"] = run.progress or {}

@@ -284,6 +284,8 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
     draft.images["template.png"] = frame.image
     ctx.progress(len(plan.poses) + 1, n_steps, "template image taken at the aligned shooting pose C_Pos_0")
     installs = []
+    ctx.robot_left = _glass_in_opening("may hold the glass in or at the car body's opening (the job ended during the "
+                                       "hand-guided installs)", C_Pos_0)  # fmt: skip
     for k in range(tc.hand_guided_installs):
         again = " Take the glass out of the opening and guide it in again from outside." if k else ""
         await ctx.ask(
@@ -294,6 +296,9 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         )
         pose = (await ctx.devices.robot.read_pose(timeout_s=ctx.motion.read_timeout_s)).to_matrix()
         installs.append(pose)
+        x, y, z = pose[:3, 3]
+        ctx.robot_left = _glass_in_opening(f"holds the glass in the car body's opening (flange at x {x:.1f}, y {y:.1f}, "
+                                           f"z {z:.1f} mm at install {k + 1})", C_Pos_0)  # fmt: skip
         draft.manifest["g_Pos_0_installs"].append(pose_list(pose))
         ctx.progress(len(plan.poses) + 2 + k, n_steps, f"hand-guided install {k + 1} of {tc.hand_guided_installs} recorded")
     g_Pos_0 = mean_pose(np.array(installs))
@@ -303,7 +308,15 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         "Jog the robot with the glass back out of the opening to a clear pose (e.g. the shooting pose), then confirm.",
         details={"clear_pose": pose_row(C_Pos_0, "C_Pos_0")},
     )
+    ctx.robot_left = None  # out of the opening: the robot may move on
     return await ctx.finish({"g_Pos_0": g_Pos_0})
+
+
+def _glass_in_opening(where: str, clear: Pose) -> str:
+    """A teaching job's end while the glass may stand in the opening: where the robot was left and what to do."""
+    x, y, z = clear[:3, 3]
+    return (f"The robot {where}: jog it with the glass back out of the opening to a clear pose (e.g. the shooting pose "
+            f"C_Pos_0 at x {x:.1f}, y {y:.1f}, z {z:.1f} mm) before any job or cycle moves it")  # fmt: skip
 
 
 # -- nine-point map and pixel scale ----------------------------------------------------------------

@@ -50,7 +50,7 @@ async def recover_jobs(store: AsyncCellStore, calibration_store: CalibrationStor
         rec = await store.job(job_id)
         version = await asyncio.to_thread(version_stored_by, calibration_store, rec)
         if version is None:
-            log.warning("commissioning job %d was interrupted by a restart; its partial dataset may be incomplete", job_id)
+            log.warning("commissioning job %d was interrupted by a restart; what it had collected was not kept", job_id)
         else:
             in_use = await asyncio.to_thread(_in_use, calibration_store)
             rec = await store.update_job(job_id, version_after=version, error=stored_text(version, in_use))

@@ -19,6 +19,8 @@ from cellctl.client import CellClient, ServiceError
 
 FINISHED = frozenset({"done", "refused", "failed", "cancelled", "interrupted"})
 BAR_WIDTH = 24
+SERVICE_STOPPING = "the service is stopping"
+"""The reason the service records for a job it cancelled because it was stopping."""
 
 
 def _clock(seconds: float | None) -> str:
@@ -184,8 +186,14 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                     inbox.put((kind, data))
                 elif kind == "status":
                     inbox.put(("tick", data))
+                elif kind == "shutdown":
+                    inbox.put(("lost", {"error": "the service is stopping (it said so on its event stream)", "stopping": True}))
+                    return
         except ServiceError as err:
             inbox.put(("lost", {"error": str(err)}))
+            return
+        if not stop.is_set():
+            inbox.put(("lost", {"error": f"the event stream of {client.url} ended"}))
 
     threading.Thread(target=listen, name="cellctl-events", daemon=True).start()
     lines: queue.Queue[str | None] = queue.Queue()
@@ -196,6 +204,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
     out.flush()
     prompt: dict[str, Any] | None = None
     synced = False
+    last: dict[str, Any] = {}  # the job as its last event showed it
 
     def _open(p: dict[str, Any]) -> TextIO | None:
         """Show a prompt that opened; without input (any more) say where it can be answered instead."""
@@ -221,11 +230,24 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                     bar.clear()
                     stdin = _open(prompt)
             elif kind == "lost":
-                job = client.job(job_id)
+                try:
+                    job = client.job(job_id)
+                except ServiceError:
+                    job = {**job, **last, "id": job_id}
+                    if job["state"] in FINISHED:  # its end came on the stream, just before the service went
+                        break
+                    bar.clear()
+                    service_gone(out, client.url, job, data["error"])
+                    return 1
                 if job["state"] in FINISHED:
                     break
-                raise ServiceError(data["error"])
+                if not data.get("stopping"):
+                    raise ServiceError(data["error"])
+                bar.clear()
+                service_gone(out, client.url, job, data["error"])
+                return 1
             elif kind == "job":
+                last = data
                 if data.get("progress"):
                     if prompt is None:
                         bar.update(data["progress"])
@@ -278,9 +300,36 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
         stop.set()
     bar.clear()
     out.write("\n")
-    job = client.job(job_id)
+    try:
+        job = client.job(job_id)
+    except ServiceError:  # the service stopped as the job ended: its last event says how
+        job = {**job, **last, "id": job_id}
+        print_result(job, out)
+        service_gone(out, client.url, job, "the service did not answer once the job had ended")
+        return exit_status(job) if job["state"] == "done" else 1
     print_result(job, out)
+    if job["state"] == "cancelled" and str(job.get("error") or "").startswith(SERVICE_STOPPING):
+        service_gone(out, client.url, job, SERVICE_STOPPING)
     return exit_status(job)
+
+
+def service_gone(out: TextIO, url: str, job: dict[str, Any], why: str) -> None:
+    """The service stopped while the job was followed: what is known of the job, and what to do."""
+    state = job.get("state", "?")
+    if state in FINISHED:
+        known = f"it ended {state}" + (f": {job['error']}" if job.get("error") else "")
+    else:
+        p = job.get("progress") or {}
+        at = f" at {p['done']}/{p['total']}" if p.get("total") else ""
+        known = (f"it was last seen {state}{at}; a job running when the service stops is cancelled (its record then says "
+                 "cancelled, or interrupted if the service was killed)")  # fmt: skip
+    out.write(f"\nthe cell service stopped while job {job['id']} ({job.get('procedure', '?')}) ran ({why}): {known}.\n")
+    if state != "done":
+        out.write("  The robot was told to stop, what the job collected is kept as a partial dataset and the calibration "
+                  "set in use is unchanged.\n")  # fmt: skip
+    out.write(f"  To go on: start the service again (cellctl serve), read the job's record (GET {url}/jobs/{job['id']})"
+              + (", and start the job again.\n" if state != "done" else ".\n"))  # fmt: skip
+    out.flush()
 
 
 def print_plan(plan: dict[str, Any], out: TextIO) -> None:

@@ -385,7 +385,16 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
         beyond.append(f"hand-eye moved {he['translation_mm']:.3f} mm / {he['rotation_deg']:.4f} deg "
                       f"(limits {vc.max_hand_eye_mm:g} mm, {vc.max_hand_eye_deg:g} deg): `cellctl calibrate hand-eye`")  # fmt: skip
     quality: dict[str, Any] = {"hand_eye": he, "limits": vc.model_dump()}
-    if ref.get("laser_dataset") and ds.manifest["readings"]:
+    if ref.get("laser_dataset") and not ds.manifest["readings"]:  # planned, but the robot took none of its poses
+        skipped = [s for s in ds.manifest.get("skipped", []) if str(s).startswith("laser reading")]
+        raise CalibrationRefused(
+            "verify", "laser_not_checked",
+            f"the laser was not checked: all {len(skipped)} laser poses were skipped ({'; '.join(skipped[:3])}"
+            f"{'; ...' if len(skipped) > 3 else ''}); the hand-eye moved {he['translation_mm']:.3f} mm / "
+            f"{he['rotation_deg']:.4f} deg. Remove what made the robot refuse them (the reasons above) "
+            "and run the check again",
+        )  # fmt: skip
+    if ref.get("laser_dataset"):
         la = laser_drift(ds, read_dataset(ref["laser_dataset"], "laser_plane"), cal)
         quality["laser"] = la
         if la["r_mm"] > vc.max_laser_r_mm or la["l_deg"] > vc.max_laser_l_deg:

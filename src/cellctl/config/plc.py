@@ -26,6 +26,10 @@ class PlcConfig(StrictModel):
     scan_period_s: Finite = Field(0.02, gt=0, le=1.0)  # PLC block read and status publish period
     facade_timeout_s: Finite = Field(5.0, gt=0)  # longest wait for one answer from the cell
     cycle_result_timeout_s: Finite = Field(900.0, gt=0)  # longest wait for an accepted cycle's result
+    # robot_clear (cycle_flags bit 9): the flange at least this far (mm) in front of the car body's wall, along the
+    # wall's normal. Commission it from the cell's layout (gripper length, car body contour, the cycle's end pose):
+    # the default counts the simulated cell's end pose (389 mm) as clear, its shooting (342 mm) and install (120 mm) not.
+    clear_distance_mm: Finite = Field(350.0, gt=0)
     # Modbus TCP has no authentication: only these client addresses or networks may connect ("10.1.2.3",
     # "10.1.2.0/24"); others are closed at once. Empty: any host that reaches the port (README, "Security").
     allowed_clients: tuple[str, ...] = ()

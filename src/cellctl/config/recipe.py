@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import Field
+from pydantic import Field, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from cellctl.config.types import StrictModel
 
@@ -46,6 +47,25 @@ class Recipe(StrictModel):
     vision: dict[str, Any] = {}
     sim_glass: dict[str, Any] = {}
 
+    @model_validator(mode="before")
+    @classmethod
+    def _only_its_own_sections(cls, data: Any) -> Any:
+        """Refuse a key that is not a recipe's, naming the sections a recipe may set and where the key belongs."""
+        if not isinstance(data, dict):
+            return data
+        allowed = ", ".join(f"[process.recipes.{name}]" for name in RECIPE_SECTIONS)
+        errors = []
+        for key in (k for k in data if k not in cls.model_fields):
+            home = cell_table_of(str(key))
+            where = (f"it is the cell's, for every recipe: set it in [{home}]" if home is not None
+                     else "it is no setting of a recipe: check its spelling")  # fmt: skip
+            text = (f"a recipe may set only its id, name, description and the sections {allowed} (fields of the tables "
+                    f"they name); {where}")
+            errors.append(InitErrorDetails(type=PydanticCustomError("not_a_recipe_setting", text), loc=(key,), input=data[key]))
+        if errors:  # each at its own key, as pydantic names a field
+            raise ValidationError.from_exception_data(cls.__name__, errors)
+        return data
+
     def overrides(self) -> dict[str, dict[str, Any]]:
         """The sections this recipe sets (empty ones left out)."""
         return {name: getattr(self, name) for name in RECIPE_SECTIONS if getattr(self, name)}
@@ -53,6 +73,22 @@ class Recipe(StrictModel):
     def bare(self) -> dict[str, Any]:
         """Its number, name and description only (how a recipe's view lists every recipe)."""
         return {"id": self.id, "name": self.name, "description": self.description}
+
+
+def cell_table_of(key: str) -> str | None:
+    """The configuration table named ``key``, as TOML writes it (``tolerance`` -> ``process.tolerance``), or None."""
+    from cellctl.config.schema import CellConfig  # the root imports this module
+
+    tables: list[tuple[str, type[Any]]] = [("", CellConfig)]
+    for prefix, model in tables:
+        for name, field in model.model_fields.items():
+            kind = field.annotation
+            if isinstance(kind, type) and issubclass(kind, StrictModel):
+                if name == key:
+                    return prefix + name
+                if not prefix:
+                    tables.append((f"{name}.", kind))
+    return None
 
 
 def merge_into(data: dict[str, Any], path: tuple[str, ...], fields: dict[str, Any]) -> None:

@@ -166,6 +166,15 @@ class CellConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _spots_fit_the_opening(self) -> "CellConfig":
+        """Each flush spot's glass reading on the glass, its wall reading on the wall (every recipe's view runs
+        it with its own opening; the alignment's spots a recipe keeps are checked with its views)."""
+        problem = spots_problem(self)
+        if problem is not None:
+            raise ValueError(problem)
+        return self
+
+    @model_validator(mode="after")
     def _recipes_make_valid_cells(self) -> "CellConfig":
         """Each recipe's sections checked as the tables they replace (a bad field names its recipe)."""
         self._recipe_views = _RecipeViews(self, self._make_recipe_views())
@@ -178,9 +187,13 @@ class CellConfig(StrictModel):
             if not recipe.overrides():
                 continue
             try:
-                views[recipe.name] = CellConfig.model_validate(self._recipe_data(recipe))
+                views[recipe.name] = view = CellConfig.model_validate(self._recipe_data(recipe))
             except ValidationError as err:
                 problems += [_recipe_problem(k, recipe, e) for e in err.errors() if not _twin_copy(recipe, e)]
+                continue
+            # the cell's alignment spots around another opening (the cell's own, in its opening, the alignment refuses)
+            if recipe.opening and not recipe.align and (why := align_spots_problem(view)) is not None:
+                problems.append(_recipe_problem(k, recipe, {"loc": (), "msg": why, "type": "value_error"}))
         if problems:
             raise ValueError("recipe settings that make no valid cell:\n    - " + "\n    - ".join(problems))
         return views
@@ -217,6 +230,12 @@ def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
     """One field error of a recipe's view, named where the recipe sets it (else where the cell does)."""
     loc = tuple(str(p) for p in error["loc"] if not str(p).startswith("function-after"))
     msg = str(error["msg"]).removeprefix("Value error, ")
+    for name, path in RECIPE_SECTIONS.items():  # a rule across tables whose message starts with its field
+        table = ".".join(path)
+        if not loc and msg.startswith(table + "."):
+            whose = "" if getattr(recipe, name) else (
+                f" (the cell's [{table}]: this recipe sets no [process.recipes.{name}] of its own; give it one)")
+            return f"process.recipes[{index}] ({recipe.name}): {name}{msg[len(table):]}{whose}"
     if error["type"] == "extra_forbidden":
         msg = "unknown field; check its spelling against the table it replaces"
     where = ".".join(loc) or "(top level)"
@@ -225,6 +244,53 @@ def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
             where = f"{name}." + ".".join(loc[len(path):]) if len(loc) > len(path) else name
             break
     return f"process.recipes[{index}] ({recipe.name}): {where}: {msg}"
+
+
+def _in_rounded_rect(x: float, y: float, left: float, right: float, top: float, bottom: float, radius: float) -> bool:
+    """Whether (x, y) (T, mm; y down) lies strictly inside the rectangle with corners rounded by ``radius`` (mm)."""
+    if not (left < x < right and top < y < bottom):
+        return False
+    r = max(min(radius, (right - left) / 2.0, (bottom - top) / 2.0), 0.0)
+    cx = min(max(x, left + r), right - r)  # the nearest corner arc's centre, or the point itself off the corners
+    cy = min(max(y, top + r), bottom - r)
+    return bool(np.hypot(x - cx, y - cy) < r) if (cx, cy) != (x, y) else True
+
+
+def align_spots_problem(config: CellConfig) -> str | None:
+    """Why an alignment spot (where the cycle reads the wall) lies in the opening of ``layout.opening``, or None."""
+    o, align = config.layout.opening, config.process.align
+    for k, (x, y) in enumerate(align.wall_spots_mm()):
+        if _in_rounded_rect(x, y, -o.width_mm, 0.0, 0.0, o.height_mm, o.corner_radius_mm):
+            which = f"[{k}]" if align.mode == "stop_and_go" else ""
+            return (f"{align.wall_setting()}{which} [{x:g}, {y:g}] lies in the opening ({o.width_mm:g} x {o.height_mm:g} "
+                    f"mm, corner radius {o.corner_radius_mm:g}), where the laser reads no wall; move it onto the wall")
+    return None
+
+
+def spots_problem(config: CellConfig) -> str | None:
+    """Why a flush spot is off the glass or off the wall for the opening of ``layout.opening`` (None: all fit).
+
+    The glass is the opening inset by ``process.inspect.nominal_gap_mm`` (corner radius less the gap); T: x right,
+    y down from the opening's upper-right corner, the opening x in [-width, 0], y in [0, height]."""
+    o, gap = config.layout.opening, config.process.inspect.nominal_gap_mm
+    w, h, r = o.width_mm, o.height_mm, o.corner_radius_mm
+    size = f"the opening {w:g} x {h:g} mm, corner radius {r:g}"
+    glass = (f"the glass ({size}, less process.inspect.nominal_gap_mm = {gap:g}: x in ({-w + gap:g}, {-gap:g}), "
+             f"y in ({gap:g}, {h - gap:g}), corners rounded {max(r - gap, 0.0):g} mm)")  # fmt: skip
+    found: list[str] = []
+    for k, spot in enumerate(config.process.inspect.flush_spots):
+        (gx, gy), (wx, wy) = spot.glass_mm, spot.wall_mm
+        if not _in_rounded_rect(gx, gy, -w + gap, -gap, gap, h - gap, r - gap):
+            on = -w + gap < gx < -gap and gap < gy < h - gap
+            found.append(f"process.inspect.flush_spots[{k}].glass_mm [{gx:g}, {gy:g}] is "
+                         f"{'beyond the corner arc of' if on else 'off'} {glass}; move it onto the glass")  # fmt: skip
+        elif _in_rounded_rect(wx, wy, -w, 0.0, 0.0, h, r):
+            found.append(f"process.inspect.flush_spots[{k}].wall_mm [{wx:g}, {wy:g}] lies in the opening ({size}); "
+                         "move it onto the wall just across the edge from its glass spot")
+    if not found:
+        return None
+    more = f" ({len(found) - 1} more spot(s) do not fit either)" if len(found) > 1 else ""
+    return found[0] + more
 
 
 def _twin_copy(recipe: Recipe, error: Any) -> bool:

@@ -130,7 +130,8 @@ class FeatureConfig(StrictModel):
     from ``count_from``: "wall" (outside in) or "opening" (inside out). The default, the first
     strong falling step from the wall, is the wall's own edge; a seal's inner edge is the first
     step from the opening with a lower ``min_step_fraction``. Teaching checks the rule on the
-    template image and records the step it picks (cellctl.commissioning).
+    template image and records the step it picks and the profile's steps, which each shot's
+    profile is checked against (``taught_profile``).
     """
 
     count_from: Literal["wall", "opening"] = "wall"
@@ -141,6 +142,15 @@ class FeatureConfig(StrictModel):
     profile_half_px: int = Field(400, ge=20, le=1000)
     # Cross-sections taken along each straight edge, and along an arc (their median is the profile).
     cross_sections: int = Field(24, ge=8, le=400)
+    # Check each shot's profile against the one teaching recorded (cellctl.vision.taught_profile): the
+    # feature is the one step whose neighbours of the opening's polarity (those the rule counts, and
+    # fainter ones within taught_near_px) lie as taught within taught_place_px (px at the fixed
+    # shooting scale); otherwise the shot is refused. False: the rule alone counts, as for a
+    # calibration set taught before profiles were recorded. taught_near_px stays below the nearest
+    # band whose width varies from body to body (the twin's flange: 4 mm, 52 px, at least).
+    taught_profile: bool = True
+    taught_place_px: Finite = Field(5.0, gt=0, le=50)
+    taught_near_px: Finite = Field(48.0, ge=0, le=1000)
 
 
 class GapVisionConfig(StrictModel):

@@ -46,6 +46,9 @@ class CellStatus:
     """First-out alarm / stop reason id, 0 when none."""
     ready_for_cycle: bool
     """The cell would accept start_cycle now."""
+    robot_clear: bool = False
+    """No cycle runs and the robot's flange stands at least ``[plc] clear_distance_mm`` in front of the car
+    body's wall (False when unknown): the line may move the car body."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "state", PackMLState(self.state))
@@ -77,7 +80,8 @@ class CycleOutcome:
     The corrections are the install pose minus the taught install pose in the workpiece frame:
     translations in mm, rotations in radians as XYZ fixed angles (eq. 13). A failed cycle (``ok``
     False) carries the alarm / stop-reason id in ``error_code`` and whatever corrections it had
-    (0 if none).
+    (0 if none). ``car_body_id`` is the request's car body (0: none given); ``install_started`` says
+    the cycle had commanded the robot to install its glass (the record's ``install_started_at``).
     """
 
     req_id: int
@@ -94,11 +98,16 @@ class CycleOutcome:
     cycle_time_s: float
     measured: tuple[float, float, float, float, float, float] | None = None
     measured_ok: bool | None = None
+    car_body_id: int = 0
+    install_started: bool = False
 
     def __post_init__(self) -> None:
         _check_uint("req_id", self.req_id, UINT32_MAX, nonzero=True)
         _check_uint("recipe_id", self.recipe_id, UINT16_MAX)
         _check_uint("part_id", self.part_id, UINT32_MAX)
+        _check_uint("car_body_id", self.car_body_id, UINT32_MAX)
+        if not isinstance(self.install_started, bool):
+            raise ValueError(f"cycle {self.req_id}: install_started must be True or False, got {self.install_started!r}")
         _check_uint("error_code", self.error_code, UINT16_MAX)
         if self.ok != (self.error_code == 0):
             raise ValueError(f"cycle {self.req_id}: ok={self.ok} but error_code={self.error_code}; "
@@ -125,19 +134,21 @@ class CellFacade(Protocol):
     """The cell as the PLC interface sees it. Implemented by the service over the orchestrator.
 
     Contract:
-    - ``status`` is cheap and never blocks (it is read every scan).
+    - ``status`` is cheap and never blocks (it is read every scan); its ``robot_clear`` is False
+      whenever the facade does not know better.
     - ``start_cycle`` returns promptly (within the configured facade_timeout_s) once the cycle is
       accepted or refused; the cycle itself runs in the cell's own task, never in the caller's.
       It is idempotent per ``req_id``: for an id that is running or finished it starts nothing and
-      answers accepted. A refusal carries a nonzero code: ``PlcErrorCode`` 905-907 (unknown recipe,
-      not ready, id in use) or one of the cell's alarm ids; never a code that claims a fault the
-      cell does not have.
+      answers accepted. ``car_body_id`` (0: none) comes by keyword, and only when the PLC gave one,
+      so a facade without it still serves PLCs that give none. A refusal carries a nonzero code:
+      ``PlcErrorCode`` 905-908 (unknown recipe, not ready, id in use, recipe not taught) or one of
+      the cell's alarm ids; never a code that claims a fault the cell does not have.
     - ``result_of`` returns the stored outcome of ``req_id`` once that cycle has finished (also
       across restarts, from the store), else None. Every accepted cycle ends in an outcome
       (ok, failed, aborted or interrupted). A refusal is the id's outcome too: store it (ok False,
-      its code, the request's recipe and part, no corrections, no time) so that ``result_of``
-      returns it and a repeated id republishes it; the PLC interface also remembers refusals while
-      it runs.
+      its code, the request's recipe, part and car body, no corrections, no time) so that
+      ``result_of`` returns it and a repeated id republishes it; the PLC interface also remembers
+      refusals while it runs. An outcome says whether the cycle had started its install.
     - ``command`` / ``change_mode`` return once the request is accepted or refused (not when the
       state machine has settled).
     - ``plc_link_lost`` / ``plc_link_restored`` report the PLC heartbeat; the cell maps them to an
@@ -146,7 +157,7 @@ class CellFacade(Protocol):
 
     def status(self) -> CellStatus: ...
 
-    async def start_cycle(self, req_id: int, recipe_id: int, part_id: int) -> CycleAcceptance: ...
+    async def start_cycle(self, req_id: int, recipe_id: int, part_id: int, car_body_id: int = 0) -> CycleAcceptance: ...
 
     async def result_of(self, req_id: int) -> CycleOutcome | None: ...
 

@@ -4,7 +4,8 @@
   -> done with result -> request dropped -> done cleared). A repeated id never starts a second
   cycle: the stored result of that id is published again with ``replayed`` set. A refusal by the
   cell is that id's result too (the facade stores it; this side remembers it as well); only the
-  interface's own codes (901-904: no definite answer) are not results.
+  interface's own codes (901-904: no definite answer) are not results. A new id written while
+  ``cycle_request`` stays 1 is the next request: served once the current one has its ``done``.
 - ``LatchedRequest``: a PackML command (``cntrl_cmd`` + ``cmd_change_request``) or a unit mode
   request, latched on the request word, answered with an echo, a result code and an ack.
 
@@ -42,7 +43,7 @@ T = TypeVar("T")
 E = TypeVar("E", bound=enum.IntEnum)
 
 _CLEARED = {"busy": False, "done": False, "ok": False, "nok": False, "replayed": False,
-            "request_mismatch": False}
+            "request_mismatch": False, "install_started": False}
 
 
 @dataclass(frozen=True)
@@ -110,14 +111,26 @@ class CycleHandshake:
 
     async def run(self) -> None:
         while True:
-            request = await self._feed.wait_for(lambda i: i.cycle_request != 0)
+            request: PlcInputs | None = await self._feed.wait_for(lambda i: i.cycle_request != 0)
             self._idle = False
             try:
-                await self._serve(request)
-                await self._feed.wait_for(lambda i: i.cycle_request == 0)
-                await self._publish(cycle_flags=_CLEARED)
+                while request is not None:
+                    await self._serve(request)
+                    request = await self._next_after(request.cycle_req_id)
+                    await self._publish(cycle_flags=_CLEARED)
             finally:
                 self._idle = True
+
+    async def _next_after(self, served_id: int) -> PlcInputs | None:
+        """Wait until the PLC drops ``cycle_request`` (None) or writes another id with it still 1: that
+        id is the next request, served behind this one (its ``done`` was published first)."""
+        inputs = await self._feed.wait_for(lambda i: i.cycle_request == 0 or i.cycle_req_id != served_id)
+        if inputs.cycle_request == 0:
+            return None
+        log.warning("PLC wrote cycle_req_id %d while cycle_request stayed 1 for %d: served as the next request "
+                    "(the result of %d is published again if its id is repeated)", inputs.cycle_req_id, served_id,
+                    served_id)
+        return inputs
 
     async def _publish(self, **values: Value | dict[str, bool]) -> None:
         self._image.update(**values)
@@ -142,15 +155,15 @@ class CycleHandshake:
             return
         stored = stored if stored is not None else self._served.get(req_id)
         if stored is not None:
-            mismatch = (stored.part_id, stored.recipe_id) != (request.part_id, request.recipe_id)
+            mismatch = ((stored.part_id, stored.recipe_id, stored.car_body_id)
+                        != (request.part_id, request.recipe_id, request.car_body_id))
             log.info("PLC repeated cycle_req_id %d: its stored result is published again%s", req_id,
-                     " (the request's part or recipe differ from the stored ones)" if mismatch else "")
+                     " (the request's part, recipe or car body differ from the stored ones)" if mismatch else "")
             await self._publish_outcome(stored, replayed=True, mismatch=mismatch)
             return
         try:
-            acceptance = await _ask(
-                self._cell.start_cycle(req_id, request.recipe_id, request.part_id),
-                t.facade_timeout_s, f"start_cycle({req_id})", CycleAcceptance)
+            acceptance = await _ask(self._start(request), t.facade_timeout_s, f"start_cycle({req_id})",
+                                    CycleAcceptance)
         except _CellFailed as failed:
             await self._publish_error(request, failed.code)
             return
@@ -171,6 +184,19 @@ class CycleHandshake:
         self._remember(outcome)
         await self._publish_outcome(outcome, replayed=False, mismatch=False)
 
+    def _start(self, request: PlcInputs) -> Coroutine[Any, Any, CycleAcceptance]:
+        """The facade's start_cycle, with ``car_body_id`` only when the PLC gave one (map 1.5): a facade
+        written before it takes none, and then runs the cycle without it (logged)."""
+        args = (request.cycle_req_id, request.recipe_id, request.part_id)
+        if not request.car_body_id:
+            return self._cell.start_cycle(*args)
+        try:
+            return self._cell.start_cycle(*args, car_body_id=request.car_body_id)
+        except TypeError:
+            log.error("the cell's start_cycle takes no car_body_id: cycle %d runs without car body %d",
+                      request.cycle_req_id, request.car_body_id)
+            return self._cell.start_cycle(*args)
+
     def _remember(self, outcome: CycleOutcome) -> None:
         self._served[outcome.req_id] = outcome
         self._served.move_to_end(outcome.req_id)
@@ -183,7 +209,8 @@ class CycleHandshake:
             self._image.update(**values)
         except (TypeError, ValueError) as exc:  # e.g. a correction beyond float32
             log.error("the result of cycle %d cannot be put in the register map: %s", o.req_id, exc)
-            await self._publish_error_values(o.req_id, o.recipe_id, o.part_id, PlcErrorCode.CELL_BAD_ANSWER)
+            await self._publish_error_values(o.req_id, o.recipe_id, o.part_id, o.car_body_id,
+                                             PlcErrorCode.CELL_BAD_ANSWER)
             return
         await self._flush()
 
@@ -213,13 +240,14 @@ class CycleHandshake:
     def _outcome_values(o: CycleOutcome, *, replayed: bool, mismatch: bool) -> dict[str, Any]:
         return dict(
             cycle_ack_id=o.req_id, result_req_id=o.req_id, result_part_id=o.part_id,
-            result_recipe_id=o.recipe_id, error_code=o.error_code,
+            result_recipe_id=o.recipe_id, result_car_body_id=o.car_body_id, error_code=o.error_code,
             dx_mm=o.dx_mm, dy_mm=o.dy_mm, dz_mm=o.dz_mm,
             drx_deg=math.degrees(o.drx_rad), dry_deg=math.degrees(o.dry_rad),
             drz_deg=math.degrees(o.drz_rad),
             cycle_time_ms=min(round(o.cycle_time_s * 1000.0), UINT32_MAX),
             cycle_flags={"ready": False, "busy": False, "done": True, "ok": o.ok, "nok": not o.ok,
-                         "replayed": replayed, "request_mismatch": mismatch},
+                         "replayed": replayed, "request_mismatch": mismatch,
+                         "install_started": o.install_started},
             inspection_status=o.inspection_status,
             **dict(zip(MEASURED_REGISTERS, o.measured or (0.0,) * 6)),
         )
@@ -227,11 +255,14 @@ class CycleHandshake:
     async def _publish_error(self, request: PlcInputs, error_code: int) -> None:
         """The interface's own error (901-904: no definite answer from the cell). Not the id's result,
         so not remembered: repeating the id asks the cell again."""
-        await self._publish_error_values(request.cycle_req_id, request.recipe_id, request.part_id, error_code)
+        await self._publish_error_values(request.cycle_req_id, request.recipe_id, request.part_id,
+                                         request.car_body_id, error_code)
 
-    async def _publish_error_values(self, req_id: int, recipe_id: int, part_id: int, error_code: int) -> None:
+    async def _publish_error_values(self, req_id: int, recipe_id: int, part_id: int, car_body_id: int,
+                                    error_code: int) -> None:
         await self._publish(
             cycle_ack_id=req_id, result_req_id=req_id, result_part_id=part_id, result_recipe_id=recipe_id,
+            result_car_body_id=car_body_id,
             error_code=int(error_code), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0,
             drx_deg=0.0, dry_deg=0.0, drz_deg=0.0, cycle_time_ms=0,
             cycle_flags={**_CLEARED, "ready": False, "done": True, "nok": True},
@@ -246,8 +277,8 @@ MEASURED_REGISTERS = ("meas_dx_mm", "meas_dy_mm", "meas_dz_mm", "meas_drx_deg", 
 def _refusal(request: PlcInputs, error_code: int) -> CycleOutcome:
     """A refused request as its id's outcome: nok with the code, nothing moved, no time spent."""
     return CycleOutcome(req_id=request.cycle_req_id, recipe_id=request.recipe_id, part_id=request.part_id,
-                        ok=False, error_code=int(error_code), dx_mm=0.0, dy_mm=0.0, dz_mm=0.0,
-                        drx_rad=0.0, dry_rad=0.0, drz_rad=0.0, cycle_time_s=0.0)
+                        car_body_id=request.car_body_id, ok=False, error_code=int(error_code),
+                        dx_mm=0.0, dy_mm=0.0, dz_mm=0.0, drx_rad=0.0, dry_rad=0.0, drz_rad=0.0, cycle_time_s=0.0)
 
 
 class LatchedRequest(Generic[E]):

@@ -28,6 +28,7 @@ class PlcInputs:
     part_id: int = 0
     cycle_req_id: int = 0
     cycle_request: int = 0
+    car_body_id: int = 0
 
     @classmethod
     def from_decoded(cls, values: Mapping[str, Value]) -> PlcInputs:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from cellctl.cell.alarms import RECOVERY_COMMANDS
 from cellctl.config.cell import ProcessConfig
+from cellctl.config.plc import PlcConfig
 from cellctl.config.store import PackMLConfig
 from cellctl.domain import AlarmCode, PackMLState
 from cellctl.plc.register_map import (
@@ -21,6 +22,9 @@ from cellctl.plc.register_map import (
     PlcErrorCode,
 )
 
+SIM_END_POSE_WALL_MM = 389
+"""The simulated cell's flange-to-wall distance (mm) at the end of a normal cycle (the last flush reading)."""
+
 _INTRO = """\
 # PLC register map (Modbus TCP)
 
@@ -32,12 +36,18 @@ the config). All values are holding registers at 0-based protocol addresses (add
 in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other function codes
 (coils, input registers) get exception code 1 (illegal function).
 
-- The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it.
+- The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it. One client
+  writes it: the line PLC. A second client (an HMI, a diagnostics tool) must only read (FC3): the cell
+  does not tell writers apart, so a second writer's zeros drop the PLC's request before its `done`, and
+  its heartbeat hides a dead PLC. `[plc] allowed_clients` restricts by address who may connect at all
+  (list the PLC and the HMI; firewall the port).
 - The **cell block** ({c_start}-{c_last}) is written only by the cell. A PLC write into it is refused
   with exception code 2 (illegal data address), leaves it unchanged and counts in
   `refused_write_count`. Addresses between the blocks do not exist (exception code 2), so read
   each block with its own request.
-- Reserved addresses inside a block read 0.
+- Reserved addresses of the cell block read 0. Reserved addresses of the PLC block are not read by
+  the cell and keep what a client writes there: write 0 to them (or leave them out of the write), as a
+  later map version may give them a meaning.
 - 32-bit values (uint32, float32) take two registers; their word order is `[plc] float_word_order`:
   `big` puts the high word first (ABCD), `little` the low word first (CDAB). Bytes within a
   register are always big-endian.
@@ -60,6 +70,18 @@ each once the state before has settled:
 `error_code` {not_ready} (stored like any refusal). A cycle requested over the REST API in
 Execute runs first; the PLC's request then waits behind it (`busy`).
 
+`robot_clear` (a `cycle_flags` bit) tells the line when it may move the car body: no cycle runs and
+the robot's flange stands at least `[plc] clear_distance_mm` (default {clear_mm:g} mm) in front of the
+car body's wall. The cell measures it from the robot's reported flange pose against the wall plane
+the last cycle fitted; the integrator commissions `clear_distance_mm` from the cell's layout (the
+gripper's length, the car body's contour, the robot's end pose). At `done` the robot still stands
+where the cycle's last laser reading left it, in front of the car body (in the simulated cell
+{end_mm:g} mm from the wall): move the car body only once `robot_clear` = 1. It is 0 while a cycle
+runs, after a cycle that did not end done (a failed, stopped or aborted one, above all one aborted
+during the install: see `install_started`), and whenever the robot's pose or the wall is not known
+(the robot's link is down, or no cycle has ended done yet); then a person decides whether the car
+body may move.
+
 A unit mode request (`unit_mode_request`, 1 production, 2 maintenance, 3 manual) is taken only
 in the states of `[packml] mode_change_states`, by default {mode_states};
 in any other state the cell answers `unit_mode_result` = 1 (invalid in this state) and the mode
@@ -78,14 +100,24 @@ it ends `nok` with `error_code` {hb_alarm}) and clears `plc_heartbeat_ok`. The c
 `cell_heartbeat` every `cell_heartbeat_period_s`; the PLC should watch it the same way.
 
 **Cycle** (four-way, keyed by `cycle_req_id`):
-1. With `ready` = 1, the PLC writes `recipe_id`, `part_id`, a new nonzero `cycle_req_id` and
-   `cycle_request` = 1 in one FC16 write.
+1. With `ready` = 1, the PLC writes `recipe_id`, `part_id`, `car_body_id` (0 if none), a new nonzero
+   `cycle_req_id` and `cycle_request` = 1 in one FC16 write.
 2. The cell echoes the id in `cycle_ack_id` and sets `busy` (or, if it refuses, `done` + `nok`
    with `error_code`).
 3. When the cycle ends the cell writes the result registers (`result_req_id` = the id) and sets
-   `done` with `ok` or `nok`, clearing `busy`, in one update.
-4. The PLC reads the result and sets `cycle_request` = 0; the cell then clears `done`, `ok`, `nok`
-   and `replayed`. The result registers keep the last result.
+   `done` with `ok` or `nok`, clearing `busy`, in one update. With `nok`, `install_started` = 1 says
+   the robot had begun to install the glass (it may be in the opening or half in it: check the car
+   body before it moves on); 0 says the glass never left the cell's side.
+4. The PLC reads the result and sets `cycle_request` = 0; the cell then clears `done`, `ok`, `nok`,
+   `replayed` and `install_started`. The result registers keep the last result.
+5. Before the line moves the car body on, it waits for `robot_clear` = 1 (see Start-up and states).
+
+**A new id while `cycle_request` stays 1.** The cell takes one request at a time. If the PLC writes
+a new `cycle_req_id` without dropping `cycle_request` (the running one's `done` not yet read), the
+cell first ends the running cycle as in step 3 (`done`, its result registers, perhaps for one scan
+only), then takes the new id as a new request: it clears `done`, echoes the new id in `cycle_ack_id`
+with `busy`, and publishes its result as usual (`ready` stays 0 meanwhile). The earlier id's result
+stays readable: repeat that id to have it published again. Write a new id only for a new car body.
 
 A repeated `cycle_req_id` never starts a second cycle: the cell publishes that id's stored result
 again with `replayed` = 1. A refusal is that id's result too (refused by the cell: codes
@@ -93,6 +125,15 @@ again with `replayed` = 1. A refusal is that id's result too (refused by the cel
 request needs a new id. Only the interface's codes {unstored_codes} are not results: repeating
 that id asks the cell again. Dropping `cycle_request` before `done` does not cancel a cycle: send
 the PackML Stop or Abort command for that.
+
+**A PLC that restarts.** Keep the id of the request in flight (and the next id) in retained memory.
+After a restart, while that id has not been answered: request the **same** id again with the same
+recipe, part and car body (`cycle_request` = 1) and wait for `done` with `cycle_ack_id` = that id,
+as for any request. If its cycle still runs the cell answers `busy` with that id, then `done`; if it
+has ended, the cell publishes its stored result at once (`replayed` = 1). A `done` that came while
+`cycle_request` was 0 (the PLC's restart wrote 0) is cleared at once: asking again is the only way to
+read it. Never give the same car body a new id: a new id runs a new cycle and installs a second
+glass. `result_req_id` shows which id the result registers belong to.
 
 **PackML commands and unit mode.** The PLC writes `cntrl_cmd` and sets `cmd_change_request` = 1;
 the cell answers with `cmd_ack_cmd`, `cmd_result` and `cmd_ack` = 1; the PLC sets
@@ -105,8 +146,8 @@ same way.
 `recipe_id` must be the `id` of one of the config's `[[process.recipes]]` tables (each has an `id`
 1-65535, the number the PLC sends, and a `name`, which the cycle records and the REST API use).
 Any other `recipe_id` is refused with `error_code` {unknown_recipe}, and a recipe the cell has not
-been taught yet with {not_taught}. A config without
-`[[process.recipes]]` (such as `config/sim.toml`) has this one:
+been taught yet with {not_taught}. A config without `[[process.recipes]]` has this one (the
+simulated cell's `config/sim.toml` lists its own: 1 side-window and 2 door-window):
 
 | recipe_id | name | description |
 |---|---|---|
@@ -192,6 +233,7 @@ def render_markdown() -> str:
         unstored_codes=_code_list([c for c in PlcErrorCode if c not in STORED_REFUSALS]),
         recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
         hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST), blocked=int(CommandReply.BLOCKED),
+        clear_mm=PlcConfig().clear_distance_mm, end_mm=SIM_END_POSE_WALL_MM,
         recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
     )
     parts = [text]

@@ -19,14 +19,17 @@ from dataclasses import dataclass
 
 from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 
-MAP_VERSION: tuple[int, int] = (1, 4)
+MAP_VERSION: tuple[int, int] = (1, 5)
 """(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
 1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
 stored under their cycle_req_id, exception 11 for another unit id; no register moved.
 1.2: the inspection's measured result (inspection_status, meas_* at 137-149); no register moved.
 1.3: refusal code 908, a recipe of the cell not taught yet; no register moved.
 1.4: ``cmd_result`` 5 (blocked): a command the state model allows but an interlock holds back, told
-apart from 1 (not allowed in this state); no register moved."""
+apart from 1 (not allowed in this state); no register moved.
+1.5: ``car_body_id`` (11-12) and its echo ``result_car_body_id`` (150-151); ``cycle_flags`` bits 8
+``install_started`` and 9 ``robot_clear``; a new ``cycle_req_id`` written while ``cycle_request`` stays 1 is
+served after the running cycle (it was never answered); no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -167,7 +170,8 @@ class Register:
 
 @dataclass(frozen=True)
 class Block:
-    """A contiguous address range with one writer; unmapped addresses inside it are reserved (read 0)."""
+    """A contiguous address range with one writer; unmapped addresses inside it are reserved (the cell
+    block's read 0; the PLC block's keep what a client writes there and the cell never reads them)."""
 
     name: str
     access: Access
@@ -207,14 +211,24 @@ CYCLE_FLAG_BITS: tuple[Bit, ...] = (
         "0 otherwise."),
     Bit(1, "busy", "A cycle for `cycle_ack_id` is running."),
     Bit(2, "done", "The result registers hold the result of `cycle_ack_id`; stays on until the "
-        "PLC drops `cycle_request`."),
+        "PLC drops `cycle_request` (or writes another `cycle_req_id`, the next request)."),
     Bit(3, "ok", "With done: the cycle succeeded (`error_code` = 0)."),
     Bit(4, "nok", "With done: the cycle failed or was refused; `error_code` says why."),
     Bit(5, "replayed", "With done: `cycle_req_id` was seen before; its stored result (a cycle's "
         "result or a refusal) was published again and no new cycle ran."),
     Bit(6, "plc_heartbeat_ok", "The cell sees `plc_heartbeat` change within the configured timeout."),
-    Bit(7, "request_mismatch", "With replayed: the repeated id came with a part or recipe other than "
-        "the stored result's (the stored result stands)."),
+    Bit(7, "request_mismatch", "With replayed: the repeated id came with a part, recipe or car body other "
+        "than the stored result's (the stored result stands)."),
+    Bit(8, "install_started", "With done: the cycle had started to install its glass (the robot was "
+        "commanded into the opening). With `nok` this means a glass may be in the opening or half in it: "
+        "check the car body before it moves on. 0 with `nok`: the glass never left the cell's side "
+        "(refused, or stopped before the install)."),
+    Bit(9, "robot_clear", "The line may move the car body: no cycle runs and the robot's flange stands at "
+        "least `[plc] clear_distance_mm` in front of the car body's wall (its reported pose against the "
+        "wall plane the last cycle fitted). 0 while a cycle runs or waits, after a cycle that did not end "
+        "done (failed, stopped, aborted; the cell then does not know where that car body's wall is), and "
+        "whenever the robot's pose is unknown. Refreshed a few times a second: after `done` it comes "
+        "within about a second."),
 )
 
 PLC_BLOCK = Block(
@@ -242,11 +256,16 @@ PLC_BLOCK = Block(
                  "`[[process.recipes]]` (see Recipes)."),
         Register("part_id", 6, _U32, _P, "id", "Part (window) serial of the requested cycle."),
         Register("cycle_req_id", 8, _U32, _P, "id",
-                 "Cycle request id, nonzero and new for each cycle: the idempotency key. A repeated "
-                 "id never starts a second cycle; its stored result is published again."),
+                 "Cycle request id, nonzero and new for each cycle (each car body): the idempotency key. A "
+                 "repeated id never starts a second cycle; its stored result is published again. Another id "
+                 "written while cycle_request stays 1 is the next request, served after the running one."),
         Register("cycle_request", 10, _U16, _P, "0/1",
-                 "Set to 1 (with recipe_id, part_id and cycle_req_id in the same FC16 write) to "
-                 "request a cycle; keep it until done = 1, read the result, then set 0."),
+                 "Set to 1 (with recipe_id, part_id, cycle_req_id and car_body_id in the same FC16 write) "
+                 "to request a cycle; keep it until done = 1 for this id, read the result, then set 0."),
+        Register("car_body_id", 11, _U32, _P, "id",
+                 "Car body (vehicle) the glass of the requested cycle goes into; 0 = none given. The cycle "
+                 "records it as its car id (decimal text, like part_id: REST `car_id`, GET /parts?car_id=, "
+                 "OPC UA LastResult.CarId)."),
     ),
 )
 
@@ -324,6 +343,8 @@ CELL_BLOCK = Block(
         Register("meas_drx_deg", 144, _F32, _C, "deg", "Measured rotation about X (flush; XYZ fixed angles, eq. 13)."),
         Register("meas_dry_deg", 146, _F32, _C, "deg", "Measured rotation about Y (flush)."),
         Register("meas_drz_deg", 148, _F32, _C, "deg", "Measured rotation about Z (the gaps' angle)."),
+        Register("result_car_body_id", 150, _U32, _C, "id",
+                 "car_body_id of that result (0: none given)."),
     ),
 )
 

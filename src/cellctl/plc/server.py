@@ -362,11 +362,13 @@ class PlcServer:
             self._report_link(change.event, change.silent_for_s)
         status = self._read_status()
         update: dict[str, object] = {"refused_write_count": self._refused_writes & 0xFFFF}
-        flags = {"plc_heartbeat_ok": self._watch.alive, "ready": False}
+        flags = {"plc_heartbeat_ok": self._watch.alive, "ready": False, "robot_clear": False}
         if status is not None:
             update.update(state_current=int(status.state), unit_mode_current=int(status.unit_mode),
                           cycle_step=int(status.cycle_step), stop_reason_id=status.stop_reason_id)
             flags["ready"] = status.ready_for_cycle and self._cycle.idle and inputs.cycle_request == 0
+            # never while the PLC's own cycle is accepted and not yet done, whatever the cell's pose report says
+            flags["robot_clear"] = status.robot_clear and not self._image.flag("cycle_flags", "busy")
             if self._fault is None and now >= self._next_beat_s:
                 self._cell_heartbeat = (self._cell_heartbeat + 1) & 0xFFFF
                 period = self._config.cell_heartbeat_period_s

@@ -136,7 +136,8 @@ class SpcLoop:
 
     def offset(self, state: SpcState, calibration_version: str | int | None = None) -> dict[str, float]:
         """The offset for the next install (zeros while disabled, before the first result, or when
-        ``calibration_version`` is not the state's: the offset belongs to the set it was learnt under)."""
+        ``calibration_version`` is not the state's: the offset belongs to the calibration it was learnt under;
+        the cell names one by the parts its recipe's cycles use, :func:`cellctl.cell.quality_loop.calibration_key`)."""
         if calibration_version is not None and str(calibration_version) != state.calibration_version:
             return {a: 0.0 for a in AXES}
         return {a: self._offset_of(a, state.axes[a]) for a in AXES}
@@ -170,7 +171,7 @@ class SpcLoop:
     ) -> SpcUpdate:
         """Feed one cycle's measured deviation (None: nothing was installed or measured).
 
-        ``calibration_version``: the set the install ran under (another than the state's resets
+        ``calibration_version``: the calibration the install ran under (another than the state's resets
         the loop first). ``applied``: the offset the install really used; by default what
         :meth:`offset` gave for it. A ``cycle_id`` at or below the last one counted changes nothing
         (``record`` is None, ``excluded`` DUPLICATE).

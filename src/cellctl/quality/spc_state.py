@@ -49,7 +49,7 @@ class Exclusion(str, enum.Enum):
 class SpcEvent(str, enum.Enum):
     """What an update reports beside the figures."""
 
-    RESET_CALIBRATION = "reset_calibration"  # the calibration set's version changed
+    RESET_CALIBRATION = "reset_calibration"  # the calibration it learns under changed (its recipe's parts)
     RESET_OPERATOR = "reset_operator"  # an explicit reset
     ESTIMATE_STARTED = "estimate_started"  # min_samples results since the reset: the estimate runs
     DRIFT = "drift"  # an axis started drifting (see :class:`Drift`)

@@ -45,6 +45,9 @@ log = logging.getLogger(__name__)
 
 Closer = Callable[[], Awaitable[None]]
 STOP_STEP_TIMEOUT_S = 10.0
+JOB_END_BEFORE_STREAMS_S = 2.5
+"""On SIGINT/SIGTERM a running job gets this long (s) to end before the event streams close (the HTTP server
+closes them itself 3 s after the signal, cellctl.service.http.GRACEFUL_SHUTDOWN_S)."""
 
 
 class ServiceError(RuntimeError):
@@ -69,6 +72,9 @@ class Service:
     extras: dict[str, object] = field(default_factory=dict)  # what a root adds (the simulated cell: its twin and operator)
     stopped: bool = False
     store_lock: StoreLock | None = None  # held from before the store opens until it has closed
+    _loop: asyncio.AbstractEventLoop | None = field(default=None, repr=False)
+    _exit_signalled: bool = field(default=False, repr=False)
+    _ending: asyncio.Task[None] | None = field(default=None, repr=False)
 
     async def start(self) -> None:
         await self.orchestrator.start()
@@ -148,7 +154,8 @@ class Service:
         from cellctl.service.http import make_server
 
         app = create_app(self.orchestrator, self.config.api, self.jobs)
-        server = make_server(app, self.config.api.host, self.config.api.port, self.orchestrator.events.close)
+        self._loop = asyncio.get_running_loop()
+        server = make_server(app, self.config.api.host, self.config.api.port, self._on_exit_signal)
         demo: asyncio.Task[None] | None = None
         try:
             await self.start()
@@ -177,7 +184,33 @@ class Service:
                 demo.cancel()
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await demo
+            if self._ending is not None:
+                with contextlib.suppress(Exception):
+                    await self._ending
             await self.stop()
+
+    def _on_exit_signal(self) -> None:
+        """SIGINT/SIGTERM (called in the signal handler): a running job is cancelled first, so that whoever follows it
+        reads its end on the event stream; then the streams end with ``shutdown``. A second signal ends them at once."""
+        if self._exit_signalled or self._loop is None or self.jobs.running() is None:
+            self.orchestrator.events.close()
+            return
+        self._exit_signalled = True
+        self._loop.call_soon_threadsafe(self._begin_ending)
+
+    def _begin_ending(self) -> None:
+        self._ending = asyncio.ensure_future(self._cancel_job_then_close_streams())
+
+    async def _cancel_job_then_close_streams(self) -> None:
+        try:
+            run = self.jobs.running()
+            if run is not None:
+                await asyncio.wait_for(self.jobs.cancel(run.id, actor="system", source="service", reason="the service is stopping"),
+                                       JOB_END_BEFORE_STREAMS_S)  # fmt: skip
+        except Exception as err:  # noqa: BLE001 - the streams end whatever the job did; stop() cancels it again
+            log.warning("the running job did not end before the event streams closed: %r", err)
+        finally:
+            self.orchestrator.events.close()
 
     async def _demo(self, cycles: int) -> None:
         from cellctl.service.demo import run_demo

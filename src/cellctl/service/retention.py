@@ -11,7 +11,7 @@ What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]
   folder stays under the bound between passes too. A reference whose file is not there is marked
   missing (never deleted for it; kept again when the file is back); a folder that is not there,
   unreadable, or holds none of the finished cycles' files looks unmounted: the images are left alone.
-- **cycle records** (steps, image references, idempotency keys) after ``cycles_days``, and
+- **cycle records** (steps, image references, idempotency keys; refused requests' keys too) after ``cycles_days``, and
   **alarm records** after ``alarms_days`` (inactive ones); each deletion of records is written to
   the audit log.
 - pruning by **age** is held while the wall clock is in doubt (:mod:`cellctl.service.retention_clock`: stepped
@@ -399,7 +399,18 @@ class StorageRetention:
                 params={"cycles": len(deleted), "first_id": min(deleted), "last_id": max(deleted),
                         "created_before": cutoff.isoformat(), "cycles_days": days, "unpublished_results": unpublished},
             )  # fmt: skip
+        await self._prune_request_keys(cutoff, days)
         return len(deleted)
+
+    async def _prune_request_keys(self, cutoff: datetime, days: float) -> None:
+        """The finished idempotency keys of no cycle (a refused request's) older than the cycles' cutoff."""
+        n = 0
+        while k := await self.store.prune_request_keys(created_before=cutoff):
+            n += k
+            await asyncio.sleep(0)  # let the cycle's own writes in between batches
+        if n:
+            await self.store.append_audit(actor="system", source="retention", action="retention.prune_request_keys",
+                                          params={"keys": n, "created_before": cutoff.isoformat(), "cycles_days": days})
 
     async def _prune_alarms(self, now: datetime) -> int:
         days = days_or_none(self.config.alarms_days)

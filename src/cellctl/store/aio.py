@@ -167,6 +167,7 @@ class AsyncCellStore:
     pruned_only = _on_store_thread(CellStore.pruned_only)
     restore_missing_images = _on_store_thread(CellStore.restore_missing_images)
     prune_cycles = _on_store_thread(CellStore.prune_cycles)
+    prune_request_keys = _on_store_thread(CellStore.prune_request_keys)
     prune_alarms = _on_store_thread(CellStore.prune_alarms)
     oldest_cycle = _on_store_thread(CellStore.oldest_cycle)
     database_size = _on_store_thread(CellStore.database_size)

@@ -38,16 +38,11 @@ from cellctl.store.cycles import CycleRows
 from cellctl.store.jobs import JobRows
 from cellctl.store.outbox import OutboxRows
 from cellctl.store.parts import PartRows
-from cellctl.store.records import REQUEST_AGAIN, CycleState, InterruptedCycle, RecoveryReport
+from cellctl.store.records import INTERRUPTED_REASONS, CycleState, InterruptedCycle, RecoveryReport
 from cellctl.store.retention import RetentionRows
 from cellctl.store.spc import SpcRows
 
 
-INTERRUPTED_REASONS = (  # queued, running before the install, running after the install began
-    f"interrupted: the service stopped before the cycle began; {REQUEST_AGAIN}",
-    f"interrupted: the service stopped before the install; nothing was installed, {REQUEST_AGAIN}",
-    "interrupted: the service stopped after the install began; check the glass by hand, the install is never repeated",
-)
 
 
 class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows, PartRows, OutboxRows):

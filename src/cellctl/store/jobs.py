@@ -144,7 +144,8 @@ class JobRows(Database):
             ids = [int(r[0]) for r in c.execute("SELECT id FROM jobs WHERE state IN ('running', 'computing')").fetchall()]
             c.execute(
                 "UPDATE jobs SET state = 'interrupted', finished_at = ?, "
-                "error = COALESCE(error, 'interrupted: the service stopped while the job ran') "
+                "error = COALESCE(error, 'interrupted: the service stopped while the job ran; "
+                "what it had collected was not kept: start the job again') "
                 "WHERE state IN ('running', 'computing')",
                 (ts(self._clock()),),
             )

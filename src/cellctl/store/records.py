@@ -19,6 +19,12 @@ _CONTROL = r"\x00-\x1f"  # control characters, U+0000 to U+001F (tab, newline, c
 # How a requester retries a cycle that never installed: each interface's request id answers its first cycle again.
 REQUEST_AGAIN = ("request it again with a new request id (REST Idempotency-Key, PLC cycle_req_id, OPC UA RequestId): "
                  "the same id answers this cycle again")
+INTERRUPTED_REASONS = (  # queued, running before the install, running after the install began
+    f"interrupted: the service stopped before the cycle began; {REQUEST_AGAIN}",
+    f"interrupted: the service stopped before the install; nothing was installed, {REQUEST_AGAIN}",
+    "interrupted: the service stopped after the install began; check the glass by hand, the install is never repeated",
+)
+"""An interrupted cycle's reason (REST, the PLC, OPC UA and MQTT show it), by how far it had got."""
 TEXT_PATTERN = rf"^[^{_CONTROL}]*$"
 """Optional text (a car body's id): no control characters."""
 NAME_PATTERN = rf"^[^{_CONTROL}]*[^{_CONTROL}\s][^{_CONTROL}]*$"

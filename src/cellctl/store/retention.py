@@ -12,7 +12,8 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
   (:meth:`RetentionRows.restore_missing_images`);
 - cycle records older than a cutoff, deleted with their steps, image references, idempotency
   keys and closed-loop history rows, in batches so no single transaction holds the write lock for long
-  (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`).
+  (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`);
+  the finished keys of no cycle (a refused request's) go after the same cutoff, by their own time stamp.
   A cycle whose MQTT result was never queued (above the results' high-water mark, once MQTT
   publication was set up) is kept while publication is configured; otherwise its deletion is
   counted as a dropped result, which the next MQTT connection reports to the plant (``outbox/dropped``);
@@ -182,6 +183,17 @@ class RetentionRows(Database):
                 if c.execute("SELECT 1 FROM cycle_images WHERE uri = ? AND pruned_at IS NULL LIMIT 1", (u,)).fetchone()
             }  # fmt: skip
         return ids, [u for u in uris if u not in kept]
+
+    def prune_request_keys(self, *, created_before: datetime, batch: int = 500) -> int:
+        """Delete up to ``batch`` finished idempotency keys of no cycle (a refused request's, a
+        command's) created before the cutoff, oldest first; a cycle's key goes with its cycle
+        (:meth:`prune_cycles`), an open claim stays. Returns how many; call again until 0."""
+        with self._tx() as c:
+            return c.execute(
+                "DELETE FROM idempotency_keys WHERE rowid IN (SELECT rowid FROM idempotency_keys "
+                "WHERE cycle_id IS NULL AND response_json IS NOT NULL AND created_at < ? ORDER BY created_at LIMIT ?)",
+                (ts(created_before), int(batch)),
+            ).rowcount
 
     def prune_alarms(self, *, raised_before: datetime) -> int:
         """Delete the records of alarms raised before the cutoff that are no longer active."""

@@ -3,7 +3,9 @@
 Migration N brings a database from version N-1 to N. Each runs in one transaction together with
 the user_version update, so a failed migration leaves the database at the previous version.
 Never edit a released migration; append a new one (the one exception, a table nothing reads any
-more, is told at :data:`V1`).
+more, is told at :data:`V1`). Append one too when the store begins to hold values an older cellctl
+cannot read (a new alarm code, a new key), even if no table changes: the older release then refuses
+the store (``SchemaTooNew``) on a rollback instead of failing on what it reads.
 
 This module imports nothing of the store but its errors: every repository and the connection
 build on it.
@@ -14,7 +16,7 @@ from __future__ import annotations
 import sqlite3
 from collections.abc import Sequence
 
-from cellctl.store.records import SchemaTooNew, StoreError
+from cellctl.store.records import INTERRUPTED_REASONS, SchemaTooNew, StoreError
 
 _APPEND_ONLY = """
 CREATE TRIGGER {table}_append_only_update BEFORE UPDATE ON {table}
@@ -258,8 +260,38 @@ offset): ``spc_state`` keeps a row per recipe, ``''`` for the cell's first recip
 set keeps the first recipe's teaching in its common parts) and the loop of before this migration;
 a history row names its recipe (NULL: the first)."""
 
-MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE)
+
+def _sql_text(text: str) -> str:
+    return "'" + text.replace("'", "''") + "'"
+
+
+V8_INTERRUPTED_REASONS = f"""
+UPDATE cycles SET error = CASE WHEN install_started_at IS NULL THEN {_sql_text(INTERRUPTED_REASONS[1])}
+    ELSE {_sql_text(INTERRUPTED_REASONS[2])} END
+WHERE state = 'interrupted' AND error IS NULL;
+"""
+"""Cycles interrupted under a cellctl that gave no reason get the one recovery now gives (request it
+again, or check the glass by hand). The version also marks what older releases cannot read: alarm
+1703 (record write failed) and the closed loops kept under their recipe's name."""
+
+MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE,
+                             V8_INTERRUPTED_REASONS)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
+
+NAME_THE_FIRST_RECIPES_LOOP = (
+    """INSERT INTO spc_state (recipe, state_json, updated_at, history_id)
+    SELECT :name, state_json, updated_at, history_id FROM spc_state WHERE recipe = ''
+    ON CONFLICT (recipe) DO UPDATE SET state_json = excluded.state_json, updated_at = excluded.updated_at,
+    history_id = excluded.history_id WHERE excluded.updated_at > spc_state.updated_at""",
+    "DELETE FROM spc_state WHERE recipe = ''",
+    "UPDATE spc_history SET recipe = :name WHERE recipe IS NULL",
+)
+"""The one data migration that needs the configuration, so it runs when the cell's loops load
+(:meth:`cellctl.store.spc.SpcRows.spc_states` given ``first_recipe``), not at open: the loop that
+:data:`V7_SPC_PER_RECIPE` and the cell before it kept unnamed (``''``, history NULL, "the first
+recipe's") takes the name ``:name`` of the recipe configured first, once; from then on every loop
+is kept under its recipe's name, so reordering or renaming ``[[process.recipes]]`` moves no loop.
+Of two rows for one recipe (an older cellctl ran again after it) the later one stays."""
 
 
 def schema_version(conn: sqlite3.Connection) -> int:

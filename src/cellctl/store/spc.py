@@ -2,10 +2,11 @@
 
 Migrations 4 and 7 of :mod:`cellctl.store.schema`. The state (``spc_state``, one row per recipe) is
 the loop's JSON as :func:`cellctl.quality.spc_state.state_to_dict` makes it; the store keeps plain
-values and never imports the loop. A recipe is named as the calibration set names its teaching:
-None for the cell's first recipe, else its name. :meth:`SpcRows.save_spc` writes the state and its
-history row in one transaction, so after a restart the state reloaded is the one the last row
-describes, and a cycle can feed the loop once only (a unique index on the history's cycle id).
+values and never imports the loop. The cell keeps each recipe's loop under the recipe's name; None
+(``''``, history NULL) is the loop kept before that, which :meth:`SpcRows.spc_states` hands to the
+configured first recipe once (:data:`cellctl.store.schema.NAME_THE_FIRST_RECIPES_LOOP`).
+:meth:`SpcRows.save_spc` writes the state and its history row in one transaction, so after a restart
+the state reloaded is the one the last row describes, and a cycle can feed the loop once only (a unique index on the history's cycle id).
 
 History rows are pruned with their cycles (:meth:`cellctl.store.retention.RetentionRows.prune_cycles`)
 and by age and count (:meth:`SpcRows.prune_spc_history`, which also covers rows without a cycle,
@@ -21,8 +22,9 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from cellctl.store.connection import Database, from_json, to_json, ts
+from cellctl.store.connection import Database, from_json, need, to_json, ts
 from cellctl.store.records import StoreError
+from cellctl.store.schema import NAME_THE_FIRST_RECIPES_LOOP
 
 ENTRY_KEYS = frozenset({"cycle_id", "calibration_version", "events", "excluded", "u", "estimate", "offset", "drifting"})
 """The keys of a history entry (:meth:`cellctl.quality.spc_state.SpcRecord.as_entry`)."""
@@ -50,7 +52,7 @@ class SpcHistoryRow:
     estimate: Mapping[str, float | None]
     offset: Mapping[str, float]
     drifting: tuple[str, ...]
-    recipe: str | None = None  # None: the cell's first recipe
+    recipe: str | None = None  # None: kept unnamed, before the loops were named (the first recipe's)
 
 
 def _check_entry(entry: Mapping[str, Any]) -> None:
@@ -113,8 +115,17 @@ class SpcRows(Database):
         r = self._conn.execute("SELECT state_json FROM spc_state WHERE recipe = ?", (_key(recipe),)).fetchone()
         return None if r is None else dict(json.loads(r[0]))
 
-    def spc_states(self) -> dict[str | None, dict[str, Any]]:
-        """Every recipe's loop as last saved, by recipe (None: the cell's first)."""
+    def spc_states(self, *, first_recipe: str | None = None) -> dict[str | None, dict[str, Any]]:
+        """Every recipe's loop as last saved, by recipe's name (None: a loop kept unnamed, the first recipe's).
+
+        ``first_recipe``: the name of the recipe configured first; the unnamed loop and its history
+        become that recipe's first, in one transaction (:data:`~cellctl.store.schema.NAME_THE_FIRST_RECIPES_LOOP`).
+        """
+        if first_recipe is not None:
+            need("first_recipe", first_recipe)
+            with self._tx() as c:
+                for sql in NAME_THE_FIRST_RECIPES_LOOP:
+                    c.execute(sql, {"name": first_recipe} if ":name" in sql else {})
         rows = self._conn.execute("SELECT recipe, state_json FROM spc_state ORDER BY recipe").fetchall()
         return {(r[0] or None): dict(json.loads(r[1])) for r in rows}
 
@@ -161,7 +172,7 @@ _COLUMNS = (
 
 
 def _key(recipe: str | None) -> str:
-    """``spc_state``'s key: '' for the cell's first recipe."""
+    """``spc_state``'s key: the recipe's name; '' for None, the loop kept unnamed."""
     if recipe == "":
         raise ValueError("a recipe's name cannot be empty; None names the cell's first recipe")
     return recipe or ""

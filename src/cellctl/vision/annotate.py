@@ -28,14 +28,58 @@ _GREY = (160, 160, 160)
 _WHITE = (255, 255, 255)
 
 
+_REACH = 1.0  # image sizes beyond the image edge a point may lie and still be drawn (its lines clipped)
+
+
 def _pt(p: NDArray[np.float64], k: float) -> tuple[int, int]:
     return int(round((p[0] + 0.5) * k - 0.5)), int(round((p[1] + 0.5) * k - 0.5))
 
 
+def _near(points: NDArray[np.float64], size_px: tuple[float, float], reach: float = _REACH) -> NDArray[np.bool_]:
+    """Which image points (N, 2) in px are finite and within ``reach`` image sizes of the image (width, height).
+
+    A point further off is not drawn: OpenCV takes int32 pixels (a refused fit's centre can lie 1e9 px away),
+    and the lens model holds only about the image.
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    size = np.asarray(size_px, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.all(np.isfinite(p) & (p >= -reach * size) & (p <= (1.0 + reach) * size), axis=1)
+
+
+def _picture_size(img: NDArray[np.uint8], k: float) -> tuple[float, float]:
+    """The image's (width, height) in its own px, of the picture drawn ``k`` times smaller."""
+    return img.shape[1] / k, img.shape[0] / k
+
+
+def _line(img: NDArray[np.uint8], a: tuple[int, int], b: tuple[int, int], colour: tuple[int, int, int], *, arrow: bool = False) -> None:
+    """A line from a to b (picture px) clipped to the picture (cv2.clipLine); an arrow's head only where its tip is in view."""
+    h, w = img.shape[:2]
+    visible, a_in, b_in = cv2.clipLine((0, 0, w, h), a, b)
+    if not visible:
+        return
+    if arrow and tuple(b_in) == tuple(b):
+        cv2.arrowedLine(img, a, b, colour, 2, cv2.LINE_AA, tipLength=0.2)
+    else:
+        cv2.line(img, a_in, b_in, colour, 2, cv2.LINE_AA)
+
+
 def _cross(img: NDArray[np.uint8], p: NDArray[np.float64], k: float, colour: tuple[int, int, int], size: int = 12) -> None:
+    """A cross at the raw image point p (px); none where p is not finite or far off the image (:func:`_near`)."""
+    if not _near(p, _picture_size(img, k))[0]:
+        return
     c = _pt(p, k)
-    cv2.line(img, (c[0] - size, c[1]), (c[0] + size, c[1]), colour, 2, cv2.LINE_AA)
-    cv2.line(img, (c[0], c[1] - size), (c[0], c[1] + size), colour, 2, cv2.LINE_AA)
+    _line(img, (c[0] - size, c[1]), (c[0] + size, c[1]), colour)
+    _line(img, (c[0], c[1] - size), (c[0], c[1] + size), colour)
+
+
+def _arrow(img: NDArray[np.uint8], tail: NDArray[np.float64], tip: NDArray[np.float64], k: float, colour: tuple[int, int, int]) -> None:
+    """An arrow between raw image points (px), clipped to the picture; none where either is far off the image."""
+    if not np.all(_near(np.stack([tail, tip]), _picture_size(img, k))):
+        return
+    a, b = _pt(tail, k), _pt(tip, k)
+    if a != b:
+        _line(img, a, b, colour, arrow=True)
 
 
 def draw_edge(img: NDArray[np.uint8], edge: EdgeMeasurement, lens: Lens, k: float, corner: NDArray[np.float64] | None) -> None:
@@ -80,7 +124,7 @@ def annotate(
         _BLUE,
         1,
     )
-    if m.corner_raw_px is not None:
+    if m.corner_raw_px is not None and _near(m.corner_raw_px, _picture_size(img, k))[0]:
         cv2.circle(img, _pt(m.corner_raw_px, k), int(round(m.arc_exclusion_px * k)), _GREY, 1, cv2.LINE_AA)
     for edge in (m.top, m.right):
         if edge is not None:
@@ -97,6 +141,7 @@ def annotate(
             rel = np.angle(np.exp(1j * (ang - mid)))
             lo, hi = np.min(np.angle(np.exp(1j * (a - mid)))), np.max(np.angle(np.exp(1j * (a - mid))))
             part = circle[(rel >= lo) & (rel <= hi)]
+            part = part[_near(part, (lens.width_px, lens.height_px))]
             if len(part) >= 2:
                 poly = np.rint((lens.distort(part) + 0.5) * k - 0.5).astype(np.int32).reshape(-1, 1, 2)
                 cv2.polylines(img, [poly], False, _YELLOW, 1, cv2.LINE_AA)
@@ -110,9 +155,7 @@ def annotate(
     if m.corner_raw_px is not None:
         _cross(img, m.corner_raw_px, k, _CYAN)
         if taught_raw is not None:
-            a, b = _pt(taught_raw, k), _pt(m.corner_raw_px, k)
-            if a != b:
-                cv2.arrowedLine(img, a, b, _MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
+            _arrow(img, taught_raw, m.corner_raw_px, k, _MAGENTA)
     lines = []
     if m.ok and m.corner_px is not None and m.top is not None and m.right is not None:
         lines.append(

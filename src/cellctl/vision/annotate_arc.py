@@ -14,7 +14,9 @@ from numpy.typing import NDArray
 
 from cellctl.config.vision import RoiConfig
 from cellctl.geometry.planar import PlanarOffset
-from cellctl.vision.annotate import _BLUE, _CYAN, _GREEN, _MAGENTA, _RED, _YELLOW, _cross, _pt, caption_png, shrunk_bgr
+from cellctl.vision.annotate import (
+    _BLUE, _CYAN, _GREEN, _MAGENTA, _RED, _YELLOW, _arrow, _cross, _near, _pt, caption_png, shrunk_bgr,
+)
 from cellctl.vision.arc_corner import ArcCornerMeasurement
 from cellctl.vision.corner import CornerFeatures
 from cellctl.vision.lens import Lens
@@ -40,21 +42,24 @@ def annotate_arc(
     inl = m.inliers if len(m.inliers) == len(q) else np.zeros(len(q), bool)
     ok = (q[:, 0] >= 0) & (q[:, 0] < img.shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < img.shape[0])
     img[q[ok, 1], q[ok, 0]] = np.where(inl[ok, None], np.array(_GREEN), np.array(_RED))
+    # The centre through the lens only near the image (a refused fit's can lie 1e9 px away: not drawn).
+    centre_raw = None
+    if m.centre_px is not None and _near(m.centre_px, (lens.width_px, lens.height_px))[0]:
+        centre_raw = lens.distort(m.centre_px[None])[0]
     if m.centre_px is not None and m.radius_px is not None:
         a = np.linspace(-0.1, 0.5 * np.pi + 0.1, 400)  # the upper-right quarter, a little beyond
         ideal = m.centre_px + m.radius_px * np.column_stack([np.cos(a), -np.sin(a) * lens.fy / lens.fx])
         _polyline(img, ideal, lens, k, _YELLOW)
-        _cross(img, lens.distort(m.centre_px[None])[0], k, _CYAN)
+        if centre_raw is not None:
+            _cross(img, centre_raw, k, _CYAN)
     top = m.orientation.top if m.orientation is not None else None
     if top is not None and top.ok:
         _polyline(img, top.line.at(np.linspace(-3000.0, 3000.0, 600)), lens, k, _YELLOW)
     if taught is not None:
         t_raw = lens.distort(np.array([[taught.u_px, taught.v_px]]))[0]
         _cross(img, t_raw, k, _MAGENTA)
-        if m.centre_px is not None:
-            a_, b_ = _pt(t_raw, k), _pt(lens.distort(m.centre_px[None])[0], k)
-            if a_ != b_:
-                cv2.arrowedLine(img, a_, b_, _MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
+        if centre_raw is not None:
+            _arrow(img, t_raw, centre_raw, k, _MAGENTA)
     lines = []
     if m.ok and m.centre_px is not None:
         theta = m.orientation.theta_rad if m.orientation is not None else None

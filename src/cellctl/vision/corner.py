@@ -45,6 +45,7 @@ from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName
 from cellctl.vision.lines import Line2D, fit_line, intersect, ransac_line
 from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening, pick_feature
 from cellctl.vision.quality import Check, Refusal, Refused, at_least, at_most
+from cellctl.vision.taught_profile import TaughtProfile, match_taught, rule_problem
 
 F64 = NDArray[np.float64]
 
@@ -187,13 +188,35 @@ def _no_feature_message(name: str, profile: EdgeProfile, config: VisionConfig) -
     )
 
 
+def _taught_feature(
+    prof: EdgeProfile, name: str, taught: TaughtProfile | None, feature: FeatureConfig, dark: bool
+) -> tuple[EdgeProfile, str | None]:
+    """The profile with the feature its taught neighbourhood finds (cellctl.vision.taught_profile), or why none.
+
+    Unchanged where nothing was taught for this edge or ``feature.taught_profile`` is off.
+    """
+    edge = taught.edges.get(name) if taught is not None and feature.taught_profile else None
+    if taught is None or edge is None:
+        return prof, None
+    if (problem := rule_problem(taught, feature)) is not None:
+        return prof, problem
+    k, why = match_taught(prof, edge, dark, feature)
+    return (replace(prof, feature=k), None) if k is not None else (prof, f"refused: the {name} edge: {why}")
+
+
 def detect_corner(
-    image: NDArray[np.uint8], lens: Lens, config: VisionConfig, expected_radius: CornerRadius | None = None
+    image: NDArray[np.uint8],
+    lens: Lens,
+    config: VisionConfig,
+    expected_radius: CornerRadius | None = None,
+    taught: TaughtProfile | None = None,
 ) -> CornerMeasurement:
     """Find the window's upper-right corner in a raw camera image.
 
     With ``expected_radius`` (the recipe's, cellctl.config.feature.corner_radius) the arc check
-    also holds the fitted arc's radius to it (``limits.arc_radius_tolerance``).
+    also holds the fitted arc's radius to it (``limits.arc_radius_tolerance``). With ``taught``
+    (the profiles teaching recorded; None for a set taught before they were) each edge's feature
+    is the step whose neighbourhood is the taught one, and a profile that does not match is refused.
 
     Raises ValueError only for a wrong call (not a 2-D uint8 image of the lens's size, or an ROI
     outside the image); whatever the image shows, the answer is a CornerMeasurement, refused
@@ -237,7 +260,12 @@ def detect_corner(
                 Refusal.EDGE_MISSING, too_near_border(lens, name, seeds[name], corner, config),  # type: ignore[arg-type]
                 roi, exclusion, segments=coarse.segments, coarse_corner_px=corner,
             )
+        prof, differs = _taught_feature(prof, name, taught, config.feature, coarse.opening_darker)
         profiles[name] = prof
+        if differs is not None:
+            return CornerMeasurement(
+                Refusal.FEATURE_NOT_FOUND, differs, roi, exclusion, segments=coarse.segments, coarse_corner_px=corner
+            )
         step = prof.feature_step
         if step is None:
             return CornerMeasurement(

@@ -20,6 +20,7 @@ from cellctl.vision.arc_corner import ArcCornerMeasurement, detect_arc_corner
 from cellctl.vision.corner import CornerFeatures, CornerMeasurement, detect_corner
 from cellctl.vision.lens import Lens
 from cellctl.vision.quality import Refusal
+from cellctl.vision.taught_profile import TaughtProfile
 
 __all__ = ["FeatureShot", "detect_feature"]
 
@@ -79,16 +80,18 @@ def detect_feature(
     *,
     need_orientation: bool = True,
     corner_radius: CornerRadius | None = None,
+    taught: TaughtProfile | None = None,
 ) -> FeatureShot:
     """The corner (``arc`` None) or the arc's centre with the top edge's orientation in a raw image.
 
-    ``corner_radius`` (the recipe's ShotFeature.corner_radius) is the radius the corner's arc check expects.
+    ``corner_radius`` (the recipe's ShotFeature.corner_radius) is the radius the corner's arc check expects;
+    ``taught`` the corner's taught profiles, its edges' features are checked against (the arc's are not).
 
     Without ``need_orientation`` an arc seen without a straight edge still answers, its angles NaN
     (the offset then turns by 0: a first shot that only aims the next).
     """
     if arc is None:
-        m = detect_corner(image, lens, vision, corner_radius)
+        m = detect_corner(image, lens, vision, corner_radius, taught)
         return FeatureShot(m, m.features if m.ok else None, m.corner_sigma_px, m.refusal, m.message)
     a = detect_arc_corner(image, lens, arc)
     if not a.ok:

@@ -38,8 +38,9 @@ from cellctl.vision.lens import Lens
 from cellctl.vision.lines import Line2D, intersect
 from cellctl.vision.gap_figures import GapLines, InPlaneGaps, in_plane_from_gaps
 from cellctl.vision.gap_steps import GapRefusal, GapRefused, find_gap_steps
-from cellctl.vision.profile import EdgeProfile, into_opening
+from cellctl.vision.profile import EdgeProfile, ProfileStep, into_opening
 from cellctl.vision.quality import Check, Refused
+from cellctl.vision.taught_profile import TaughtProfile, match_taught, rule_problem
 
 __all__ = ["GapLines", "GapMeasurement", "GapRefusal", "InPlaneGaps", "in_plane_from_gaps", "measure_gaps", "template_lines"]
 
@@ -177,6 +178,7 @@ def measure_gaps(
     gap_px_expected: float,
     feature: FeatureConfig | None = None,
     opening_polarity: str = "darker",
+    taught: TaughtProfile | None = None,
 ) -> GapMeasurement:
     """Find the opening's and the glass's top and right edges in a raw inspection image.
 
@@ -190,6 +192,8 @@ def measure_gaps(
         feature: the recipe's feature-edge rule (``[vision.feature]``; default: the wall's edge).
         opening_polarity: "darker" (the default), "brighter" or "auto" (``[vision] opening_polarity``):
             how the opening looks beside the wall; "auto" takes the strongest step near the template's line.
+        taught: the template's edge profiles (None: not recorded): the opening's edge must be the one
+            step whose neighbourhood outside the glass's search window is the taught one.
 
     Raises ValueError only for a wrong call; whatever the image shows, the answer is a
     GapMeasurement, refused with a reason when an edge is missing or fails its limits.
@@ -220,6 +224,7 @@ def measure_gaps(
                 )
             prof, o_step, g_step = find_gap_steps(img, lens, name, seeds[name], along, config, feature, darker, gap_px_expected)
             profiles[name] = prof
+            _check_taught(prof, name, o_step, taught, feature, gap_px_expected - config.glass_search_px)
             places[name] = (o_step.offset_px, g_step.offset_px)
             opening_seeds[name] = _shift(seeds[name], name, o_step.offset_px)
             glass_seeds[name] = _shift(seeds[name], name, g_step.offset_px)
@@ -257,6 +262,31 @@ def measure_gaps(
             r.refusal, r.message, start, profiles=profiles, steps_px=places, checks=tuple(checks), **edges  # type: ignore[arg-type]
         )
     return GapMeasurement(None, "gaps measured", start, profiles=profiles, steps_px=places, checks=tuple(checks), **edges)  # type: ignore[arg-type]
+
+
+def _check_taught(
+    prof: EdgeProfile, name: str, opening: ProfileStep, taught: TaughtProfile | None, feature: FeatureConfig,
+    glass_from_px: float,
+) -> None:
+    """Refuse an opening's edge that is not the step the taught profile finds (cellctl.vision.taught_profile).
+
+    Only steps outside the glass's search window are compared (``glass_from_px`` from the template's line).
+    """
+    edge = taught.edges.get(name) if taught is not None and feature.taught_profile else None
+    if taught is None or edge is None:
+        return
+    if (problem := rule_problem(taught, feature)) is not None:
+        raise GapRefused(GapRefusal.OPENING_EDGE_NOT_FOUND, f"the {name} edge: {problem}")
+    k, why = match_taught(prof, edge, opening.change_dn < 0.0, feature, below_px=glass_from_px)
+    if k is None:
+        raise GapRefused(GapRefusal.OPENING_EDGE_NOT_FOUND, f"the {name} edge: {why}")
+    if prof.steps[k] != opening:
+        raise GapRefused(
+            GapRefusal.OPENING_EDGE_NOT_FOUND,
+            f"the {name} edge: the recipe's rule picks the step at {opening.offset_px:+.1f} px, the taught profile the one "
+            f"at {prof.steps[k].offset_px:+.1f} px (from the template's line): the car body shows another edge than "
+            "taught; teach the recipe again if it changed, or set [vision.feature]",
+        )
 
 
 def _as_gap_refusal(value: str) -> GapRefusal:
