@@ -55,7 +55,7 @@ def test_the_docs_and_the_st_example_keep_the_id_in_flight_across_a_restart() ->
     assert "Never give the same car body a new id" in flat
     retain = re.search(r"VAR RETAIN(.*?)END_VAR", ST, re.S)
     assert retain is not None and re.search(r"\bReqId\b", retain.group(1)) and re.search(r"\bInFlight\b", retain.group(1))
-    assert "IF InFlight AND CellAlive THEN" in ST  # step 0 asks for the retained id again before any new one
+    assert "IF InFlight AND CellAlive AND NOT CycleTimer.Q THEN" in ST  # step 0 asks for the retained id again first
     assert re.search(r"WaitRobotClear AND \(Cell\.RobotClear", ST)  # the car body moves on only once robot_clear = 1
 
 

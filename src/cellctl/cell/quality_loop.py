@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from dataclasses import replace
 from datetime import datetime, timezone
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
@@ -91,7 +92,12 @@ class InstallQualityLoop:
     def offset_for_next(self, recipe: str, calibration: Mapping[str, Any]) -> dict[str, float]:
         """The offset (six figures, mm and deg) the next install of ``recipe`` takes out under ``calibration`` (the
         source's reference for that recipe); zeros when none applies."""
-        return self.loop.offset(self.states[recipe], calibration_key(calibration))
+        key = calibration_key(calibration)
+        state = self.states[recipe]
+        if key != state.calibration_version and state.calibration_version == str(calibration.get("version")):
+            # Learnt (by a cellctl that keyed loops by the set's version) under the set in use now: the same parts.
+            self.states[recipe] = state = replace(state, calibration_version=key)
+        return self.loop.offset(state, key)
 
     @staticmethod
     def offset_as_pose(offset: dict[str, float]) -> Pose | None:

@@ -266,8 +266,8 @@ def _sql_text(text: str) -> str:
 
 
 V8_INTERRUPTED_REASONS = f"""
-UPDATE cycles SET error = CASE WHEN install_started_at IS NULL THEN {_sql_text(INTERRUPTED_REASONS[1])}
-    ELSE {_sql_text(INTERRUPTED_REASONS[2])} END
+UPDATE cycles SET error = CASE WHEN started_at IS NULL THEN {_sql_text(INTERRUPTED_REASONS[0])}
+    WHEN install_started_at IS NULL THEN {_sql_text(INTERRUPTED_REASONS[1])} ELSE {_sql_text(INTERRUPTED_REASONS[2])} END
 WHERE state = 'interrupted' AND error IS NULL;
 """
 """Cycles interrupted under a cellctl that gave no reason get the one recovery now gives (request it

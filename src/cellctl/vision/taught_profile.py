@@ -10,7 +10,8 @@ neighbourhood shows the taught pattern (:func:`match_taught`). Steps of the open
 compared, on either profile, when they are
 
 - strong: as large as the rule counts (``min_step_fraction``) and at least 1/``SIZE_RATIO`` of the
-  feature's size, anywhere both profiles cover; or
+  feature's size, anywhere both profiles cover on the side the rule counts from (a step beyond the
+  feature changes no count, and a band there, a flange or a seal, varies in width from body to body); or
 - near: within ``taught_near_px`` of the feature and at least ``min_step_fraction / SIZE_RATIO``
   (an edge a few mm beside the feature that took part of its contrast);
 
@@ -113,7 +114,9 @@ def _differences(
     def compared(s: ProfileStep) -> bool:
         if not (lo <= s.offset_px <= hi and (s.change_dn < 0) == dark) or s.offset_px == 0.0:
             return False
-        return s.fraction >= strong or (abs(s.offset_px) <= near and s.fraction >= feature.min_step_fraction / SIZE_RATIO)
+        counted = s.offset_px < 0.0 if feature.count_from == "wall" else s.offset_px > 0.0  # between the start and it
+        faint = feature.min_step_fraction / SIZE_RATIO
+        return (counted and s.fraction >= strong) or (abs(s.offset_px) <= near and s.fraction >= faint)
 
     out = [f"a step at {_words(s)} that teaching did not see" for s in seen
            if compared(s) and not any(_alike(s, t, tol) for t in taught.steps)]  # fmt: skip
