@@ -102,10 +102,19 @@ def parse_line(line: bytes, max_chars: int = MAX_REPLY_CHARS) -> Reply | ErrorRe
     return Reply(text, fields)
 
 
+SETTING_COMMANDS = ("SW", "SR")
+"""Setting change / check: some controllers (and the ISIS emulator) head their errors with the setting's
+identifier (``ER,OF,00`` for ``SW,OF,...``) where the manual says the main command (``ER,SW,00``)."""
+
+
 def may_answer(command: Command, reply: Reply | ErrorReply) -> bool:
-    """True if ``reply`` has the header of a reply to ``command`` (its echo, or an error naming its main command)."""
+    """True if ``reply`` has the header of a reply to ``command``: its echo, or an error naming its main command
+    (or, for a setting command, its setting identifier)."""
     if isinstance(reply, ErrorReply):
-        return reply.main == command.main
+        if reply.main == command.main:
+            return True
+        fields = command.text.split(",")
+        return command.main in SETTING_COMMANDS and len(fields) > 1 and reply.main == fields[1].upper()
     return reply.text == command.echo or reply.text.startswith(command.echo + ",")
 
 

@@ -91,6 +91,7 @@ class FakeLkgController(LkgCommandSet):
         if dialect not in DIALECTS:
             raise ValueError(f"dialect must be one of {DIALECTS}, got {dialect!r}")
         self.dialect: Dialect = dialect  # type: ignore[assignment]
+        self.setting_errors_name_the_setting = False  # True: ER,<setting id>,xx for SW/SR, as the ISIS emulator
         self._sources: dict[int, DistanceSource] = dict(distance) if isinstance(distance, Mapping) else {1: distance}
         max_out = 2 if dialect == "LK-G3001" else 12
         if dialect == "LK-G3001":

@@ -110,6 +110,7 @@ class LkgCommandSet(StorageCommands):
 
     dialect: Dialect
     mode: Mode
+    setting_errors_name_the_setting: bool
     out_count: int
     unit: UnitFormat
     reference_distance_mm: float
@@ -145,7 +146,10 @@ class LkgCommandSet(StorageCommands):
                 raise Refuse(STATUS_ERROR[d])
             return run(main, params)
         except Refuse as refusal:
-            return f"ER,{main},{refusal.code}", ()
+            header = main
+            if self.setting_errors_name_the_setting and main in ("SW", "SR") and params:
+                header = params[0]  # as the ISIS emulator answers: ER,OF,00 for SW,OF,...
+            return f"ER,{header},{refusal.code}", ()
 
     def _handlers(self) -> dict[str, tuple[str, Callable[[str, list[str]], tuple[str, tuple[float | None, ...]]]]]:
         common = {

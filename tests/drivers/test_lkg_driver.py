@@ -497,3 +497,20 @@ async def test_errors_are_device_errors_naming_the_device(fake: FakeLkgControlle
     with pytest.raises(DeviceError, match="^LDS: "):
         await guarded(s.read(timeout_s=0.3))
     await s.close()
+
+
+@pytest.mark.parametrize("named_by", ["command", "setting"])
+async def test_a_refused_setting_is_rejected_at_once_whichever_header_its_error_has(named_by: str) -> None:
+    """The manual heads an error with the main command (ER,SW,62); the ISIS emulator, built against the real
+    controller, with the setting (ER,CF,62). Both are the answer to SW: one exchange and its code, not a time-out
+    after resending it (the reference notes, keyence_lkg.md B4: accept either)."""
+    with FakeLkgController("LK-G5001", Ramp()) as fake:
+        fake.setting_errors_name_the_setting = named_by == "setting"
+        s = make_sensor(fake, exchange_timeout_s=0.3)
+        async with s.communication_mode(timeout_s=2.0):
+            with pytest.raises(DeviceRejected) as info:
+                await guarded(s.write_setting("CF", "0001000", "12", timeout_s=1.5))  # cycle code 12: out of range
+        assert info.value.code == "62"
+        sent = [e for e in fake.exchanges if e.command.startswith("SW")]
+        assert [e.reply for e in sent] == ["ER,SW,62" if named_by == "command" else "ER,CF,62"]
+        await s.close()
