@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import httpx
+from mosquitto_support import Broker, Subscriber, running_broker, subscribed
 from service_test_support import AUTH, sim_config
 
 from cellctl.config import CellConfig
@@ -21,6 +25,16 @@ def mqtt_config(port: int, **mqtt: Any) -> CellConfig:
 
 def topics(config: CellConfig) -> CellTopics:
     return CellTopics(config.mqtt.isa95)
+
+
+@contextlib.contextmanager
+def broker_and_historian(workdir: Path) -> Iterator[tuple[Broker, CellConfig, CellTopics, Subscriber]]:
+    """A mosquitto broker of the test's own, the cell's config publishing to it, its topics, and a subscriber to all."""
+    with running_broker(workdir) as broker:
+        config = mqtt_config(broker.port)
+        t = topics(config)
+        with subscribed(broker.port, t.everything) as sub:
+            yield broker, config, t, sub
 
 
 async def run_cycle(client: httpx.AsyncClient, n: int) -> dict[str, Any]:

@@ -6,8 +6,9 @@ import asyncio
 import time
 from pathlib import Path
 
-from mosquitto_support import Broker, running_broker, subscribed
+from mosquitto_support import Broker, subscribed
 from mqtt_service_support import (
+    broker_and_historian,
     check_envelopes,
     mqtt_config,
     mqtt_status,
@@ -22,48 +23,45 @@ OUTAGE_S = 30.0
 
 
 async def test_ten_cycles_give_ten_results_once_in_order_matching_the_records(tmp_path: Path) -> None:
-    with running_broker(tmp_path) as broker:
-        config = mqtt_config(broker.port)
-        t = topics(config)
-        with subscribed(broker.port, t.everything) as sub:
-            async with running_service(tmp_path, config) as service, api_client(service) as client:
-                await to_execute(client)
-                records = [await run_cycle(client, n) for n in range(1, 11)]
-                got = await asyncio.to_thread(sub.wait_count, t.result, 10)
-                last_id = records[-1]["id"]
-                await asyncio.to_thread(sub.wait_for, "result/last of the last cycle",
-                                        lambda: any(m.json()["cycle_id"] == last_id for m in sub.on(t.result_last)))
-                status = await mqtt_status(client)
-                with subscribed(broker.port, t.everything, "late-reader") as late:  # what the broker retained
-                    retained = {t.status, t.state, t.result_last, t.calibration}
-                    await asyncio.to_thread(late.wait_for, "the retained topics", lambda: retained <= {m.topic for m in late.received})
-                    kept = {m.topic: m for m in late.received if m.retain}
-            await asyncio.sleep(0.2)
-            bodies = [m.json() for m in got]
-            assert [b["cycle_id"] for b in bodies] == [r["id"] for r in records]  # once each, in cycle order
-            assert len(sub.on(t.result)) == 10
-            check_envelopes(bodies)
-            for body, rec in zip(bodies, records):
-                assert body["part_id"] == rec["part_id"] and body["state"] == rec["state"]
-                assert body["ok"] == rec["result"]["ok"] and body["error_code"] == rec["result"]["error_code"]
-                assert body["measured_deviation"] == rec["measured_deviation"] is not None
-                assert body["cycle_time_s"] == rec["result"]["cycle_time_s"]
-            lasts = [m.json()["cycle_id"] for m in sub.on(t.result_last)]  # retained: a pending value may be superseded
-            assert lasts == sorted(set(lasts)) and lasts[-1] == last_id and set(lasts) <= {r["id"] for r in records}
-            # The state followed the cell; the connection said online, and offline at the clean stop.
-            states = [m.json() for m in sub.on(t.state)]
-            assert all(s["state_id"] == int(PackMLState[s["state"]]) for s in states)
-            assert (states[-1]["state"], states[-1]["cycle_step"]) == ("EXECUTE", "none")
-            assert retained <= set(kept) and kept[t.result_last].json()["cycle_id"] == records[-1]["id"]
-            assert kept[t.status].json()["online"] is True and kept[t.state].json()["state"] == "EXECUTE"
-            online = [m.json()["online"] for m in sub.on(t.status)]
-            assert online[0] is True and online[-1] is False
-            assert sub.on(t.calibration)[0].json()["version"] is None  # the oracle: the twin's truth, no set
-            assert status["connected"] and status["dropped"] == 0 and status["published"] >= 20
-            for topic in {m.topic for m in sub.received}:  # one sequence for the tree, in order on each topic
-                check_envelopes([m.json() for m in sub.on(topic) if m.payload])
-            everything = [m.json() for m in sub.received if m.payload]
-            assert len({b["seq"] for b in everything}) == len(everything)
+    with broker_and_historian(tmp_path) as (broker, config, t, sub):
+        async with running_service(tmp_path, config) as service, api_client(service) as client:
+            await to_execute(client)
+            records = [await run_cycle(client, n) for n in range(1, 11)]
+            got = await asyncio.to_thread(sub.wait_count, t.result, 10)
+            last_id = records[-1]["id"]
+            await asyncio.to_thread(sub.wait_for, "result/last of the last cycle",
+                                    lambda: any(m.json()["cycle_id"] == last_id for m in sub.on(t.result_last)))
+            status = await mqtt_status(client)
+            with subscribed(broker.port, t.everything, "late-reader") as late:  # what the broker retained
+                retained = {t.status, t.state, t.result_last, t.calibration}
+                await asyncio.to_thread(late.wait_for, "the retained topics", lambda: retained <= {m.topic for m in late.received})
+                kept = {m.topic: m for m in late.received if m.retain}
+        await asyncio.sleep(0.2)
+        bodies = [m.json() for m in got]
+        assert [b["cycle_id"] for b in bodies] == [r["id"] for r in records]  # once each, in cycle order
+        assert len(sub.on(t.result)) == 10
+        check_envelopes(bodies)
+        for body, rec in zip(bodies, records):
+            assert body["part_id"] == rec["part_id"] and body["state"] == rec["state"]
+            assert body["ok"] == rec["result"]["ok"] and body["error_code"] == rec["result"]["error_code"]
+            assert body["measured_deviation"] == rec["measured_deviation"] is not None
+            assert body["cycle_time_s"] == rec["result"]["cycle_time_s"]
+        lasts = [m.json()["cycle_id"] for m in sub.on(t.result_last)]  # retained: a pending value may be superseded
+        assert lasts == sorted(set(lasts)) and lasts[-1] == last_id and set(lasts) <= {r["id"] for r in records}
+        # The state followed the cell; the connection said online, and offline at the clean stop.
+        states = [m.json() for m in sub.on(t.state)]
+        assert all(s["state_id"] == int(PackMLState[s["state"]]) for s in states)
+        assert (states[-1]["state"], states[-1]["cycle_step"]) == ("EXECUTE", "none")
+        assert retained <= set(kept) and kept[t.result_last].json()["cycle_id"] == records[-1]["id"]
+        assert kept[t.status].json()["online"] is True and kept[t.state].json()["state"] == "EXECUTE"
+        online = [m.json()["online"] for m in sub.on(t.status)]
+        assert online[0] is True and online[-1] is False
+        assert sub.on(t.calibration)[0].json()["version"] is None  # the oracle: the twin's truth, no set
+        assert status["connected"] and status["dropped"] == 0 and status["published"] >= 20
+        for topic in {m.topic for m in sub.received}:  # one sequence for the tree, in order on each topic
+            check_envelopes([m.json() for m in sub.on(topic) if m.payload])
+        everything = [m.json() for m in sub.received if m.payload]
+        assert len({b["seq"] for b in everything}) == len(everything)
 
 
 async def test_a_30_s_broker_outage_during_ten_cycles_loses_none(tmp_path: Path) -> None:

@@ -366,8 +366,10 @@ class CellOrchestrator:
 
     def _stopped(self) -> tuple[str, int, AlarmCode | None]:
         """A cycle the cell stopped: its reason, and as its code the first-out alarm if one caused the stop
-        (the PLC and the record then name the cause, e.g. 1201), else that a command stopped it. No new alarm."""
-        return (f"stopped: {self._stop_reason}", self._stop_code(AlarmCode.CYCLE_STOPPED), None)
+        (the PLC and the record name the cause, e.g. 1201; the text adds its message), else that a command stopped it."""
+        stop = self.alarms.stop_reason
+        cause = "" if stop is None else f": alarm {int(stop.code)} {stop.message}"
+        return (f"stopped: {self._stop_reason}{cause}", self._stop_code(AlarmCode.CYCLE_STOPPED), None)
 
     def _stop_code(self, otherwise: int) -> int:
         """The first-out alarm's code when one stopped the cell (the cause the PLC and the record name), else ``otherwise``."""

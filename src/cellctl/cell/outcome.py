@@ -23,7 +23,8 @@ class CycleSummary:
     """The outcome of a finished cycle in the units the PLC and the API publish.
 
     ``ok`` is False for a failed cycle and for a part measured outside the tolerance;
-    ``measured`` is the inspection's six figures (None when the cycle did not measure its glass).
+    ``measured`` is the inspection's six figures (None when the cycle did not measure its glass);
+    the corrections are zeros when the cycle computed none (the PLC registers' meaning with ``ok`` false).
     """
 
     cycle_id: int
@@ -121,10 +122,13 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
     """A finished cycle's result as the plant reads it (OPC UA, MQTT, the MES export); None while it runs.
 
     Units are in the names: corrections and measured deviations in mm and deg, XYZ fixed angles (eq. 13).
+    The corrections are None when the cycle computed none (it failed before compensating); the PLC's
+    summary keeps zeros there, which its registers give with ``ok`` false.
     """
     s = summarize(record)
     if s is None:
         return None
+    corrected = "correction_mm" in (record.result or {})
     req = record.request
     return {
         "cycle_id": record.id,
@@ -137,8 +141,8 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
         "error_code": s.error_code,
         "reason": s.error or "",
         "measured_deviation": None if s.measured is None else asdict(s.measured),
-        "correction_mm": list(s.correction_mm),
-        "correction_deg": [float(np.degrees(v)) for v in s.correction_rad],
+        "correction_mm": list(s.correction_mm) if corrected else None,
+        "correction_deg": [float(np.degrees(v)) for v in s.correction_rad] if corrected else None,
         "cycle_time_s": s.cycle_time_s,
         "calibration_version": s.calibration_version,
         "started_at": None if record.started_at is None else record.started_at.isoformat(),

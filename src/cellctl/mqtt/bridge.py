@@ -8,8 +8,9 @@ It follows the orchestrator's :class:`~cellctl.cell.events.EventHub`:
   with the mark. At start the same catch-up queues what finished while no bridge ran (a restart
   between a cycle's end and its queueing, or cycles run with publication off), and interrupted
   cycles; the first start ever begins at the newest cycle (history is not published);
-- ``alarm``: ``alarm/events`` when an alarm is raised, cleared or acknowledged, and the retained
-  ``alarm/{code}``, emptied once no alarm of that code is listed (inactive and acknowledged);
+- ``alarm``: ``alarm/events`` when an alarm is raised, cleared or acknowledged (one message per
+  change: :func:`alarm_events`), and the retained ``alarm/{code}``, emptied once no alarm of that
+  code is listed (inactive and acknowledged);
 - ``job`` done, and every ``CALIBRATION_POLL_S``: the retained ``calibration`` when its version changed.
 
 The hub drops a slow subscriber's oldest events; a gap in its sequence makes the bridge queue
@@ -151,7 +152,7 @@ class EventBridge:
         for code in sorted(ended - {int(a.code) for a in listed.values()}):  # the others are published below
             await self.outbox.put([OutboxMessage(self.topics.alarm(code), None, "alarm", retain=True)])
         for a in listed.values():
-            await self._publish_alarm(a, None)
+            await self._publish_alarm(a, ())
 
     async def _put_state(self, state: str, mode: str, step: str) -> None:
         await self.outbox.put([OutboxMessage(self.topics.state, payloads.state(state, mode, step), "state", retain=True)])
@@ -188,13 +189,12 @@ class EventBridge:
         except KeyError:
             log.warning("MQTT bridge: alarm %s (%s) is no longer known to the alarm manager; not published", uid, d.get("code"))
             return
-        event = "raised" if before is None else ("acknowledged" if now[1] and not before[1] else "cleared")
-        await self._publish_alarm(alarm, event, state=now)
+        await self._publish_alarm(alarm, alarm_events(before, now), state=now)
 
-    async def _publish_alarm(self, a: Alarm, event: str | None, *, state: tuple[bool, bool] | None = None) -> None:
+    async def _publish_alarm(self, a: Alarm, events: tuple[str, ...], *, state: tuple[bool, bool] | None = None) -> None:
         active, acked = state or (a.active, a.acknowledged)
-        if event is not None:
-            await self.outbox.put([OutboxMessage(self.topics.alarm_events, payloads.alarm(a, event=event), "alarm_event")])
+        if events:
+            await self.outbox.put([OutboxMessage(self.topics.alarm_events, payloads.alarm(a, event=e), "alarm_event") for e in events])
         listed = active or not acked
         if listed:
             self._alarm_seen[a.uid] = (active, acked, int(a.code))
@@ -228,3 +228,17 @@ class EventBridge:
                 await self._check_calibration()
             except Exception:  # the next poll tries again; logged with its trace
                 log.exception("MQTT bridge: the calibration version could not be read")
+
+
+def alarm_events(before: tuple[bool, bool] | None, now: tuple[bool, bool]) -> tuple[str, ...]:
+    """The ``alarm/events`` names of an alarm's change from ``before`` to ``now`` (each (active, acknowledged)).
+
+    One event per flag that changed, in this order: ``raised`` (first seen), ``cleared`` (active went
+    false), ``acknowledged`` (acknowledged went true). An acknowledgement that also clears a latched
+    alarm gives both ``cleared`` and ``acknowledged``.
+    """
+    if before is None:
+        return ("raised",)
+    changes = (("cleared", before[0] and not now[0]), ("acknowledged", now[1] and not before[1]))
+    events = tuple(name for name, changed in changes if changed)
+    return events or ("cleared",)  # flags never go back; kept as the old name for any other change

@@ -33,12 +33,14 @@ TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec("state", True, "state", "every PackML state, unit mode or cycle step change; after each connection's backlog",
               "PackML state (PackTags integer and name), unit mode, cycle step"),
     TopicSpec("result", False, "result", "once per finished cycle (done, failed or interrupted), in cycle order",
-              "the cycle's result: ok, error code, part and car ids, measured deviation, corrections, times"),
+              "the cycle's result: ok, error code, part and car ids, measured deviation (null when not measured), "
+              "corrections (null when none was computed), times"),
     TopicSpec("result/last", True, "result_last", "with every result", "the same payload as the last `result`"),
     TopicSpec("alarm/{code}", True, "alarm", "an alarm of that code raised, cleared or acknowledged; after each "
               "connection's backlog; emptied once it is inactive and acknowledged", "the alarm's state; an empty message clears the topic"),
     TopicSpec("alarm/events", False, "alarm_event", "every raise, clear and acknowledgement",
-              "the alarm's state and what happened (`event`)"),
+              "the alarm's state and what happened (`event`: `raised`, `cleared`, `acknowledged`; one message per "
+              "change, so an acknowledgement that clears a latched alarm gives `cleared`, then `acknowledged`)"),
     TopicSpec("calibration", True, "calibration", "a new calibration set version (checked every 5 s); after each connection's backlog",
               "the calibration set's version in use"),
     TopicSpec("outbox/dropped", False, "dropped", "after a reconnection, when the bound dropped messages",

@@ -58,7 +58,7 @@ class CellAddressSpace:
         self.cell_id = cell_id
         self.nodes: dict[str, Node] = {}
         self._types: dict[str, ua.VariantType] = {}
-        self._last: dict[str, Any] = {}
+        self._last: dict[str, tuple[Any, int]] = {}  # path -> (value, status code) last written
         self.ns: dict[str, int] = {}
 
     async def build(self, callbacks: dict[str, Callback]) -> Node:
@@ -93,13 +93,16 @@ class CellAddressSpace:
         """The node id of state ``number`` in the States folder (a CurrentState's Id), null for 0."""
         return self._nid(f"States/{STATE_NAMES[number]}") if number else ua.NodeId()
 
-    async def write(self, path: str, value: Any, *, at: datetime | None = None) -> bool:
-        """Write ``path``'s value if it changed; True if it did."""
-        if self._last.get(path, _MISSING) == value:
+    async def write(self, path: str, value: Any, *, at: datetime | None = None, status: int = ua.StatusCodes.Good) -> bool:
+        """Write ``path``'s value and status (a ``ua.StatusCodes`` code) if either changed; True if it did.
+
+        A Bad status has no value: the server keeps null (OPC UA Part 4, 7.7.1) whatever ``value`` is.
+        """
+        if self._last.get(path, _MISSING) == (value, status):
             return False
-        self._last[path] = value
-        dv = ua.DataValue(ua.Variant(value, self._types[path]), SourceTimestamp=at or datetime.now(UTC),
-                          ServerTimestamp=datetime.now(UTC))  # fmt: skip
+        self._last[path] = (value, status)
+        dv = ua.DataValue(ua.Variant(value, self._types[path]), StatusCode=ua.StatusCode(status),
+                          SourceTimestamp=at or datetime.now(UTC), ServerTimestamp=datetime.now(UTC))  # fmt: skip
         await self.server.write_attribute_value(self.nodes[path].nodeid, dv)
         return True
 
@@ -117,7 +120,7 @@ class CellAddressSpace:
         await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(v.description))))
         self.nodes[v.path] = node
         self._types[v.path] = vt
-        self._last[v.path] = init
+        self._last[v.path] = (init, ua.StatusCodes.Good)
 
     def _parent(self, path: str) -> tuple[Node, str]:
         head, _, name = path.rpartition("/")

@@ -264,8 +264,10 @@ class CellOpcUaServer:
             "FinishedAt": datetime.fromisoformat(r["finished_at"]) if r.get("finished_at") else NULL_TIME,
             **{f"Measured/{k}": float(measured.get(k, 0.0)) for k in DEVIATION_KEYS},
         }  # fmt: skip
+        # a cycle that measured nothing has no figures: BadNoData (no value), not a Good 0.0 (a perfect install)
+        figures = ua.StatusCodes.Good if measured else ua.StatusCodes.BadNoData
         for name, value in values.items():
-            await s.write(f"Cycle/LastResult/{name}", value)
+            await s.write(f"Cycle/LastResult/{name}", value, status=figures if name.startswith("Measured/") else ua.StatusCodes.Good)
 
     # -- methods ---------------------------------------------------------------------------------
 

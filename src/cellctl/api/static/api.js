@@ -115,9 +115,11 @@ export function thumbUrl(cycleId, name, width) {
 const EVENTS_RETRY_MS = 2000; // after a failed or ended stream, as an EventSource would reconnect
 
 // Opens /events: onEvent(kind, data) for each event the page listens to, onError() when the
-// connection fails or ends; it reconnects by itself (with the token of that moment). Returns { close() }.
-export function openEvents(onEvent, onError) {
-  const stream = { closed: false, abort: null };
+// connection fails or ends; it reconnects by itself (with the token of that moment). The events sent
+// while it was down are gone (nothing replays them): onReconnect() comes before the first event of a
+// connection that follows a failed or ended one, for the page to read everything again. Returns { close() }.
+export function openEvents(onEvent, onError, onReconnect = () => {}) {
+  const stream = { closed: false, abort: null, dropped: false };
   const dispatch = (kind, text) => {
     if (!EVENT_KINDS.includes(kind)) return;
     let data;
@@ -126,6 +128,10 @@ export function openEvents(onEvent, onError) {
     } catch (err) {
       console.warn(`bad ${kind} event`, err);
       return;
+    }
+    if (stream.dropped) {
+      stream.dropped = false;
+      onReconnect();
     }
     onEvent(kind, data);
   };
@@ -140,6 +146,7 @@ export function openEvents(onEvent, onError) {
       // a failed connection is reported below, as one that ended
     }
     if (stream.closed) return;
+    stream.dropped = true;
     onError();
     setTimeout(() => stream.closed || connect(), EVENTS_RETRY_MS);
   };

@@ -42,7 +42,8 @@ const SHIFT_POLL_MS = 60_000;
 
 // -- refreshing --------------------------------------------------------------------------------
 
-// Everything the header and the page shown need, read again (at the start, and after stale data).
+// Everything the header and the page shown need, read again (at the start; after stale data or a
+// reconnect through resync).
 async function refreshAll() {
   const jobs = [refreshStatus(), refreshAlarms(), refreshDigest(), refreshCalibration(), refreshShifts()];
   const page = currentPage();
@@ -50,6 +51,14 @@ async function refreshAll() {
   jobs.push(...emit("refresh", page));
   const results = await Promise.allSettled(jobs);
   for (const r of results) if (r.status === "rejected") console.warn("refresh failed:", r.reason);
+}
+
+// The settings and then everything else, read again: after stale data and after the event stream
+// reconnected (what happened while it was down came as events that are gone; a restarted service
+// may run an edited config).
+async function resync() {
+  await readConfig();
+  await refreshAll();
 }
 
 // -- pages ----------------------------------------------------------------------------------------
@@ -77,12 +86,12 @@ function onEvent(kind, data) {
   const wasStale = model.stale && model.lastMessageAt !== 0;
   model.lastMessageAt = Date.now();
   renderLive();
-  if (wasStale && kind !== "status") schedule("all", refreshAll, 0);
+  if (wasStale && kind !== "status") schedule("all", resync, 0);
   switch (kind) {
     case "status":
       model.status = data;
       takePlcLink(data);
-      if (wasStale) schedule("all", refreshAll, 0);
+      if (wasStale) schedule("all", resync, 0);
       else if ((data.current_cycle ?? null) !== (model.currentCycle ? model.currentCycle.id : null)) schedule("status", refreshStatus);
       renderStatus();
       break;
@@ -166,7 +175,7 @@ async function init() {
   renderTokenState();
   await readConfig();
   route();
-  model.source = openEvents(onEvent, renderLive);
+  model.source = openEvents(onEvent, renderLive, () => schedule("all", resync, 0));
   // With [api] open_reads = false the reads before the token were refused: read everything again with it.
   on("token", (set) => set && readConfig().then(() => schedule("all", refreshAll, 0)));
   await refreshAll();

@@ -69,6 +69,11 @@ function stepTimes(times) {
   return rows.length ? rows.map(([k, v]) => `${k} ${v.toFixed(1)} s`).join(", ") : "-";
 }
 
+// The alarm code a failed cycle's result names (0 when it ended well), or "-".
+function errorCode(res) {
+  return isNum(res.error_code) && res.error_code !== 0 ? String(res.error_code) : "-";
+}
+
 function renderDetail(rec) {
   const res = rec.result || {};
   const parts = [
@@ -89,6 +94,7 @@ function renderDetail(rec) {
         ["Time per step", stepTimes(res.step_time_s)],
         ["Correction", `${triple(res.correction_mm, 3)} mm, ${triple(res.correction_deg, 4)} deg`],
         ["Interrupted in", rec.interrupted_step || "-"],
+        ["Error code", errorCode(res)], // the alarm code that says why it failed (e.g. the first-out 1101)
       ].map(([k, v]) => el("div", { class: "pair" }, el("dt", { text: k }), el("dd", { text: v }))),
     ),
   ];
