@@ -8,16 +8,15 @@ from __future__ import annotations
 
 import os
 import pwd
-import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from service_test_support import sim_toml
 from shared_support import free_port
 
-ROOT = Path(__file__).resolve().parents[2]
 NOCAPS = ["setpriv", "--bounding-set=-all", "--inh-caps=-all"]
 pytestmark = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("setpriv") is None, reason="needs root and setpriv")
 
@@ -29,12 +28,8 @@ def _cell(tmp_path: Path, mode: int) -> tuple[Path, Path]:
     nobody = pwd.getpwnam("nobody")
     os.chown(folder, nobody.pw_uid, nobody.pw_gid)
     os.chmod(folder, mode)
-    text = (ROOT / "config" / "sim.toml").read_text(encoding="utf-8")
-    for old in (r"\nport = 8080\n", r"\nport = 5020\n", r"\nport = 4840 "):
-        text, n = re.subn(old, lambda m: m.group(0).replace(re.findall(r"\d+", m.group(0))[0], str(free_port())), text, count=1)
-        assert n == 1, old
     cfg = tmp_path / "cell.toml"
-    cfg.write_text(text, encoding="utf-8")
+    cfg.write_text(sim_toml(free_port(), oracle=False), encoding="utf-8")  # the sim's set-sourced calibration
     return cfg, folder
 
 

@@ -17,7 +17,7 @@ import httpx
 import numpy as np
 from plc_test_support import PlcClient
 from pymodbus.client import AsyncModbusTcpClient
-from service_test_support import AUTH, ROOT, api_client, running_service, to_execute
+from service_test_support import AUTH, ROOT, _command, api_client, running_service, to_execute
 
 from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
 from cellctl.config import CellConfig, parse_config
@@ -149,12 +149,7 @@ async def test_a_job_of_an_untaught_recipe_names_the_command_that_teaches_it(tmp
     store = CalibrationStore(tmp_path / "calibration")
     commit(store, cals["side-window"], "side-window", ("camera", "hand_eye", "laser", "teaching", "pixel_map"), None)
     async with running_service(tmp_path / "cell", recipes_config(store.root)) as service, api_client(service) as client:
-        for command in ("clear", "reset"):  # Idle: jobs may run
-            assert (await client.post(f"/commands/{command}", headers=AUTH)).status_code == 200
-            for _ in range(500):
-                if (await client.get("/status")).json()["state"] in ("STOPPED", "IDLE"):
-                    break
-                await asyncio.sleep(0.01)
+        assert [await _command(client, c) for c in ("clear", "reset")] == ["STOPPED", "IDLE"]  # Idle: jobs may run
         r = await client.post("/jobs", json={"procedure": "pixel_map", "options": {"recipe": "door-window"}}, headers=AUTH)
         assert r.status_code == 409, r.text
         assert r.json()["detail"] == ("pixel_map (recipe door-window) needs teaching calibrated first: "
