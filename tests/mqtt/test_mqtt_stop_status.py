@@ -3,6 +3,7 @@ through the will when the offline status cannot go out."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -38,8 +39,12 @@ async def _publishing(tmp_path: Path, backlog: int) -> AsyncIterator[tuple[Async
 
 
 async def test_a_stop_that_cuts_the_backlog_short_still_leaves_status_offline(tmp_path: Path) -> None:
-    async with _publishing(tmp_path, 3000) as (store, broker, t, pub):  # a backlog longer than the grace below
-        await pub.stop(grace_s=0.2)
+    async with _publishing(tmp_path, 3000) as (store, broker, t, pub):
+        with frozen(broker):  # no PUBACK until the grace is over: the backlog is cut short however fast the machine
+            stopping = asyncio.create_task(pub.stop(grace_s=0.2))
+            while not pub._cut.is_set():  # the grace is over; the broker answers again for the offline status
+                await asyncio.sleep(0.01)
+        await stopping
         left = (await store.outbox_counts()).pending
         status = await retained_json(broker, t.status)
     assert left > 0, "the backlog went out within the grace; make it longer"
