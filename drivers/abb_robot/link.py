@@ -2,7 +2,9 @@
 
 :class:`RapidLink` keeps one TCP connection at a time. One reader task routes reply lines to
 their requests by id, so queries, PING and STOP go on while a motion runs. Every request has a
-deadline that covers everything it does, reconnecting included. The heartbeat
+deadline that covers everything it does, reconnecting included; as the heartbeat stands back while
+an answer is awaited, a verb answered at once waits ``request_timeout_s`` at most for it, however
+long the call (GRIP, STREAM, PING and a motion's DONE keep the call's deadline). The heartbeat
 (:mod:`abb_robot.heartbeat`) starts with the first connection, whoever makes it: it pings when the
 link has been quiet for a period, drops the link when no PONG comes back, and reconnects in the
 background with growing delays. After every (re)connection the link says HELLO, checks the
@@ -220,7 +222,7 @@ class RapidLink:
         self._opening = conn
         setting_up = _SETTING_UP.set(conn)
         try:
-            hello = await self.request("HELLO", P.PROTOCOL_VERSION, deadline=deadline, reconnect=False)
+            hello = await self.request("HELLO", P.PROTOCOL_VERSION, deadline=deadline, reconnect=False, quick=True)
             fields = hello[-1].fields
             if len(fields) < 3 or fields[0] != str(P.PROTOCOL_VERSION):
                 raise DeviceProtocolError(self.name, f"unexpected HELLO answer: {' '.join(fields)!r}")
@@ -409,32 +411,53 @@ class RapidLink:
             raise DeviceDisconnected(self.name, f"{verb}: connection lost while sending: {exc}") from None
         return conn, rid, pending
 
-    async def _await_answer(self, conn: _Connection, rid: int, pending: _Pending, deadline: float) -> list[P.Reply]:
-        """The request's reply lines by the deadline; ERR raises its typed error."""
-        remaining = deadline - time.monotonic()
+    async def _await_answer(
+        self, conn: _Connection, rid: int, pending: _Pending, deadline: float, quick: bool
+    ) -> list[P.Reply]:
+        """The request's reply lines by the deadline, or within ``request_timeout_s`` for a ``quick`` one (a verb the
+        controller answers at once: while it waits the heartbeat stands back); ERR raises its typed error."""
+        cap = time.monotonic() + self.settings.request_timeout_s if quick else math.inf
+        remaining = min(deadline, cap) - time.monotonic()
         try:
-            lines = await asyncio.wait_for(asyncio.shield(pending.answer), max(remaining, 0.0))
+            await asyncio.wait_for(asyncio.shield(pending.answer), max(remaining, 0.0))
         except asyncio.TimeoutError:
-            conn.pending.pop(rid, None)
-            if pending.final is not None:
-                pending.final.cancel()
-            raise DeviceTimeout(self.name, f"{pending.verb}: no answer from the controller in time") from None
+            await asyncio.sleep(0)  # the reader's turn first: after a stalled event loop an answer may be read only now
+            if not pending.answer.done():
+                raise self._unanswered(conn, rid, pending, capped=cap < deadline) from None
+        lines = pending.answer.result()
         last = lines[-1]
         if last.status is P.Status.ERR:
             raise self.error(pending.verb, last)
         return lines
 
-    async def request(self, verb: str, *args: object, deadline: float, reconnect: bool = True) -> list[P.Reply]:
-        """Send one request and return its reply lines (the last one final); ERR raises."""
+    def _unanswered(self, conn: _Connection, rid: int, pending: _Pending, capped: bool) -> DeviceTimeout:
+        """Forget a request whose answer did not come; the error names request_timeout_s when that ran out."""
+        conn.pending.pop(rid, None)
+        if pending.final is not None:
+            pending.final.cancel()
+        verb, limit = pending.verb, self.settings.request_timeout_s
+        if capped:
+            return DeviceTimeout(
+                self.name, f"{verb}: controller silent: no answer within {limit:g} s (request_timeout_s; {verb} is "
+                "answered at once): check that the controller's CellctlServer task runs and the network to it",
+            )
+        return DeviceTimeout(self.name, f"{verb}: no answer from the controller in time")
+
+    async def request(
+        self, verb: str, *args: object, deadline: float, reconnect: bool = True, quick: bool = False
+    ) -> list[P.Reply]:
+        """Send one request and return its reply lines (the last one final); ERR raises. ``quick``: a verb the
+        controller answers at once (all but GRIP, STREAM, PING): its answer is awaited ``request_timeout_s`` at most."""
         conn, rid, pending = await self._send(verb, args, deadline, reconnect, motion=False)
-        return await self._await_answer(conn, rid, pending, deadline)
+        return await self._await_answer(conn, rid, pending, deadline, quick)
 
     async def start_motion(self, verb: str, *args: object, deadline: float) -> asyncio.Future[P.Reply]:
-        """Send a motion request, wait for its ACK; returns the future of its DONE/ERR."""
+        """Send a motion request, wait for its ACK (sent at once: ``request_timeout_s`` at most); returns the future
+        of its DONE/ERR, which the caller awaits under its own deadline."""
         conn, rid, pending = await self._send(verb, args, deadline, reconnect=False, motion=True)
         assert pending.final is not None
         try:
-            await self._await_answer(conn, rid, pending, deadline)
+            await self._await_answer(conn, rid, pending, deadline, quick=True)
         except DeviceTimeout:
             await self.stop_quietly()
             raise

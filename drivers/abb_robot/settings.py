@@ -20,7 +20,8 @@ class AbbRobotSettings:
             None disables fine correction and the position stream.
         egm_bind_host: local address the EGM port is bound on.
         connect_timeout_s: longest wait for the TCP connection itself.
-        request_timeout_s: deadline of the handshake and of the settings sent after connecting.
+        request_timeout_s: how long a request the controller answers at once (handshake, settings, POS, GETC,
+            a motion's ACK, ...) may wait for its answer; a motion's DONE has the move's own deadline.
         heartbeat_period_s: PING after this much quiet on the link.
         heartbeat_timeout_s: drop the link when a PING is not answered within this.
         reconnect_delay_s, reconnect_max_delay_s: background reconnection back-off.

@@ -57,7 +57,7 @@ class RobotVerbs:
         ):
             while True:
                 try:
-                    await self.link.request(verb, *args, deadline=deadline, reconnect=False)
+                    await self.link.request(verb, *args, deadline=deadline, reconnect=False, quick=True)
                     break
                 except DeviceRejected as exc:
                     # The controller may still be stopping a motion whose client went away.
@@ -70,39 +70,44 @@ class RobotVerbs:
 
     async def set_tool(self, name: str, *, timeout_s: float) -> None:
         """Select a tooldata by name (kept across reconnections)."""
-        await self.link.request("TOOL", name, deadline=deadline_in(timeout_s))
+        await self.link.request("TOOL", name, deadline=deadline_in(timeout_s), quick=True)
         self._tool = name
 
     async def set_wobj(self, name: str, *, timeout_s: float) -> None:
         """Select a wobjdata by name (kept across reconnections)."""
-        await self.link.request("WOBJ", name, deadline=deadline_in(timeout_s))
+        await self.link.request("WOBJ", name, deadline=deadline_in(timeout_s), quick=True)
         self._wobj = name
 
     async def set_speed(self, speed_mm_s: float, speed_deg_s: float, *, timeout_s: float) -> None:
         """TCP and reorientation speed of later moves (kept across reconnections)."""
-        await self.link.request("SPEED", speed_mm_s, speed_deg_s, deadline=deadline_in(timeout_s))
+        await self.link.request("SPEED", speed_mm_s, speed_deg_s, deadline=deadline_in(timeout_s), quick=True)
         self._speed = (speed_mm_s, speed_deg_s)
 
     async def set_zone(self, zone_mm: float, *, timeout_s: float) -> None:
         """Zone of later moves; 0 is a fine point. DONE of a non-fine move comes when RAPID moves on."""
-        await self.link.request("ZONE", zone_mm, deadline=deadline_in(timeout_s))
+        await self.link.request("ZONE", zone_mm, deadline=deadline_in(timeout_s), quick=True)
         self._zone = zone_mm
 
     # ------------------------------------------------------------------------------------------
     # motions and queries
 
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
-        """Move to the target (fine point) and return the pose read back after it."""
+        """Move to the target (fine point) and return the pose read back after it.
+
+        ``timeout_s`` bounds the whole move; SPEED, POS, ORI, the motion's ACK and the GETC read-back are each
+        answered at once, so each waits ``request_timeout_s`` at most (the heartbeat stands back meanwhile): a
+        controller gone silent then fails the move within seconds, naming the request. Only DONE may take long.
+        """
         deadline = deadline_in(timeout_s)
         await self.link.ensure_connected(deadline)
         target = request.target
         q = unit_quaternion.normalise(target.quaternion_wxyz)
         speed = (request.speed_mm_s, request.speed_deg_s)
         if speed != self._speed:
-            await self.link.request("SPEED", *speed, deadline=deadline, reconnect=False)
+            await self.link.request("SPEED", *speed, deadline=deadline, reconnect=False, quick=True)
             self._speed = speed
-        await self.link.request("POS", *target.position_mm, deadline=deadline, reconnect=False)
-        await self.link.request("ORI", *q, deadline=deadline, reconnect=False)
+        await self.link.request("POS", *target.position_mm, deadline=deadline, reconnect=False, quick=True)
+        await self.link.request("ORI", *q, deadline=deadline, reconnect=False, quick=True)
         verb = "MOVEL" if request.kind == "linear" else "MOVEJ"
         final = await self.link.start_motion(verb, deadline=deadline)
         await self.link.finish_motion(verb, final, deadline, f"{verb} to {_fmt_pose(target)}")
@@ -113,8 +118,9 @@ class RobotVerbs:
         return await self.read_pose_by(deadline_in(timeout_s))
 
     async def read_pose_by(self, deadline: float, *, reconnect: bool = True) -> CartesianPose:
-        """:meth:`read_pose` within an absolute deadline (GETC: DATA POS, then OK ORI)."""
-        lines = await self.link.request("GETC", deadline=deadline, reconnect=reconnect)
+        """:meth:`read_pose` within an absolute deadline (GETC: DATA POS, then OK ORI; answered at once, so its
+        answer is awaited ``request_timeout_s`` at most however far the deadline)."""
+        lines = await self.link.request("GETC", deadline=deadline, reconnect=reconnect, quick=True)
         try:
             if len(lines) != 2 or lines[0].status is not P.Status.DATA:
                 raise P.ProtocolError(f"GETC answered {len(lines)} line(s), expected DATA POS then OK ORI")
@@ -130,7 +136,7 @@ class RobotVerbs:
 
     async def _read_joints(self, deadline: float) -> tuple[float, ...]:
         """GETJ within an absolute deadline, in radians."""
-        lines = await self.link.request("GETJ", deadline=deadline)
+        lines = await self.link.request("GETJ", deadline=deadline, quick=True)
         try:
             return tuple(math.radians(v) for v in P.parse_numbers(lines[-1].fields, 6, "GETJ"))
         except P.ProtocolError as exc:
@@ -139,7 +145,7 @@ class RobotVerbs:
     async def state(self, *, timeout_s: float) -> RobotState:
         """Motors, motion and joints (STATE, then GETJ)."""
         deadline = deadline_in(timeout_s)
-        lines = await self.link.request("STATE", deadline=deadline)
+        lines = await self.link.request("STATE", deadline=deadline, quick=True)
         fields = lines[-1].fields
         if len(fields) != 2 or fields[0] not in ("1", "0", "-1") or fields[1] not in ("1", "0"):
             raise DeviceProtocolError(self.name, f"bad STATE answer: {' '.join(fields)!r}")
@@ -150,7 +156,7 @@ class RobotVerbs:
 
     async def stop(self, *, timeout_s: float) -> None:
         """Stop whatever motion runs (harmless when none does)."""
-        await self.link.request("STOP", deadline=deadline_in(timeout_s))
+        await self.link.request("STOP", deadline=deadline_in(timeout_s), quick=True)
 
     async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
         """GRIP 1 (vacuum on, hold the glass) or GRIP 0 (off, release it); returns once the

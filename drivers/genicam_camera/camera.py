@@ -34,6 +34,8 @@ _log = logging.getLogger(__name__)
 TriggerMode = Literal["software", "free_run"]
 _T = TypeVar("_T")
 _DRAIN_POLL_S = 0.001  # harvesters treats a fetch timeout of 0 as "wait forever"
+ENUMERATION_S = 3.0
+"""Longest wait (s) for the GenTL producer to enumerate its cameras, once or twice at an open."""
 
 
 class _NoFrame(Exception):
@@ -68,6 +70,8 @@ class GenicamCamera:
         timeout_s: bound on opening the camera and writing its settings.
         frame_lost_after_s: how long after its software trigger (beyond the exposure) a frame may
             still land; an earlier trigger whose frame has not landed by then is taken as lost.
+        expected_size_px: (width, height) the cell's lens is calibrated for; a camera whose Width/Height
+            differ is refused when opened (None: not checked).
         name: the device's name in errors.
     """
 
@@ -83,6 +87,7 @@ class GenicamCamera:
         trigger_mode: TriggerMode = "software",
         timeout_s: float = 5.0,
         frame_lost_after_s: float = 1.0,
+        expected_size_px: tuple[int, int] | None = None,
         name: str = "camera",
     ) -> None:
         if not cti_path:
@@ -109,6 +114,7 @@ class GenicamCamera:
         self.trigger_mode: TriggerMode = trigger_mode
         self.timeout_s = float(timeout_s)
         self.frame_lost_after_s = float(frame_lost_after_s)
+        self.expected_size_px = None if expected_size_px is None else (int(expected_size_px[0]), int(expected_size_px[1]))
         self.name = name
         self.info: CameraInfo | None = None
         self._executor = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="genicam")
@@ -121,11 +127,13 @@ class GenicamCamera:
         self._closed = False
 
     @classmethod
-    def from_config(cls, config: Mapping[str, Any], *, name: str = "camera") -> "GenicamCamera":
+    def from_config(
+        cls, config: Mapping[str, Any], *, expected_size_px: tuple[int, int] | None = None, name: str = "camera"
+    ) -> "GenicamCamera":
         """Build from a ``[devices.camera]`` mapping (``kind = "genicam"``, e.g. ``model_dump()``)."""
         cfg = dict(config)
         cfg.pop("kind", None)
-        return cls(**cfg, name=name)
+        return cls(**cfg, expected_size_px=expected_size_px, name=name)
 
     def identity(self) -> dict[str, str]:
         """What this camera is (:class:`cellctl.ports.Identified`): vendor, model, serial number and
@@ -215,7 +223,7 @@ class GenicamCamera:
             return
         self._release_blocking()  # a producer left loaded by a failure keeps the camera from a new Harvester
         try:
-            from harvesters.core import Harvester
+            from harvesters.core import Harvester, ParameterKey, ParameterSet
         except ImportError as exc:
             raise DeviceDisconnected(
                 self.name, f"harvesters is not installed ({exc}); install the camera extra: pip install 'cellctl[camera]'"
@@ -224,10 +232,15 @@ class GenicamCamera:
             raise DeviceDisconnected(
                 self.name, f"GenTL producer {self.cti_path} not found; set devices.camera.cti_path to the vendor's .cti file"
             )
-        harvester = Harvester()
+        # The producer may take a while to find its cameras (GigE discovery, a loaded host): it is given up to
+        # ENUMERATION_S per enumeration, and a second one when the first found no camera of ours.
+        enumeration_ms = int(1000 * min(self.timeout_s, ENUMERATION_S))
+        harvester = Harvester(config=ParameterSet({ParameterKey.TIMEOUT_PERIOD_ON_MODULE_ENUMERATION: enumeration_ms}))
         try:
             harvester.add_file(self.cti_path)
             harvester.update()
+            if not any(self._is_ours(d) for d in harvester.device_info_list):
+                harvester.update()
             device = self._select_device(harvester.device_info_list)
             acquirer = harvester.create(device)
             try:
@@ -245,16 +258,16 @@ class GenicamCamera:
             serial_number=str(device.serial_number), user_id=str(device.user_defined_name),
         )
 
+    def _is_ours(self, d: Any) -> bool:
+        """The device matches devices.camera's serial_number and user_id (those set)."""
+        return (self.serial_number is None or str(d.serial_number) == self.serial_number) and (
+            self.user_id is None or str(d.user_defined_name) == self.user_id)
+
     def _select_device(self, devices: list[Any]) -> Any:
         def describe(d: Any) -> str:
             return f"{d.model} (serial_number={d.serial_number!r}, user_id={d.user_defined_name!r})"
 
-        matches = [
-            d
-            for d in devices
-            if (self.serial_number is None or str(d.serial_number) == self.serial_number)
-            and (self.user_id is None or str(d.user_defined_name) == self.user_id)
-        ]
+        matches = [d for d in devices if self._is_ours(d)]
         found = "; ".join(describe(d) for d in devices) or "none"
         if not matches:
             wanted = ", ".join(
@@ -298,9 +311,23 @@ class GenicamCamera:
                 source.value = "Software"
         elif trigger is not None:
             trigger.value = "Off"
+        self._check_size(nm, refuse)
         self._exposure_in_effect = self._set_float(nm, ("ExposureTime", "ExposureTimeAbs"), "ExposureAuto",
                                                    self.exposure_us, "exposure_us", refuse)
         self._gain_in_effect = self._set_float(nm, ("Gain",), "GainAuto", self.gain_db, "gain_db", refuse)
+
+    def _check_size(self, nm: Any, refuse: Callable[[str], DeviceRejected]) -> None:
+        """Width and Height as the lens was calibrated for: a swapped camera, or one back with another ROI or binning."""
+        if self.expected_size_px is None:
+            return
+        width, height = _node(nm, "Width"), _node(nm, "Height")
+        if width is None or height is None:
+            return  # a camera without the nodes: the cycle checks each frame's size instead
+        got = (int(width.value), int(height.value))
+        if got != self.expected_size_px:
+            raise refuse(f"Width x Height is {got[0]} x {got[1]} px, not the {self.expected_size_px[0]} x "
+                         f"{self.expected_size_px[1]} px of layout.camera (the lens's calibration): set the camera's "
+                         "ROI, binning and decimation back, or pick this cell's camera (devices.camera.serial_number)")
 
     @staticmethod
     def _set_float(

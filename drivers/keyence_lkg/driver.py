@@ -11,8 +11,10 @@ call has an overall deadline. What makes it safe on a real serial line:
   current command only if no older command that could produce the same reply is still
   outstanding. Before sending a command while such an older one is outstanding (after a lost or
   garbled reply) the driver sends a *barrier* (a harmless read with a different main command)
-  and waits for its reply, which settles everything before it: a late reply with the right echo
-  but a stale value is never taken as the current reading.
+  and waits for a reply that settles every such older command: its own, or that of an older
+  barrier still outstanding (lost in the same silence), since a reply settles everything sent
+  before the command it answers. A late reply with the right echo but a stale value is never
+  taken as the current reading.
 - **Garbage.** A line that is not a valid reply is dropped, the input flushed and the command
   retried (behind a barrier). Three garbled replies in a row end the call with DeviceProtocolError
   naming the last problem (a wrong baud rate or display unit shows up here).
@@ -367,7 +369,11 @@ class KeyenceLkgSensor(LkgStorage):
                 _log.warning("%s: link lost: %s", self.name, exc)
                 self._line.close()
 
-    async def _send_and_await(self, command: Command, deadline: float, *, decode: bool) -> _Answer:
+    async def _send_and_await(
+        self, command: Command, deadline: float, *, decode: bool, settling: str | None = None
+    ) -> _Answer:
+        """Send ``command`` and wait for its reply; with ``settling`` (a barrier), return as soon as a
+        reply leaves no command of that main outstanding (the barrier's value is never used)."""
         self._line.flush_input()
         pending = _Pending(command)
         self._outstanding.append(pending)
@@ -390,6 +396,8 @@ class KeyenceLkgSensor(LkgStorage):
                 continue
             if owner is not pending:
                 self.stats.late_replies += 1
+                if settling is not None and not any(p.command.main == settling for p in self._outstanding):
+                    return _Answer(None, (), (), arrived)  # an older barrier answered: all before it settled
                 continue
             if isinstance(reply, ErrorReply):
                 return _Answer(reply, (), (), arrived)
@@ -408,12 +416,13 @@ class KeyenceLkgSensor(LkgStorage):
         return None
 
     async def _resync(self, command: Command, deadline: float) -> None:
-        """Send a barrier (a read with another main command) and wait for its reply."""
+        """Send a barrier (a read with another main command) and wait until a reply settles every
+        outstanding command of ``command``'s main (the barrier's, or an older barrier's reply)."""
         self.stats.resyncs += 1
         busy = {p.command.main for p in self._outstanding}
         candidates = [b for b in self._barriers if b.main != command.main]
         barrier = next((b for b in candidates if b.main not in busy), candidates[0])
-        await self._send_and_await(barrier, deadline, decode=False)
+        await self._send_and_await(barrier, deadline, decode=False, settling=command.main)
 
     async def _ensure_open(self, call: _Call) -> None:
         if self._closed:

@@ -36,7 +36,9 @@ from cellctl.cli_args import (
 from cellctl.client import CellClient, ServiceError, service_url
 from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
+from cellctl.config.loader import check_tokens
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
+from cellctl.service.compose import ServiceConfigError
 from cellctl.service.compose import ServiceError as BuildError
 from cellctl.store.records import StoreError
 
@@ -73,13 +75,17 @@ class UsageError(ValueError):
 def _cmd_serve(args: argparse.Namespace) -> int:
     from cellctl.service import build_service  # the composition root: imports the drivers
 
-    config = load_config(args.config, read_tokens=True)  # a token it cannot read refuses the start, before anything runs
+    config = load_config(args.config)
+    workdir = Path(args.workdir)  # relative token, password and TLS files from it, as every other path
+    api, opcua = config.api.rooted(workdir), config.opcua.rooted(workdir)
     if args.host is not None or args.port is not None:
-        api = config.api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
-        config = config.model_copy(update={"api": api})
+        api = api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
+    if api is not config.api or opcua is not config.opcua:
+        config = config.model_copy(update={"api": api, "opcua": opcua})
+    check_tokens(config, str(args.config))  # a token it cannot read refuses the start, before anything runs
 
     async def run() -> int | None:
-        service = await build_service(config, workdir=Path(args.workdir))
+        service = await build_service(config, workdir=workdir)
         return await service.serve(demo_cycles=args.demo_cycles)  # prints where it serves once it does
 
     received = asyncio.run(run())
@@ -412,6 +418,9 @@ def main(argv: list[str] | None = None) -> int:
         return rc
     except (ConfigError, TokenUnavailable) as err:
         refuse(f"configuration refused:\n{err}")
+        return 2
+    except ServiceConfigError as err:  # a file the configuration names, found unusable at start: a restart cannot help
+        refuse(f"error: {err}")
         return 2
     except (ServiceError, BuildError, StoreError) as err:  # StoreError: a database file serve cannot use, named
         refuse(f"error: {err}")

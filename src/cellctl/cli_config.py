@@ -31,7 +31,8 @@ def summary(config: CellConfig) -> list[str]:
     d = config.devices
     return [
         f"mode {config.mode}, cell_id {config.cell_id}",
-        f"REST API and dashboard  http://{api.host}:{api.port}/  ({len(api.tokens)} API token(s))",
+        f"REST API and dashboard  {'https' if api.tls_cert is not None else 'http'}://{api.host}:{api.port}/  "
+        f"({len(api.tokens)} API token(s))",
         "API token roles         " + "\n                          ".join(api.role_notes()),
         "PLC Modbus TCP          " + (f"{plc.host}:{plc.port}, unit {plc.unit_id}; {plc.clients_note()}" if plc.enabled else "off"),
         "OPC UA                  " + (f"opc.tcp://{ua.host}:{ua.port}{ua.path}" if ua.enabled else "off"),
@@ -79,7 +80,7 @@ def wall_reading_in_use(config: CellConfig) -> str:
 def _check_files(config: CellConfig, workdir: Path) -> None:
     """The files and folders the service reads or makes at start beside its secrets, as ``serve`` does (the same
     functions, nothing created), paths taken from ``workdir``, then its listen ports; ConfigError naming each problem."""
-    problems = _store_problems(config, workdir) + _mqtt_problems(config, workdir)
+    problems = _store_problems(config, workdir) + _mqtt_problems(config, workdir) + config.api.tls_problems(workdir)
     if (problem := calibration_folder_problem(config.calibration.directory, workdir)) is not None:
         problems.append(problem)
     if config.opcua.enabled:
@@ -165,15 +166,27 @@ def port_problem(setting: str, host: str, port: int) -> str | None:
     return None
 
 
-SECRETS_READ = ("every API token, OPC UA password and certificate could be read, and the MQTT files; the store's and the"
-                " OPC UA certificate's folders can be made, and every listen port is free now")
+SECRETS_READ = ("every API token, OPC UA password and certificate could be read, and the MQTT and API TLS files; the "
+                "store's and the OPC UA certificate's folders can be made, and every listen port is free now")
+
+
+def _sim_problem(config: CellConfig, source: str) -> None:
+    """What the simulated cell's root refuses beyond the file's rules (``build_sim_service``), as a ConfigError."""
+    if config.mode != "sim":
+        return
+    from cellctl.service.simulated import fakes_out_of_time  # the twin's modules only for a simulated cell
+
+    if (why := fakes_out_of_time(config)) is not None:
+        raise ConfigError(f"{source}: 1 problem(s) in the configuration:\n  - {why}")
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
-        if args.secrets:
-            check_tokens(config, str(args.config))
+        _sim_problem(config, str(args.config))
+        if args.secrets:  # relative token and password files from --workdir, as serve takes them
+            rooted = {"api": config.api.rooted(args.workdir), "opcua": config.opcua.rooted(args.workdir)}
+            check_tokens(config.model_copy(update=rooted), str(args.config))
             _check_files(config, args.workdir)
     except (ConfigError, TokenUnavailable) as err:
         print(f"NOT OK: {args.config}\n{err}", file=sys.stderr)
@@ -188,6 +201,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print("  wall readings           " + "\n                          ".join(plan))
     print("  secrets                 " + (SECRETS_READ if args.secrets else
                                           "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip
+    if config.mode == "hardware" and (warning := config.api.plain_http_warning()) is not None:
+        print(f"warning: {warning}")  # serve logs it too; not refused: a TLS proxy or a closed cell network may cover it
     return 0
 
 
@@ -201,8 +216,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )  # fmt: skip
     p.add_argument("--secrets", action="store_true",
                    help="also read every API token and OPC UA password (environment variables, files), the OPC UA "
-                        "certificates and trusted clients' folder and the MQTT files, check the folders the service "
-                        "makes (store, OPC UA certificate) and that its ports are free now, as `serve` does at start")  # fmt: skip
+                        "certificates and trusted clients' folder, the MQTT files and the API's TLS certificate and key, "
+                        "check the folders the service makes (store, OPC UA certificate) and that its ports are free now, "
+                        "as `serve` does at start")  # fmt: skip
     p.add_argument("--workdir", type=Path, default=default_workdir(),
                    help="where `serve --workdir` will run: relative paths are taken from it (default: $CELLCTL_WORKDIR, "
                         "else the current folder)")  # fmt: skip

@@ -64,6 +64,7 @@ def test_config_check_says_where_this_cell_reads_the_wall(tmp_path: Path, capsys
     legs = np.diff(np.asarray(align.sweep.path_mm, dtype=float), axis=0)
     assert float(m[2]) > np.linalg.norm(legs, axis=1).sum() / travel  # no faster than the path at the travel speed
     on_the_move = SIM.read_text(encoding="utf-8").replace('\nmode = "stop_and_go"', '\nmode = "on_the_fly"', 1)
+    on_the_move = re.sub(r"(?m)^time_scale = .*$", "time_scale = 1.0", on_the_move, count=1)  # the fakes' real time
     (tmp_path / "otf.toml").write_text(on_the_move, encoding="utf-8")
     rc, out, _ = run_cli(capsys, "config", "check", "--config", str(tmp_path / "otf.toml"))
     assert rc == 0 and "this cell: on the move (process.align.mode)" in out, out

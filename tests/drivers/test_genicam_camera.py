@@ -126,3 +126,15 @@ async def test_close_twice_then_grab_is_refused(camera: GenicamCamera) -> None:
     await camera.close()
     with pytest.raises(DeviceDisconnected, match="closed"):
         await camera.grab(timeout_s=1.0)
+
+
+async def test_a_camera_of_another_size_than_calibrated_is_refused_when_opened() -> None:
+    """TLSimu's Width/Height (read by harvesters, the peer) are 512 x 512: a lens calibrated for 2048 x 2048 refuses it."""
+    wrong = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, expected_size_px=(2048, 2048))
+    with pytest.raises(DeviceRejected, match=r"Width x Height is 512 x 512 px, not the 2048 x 2048 px of layout.camera"):
+        await wrong.open()
+    await wrong.close()
+    right = GenicamCamera(cti_path=TLSIMU, serial_number=MONO, expected_size_px=(512, 512))
+    frame = await right.grab(timeout_s=5.0)
+    assert frame.image.shape == (512, 512)
+    await right.close()

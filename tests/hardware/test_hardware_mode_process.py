@@ -117,6 +117,10 @@ def _hardware_config(tmp: Path, ready: dict[str, Any], tlsimu: str, api_port: in
     sim = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
     assert data["mode"] == "hardware"
     data["layout"] = sim["layout"]  # the cell as drawn: the plans then match the twin's cell
+    # ... but for its camera, TLSimu (512 x 512 px, read off its Width/Height by the driver, which refuses
+    # another size than the lens's): the data sheet's lens binned 4 x 4.
+    data["layout"]["camera"].update(width_px=512, height_px=512, fx=5250.0 / 4, fy=5250.0 / 4, cx=256.0, cy=256.0)
+    data.setdefault("vision", {})["roi"] = {"x_px": 0, "y_px": 0, "width_px": 512, "height_px": 512}
     dev = data["devices"]
     dev["laser"].update(
         kind="keyence_lkg", port=ready["lkg_port"], dialect=ready["dialect"], display_unit=ready["display_unit"],

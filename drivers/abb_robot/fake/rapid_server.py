@@ -67,13 +67,22 @@ class _Session:
 class RapidLineServer:
     """Serves the cellctl line protocol for one :class:`FakeRobot` (and its EGM side)."""
 
-    def __init__(self, robot: FakeRobot, egm: EgmRobotSide | None, config: FakeControllerConfig) -> None:
+    KEEP_LINES = 10_000
+    """How many received lines :attr:`lines_received` keeps by default (a served cell sends ~150 a cycle)."""
+
+    def __init__(
+        self, robot: FakeRobot, egm: EgmRobotSide | None, config: FakeControllerConfig, *, keep_lines: int = KEEP_LINES
+    ) -> None:
+        if keep_lines < 1:
+            raise ValueError(f"keep_lines must be at least 1, got {keep_lines}")
         self.robot = robot
         self.egm = egm
         self.config = config
         """The controller's configuration: ``identity``, ``idle_timeout_s`` and ``gripper_settle_s`` are read here."""
         self.silent = False
+        self.keep_lines = keep_lines
         self.lines_received: list[str] = []
+        """The most recent lines received, oldest first, at most ``keep_lines`` (for tests and diagnostics)."""
         self._server: asyncio.base_events.Server | None = None
         self._one_client = asyncio.Lock()
         self._current: _Session | None = None
@@ -172,7 +181,10 @@ class RapidLineServer:
         except UnicodeDecodeError:
             await self._send(s, P.format_error(0, P.ErrorCode.SYNTAX, "line is not ASCII"))
             return False
-        self.lines_received.append(text)
+        lines = self.lines_received
+        lines.append(text)
+        if len(lines) > self.keep_lines:  # the oldest go: a served cell's fake runs for months
+            del lines[: len(lines) - self.keep_lines]
         try:
             req = P.parse_request(text)
         except P.ProtocolError as exc:

@@ -76,61 +76,147 @@ class AlarmSpec:
 
 ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
     {
-        AlarmCode.LASER_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Laser sensor link lost", True),
-        AlarmCode.CAMERA_LOST: AlarmSpec(FaultClass.SENSOR_LOST, "Camera link lost", True),
-        AlarmCode.ROBOT_LOST: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot controller link lost", True),
+        # Each text: the symptom, then what the operator does (the PackML commands last; the detail follows it).
+        AlarmCode.LASER_LOST: AlarmSpec(
+            FaultClass.SENSOR_LOST,
+            "Laser sensor link lost: check its power, cable and USB serial adapter (devices.laser.port); once it is "
+            "back, Unhold",
+            True,
+        ),
+        AlarmCode.CAMERA_LOST: AlarmSpec(
+            FaultClass.SENSOR_LOST, "Camera link lost: check its power, cable and network; once it is back, Unhold", True
+        ),
+        AlarmCode.ROBOT_LOST: AlarmSpec(
+            FaultClass.ROBOT_FAULT,
+            "Robot controller link lost: check the controller, its CellctlServer RAPID task and the network, where the "
+            "robot stands and the glass; once it is back, Clear, Reset, Start",
+            True,
+        ),
         # What a cycle saw fail (an event: acknowledge it); the link itself is the watchdog's 1101/1102.
-        AlarmCode.LASER_READ_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A laser reading failed during the cycle", False),
-        AlarmCode.CAMERA_GRAB_FAILED: AlarmSpec(FaultClass.SENSOR_LOST, "A camera grab failed during the cycle", False),
-        AlarmCode.PLC_HEARTBEAT_LOST: AlarmSpec(FaultClass.PLC_HEARTBEAT_LOST, "Line PLC heartbeat lost", True),
-        AlarmCode.PLC_NOT_READY: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "Line PLC not ready", True),
-        AlarmCode.NO_CAR_IN_POSITION: AlarmSpec(FaultClass.EXTERNAL_CONDITION, "No car body in position", True),
-        AlarmCode.ALIGNMENT_FAILED: AlarmSpec(FaultClass.MEASUREMENT_NOK, "Laser alignment failed", False),
-        AlarmCode.CORNER_NOT_FOUND: AlarmSpec(FaultClass.MEASUREMENT_NOK, "Opening corner not found in the image", False),
+        AlarmCode.LASER_READ_FAILED: AlarmSpec(
+            FaultClass.SENSOR_LOST,
+            "A laser reading failed during the cycle: check the laser, its cable and the car body in front of it; "
+            "acknowledge, then Unhold",
+            False,
+        ),
+        AlarmCode.CAMERA_GRAB_FAILED: AlarmSpec(
+            FaultClass.SENSOR_LOST,
+            "A camera grab failed during the cycle: check the camera, its cable and the lighting; acknowledge, then Unhold",
+            False,
+        ),
+        AlarmCode.PLC_HEARTBEAT_LOST: AlarmSpec(
+            FaultClass.PLC_HEARTBEAT_LOST,
+            "Line PLC heartbeat lost: check the PLC and its network; once it is back, Unhold, or after an Abort "
+            "check the robot and the glass, then Clear, Reset, Start",
+            True,
+        ),
+        AlarmCode.PLC_NOT_READY: AlarmSpec(
+            FaultClass.EXTERNAL_CONDITION, "Line PLC not ready: check the line; once it is ready, Unsuspend", True
+        ),
+        AlarmCode.NO_CAR_IN_POSITION: AlarmSpec(
+            FaultClass.EXTERNAL_CONDITION,
+            "No car body in position: check the conveyor and the clamping; once it is in place, Unsuspend",
+            True,
+        ),
+        AlarmCode.ALIGNMENT_FAILED: AlarmSpec(
+            FaultClass.MEASUREMENT_NOK,
+            "Laser alignment failed: check the car body is in position and the laser sees the wall; acknowledge, "
+            "then Unhold",
+            False,
+        ),
+        AlarmCode.CORNER_NOT_FOUND: AlarmSpec(
+            FaultClass.MEASUREMENT_NOK,
+            "Opening corner not found in the image: check the car body's position, the lighting and the cycle's "
+            "image; acknowledge, then Unhold",
+            False,
+        ),
         AlarmCode.RESIDUAL_OVER_LIMIT: AlarmSpec(
-            FaultClass.MEASUREMENT_NOK, "Verification shot residual above the threshold", False
+            FaultClass.MEASUREMENT_NOK,
+            "Verification shot residual above the threshold: check the robot holds its pose and the camera is "
+            "steady; acknowledge, then Unhold",
+            False,
         ),
         AlarmCode.CORRECTION_LIMIT_EXCEEDED: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Correction larger than the configured limit", False
+            FaultClass.OPERATOR_INTERVENTION,
+            "Correction larger than the configured limit: check the car body's position and clamping; acknowledge, "
+            "then Unhold",
+            False,
         ),
         AlarmCode.CALIBRATION_INVALID: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Calibration set incomplete, invalid or out of date", False
+            FaultClass.OPERATOR_INTERVENTION,
+            "Calibration set incomplete, invalid or out of date: Stop, redo what `cellctl calibrate status` names; "
+            "acknowledge, Reset, Start",
+            False,
         ),
         AlarmCode.CYCLE_INTERRUPTED: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "A cycle was interrupted by a restart: inspect the part", False
+            FaultClass.OPERATOR_INTERVENTION,
+            "A cycle was interrupted by a restart: inspect the part and the glass, then acknowledge; Clear, Reset, Start",
+            False,
         ),
         AlarmCode.CALIBRATION_DRIFT: AlarmSpec(
-            FaultClass.OPERATOR_INTERVENTION, "Calibration check: camera or laser moved beyond the limit, recalibrate", False
+            FaultClass.OPERATOR_INTERVENTION,
+            "Calibration check: camera or laser moved beyond the limit, recalibrate what it names, then acknowledge",
+            False,
         ),
         AlarmCode.INSTALL_OUT_OF_TOLERANCE: AlarmSpec(
-            FaultClass.MEASUREMENT_NOK, "Installed glass measured outside the tolerance: inspect and rework the part", False
+            FaultClass.MEASUREMENT_NOK,
+            "Installed glass measured outside the tolerance: inspect and rework the part; acknowledge, then Unhold",
+            False,
         ),
         AlarmCode.INSPECTION_FAILED: AlarmSpec(
-            FaultClass.MEASUREMENT_NOK, "The installed glass could not be measured: inspect the part by hand", False
+            FaultClass.MEASUREMENT_NOK,
+            "The installed glass could not be measured: inspect the part by hand; acknowledge, then Unhold",
+            False,
         ),
         AlarmCode.SPC_DRIFT: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION,
-            "Install offset drifting beyond its limit: run `cellctl calibrate verify`, then recalibrate",
+            "Install offset drifting beyond its limit: Stop, run `cellctl calibrate verify`, then recalibrate; "
+            "acknowledge, Reset, Start",
             False,
         ),
         AlarmCode.CYCLE_STOPPED: AlarmSpec(
-            FaultClass.WARNING, "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised)", False
+            FaultClass.WARNING,
+            "Cycle stopped by a PackML command (the code a stopped cycle reports; never raised): inspect the part, "
+            "then Reset, Start",
+            False,
         ),
         AlarmCode.NOT_IN_EXECUTE: AlarmSpec(
-            FaultClass.WARNING, "Cycle refused: the cell is not in Execute, or is in Manual mode (the code of that refusal; never raised)", False
+            FaultClass.WARNING,
+            "Cycle refused: the cell is not in Execute, or is in Manual mode (the code of that refusal; never "
+            "raised): leave Manual mode, bring the cell to Execute",
+            False,
         ),
         AlarmCode.RECIPE_NOT_TAUGHT: AlarmSpec(
-            FaultClass.WARNING, "Cycle refused: its recipe is not taught, `cellctl teach --recipe NAME` (the code of that refusal; never raised)", False
+            FaultClass.WARNING,
+            "Cycle refused: its recipe is not taught (the code of that refusal; never raised): teach it with "
+            "`cellctl teach --recipe NAME`",
+            False,
         ),
         AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(
             FaultClass.WARNING, "Calibration check due: run `cellctl calibrate verify`", True
         ),
-        AlarmCode.ROBOT_FAULT: AlarmSpec(FaultClass.ROBOT_FAULT, "Robot refused or interrupted a motion", False),
-        AlarmCode.POSITION_FEEDBACK_LOST: AlarmSpec(
-            FaultClass.ROBOT_FAULT, "Robot position feedback (EGM) lost while reading the wall on the move: robot stopped", False
+        AlarmCode.ROBOT_FAULT: AlarmSpec(
+            FaultClass.ROBOT_FAULT,
+            "Robot refused or interrupted a motion: check the controller's messages, where the robot stands and the "
+            "glass; acknowledge, then Clear, Reset, Start",
+            False,
         ),
-        AlarmCode.TASK_FAILED: AlarmSpec(FaultClass.SOFTWARE_FAULT, "A cell task failed", False),
-        AlarmCode.DEVICE_SLOW: AlarmSpec(FaultClass.WARNING, "Device missed a watchdog ping", True),
+        AlarmCode.POSITION_FEEDBACK_LOST: AlarmSpec(
+            FaultClass.ROBOT_FAULT,
+            "Robot position feedback (EGM) lost while reading the wall on the move, robot stopped: check the EGM link "
+            "(UdpUc device, network, firewall), where the robot stands and the glass; acknowledge, then Clear, "
+            "Reset, Start",
+            False,
+        ),
+        AlarmCode.TASK_FAILED: AlarmSpec(
+            FaultClass.SOFTWARE_FAULT,
+            "A cell task failed: see the service log, check where the robot stands and the glass; acknowledge, then "
+            "Clear, Reset, Start",
+            False,
+        ),
+        AlarmCode.DEVICE_SLOW: AlarmSpec(
+            FaultClass.WARNING, "Device missed a watchdog ping: if it recurs, check its link and load", True
+        ),
         # The store's disk ([store.retention] disk_warn_free_gb / disk_stop_free_gb): a warning first, then
         # a Hold so production stops while records and images can still be written; cleared when space is back.
         AlarmCode.DISK_SPACE_LOW: AlarmSpec(
@@ -145,7 +231,8 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         # production held meanwhile, so no glass is installed without its record. Cleared once it is written.
         AlarmCode.RECORD_WRITE_FAILED: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION,
-            "A finished cycle's record could not be written to the store: production held until it is",
+            "A finished cycle's record could not be written to the store: production held until it is; check the "
+            "disk and the service log, Unhold once it is written",
             True,
         ),
     }

@@ -32,6 +32,7 @@ from cellctl.align import (
     readings_at_stops,
 )
 from cellctl.align.errors import WallFitScatter
+from cellctl.cell.camera_frame import grab_checked
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.fine_motion import verification_move
 from cellctl.cell.inspect_step import inspect_install
@@ -384,10 +385,7 @@ class CycleRun:
         """Grab, find the corner (or the arc) and turn it into T' (None when the detector refused)."""
         cal = self.cal
         await self.rec.step_started(CycleStep.SHOOT)
-        try:
-            frame = await self.dev.camera.grab(timeout_s=self.motion.grab_timeout_s)
-        except DeviceError as err:
-            raise CycleFailed(CycleStep.SHOOT, AlarmCode.CAMERA_GRAB_FAILED, f"no image: {err}") from err
+        frame = await grab_checked(self.dev.camera, cal.lens, CycleStep.SHOOT, timeout_s=self.motion.grab_timeout_s, what="no image")
         await self.rec.step_started(CycleStep.COMPENSATE)
         vision, arc = self.vision, self.feature.arc
         if first:  # the first shot aims the verification shots; they carry the precision

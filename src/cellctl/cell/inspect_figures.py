@@ -7,12 +7,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.camera_frame import grab_checked
 from cellctl.compensate import shooting_pose_in
-from cellctl.domain import AlarmCode, CycleStep
+from cellctl.domain import CycleStep
 from cellctl.geometry.pose import Pose
 from cellctl.inspection import FlushResult, MeasuredDeviation, measured_deviation
-from cellctl.ports import DeviceError
 from cellctl.vision.gap_figures import InPlaneGaps
 
 if TYPE_CHECKING:
@@ -22,10 +21,9 @@ if TYPE_CHECKING:
 async def inspection_image(run: CycleRun, T2: Pose) -> np.ndarray:
     """Go to the shooting pose of T2 and grab: the inspection's image."""
     await run.move(CycleStep.INSPECT, shooting_pose_in(run.cal.taught, T2), kind="joint")
-    try:
-        frame = await run.dev.camera.grab(timeout_s=run.motion.grab_timeout_s)
-    except DeviceError as err:
-        raise CycleFailed(CycleStep.INSPECT, AlarmCode.CAMERA_GRAB_FAILED, f"no inspection image: {err}") from err
+    frame = await grab_checked(
+        run.dev.camera, run.cal.lens, CycleStep.INSPECT, timeout_s=run.motion.grab_timeout_s, what="no inspection image"
+    )
     return frame.image
 
 

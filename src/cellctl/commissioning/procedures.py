@@ -120,17 +120,40 @@ async def car_body_in_place(ctx: JobContext, text: str, *, recipe: str | None = 
     await ctx.ask(PromptKind.CAR_BODY, text, details=details)
 
 
-async def place_board(ctx: JobContext, place: dict[str, Any], name: str) -> float:
-    """Ask for the board on the wall; returns the square size the engineer measured (mm)."""
+def board_recipe(config: CellConfig) -> str:
+    """The recipe whose car body the board views and the laser calibration stand at: the first, whose opening
+    ``[layout.opening]`` is (a job's configuration is that recipe's view)."""
+    return config.default_recipe
+
+
+def _opening(config: CellConfig, recipe: str) -> str:
+    """How a prompt names the opening of ``recipe`` (``config``: that recipe's view)."""
+    o = config.layout.opening
+    return f"recipe {recipe}'s {o.width_mm:g} x {o.height_mm:g} mm opening"
+
+
+def board_hint(err: CalibrationRefused, config: CellConfig) -> CalibrationRefused:
+    """A board_not_found refusal with the check of the car body the board is placed beside (others unchanged)."""
+    if err.reason != "board_not_found":
+        return err
+    recipe = board_recipe(config)
+    return CalibrationRefused(err.part, err.reason, f"{err.detail}; is the car body of recipe {recipe} standing in the "
+                              f"cell? The board goes beside {_opening(config, recipe)}: bring that car body in and run the "
+                              "job again")  # fmt: skip
+
+
+async def place_board(ctx: JobContext, place: dict[str, Any], name: str, recipe: str) -> float:
+    """Ask for the board on the wall beside ``recipe``'s opening; returns the square size the engineer measured (mm)."""
     b = place["board"]
     x, y = place["at_mm"]
     cols, rows = b["inner_corners"]
     answer = await ctx.ask(
         PromptKind.PLACE_BOARD,
         f"Fix the {name} ({cols} x {rows} inner corners, {b['square_mm']:g} mm squares) flat on the car-body wall with "
-        f"its first inner corner {x:g} mm right and {y:g} mm down of the opening's upper-right corner, rows along the "
-        "top edge. Measure the square size across the whole board and give it in mm (confirm keeps the nominal size).",
-        details=place,
+        f"its first inner corner {x:g} mm right and {y:g} mm down of the upper-right corner of "
+        f"{_opening(ctx.config, recipe)}, rows along the top edge. Measure the square size across the whole board and "
+        "give it in mm (confirm keeps the nominal size).",
+        details=place | {"recipe": recipe},
         value_label="measured square size (mm)",
         default=float(b["square_mm"]),
     )
@@ -149,8 +172,10 @@ async def collect_board_views(ctx: JobContext, *, views: int | None = None, proc
     plan = await asyncio.to_thread(plan_board, ctx.config, views=views, start=await current_pose(ctx), procedure=procedure)
     cc = ctx.config.calibration.procedure.camera
     lens = ctx.config.layout.camera
-    await car_body_in_place(ctx, "A car body stands clamped in the cell, its opening near the nominal place; confirm.")
-    square = await place_board(ctx, plan.details["board"], "checkerboard")
+    recipe = board_recipe(ctx.config)
+    await car_body_in_place(ctx, "A car body stands clamped in the cell, its opening near the nominal place; confirm.",
+                            recipe=recipe)  # fmt: skip
+    square = await place_board(ctx, plan.details["board"], "checkerboard", recipe)
     draft = ctx.begin(
         "board_views",
         board={"inner_corners": list(cc.board.inner_corners), "square_mm": square, "border_mm": cc.board.border_mm,
@@ -186,6 +211,7 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
         ctx,
         f"A car body stands clamped in the cell; the laser reads its plain wall around ({aim[0]:g}, {aim[1]:g}) mm from the "
         "opening's upper-right corner (no seal, label or edge within 300 mm of it). Confirm.",
+        recipe=board_recipe(ctx.config),
     )
     draft = ctx.begin(
         "laser_plane",
@@ -360,7 +386,7 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
         ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
     await move_to(ctx, taught.C_Pos_0)
     place = board_place(ctx.config, npc.scale_board, scale_board_at(ctx.config))  # where the camera looks
-    draft.manifest["scale_board"]["square_mm"] = await place_board(ctx, place, "scale checkerboard")
+    draft.manifest["scale_board"]["square_mm"] = await place_board(ctx, place, "scale checkerboard", recipe)
     frame = await grab(ctx)
     draft.images["scale.png"] = frame.image
     ctx.progress(n, n, "scale board image taken")
@@ -406,8 +432,18 @@ async def _board_hand_eye(ctx: JobContext, *, views: int | None = None) -> Datas
     return await collect_board_views(ctx, views=views, procedure="hand_eye")
 
 
+def _camera(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
+    try:
+        return compute_camera(ds, cfg)
+    except CalibrationRefused as err:
+        raise board_hint(err, cfg) from None
+
+
 def _hand_eye(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
-    return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
+    try:
+        return compute_hand_eye(ds, cal, cfg, detect_views(ds, cfg.calibration.procedure.camera.refine))
+    except CalibrationRefused as err:
+        raise board_hint(err, cfg) from None
 
 
 def _laser(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
@@ -427,7 +463,7 @@ PROCEDURES: dict[str, Procedure] = {
     "camera": Procedure(
         "camera", "board_views", "zhang", (),
         lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
-        _board_camera, lambda ds, cal, cfg: compute_camera(ds, cfg), ("views",),
+        _board_camera, _camera, ("views",),
     ),
     "hand_eye": Procedure(
         "hand_eye", "board_views", "tsai", ("camera",),

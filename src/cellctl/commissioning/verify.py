@@ -27,6 +27,8 @@ from cellctl.calibration.hand_eye import board_pose
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
 from cellctl.commissioning.procedures import (
+    board_hint,
+    board_recipe,
     car_body_in_place,
     confirm_start,
     current_pose,
@@ -131,8 +133,10 @@ async def collect_verify(ctx: JobContext) -> Dataset:
     """Revisit the planned subset with the board on the wall, then the laser poses; save the dataset."""
     plan = await asyncio.to_thread(plan_verify, ctx.config, ctx.calibration, start=await current_pose(ctx))
     n_views = plan.details["views"]
-    await car_body_in_place(ctx, "A car body stands clamped in the cell at its nominal place (as when the cell was calibrated); confirm.")
-    square = await place_board(ctx, plan.details["board"], "checkerboard")
+    recipe = board_recipe(ctx.config)  # the board goes beside its opening, as when the cell was calibrated
+    await car_body_in_place(ctx, "A car body stands clamped in the cell at its nominal place (as when the cell was calibrated); "
+                            "confirm.", recipe=recipe)  # fmt: skip
+    square = await place_board(ctx, plan.details["board"], "checkerboard", recipe)
     b = plan.details["board"]["board"]
     if abs(square / float(b["square_mm"]) - 1.0) > SAME_BOARD:  # a scale error reads as the camera having moved
         raise CalibrationRefused(
@@ -379,7 +383,10 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
         raise CalibrationRefused("verify", "missing_input", "there is no calibration set to verify")
     vc = config.calibration.procedure.verify
     ref = ds.manifest["reference"]
-    he = hand_eye_drift(ds, cal, config.calibration.procedure.camera.refine)
+    try:
+        he = hand_eye_drift(ds, cal, config.calibration.procedure.camera.refine)
+    except CalibrationRefused as err:
+        raise board_hint(err, config) from None
     beyond = []
     if he["translation_mm"] > vc.max_hand_eye_mm or he["rotation_deg"] > vc.max_hand_eye_deg:
         beyond.append(f"hand-eye moved {he['translation_mm']:.3f} mm / {he['rotation_deg']:.4f} deg "

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import enum
 import os
+import ssl
 import stat
 from pathlib import Path
 from typing import Any
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from cellctl.config.devices import is_loopback
 from cellctl.config.types import ListenHost, StrictModel, check_unique
 
 MIN_TOKEN_LENGTH = 16
@@ -124,11 +126,13 @@ class ApiToken(StrictModel):
             return f"file {self.token_file}"
         return "the configuration file (token)"
 
-    def secret(self) -> str:
-        """The token's value, read now (environment or file). Raises :class:`TokenUnavailable` naming the source and the fix."""
+    def secret(self, root: Path | None = None) -> str:
+        """The token's value, read now (environment or file; a relative ``token_file`` taken from ``root``, the folder of
+        ``serve --workdir``, else the current folder). Raises :class:`TokenUnavailable` naming the source and the fix."""
         if self.token is not None:
             return self.token
-        return read_secret(f"api.tokens '{self.name}'", env=("token_env", self.token_env), file=("token_file", self.token_file))
+        path = None if self.token_file is None else (root or Path()) / self.token_file
+        return read_secret(f"api.tokens '{self.name}'", env=("token_env", self.token_env), file=("token_file", path))
 
 
 def read_secret(where: str, *, env: tuple[str, str | None], file: tuple[str, Path | None], what: str = "token") -> str:
@@ -146,7 +150,8 @@ def read_secret(where: str, *, env: tuple[str, str | None], file: tuple[str, Pat
             )
         field, source = env_field, f"environment variable {variable}"
     else:
-        value = _read_token_file(f"{where}: {file_field}", Path(path))  # type: ignore[arg-type]
+        path = Path(path).absolute()  # type: ignore[arg-type]  # the file it read, named (relative: from the current folder)
+        value = _read_token_file(f"{where}: {file_field}", path)
         field, source = file_field, f"file {path}"
     weak = token_weakness(value)
     if weak is not None:
@@ -165,11 +170,8 @@ def _read_token_file(where: str, path: Path) -> str:
         raise TokenUnavailable(f"{where}: {path} cannot be read ({err.strerror}); {fix}") from None
     if not stat.S_ISREG(st.st_mode):
         raise TokenUnavailable(f"{where}: {path} is not a regular file; {fix}")
-    if st.st_mode & (stat.S_IROTH | stat.S_IWOTH):
-        raise TokenUnavailable(
-            f"{where}: {path} can be read or written by every user (mode {stat.S_IMODE(st.st_mode):04o}); "
-            f"chmod 600 {path} (or 640 with the service's group)"
-        )
+    if (problem := open_to_everyone(path, st)) is not None:
+        raise TokenUnavailable(f"{where}: {problem}")
     if st.st_size > TOKEN_FILE_MAX_BYTES:
         raise TokenUnavailable(f"{where}: {path} has {st.st_size} bytes; the file holds one secret")
     try:
@@ -185,6 +187,14 @@ def _read_token_file(where: str, path: Path) -> str:
     return value
 
 
+def open_to_everyone(path: Path, st: os.stat_result) -> str | None:
+    """Why a secret file (token, password, key) of mode ``st`` is refused: every user may read or write it; else None."""
+    if st.st_mode & (stat.S_IROTH | stat.S_IWOTH):
+        return (f"{path} can be read or written by every user (mode {stat.S_IMODE(st.st_mode):04o}); "
+                f"chmod 600 {path} (or 640 with the service's group)")
+    return None
+
+
 class ApiConfig(StrictModel):
     """Where the service listens, who may change things, whether reads need a token, how large a request may be."""
 
@@ -194,6 +204,17 @@ class ApiConfig(StrictModel):
     open_reads: bool = True  # GET routes, /health details and /metrics without a token, for a trusted cell network
     cycle_wait_max_s: float = Field(600.0, gt=0)
     max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, ge=1024, le=16 * 1024 * 1024)
+    tls_cert: Path | None = None  # PEM certificate (chain first) the API serves HTTPS with; relative: from serve --workdir
+    tls_key: Path | None = None  # its PEM private key, unencrypted, not readable by every user (chmod 600)
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> ApiConfig:
+        given = [f for f in ("tls_cert", "tls_key") if getattr(self, f) is not None]
+        if len(given) == 1:
+            missing = "tls_key" if given == ["tls_cert"] else "tls_cert"
+            raise ValueError(f"{given[0]} is set but {missing} is not: give both api.tls_cert (the certificate, PEM) "
+                             "and api.tls_key (its private key) to serve HTTPS, or neither")
+        return self
 
     @model_validator(mode="after")
     def _tokens(self) -> ApiConfig:
@@ -229,6 +250,59 @@ class ApiConfig(StrictModel):
                 problems.append(f"api.tokens.{i}.token_file: give an absolute path (got '{t.token_file}')")
         return problems
 
+    def rooted(self, root: Path) -> ApiConfig:
+        """This section with its relative files (token files, TLS certificate and key) taken from ``root``, the folder
+        of ``serve --workdir``, as every other relative path of the configuration is."""
+        base = root.resolve()
+        update: dict[str, Any] = {f: base / p for f in ("tls_cert", "tls_key")
+                                  if (p := getattr(self, f)) is not None and not p.is_absolute()}  # fmt: skip
+        tokens = tuple(t.model_copy(update={"token_file": base / t.token_file})
+                       if t.token_file is not None and not t.token_file.is_absolute() else t for t in self.tokens)  # fmt: skip
+        if tokens != self.tokens:
+            update["tokens"] = tokens
+        return self.model_copy(update=update) if update else self
+
+    def tls_problems(self, root: Path) -> list[str]:
+        """Why the TLS certificate and key (paths from ``root``) cannot serve HTTPS now; [] when they can or without TLS."""
+        api = self.rooted(root)
+        if api.tls_cert is None or api.tls_key is None:
+            return []
+        problems = []
+        for field, path in (("tls_cert", api.tls_cert), ("tls_key", api.tls_key)):
+            try:
+                st = path.stat()
+                if not stat.S_ISREG(st.st_mode):
+                    problems.append(f"api.{field}: {path} is not a regular file; give the PEM file's path")
+                elif field == "tls_key" and (problem := open_to_everyone(path, st)) is not None:
+                    problems.append(f"api.{field}: {problem}")
+                else:
+                    path.open("rb").close()
+            except OSError as err:
+                problems.append(f"api.{field}: {path} cannot be read ({err.strerror or err}); give the path of a PEM "
+                                "file the service's user can read")  # fmt: skip
+        if problems:
+            return problems
+        try:
+            ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(api.tls_cert, api.tls_key, password=_no_passphrase)
+        except _PassphraseAsked:
+            return [f"api.tls_key: {api.tls_key} is encrypted with a passphrase, which the service cannot be given; "
+                    f"write it unencrypted (openssl pkey -in {api.tls_key} -out new.pem), chmod 600"]
+        except ssl.SSLError as err:
+            if err.reason == "KEY_VALUES_MISMATCH":
+                return [f"api.tls_key: {api.tls_key} is not the private key of api.tls_cert {api.tls_cert}; give the "
+                        "certificate's own key"]
+            return [f"api.tls_cert, api.tls_key: {api.tls_cert} and {api.tls_key} are not a PEM certificate and its "
+                    f"unencrypted PEM private key (OpenSSL: {err.reason or err}); give the files the plant's CA issued"]
+        return []
+
+    def plain_http_warning(self) -> str | None:
+        """The warning for a hardware cell whose API listens beyond this machine without TLS; None otherwise."""
+        if self.tls_cert is not None or is_loopback(self.host):
+            return None
+        return (f"api.host = {self.host!r} is reached from the network over plain HTTP: the bearer tokens (the "
+                "engineer's too) travel in clear; set api.tls_cert and api.tls_key, or bind api.host = \"127.0.0.1\" "
+                "behind a TLS proxy")
+
     def roles(self) -> dict[str, ApiRole]:
         """Each token's role by its name."""
         return {t.name: t.role for t in self.tokens}
@@ -241,12 +315,13 @@ class ApiConfig(StrictModel):
                          'role = "operator" (or "viewer") in [[api.tokens]]')
         return lines
 
-    def secrets(self) -> tuple[tuple[str, str], ...]:
-        """Every token as (name, value), read now. Raises :class:`TokenUnavailable` naming every token that cannot be used."""
+    def secrets(self, root: Path | None = None) -> tuple[tuple[str, str], ...]:
+        """Every token as (name, value), read now (relative files from ``root``, see :meth:`ApiToken.secret`). Raises
+        :class:`TokenUnavailable` naming every token that cannot be used."""
         out, problems = [], []
         for t in self.tokens:
             try:
-                out.append((t.name, t.secret()))
+                out.append((t.name, t.secret(root)))
             except TokenUnavailable as err:
                 problems.append(str(err))
         shared = shared_token(out, "the same token value (read from their sources)")
@@ -255,6 +330,14 @@ class ApiConfig(StrictModel):
         if problems:
             raise TokenUnavailable("\n".join(problems))
         return tuple(out)
+
+
+class _PassphraseAsked(Exception):
+    """OpenSSL asked for the passphrase of an encrypted key."""
+
+
+def _no_passphrase() -> bytes:
+    raise _PassphraseAsked  # never OpenSSL's prompt on the terminal of a service
 
 
 def shared_token(tokens: list[tuple[str, object]], what: str, *, where: str = "api.tokens") -> str | None:

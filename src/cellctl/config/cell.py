@@ -5,11 +5,12 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from cellctl.config.inspection import InspectionConfig
 from cellctl.config.recipe import Recipe
-from cellctl.config.spc import SpcConfig
+from cellctl.config.spc import SpcConfig, drift_limit_problems
 from cellctl.config.types import Finite, StrictModel, Vec2, check_unique
 from cellctl.geometry.plane import PlaneFitError, fit_plane
 from cellctl.inspection.flush_crossing import crossing_path_problem
@@ -275,6 +276,17 @@ class ProcessConfig(StrictModel):
             problem = crossing_path_problem(insp.sweep_path_mm, insp.nominal_gap_mm, insp.sweep_margin_mm)
             if problem is not None:
                 raise ValueError(f"inspect.sweep_path_mm: {problem}")
+        return self
+
+    @model_validator(mode="after")
+    def _drift_limits_inside_the_tolerance(self) -> "ProcessConfig":
+        """[process.spc]'s drift limits below [process.tolerance] (recipes set neither), each refused at its field."""
+        tol = self.tolerance
+        problems = drift_limit_problems(self.spc, tol.position_mm, tol.orientation_deg)
+        if problems:
+            errors = [InitErrorDetails(type=PydanticCustomError("drift_limit_not_below_tolerance", text),
+                                       loc=("spc", name), input=getattr(self.spc, name)) for name, text in problems.items()]  # fmt: skip
+            raise ValidationError.from_exception_data(type(self).__name__, errors)
         return self
 
     @model_validator(mode="after")

@@ -116,7 +116,7 @@ class AbbRobotDevice(StrictModel):
     egm_port: int | None = Field(6511, ge=0, le=65535)  # UDP port the PC binds (UDPUC remote port); 0: no EGM
     egm_bind_host: str = Field("0.0.0.0", min_length=1)  # unset: 127.0.0.1 for a loopback host (a virtual controller)
     connect_timeout_s: Finite = Field(3.0, gt=0, le=60)
-    request_timeout_s: Finite = Field(2.0, gt=0, le=60)  # handshake and settings after each connection
+    request_timeout_s: Finite = Field(2.0, gt=0, le=60)  # the answer to a request answered at once (handshake, settings, POS, a motion's ACK)
     heartbeat_period_s: Finite = Field(1.0, gt=0, le=60)  # PING after this much quiet (the module drops a client after 10 s)
     heartbeat_timeout_s: Finite = Field(2.0, gt=0, le=60)  # no PONG within this: the link is dropped and rebuilt
     reconnect_delay_s: Finite = Field(0.5, gt=0, le=60)

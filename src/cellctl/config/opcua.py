@@ -41,12 +41,15 @@ class OpcUaUser(StrictModel):
             )
         return self
 
-    def secret(self) -> str:
-        """The password, read now; raises TokenUnavailable naming the setting and the fix (the API tokens' rules)."""
+    def secret(self, root: Path | None = None) -> str:
+        """The password, read now; a relative ``password_file`` is taken from ``root`` (``serve --workdir``, as the
+        certificates are), else from the current folder. Raises TokenUnavailable naming the setting, the file's
+        absolute path and the fix (the API tokens' rules)."""
         if self.password is not None:
             return self.password
+        path = None if self.password_file is None else ((root or Path()) / self.password_file).absolute()
         return read_secret(f"opcua.users '{self.name}'", env=("password_env", self.password_env),
-                           file=("password_file", self.password_file), what="password")  # fmt: skip
+                           file=("password_file", path), what="password")  # fmt: skip
 
 
 class OpcUaConfig(StrictModel):
@@ -61,7 +64,7 @@ class OpcUaConfig(StrictModel):
     allow_anonymous: bool = False
     certificate: Path = Path("var/opcua/server-cert.der")  # created on first start if absent (with private_key)
     private_key: Path = Path("var/opcua/server-key.pem")
-    trusted_clients: Path | None = None  # folder of trusted client certificates; None trusts any client certificate
+    trusted_clients: Path | None = None  # folder of trusted client certificates; None trusts any (the simulated cell only)
     users: tuple[OpcUaUser, ...] = (OpcUaUser(name="operator", password=SIM_DEFAULT_PASSWORD),)
 
     @model_validator(mode="after")
@@ -73,8 +76,17 @@ class OpcUaConfig(StrictModel):
             raise ValueError("users: no user and allow_anonymous = false leaves nobody who may connect; add [[opcua.users]]")
         return self
 
+    def rooted(self, root: Path) -> OpcUaConfig:
+        """This section with its users' relative password files taken from ``root``, the folder of ``serve --workdir``,
+        as its certificates are (for reading the passwords before the server starts, e.g. ``check_tokens``)."""
+        base = root.resolve()
+        users = tuple(u.model_copy(update={"password_file": base / u.password_file})
+                      if u.password_file is not None and not u.password_file.is_absolute() else u for u in self.users)  # fmt: skip
+        return self if users == self.users else self.model_copy(update={"users": users})
+
     def hardware_problems(self) -> list[str]:
-        """What a hardware cell refuses here: anonymous access, no security, passwords in the file (field: message)."""
+        """What a hardware cell refuses here: anonymous access, no or sign-only security, any client certificate
+        trusted, passwords in the file (field: message)."""
         if not self.enabled:
             return []
         problems = []
@@ -84,6 +96,14 @@ class OpcUaConfig(StrictModel):
         if "None" in self.security_policies:
             problems.append('opcua.security_policies: "None" sends commands unsigned and in clear on the plant network; '
                             'use ["Basic256Sha256_SignAndEncrypt"]')
+        if "Basic256Sha256_Sign" in self.security_policies:
+            problems.append('opcua.security_policies: "Basic256Sha256_Sign" signs but does not encrypt, so commands, '
+                            'results and part and car ids cross the plant network in clear; use '
+                            '["Basic256Sha256_SignAndEncrypt"]')
+        if self.trusted_clients is None:
+            problems.append("opcua.trusted_clients: not set, so the server trusts every client certificate; set it to "
+                            "the folder of the client certificates the cell accepts (each client's certificate as DER, "
+                            'e.g. trusted_clients = "/etc/cellctl/opcua/trusted")')
         if "users" not in self.model_fields_set:
             problems.append("opcua.users: no user is configured, so the simulated cell's default password would open "
                             "the cell; add [[opcua.users]] with password_env, password_file or certificate")

@@ -25,6 +25,10 @@ from cellctl.config.vision import VisionConfig
 
 
 
+TWIN_KINDS = {"laser": ("sim", "sim_keyence_lkg"), "camera": ("sim",), "robot": ("sim", "sim_abb")}
+"""The device kinds of the simulated cell (``mode = "sim"``): the twin's own, or a real driver on its protocol fake."""
+
+
 class _RecipeViews:
     """Each recipe's view of one configuration, and whose they are.
 
@@ -104,6 +108,17 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="after")
     def _devices_fit_the_mode(self) -> "CellConfig":
+        if self.mode == "sim":
+            real = [f'devices.{name}.kind = "{getattr(self.devices, name).kind}"' for name in TWIN_KINDS
+                    if not getattr(self.devices, name).kind.startswith("sim")]  # fmt: skip
+            if real:
+                twins = ", ".join(f"{name} " + " or ".join(f'"{k}"' for k in kinds) for name, kinds in TWIN_KINDS.items())
+                names = "names a real device" if len(real) == 1 else "name real devices"
+                raise ValueError(
+                    f"{', '.join(real)} {names}, but mode = \"sim\" (the default when mode is left out) skips every "
+                    "security check of a real cell: for a real cell set mode = \"hardware\" (see "
+                    f"config/hardware.example.toml; its security checks then apply), or give the twin's kinds ({twins})"
+                )
         if self.mode == "hardware":
             sim = [name for name in ("laser", "camera", "robot") if getattr(self.devices, name).kind.startswith("sim")]
             if sim:

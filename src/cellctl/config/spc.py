@@ -54,3 +54,23 @@ class SpcConfig(StrictModel):
                     f"max_offset_{unit}"
                 )
         return self
+
+
+def drift_limit_problems(spc: SpcConfig, position_mm: float, orientation_deg: float) -> dict[str, str]:
+    """Each drift limit of ``spc`` not below the install tolerance (mm, deg: [process.tolerance]), as
+    {field of [process.spc]: why and the fix}; empty when both are below it.
+
+    Results outside the tolerance are rejects, never samples, so the loop's estimate could never reach
+    a drift limit at or past it: the drift would go unreported.
+    """
+    problems = {}
+    for unit, what, tol in (("mm", "position_mm", position_mm), ("deg", "orientation_deg", orientation_deg)):
+        drift, bound = getattr(spc, f"drift_limit_{unit}"), getattr(spc, f"max_offset_{unit}")
+        if not tol > drift:
+            also = f" (and process.spc.max_offset_{unit} = {bound:g} below that)" if bound >= tol else ""
+            problems[f"drift_limit_{unit}"] = (
+                f"{drift:g} is not below the install tolerance process.tolerance.{what} = {tol:g}: results past the "
+                f"tolerance are rejects, never samples, so the estimate could never reach the limit; lower "
+                f"process.spc.drift_limit_{unit} below {tol:g}{also}, or raise process.tolerance.{what} above {drift:g}"
+            )
+    return problems

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import aiomqtt
 
-from cellctl.config.api import TokenUnavailable, read_secret
+from cellctl.config.api import TokenUnavailable, open_to_everyone, read_secret
 from cellctl.config.mqtt import MqttConfig
 from cellctl.mqtt.bridge import EventBridge
 from cellctl.mqtt.outbox import Outbox
@@ -60,7 +60,8 @@ def read_password(config: MqttConfig, workdir: Path) -> str | None:
 
 
 def tls_parameters(config: MqttConfig, workdir: Path) -> aiomqtt.TLSParameters | None:
-    """aiomqtt's TLS settings from ``mqtt.tls``, every file checked to be readable now."""
+    """aiomqtt's TLS settings from ``mqtt.tls``, every file checked to be readable now, the client's key to be
+    readable by the service only (as the password file)."""
     tls = config.tls
     if tls is None:
         return None
@@ -73,6 +74,8 @@ def tls_parameters(config: MqttConfig, workdir: Path) -> aiomqtt.TLSParameters |
         path = _resolve(value, workdir)
         if not path.is_file() or not os.access(path, os.R_OK):
             raise MqttSetupError(f"mqtt.tls.{field} {path}: not a readable file; give the path of the PEM file")
+        if field == "key_file" and (exposed := open_to_everyone(path, path.stat())) is not None:  # the token files' rule
+            raise MqttSetupError(f"mqtt.tls.key_file: {exposed}")
         files[field] = str(path)
     return aiomqtt.TLSParameters(ca_certs=files["ca_file"], certfile=files["cert_file"], keyfile=files["key_file"])
 

@@ -105,7 +105,7 @@ RESULT_FIELDS: tuple[Var, ...] = (
     Var("Cycle/LastResult/PartId", "cellctl", "String", "the glass's part id"),
     Var("Cycle/LastResult/CarId", "cellctl", "String", "the car body's id (empty if none was given)"),
     Var("Cycle/LastResult/Ok", "cellctl", "Boolean", "installed and measured within the tolerance"),
-    Var("Cycle/LastResult/ErrorCode", "cellctl", "UInt16", "0 when Ok, else the alarm id (docs/alarms.md)"),
+    Var("Cycle/LastResult/ErrorCode", "cellctl", "UInt16", "0 when Ok, else the alarm id (docs/alarm_reactions.md)"),
     Var("Cycle/LastResult/Reason", "cellctl", "String", "why it is not Ok (empty when Ok)"),
     Var("Cycle/LastResult/MeasuredDeviation", "cellctl", "Double", "measured install deviation [dx, dy, dz mm, drx, dry, drz deg] (empty if not measured)", array=True),
     *(Var(f"Cycle/LastResult/Measured/{k}", "cellctl", "Double",

@@ -76,7 +76,7 @@ def render_markdown() -> str:
         "## Alarms",
         "",
         "Each alarm code the cell raises gets an `AlarmConditionType` object `<cell_id>.Alarms.<code>_<NAME>`",
-        "(docs/alarms.md). Every change of an alarm (raised, cleared, acknowledged) is an event emitted from the",
+        "(docs/alarm_reactions.md). Every change of an alarm (raised, cleared, acknowledged) is an event emitted from the",
         "Server object with the cell as SourceNode: ConditionName `<code> <NAME>`, Message the alarm's text,",
         "Severity 300 (warning), 600 (error) or 900 (critical), `ActiveState/Id`, `AckedState/Id`, and Retain",
         "while active or unacknowledged. Acknowledge with the standard method",

@@ -7,6 +7,7 @@ context variable the callbacks read: :func:`caller`.
 
 from __future__ import annotations
 
+import contextlib
 import contextvars
 import hmac
 import ipaddress
@@ -27,6 +28,7 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
+from cellctl.config.api import open_to_everyone
 from cellctl.config.opcua import OpcUaConfig, OpcUaUser
 from cellctl.folders import folder_problem
 
@@ -43,6 +45,9 @@ class CellUser(User):
 
 
 _caller: contextvars.ContextVar[CellUser | None] = contextvars.ContextVar("opcua_caller", default=None)
+_x509_token: contextvars.ContextVar[bytes | None] = contextvars.ContextVar("opcua_x509_token", default=None)
+"""The certificate of the X509 identity token whose signature asyncua has just verified, for the ``get_user`` call
+that follows it in the same ActivateSession (asyncua passes the channel's certificate for the other token types)."""
 
 
 def caller() -> str:
@@ -95,24 +100,44 @@ class CellRuleset(SimpleRoleRuleset):
 
 
 class CellUserManager:
-    """Password users (compared in constant time), certificate users (by their DER), anonymous if allowed."""
+    """Password users (compared in constant time), certificate users (by their DER), anonymous if allowed.
+
+    asyncua calls :meth:`get_user` with a certificate for every token type: the X509 identity token's (its
+    signature verified) or else the secure channel's (b"" over policy None). Only the former names a certificate
+    user, so :meth:`watch` must see the server's token check; unwatched, any certificate counts as a token's.
+    """
 
     def __init__(self, passwords: dict[str, tuple[str, bool]], certificates: dict[bytes, tuple[str, bool]],
                  *, allow_anonymous: bool) -> None:  # fmt: skip
         self._passwords = passwords
         self._certificates = certificates
         self._anonymous = allow_anonymous
+        self._watching = False
+
+    def watch(self, iserver: Any) -> None:
+        """Follow ``iserver``'s X509 identity token checks (asyncua's InternalServer.verify_x509_token), so that a
+        channel certificate under an anonymous token is told from a certificate user's token."""
+        verify = iserver.verify_x509_token
+
+        def verified(isession: Any, token: Any, signature: Any) -> bytes:
+            der: bytes = verify(isession, token, signature)
+            _x509_token.set(der)  # read, and cleared, by the get_user that follows (no await between them)
+            return der
+
+        iserver.verify_x509_token = verified
+        self._watching = True
 
     @classmethod
     def from_config(cls, cfg: OpcUaConfig, root: Path) -> CellUserManager:
-        """Read every password and certificate now; a missing one raises naming the user and the fix."""
+        """Read every password and certificate now, relative files taken from ``root`` (``serve --workdir``);
+        a missing one raises naming the user and the fix."""
         passwords: dict[str, tuple[str, bool]] = {}
         certificates: dict[bytes, tuple[str, bool]] = {}
         for u in cfg.users:
             if u.certificate is not None:
                 certificates[user_certificate(u, root)] = (u.name, u.role == "operator")
             else:
-                passwords[u.name] = (u.secret(), u.role == "operator")
+                passwords[u.name] = (u.secret(root), u.role == "operator")
         return cls(passwords, certificates, allow_anonymous=cfg.allow_anonymous)
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
@@ -123,15 +148,18 @@ class CellUserManager:
                 log.warning("OPC UA: user %r refused (unknown user or wrong password)", username)
                 return None
             return CellUser(role=UserRole.User, name=username, may_call=known[1])
-        if certificate is not None:
-            der = certificate if isinstance(certificate, bytes) else certificate.public_bytes(Encoding.DER)
+        token_der = _x509_token.get()
+        _x509_token.set(None)
+        der = certificate if certificate is None or isinstance(certificate, bytes) else certificate.public_bytes(Encoding.DER)
+        if der and (not self._watching or der == token_der):  # an X509 identity token: its user or nobody
             who = self._certificates.get(der)
             if who is None:
                 log.warning("OPC UA: a certificate user not in opcua.users was refused")
                 return None
             return CellUser(role=UserRole.User, name=who[0], may_call=who[1])
-        if self._anonymous:
+        if self._anonymous:  # an anonymous token; its certificate, if any, is the secure channel's
             return CellUser(role=UserRole.User, name="opcua-anonymous", may_call=True)
+        log.warning("OPC UA: an anonymous session was refused (opcua.allow_anonymous = false)")
         return None
 
 
@@ -246,6 +274,9 @@ def load_server_private_key(key_path: Path) -> rsa.RSAPrivateKey:
     except OSError as err:
         raise ServerCertificateError(f"opcua.private_key {key_path} cannot be read ({err.strerror or err}); let the "
                                      f"service's user read it (chmod 600, owned by that user), {fix}") from None
+    with contextlib.suppress(OSError):  # one that cannot be looked at is said below, when it cannot be read
+        if (exposed := open_to_everyone(key_path, key_path.stat())) is not None:  # the token files' rule
+            raise ServerCertificateError(f"opcua.private_key {exposed}")
     kind = "PEM" if _is_pem_name(key_path) else "DER"
     try:
         load = serialization.load_pem_private_key if kind == "PEM" else serialization.load_der_private_key
@@ -289,9 +320,12 @@ def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) ->
 
 
 def _write_new(path: Path, data: bytes, mode: int) -> None:
-    """Write ``data`` to ``path``, its folders created; ``mode`` for a new file (the umask applies)."""
+    """Write ``data`` to a new file at ``path`` (mode ``mode``, the umask applies), its folders created. A file
+    already there is removed first, so that its mode (say 0644 on a key) and owner do not carry over."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
 

@@ -107,6 +107,7 @@ class CellOpcUaServer:
                 "delete the certificate and key to have new ones made, or set application_uri to the certificate's")
         server_class = Server if "None" in cfg.security_policies else NoneDiscoveryOnlyServer
         server = self._server = server_class(user_manager=users)  # type: ignore[arg-type]
+        users.watch(server.iserver)  # tells a certificate user's token from an anonymous one's channel certificate
         server.iserver.bind_condition_methods = True  # ConditionRefresh; must precede init()
         await server.init()
         server.set_endpoint(self.endpoint)

@@ -50,7 +50,7 @@ from datetime import datetime
 
 import numpy as np
 
-from cellctl.config.spc import SpcConfig
+from cellctl.config.spc import SpcConfig, drift_limit_problems
 from cellctl.domain import InstallDeviation
 from cellctl.geometry.pose import Pose, pose_from_xyz_fixed
 from cellctl.quality.spc_state import (
@@ -95,15 +95,10 @@ class SpcLoop:
     """The loop under one configuration; the install tolerance is [process.tolerance]'s."""
 
     def __init__(self, config: SpcConfig, *, tolerance_mm: float, tolerance_deg: float) -> None:
-        for unit, tol in (("mm", tolerance_mm), ("deg", tolerance_deg)):
-            drift = getattr(config, f"drift_limit_{unit}")
-            if not tol > drift:
-                what = "position_mm" if unit == "mm" else "orientation_deg"
-                raise ValueError(
-                    f"[process.spc] drift_limit_{unit} = {drift:g} is not below the install tolerance "
-                    f"[process.tolerance] {what} = {tol:g}: results past the tolerance are excluded, so the "
-                    f"estimate could never reach the limit; lower drift_limit_{unit}"
-                )
+        # A loaded configuration was refused already (ProcessConfig); this guards a loop built from parts.
+        problems = drift_limit_problems(config, tolerance_mm, tolerance_deg)
+        if problems:
+            raise ValueError("; ".join(f"process.spc.{name} = {text}" for name, text in problems.items()))
         self.config = config
         self._tolerance = {"mm": float(tolerance_mm), "deg": float(tolerance_deg)}
 

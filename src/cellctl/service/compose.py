@@ -54,6 +54,11 @@ class ServiceError(RuntimeError):
     """The service cannot be built from this configuration; the message says what to change."""
 
 
+class ServiceConfigError(ServiceError):
+    """A configuration problem found at start (a secret, certificate or key file that cannot be used): starting again
+    cannot help, so ``serve`` exits 2, not 1 (a port another program holds can clear; that stays a ServiceError)."""
+
+
 @dataclass
 class Service:
     """Everything the running cell is made of."""
@@ -104,7 +109,9 @@ class Service:
             except (OpcUaStartError, ServerCertificateError, OSError) as err:  # each names its setting and fix
                 await opcua.stop()
                 await self.stop()
-                raise ServiceError(f"the OPC UA server cannot start: {err}") from None
+                # a port it cannot listen on (OpcUaStartError raised over the bind's OSError) can clear; the rest cannot
+                bind = isinstance(err, OSError) or (isinstance(err, OpcUaStartError) and isinstance(err.__context__, OSError))
+                raise (ServiceError if bind else ServiceConfigError)(f"the OPC UA server cannot start: {err}") from None
             self.opcua_server = opcua
             log.info("OPC UA server on %s", opcua.endpoint)
         for hook in self.after_start:
@@ -153,11 +160,17 @@ class Service:
         from cellctl.api.app import create_app
         from cellctl.service.http import make_server
 
-        app = create_app(self.orchestrator, self.config.api, self.jobs)
+        api = self.config.api.rooted(self.workdir)  # token files and TLS files taken from the workdir
+        app = create_app(self.orchestrator, api, self.jobs)
         self._loop = asyncio.get_running_loop()
-        server = make_server(app, self.config.api.host, self.config.api.port, self._on_exit_signal)
+        tls = (api.tls_cert, api.tls_key) if api.tls_cert is not None and api.tls_key is not None else None
+        server = make_server(app, api.host, api.port, self._on_exit_signal, tls=tls)
         demo: asyncio.Task[None] | None = None
         try:
+            if problems := api.tls_problems(self.workdir):  # before anything starts: uvicorn would fail only once up
+                raise ServiceConfigError("the REST API cannot serve HTTPS: " + "; ".join(problems))
+            if self.config.mode == "hardware" and (warning := api.plain_http_warning()) is not None:
+                log.warning("%s", warning)
             await self.start()
             task = asyncio.create_task(server.serve())
             while not server.started and not task.done():
@@ -169,8 +182,7 @@ class Service:
                     f"the REST API cannot listen on {self.config.api.host}:{self.config.api.port}; "
                     "is another cellctl running? change [api] port or stop the other one"
                 )
-            print(f"cellctl serving on http://{self.config.api.host}:{self.config.api.port}/ (mode {self.config.mode}); "
-                  "Ctrl-C stops", flush=True)  # fmt: skip
+            print(f"cellctl serving on {self.api_url} (mode {self.config.mode}); Ctrl-C stops", flush=True)
             if self.opcua_server is not None:
                 print(f"OPC UA on {self.opcua_server.endpoint} (namespace urn:cellctl:opcua, docs/opcua_nodeset.md)", flush=True)
             if ready is not None:
@@ -188,6 +200,12 @@ class Service:
                 with contextlib.suppress(Exception):
                     await self._ending
             await self.stop()
+
+    @property
+    def api_url(self) -> str:
+        """Where the REST API and dashboard are served (https with api.tls_cert)."""
+        api = self.config.api
+        return f"{'https' if api.tls_cert is not None else 'http'}://{api.host}:{api.port}/"
 
     def _on_exit_signal(self) -> None:
         """SIGINT/SIGTERM (called in the signal handler): a running job is cancelled first, so that whoever follows it
@@ -216,7 +234,7 @@ class Service:
         from cellctl.service.demo import run_demo
 
         await run_demo(self, cycles, sys.stdout)
-        print(f"serving on http://{self.config.api.host}:{self.config.api.port}/ ; Ctrl-C stops", flush=True)
+        print(f"serving on {self.api_url} ; Ctrl-C stops", flush=True)
 
 
 async def assemble_service(
@@ -311,7 +329,7 @@ async def assemble_service(
             try:
                 await mqtt.start()
             except MqttSetupError as err:
-                raise ServiceError(f"MQTT publication cannot start: {err}") from None
+                raise ServiceConfigError(f"MQTT publication cannot start: {err}") from None
 
         service.after_start.append(start_mqtt)
         service.closers.append(mqtt.stop)  # after the orchestrator, before the store closes

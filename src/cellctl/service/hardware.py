@@ -22,10 +22,10 @@ def keyence_laser(dev: KeyenceLkgDevice) -> tuple[DisplacementSensor, Closer]:
     return laser, laser.close
 
 
-def genicam_camera(dev: GenicamCameraDevice) -> tuple[Camera, Closer]:
+def genicam_camera(dev: GenicamCameraDevice, size_px: tuple[int, int]) -> tuple[Camera, Closer]:
     from genicam_camera import GenicamCamera
 
-    camera = GenicamCamera.from_config(dev.model_dump())
+    camera = GenicamCamera.from_config(dev.model_dump(), expected_size_px=size_px)
     return camera, camera.close
 
 
@@ -44,7 +44,7 @@ async def build_hardware_service(config: CellConfig, *, workdir: Path | None = N
     if not (isinstance(dev.laser, KeyenceLkgDevice) and isinstance(dev.camera, GenicamCameraDevice) and isinstance(dev.robot, AbbRobotDevice)):
         raise ServiceError("mode = \"hardware\" needs real devices (keyence_lkg, genicam, abb) in [devices]")
     laser, close_laser = keyence_laser(dev.laser)
-    camera, close_camera = genicam_camera(dev.camera)
+    camera, close_camera = genicam_camera(dev.camera, (config.layout.camera.width_px, config.layout.camera.height_px))
     robot, close_robot = abb_robot(dev.robot)
     service = await assemble_service(config, laser=laser, camera=camera, robot=robot, workdir=workdir)
     service.closers.extend([close_laser, close_camera, close_robot])

@@ -17,6 +17,7 @@ import signal
 import socket
 import threading
 from collections.abc import Callable, Generator
+from pathlib import Path
 from types import FrameType
 from typing import Any
 
@@ -88,12 +89,16 @@ def raise_open_files_limit() -> int:
     return int(soft) if soft != resource.RLIM_INFINITY else 1 << 20
 
 
-def make_server(app: Any, host: str, port: int, on_exit: Callable[[], Any]) -> ServiceServer:
+def make_server(app: Any, host: str, port: int, on_exit: Callable[[], Any],
+                tls: tuple[Path, Path] | None = None) -> ServiceServer:  # fmt: skip
     """The service's uvicorn server: HTTP connections capped by the open files limit (in all and per client host),
-    and closed when they send no whole request within ``REQUEST_TIMEOUT_S``."""
+    and closed when they send no whole request within ``REQUEST_TIMEOUT_S``; HTTPS only with ``tls`` (the PEM
+    certificate and its key, checked beforehand by ``ApiConfig.tls_problems``)."""
     total, per_host = connection_limits(raise_open_files_limit())
     protocol = guarded_protocol(max_connections=total, max_per_host=per_host, request_timeout_s=REQUEST_TIMEOUT_S)
+    cert, key = tls if tls is not None else (None, None)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", log_config=None, lifespan="off",
                             http=protocol, timeout_keep_alive=KEEP_ALIVE_S, limit_concurrency=total + 1,
-                            backlog=ACCEPT_BACKLOG, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S)  # fmt: skip
+                            backlog=ACCEPT_BACKLOG, timeout_graceful_shutdown=GRACEFUL_SHUTDOWN_S,
+                            ssl_certfile=cert, ssl_keyfile=key)  # fmt: skip
     return ServiceServer(config, on_exit)

@@ -16,11 +16,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from cellctl.commissioning.auto import commission_missing, parts_needed
-from cellctl.config.devices import GenicamCameraDevice, KeyenceLkgDevice, SimAbbDevice, SimKeyenceLkgDevice, AbbRobotDevice
-from cellctl.config.schema import CellConfig
+from cellctl.config.devices import SimAbbDevice, SimKeyenceLkgDevice
+from cellctl.config.schema import TWIN_KINDS, CellConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import Camera, DisplacementSensor, Robot
-from cellctl.service.compose import Closer, Service, ServiceError, assemble_service
+from cellctl.service.compose import Closer, Service, ServiceConfigError, ServiceError, assemble_service
 from cellctl.sim.operator import ACTOR
 from cellctl.sim.rig import SimRig, recipe_twins
 
@@ -30,39 +30,23 @@ log = logging.getLogger(__name__)
 def _devices(
     config: CellConfig, rig: SimRig, closers: list[Closer], fakes: dict[str, object]
 ) -> tuple[DisplacementSensor, Camera, Robot, Callable[[Pose], None]]:
-    from cellctl.service import hardware
-
+    """The twin's devices, or the real LK-G and ABB drivers on their protocol fakes (``sim_*``; a real kind is
+    refused at load in mode "sim")."""
     dev = config.devices
-    laser: DisplacementSensor
-    camera: Camera
-    robot: Robot
+    laser: DisplacementSensor = rig.laser
+    robot: Robot = rig.robot
     if isinstance(dev.laser, SimKeyenceLkgDevice):
         from cellctl.service.sim_fakes import lkg_on_fake
 
         laser, close = lkg_on_fake(rig.cell, dev.laser, fakes)
         closers.append(close)
-    elif isinstance(dev.laser, KeyenceLkgDevice):
-        laser, close = hardware.keyence_laser(dev.laser)
-        closers.append(close)
-    else:
-        laser = rig.laser
-    if isinstance(dev.camera, GenicamCameraDevice):
-        camera, close = hardware.genicam_camera(dev.camera)
-        closers.append(close)
-    else:
-        camera = rig.camera
     jog: Callable[[Pose], None] = rig.cell.execute
     if isinstance(dev.robot, SimAbbDevice):
         from cellctl.service.sim_fakes import abb_on_fake
 
         robot, close, jog = abb_on_fake(rig.cell, dev.robot, fakes)
         closers.append(close)
-    elif isinstance(dev.robot, AbbRobotDevice):
-        robot, close = hardware.abb_robot(dev.robot)
-        closers.append(close)
-    else:
-        robot = rig.robot
-    return laser, camera, robot, jog
+    return laser, rig.camera, robot, jog
 
 
 def fakes_out_of_time(config: CellConfig) -> str | None:
@@ -95,8 +79,12 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     """The simulated cell (``mode = "sim"``): the twin, its devices, its operator; ``seed`` overrides ``sim.seed``."""
     if config.mode != "sim":
         raise ServiceError('the simulated cell root builds mode = "sim" only; a real cell uses the hardware root')
+    real = [name for name, kinds in TWIN_KINDS.items() if getattr(config.devices, name).kind not in kinds]
+    if real:  # refused at load; a configuration copied past validation must not get the twin's devices instead
+        raise ServiceConfigError(f"devices {real} are real devices: the simulated cell drives the twin's kinds only "
+                           f'({TWIN_KINDS}); set mode = "hardware" for a real cell')
     if (why := fakes_out_of_time(config)) is not None:
-        raise ServiceError(why)
+        raise ServiceConfigError(why)
     import asyncio
 
     rig = SimRig(config.sim, seed=seed, recipes=recipe_twins(config))
