@@ -54,6 +54,13 @@ def test_the_api_answers_over_https_and_not_over_plain_http(tmp_path: Path) -> N
             # a bearer token goes through the encrypted channel and is honoured
             ack = https.post(f"https://127.0.0.1:{port}/alarms/acknowledge-all", headers={"Authorization": f"Bearer {TOKEN}"})
             assert ack.status_code == 200, ack.text
+        # the CLI trusts the plant's CA named by SSL_CERT_FILE (README), and only then
+        cli = [sys.executable, "-m", "cellctl", "status", "--url", f"https://127.0.0.1:{port}"]
+        env = {k: v for k, v in os.environ.items() if k not in ("SSL_CERT_FILE", "SSL_CERT_DIR")}
+        trusted = subprocess.run(cli, env={**env, "SSL_CERT_FILE": str(cert)}, capture_output=True, text=True, timeout=60)
+        assert trusted.returncode == 0 and trusted.stdout.startswith("state "), trusted.stderr
+        untrusted = subprocess.run(cli, env=env, capture_output=True, text=True, timeout=60)
+        assert untrusted.returncode == 1 and "CERTIFICATE_VERIFY_FAILED" in untrusted.stderr, untrusted.stderr
         with pytest.raises(httpx.ConnectError, match="CERTIFICATE_VERIFY_FAILED"):  # the peer checks, not trusting all
             httpx.get(f"https://127.0.0.1:{port}/health", timeout=5.0)
         with pytest.raises(httpx.TransportError):  # plain HTTP gets no HTTP answer from the TLS port
