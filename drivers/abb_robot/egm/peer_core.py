@@ -128,7 +128,6 @@ class PeerCore:
         self.streaming = False
         self.restart = False  # the next datagram starts a new session (a new stream was asked for)
         self.t0 = time.perf_counter()
-        self.msg = pb.EgmRobot()
         self.out = pb.EgmSensor()
         self.stats = dict.fromkeys(STAT_NAMES, 0.0)
         self.controller: tuple[str, int] | None = None
@@ -184,9 +183,8 @@ class PeerCore:
         if self.controller is not None and addr != self.controller and not (fresh and addr[0] == self.controller[0]):
             st["foreign"] += 1
             return False
-        msg = self.msg
+        msg = pb.EgmRobot()  # a new one per datagram: a reused upb message grows its arena with every parse
         try:
-            msg.Clear()
             msg.ParseFromString(data)
         except Exception:  # noqa: BLE001 - protobuf's DecodeError family: the datagram is garbage
             st["bad"] += 1

@@ -177,7 +177,6 @@ def run_stream(
     t_start = time.monotonic()
     next_ms = math.ceil(clock.ms(t_start)) + 1  # the grid: whole ms, every period (the first a ms away at least)
     seq = 0
-    msg = pb.EgmRobot()
     joints: tuple[float, ...] = ()
     while not control.stop.is_set():
         wait = clock.at_ms(next_ms) - time.monotonic()
@@ -195,6 +194,7 @@ def run_stream(
         except ValueError:
             pass  # a pose a hair past a limit: report the last joints
         ms = round(clock.ms(t))
+        msg = pb.EgmRobot()  # a new one each time: a cleared upb message keeps what it held in its arena
         _fill(msg, seq, ms, tcp.position_mm, tcp.quaternion_wxyz, joints, robot.motors_on)
         stats.seqnos.append(seq)
         stats.tm.append(ms & 0xFFFFFFFF)
@@ -231,7 +231,6 @@ def _fill(
     msg: pb.EgmRobot, seq: int, ms: int, pos: tuple[float, float, float], q: tuple[float, float, float, float],
     joints_rad: tuple[float, ...], motors_on: bool,
 ) -> None:
-    msg.Clear()
     msg.header.seqno = seq
     msg.header.tm = ms & 0xFFFFFFFF
     msg.header.mtype = pb.EgmHeader.MSGTYPE_DATA
