@@ -18,18 +18,12 @@ DATAGRAMS = 200_000  # 13 min of EGM at 250 Hz
 CHILD = f"""
 import sys, time
 sys.path[:0] = [{str(ROOT / "drivers")!r}, {str(ROOT / "src")!r}]
-from abb_robot.egm import egm_pb2 as pb
-from abb_robot.egm.peer_core import LatencySink, PeerCore, StreamSink, reference_vector
+from abb_robot.egm.peer_core import LatencySink, PeerCore, StreamSink, reference_vector, sample_robot_message
 
 def rss_mb():
     return int(next(l for l in open("/proc/self/status") if l.startswith("VmRSS")).split()[1]) / 1024
 
-msg = pb.EgmRobot()
-c = msg.feedBack.cartesian
-c.pos.x, c.pos.y, c.pos.z = 1.0, 2.0, 3.0
-c.orient.u0, c.orient.u1, c.orient.u2, c.orient.u3 = 1.0, 0.0, 0.0, 0.0
-msg.feedBack.joints.joints.extend([0.0] * 6)
-msg.mciState.state = pb.EgmMCIState.MCI_RUNNING
+msg = sample_robot_message()
 core = PeerCore(controller_host=None, receive_timeout_s=1.0, latency=LatencySink(4), stream=StreamSink(4))
 core.apply_reference(reference_vector(1, ((1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)), 0.1, 0.01))
 datagrams = []

@@ -25,14 +25,21 @@ def _password_file_config() -> CellConfig:
     return secure_config(security_policies=["None"], users=[{"name": "mes", "password_file": "opc-password"}])
 
 
-async def test_a_relative_password_file_is_read_from_the_workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def _folders(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, *, password: str | None = None) -> tuple[Path, Path]:
+    """The work folder (with the password file, if given) and another one the test runs from."""
     workdir, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
     workdir.mkdir()
     elsewhere.mkdir()
-    password = secrets.token_urlsafe(32)
-    (workdir / "opc-password").write_text(password + "\n")
-    os.chmod(workdir / "opc-password", 0o600)
+    if password is not None:
+        (workdir / "opc-password").write_text(password + "\n")
+        os.chmod(workdir / "opc-password", 0o600)
     monkeypatch.chdir(elsewhere)  # started from another folder, as `serve --workdir` may be
+    return workdir, elsewhere
+
+
+async def test_a_relative_password_file_is_read_from_the_workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    password = secrets.token_urlsafe(32)
+    workdir, elsewhere = _folders(tmp_path, monkeypatch, password=password)
     async with running_service(workdir, _password_file_config()) as service:
         client = Client(service.opcua_server.endpoint, timeout=10)
         client.set_user("mes")
@@ -43,10 +50,7 @@ async def test_a_relative_password_file_is_read_from_the_workdir(tmp_path: Path,
 
 
 async def test_a_missing_password_file_is_named_by_its_absolute_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    workdir, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
-    workdir.mkdir()
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
+    workdir, elsewhere = _folders(tmp_path, monkeypatch)
     service = await build_service(_password_file_config(), workdir=workdir)
     with pytest.raises(ServiceError) as err:
         await service.start()
@@ -60,13 +64,8 @@ def test_the_rooted_section_reads_the_password_before_the_server_starts(tmp_path
     """``OpcUaConfig.rooted(workdir)``: what `serve` and `config check --secrets` read the passwords from."""
     from cellctl.config.loader import check_tokens
 
-    workdir, elsewhere = tmp_path / "work", tmp_path / "elsewhere"
-    workdir.mkdir()
-    elsewhere.mkdir()
     password = secrets.token_urlsafe(32)
-    (workdir / "opc-password").write_text(password + "\n")
-    os.chmod(workdir / "opc-password", 0o600)
-    monkeypatch.chdir(elsewhere)
+    workdir, elsewhere = _folders(tmp_path, monkeypatch, password=password)
     config = _password_file_config()
     with pytest.raises(ConfigError, match=f"{elsewhere / 'opc-password'} does not exist"):
         check_tokens(config)  # not rooted: the current folder's, named in full

@@ -377,8 +377,8 @@ def empty_status() -> np.ndarray:
     return v
 
 
-def warm_up() -> None:
-    """Run every code path of the loop once on a throwaway core (first calls are slow)."""
+def sample_robot_message() -> pb.EgmRobot:
+    """A well-formed EgmRobot (seqno 0, TCP at (1, 2, 3) mm, unit orientation, MCI running) to exercise a core."""
     msg = pb.EgmRobot()
     msg.header.seqno = 0
     c = msg.feedBack.cartesian
@@ -386,6 +386,12 @@ def warm_up() -> None:
     c.orient.u0, c.orient.u1, c.orient.u2, c.orient.u3 = 1.0, 0.0, 0.0, 0.0
     msg.feedBack.joints.joints.extend([0.0] * 6)
     msg.mciState.state = pb.EgmMCIState.MCI_RUNNING
+    return msg
+
+
+def warm_up() -> None:
+    """Run every code path of the loop once on a throwaway core (first calls are slow)."""
+    msg = sample_robot_message()
     core = PeerCore(controller_host=None, receive_timeout_s=1.0, latency=LatencySink(4), stream=StreamSink(4))
     core.apply_reference(reference_vector(1, ((1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0)), 0.1, 0.01))
     data = msg.SerializeToString()

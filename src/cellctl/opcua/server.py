@@ -54,6 +54,10 @@ class OpcUaStartError(RuntimeError):
     """The OPC UA server cannot start with this configuration; the message names the field and the fix."""
 
 
+class OpcUaPortInUse(OpcUaStartError):
+    """Its port is held by another program: unlike the other start errors, this one can clear by itself."""
+
+
 def _six(measured: dict[str, Any]) -> list[float]:
     """The measured deviation as [dx, dy, dz mm, drx, dry, drz deg]; empty when the cycle measured none."""
     return [float(measured[k]) for k in DEVIATION_KEYS] if measured else []
@@ -140,7 +144,7 @@ class CellOpcUaServer:
         try:
             await server.start()
         except OSError as err:
-            raise OpcUaStartError(f"the OPC UA server cannot listen on {cfg.host}:{cfg.port} ({err.strerror}); "
+            raise OpcUaPortInUse(f"the OPC UA server cannot listen on {cfg.host}:{cfg.port} ({err.strerror}); "
                                   "change [opcua] port or stop what uses it") from None  # fmt: skip
         if server.bserver is not None:
             self.port = server.bserver.port

@@ -98,7 +98,7 @@ class Service:
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
         if self.config.opcua.enabled:
             from cellctl.opcua.security import ServerCertificateError
-            from cellctl.opcua.server import CellOpcUaServer, OpcUaStartError
+            from cellctl.opcua.server import CellOpcUaServer, OpcUaPortInUse, OpcUaStartError
             from cellctl.service.opcua_link import OpcUaCellLink
 
             recipes = tuple(self.config.process.recipe_names().values())
@@ -109,9 +109,8 @@ class Service:
             except (OpcUaStartError, ServerCertificateError, OSError) as err:  # each names its setting and fix
                 await opcua.stop()
                 await self.stop()
-                # a port it cannot listen on (OpcUaStartError raised over the bind's OSError) can clear; the rest cannot
-                bind = isinstance(err, OSError) or (isinstance(err, OpcUaStartError) and isinstance(err.__context__, OSError))
-                raise (ServiceError if bind else ServiceConfigError)(f"the OPC UA server cannot start: {err}") from None
+                can_clear = isinstance(err, (OSError, OpcUaPortInUse))  # a port in use; the rest is the configuration
+                raise (ServiceError if can_clear else ServiceConfigError)(f"the OPC UA server cannot start: {err}") from None
             self.opcua_server = opcua
             log.info("OPC UA server on %s", opcua.endpoint)
         for hook in self.after_start:
