@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.cell.outcome import summarize
+from cellctl.cell.outcome import result_message, summarize
 from cellctl.domain import AlarmCode, InstallDeviation
 from cellctl.inspection.deviation import MeasuredDeviation
 from cellctl.store import CellStore, CycleRequest, CycleStateError
@@ -60,5 +60,20 @@ def test_a_done_cycle_cannot_be_failed_afterwards(tmp_path: Path) -> None:
         with pytest.raises(CycleStateError):
             store.fail_cycle(cid, error="late failure")
         assert store.cycle(cid).result == {"ok": True}
+    finally:
+        store.close()
+
+
+# The plant's result (MQTT, OPC UA, MES) carries the record's corrections bit for bit: a trip through radians and
+# back changes about one figure in seven in its last bit (CI saw 0.02670428061002395 published as ...23952).
+def test_the_published_result_carries_the_records_corrections_bit_for_bit(tmp_path: Path) -> None:
+    deg = [0.39568644409932835, 0.02670428061002395, -0.250696893740199]
+    mm = [15.413399526875764, -5.3948644669169425, -1.8491432142611757]
+    store, cid = _done_cycle(tmp_path, {"ok": True, "error_code": 0, "correction_mm": mm, "correction_deg": deg,
+                                        "cycle_time_s": 40.0})  # fmt: skip
+    try:
+        message = result_message(store.cycle(cid))
+        assert message is not None
+        assert message["correction_deg"] == deg and message["correction_mm"] == mm
     finally:
         store.close()

@@ -128,7 +128,8 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
     s = summarize(record)
     if s is None:
         return None
-    corrected = "correction_mm" in (record.result or {})
+    res = record.result or {}
+    corrected = "correction_mm" in res
     req = record.request
     return {
         "cycle_id": record.id,
@@ -141,8 +142,9 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
         "error_code": s.error_code,
         "reason": s.error or "",
         "measured_deviation": None if s.measured is None else asdict(s.measured),
-        "correction_mm": list(s.correction_mm) if corrected else None,
-        "correction_deg": [float(np.degrees(v)) for v in s.correction_rad] if corrected else None,
+        # the record's own figures: deg -> rad -> deg is not exact to the last bit, and the plant compares with REST
+        "correction_mm": [float(v) for v in res["correction_mm"]] if corrected else None,
+        "correction_deg": [float(v) for v in res.get("correction_deg") or (0.0, 0.0, 0.0)] if corrected else None,
         "cycle_time_s": s.cycle_time_s,
         "calibration_version": s.calibration_version,
         "started_at": None if record.started_at is None else record.started_at.isoformat(),
