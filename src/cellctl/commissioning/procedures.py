@@ -33,6 +33,7 @@ from cellctl.calibration.compute import (
 from cellctl.calibration.dataset import Dataset, pose_list
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.taught_shot import taught_shot
+from cellctl.commissioning.camera_grab import grab
 from cellctl.commissioning.context import DatasetDraft, JobContext
 from cellctl.commissioning.plans import (
     MotionPlan,
@@ -49,7 +50,7 @@ from cellctl.commissioning.plans import (
 from cellctl.commissioning.prompts import PromptKind
 from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, mean_pose
-from cellctl.ports import DeviceRejected, Frame, LaserStatus
+from cellctl.ports import DeviceRejected, LaserStatus
 
 
 class PoseRefused(Exception):
@@ -71,12 +72,6 @@ async def move_or_skip(
     """``move_to``, or None when the robot refuses: the draft's ``skipped`` says why (and the progress, at ``step``)."""
     skipped = draft.manifest["skipped"]
     return await collect_move_or_skip(ctx.devices.robot, target, ctx.motion, skipped, label, step, ctx.progress, refused)
-
-
-async def grab(ctx: JobContext) -> Frame:
-    frame = await ctx.devices.camera.grab(timeout_s=ctx.motion.grab_timeout_s)
-    ctx.on_frame(frame)
-    return frame
 
 
 async def current_pose(ctx: JobContext) -> Pose | None:
@@ -191,7 +186,7 @@ async def collect_board_views(ctx: JobContext, *, views: int | None = None, proc
         reported = await move_or_skip(ctx, draft, X, name, (k + 1, n))
         if reported is None:
             continue
-        frame = await grab(ctx)
+        frame = await grab(ctx, procedure)
         draft.images[f"{name}.png"] = frame.image
         draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
         ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
@@ -304,7 +299,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
         align_for_teaching, np.array(spots_H), np.array(spots_d), stops, cal, config, start, (head.range_min_mm, head.range_max_mm)
     )
     C_Pos_0 = await move_to(ctx, align.T_B_H_aligned)
-    frame = await grab(ctx)
+    frame = await grab(ctx, "teaching")
     draft.manifest["C_Pos_0"] = pose_list(C_Pos_0)
     draft.manifest["shooting_image"] = "template.png"
     draft.images["template.png"] = frame.image
@@ -380,14 +375,14 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
             reported = await move_to(ctx, X)
         except PoseRefused as err:
             raise CalibrationRefused("pixel_map", "unreachable", f"{name}: {err}") from None
-        frame = await grab(ctx)
+        frame = await grab(ctx, "pixel_map")
         draft.images[f"{name}.png"] = frame.image
         draft.manifest["views"].append({"name": name, "image": f"{name}.png", "T_B_H": pose_list(reported), "offset_target_mm": list(o)})
         ctx.progress(k + 1, n, f"{name}: frame {frame.frame_id}")
     await move_to(ctx, taught.C_Pos_0)
     place = board_place(ctx.config, npc.scale_board, scale_board_at(ctx.config))  # where the camera looks
     draft.manifest["scale_board"]["square_mm"] = await place_board(ctx, place, "scale checkerboard", recipe)
-    frame = await grab(ctx)
+    frame = await grab(ctx, "pixel_map")
     draft.images["scale.png"] = frame.image
     ctx.progress(n, n, "scale board image taken")
     await remove_board(ctx, "scale checkerboard")

@@ -24,6 +24,7 @@ from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, DatasetError, pose_array, pose_list, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import board_pose
+from cellctl.commissioning.camera_grab import grab
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
 from cellctl.commissioning.procedures import (
@@ -32,7 +33,6 @@ from cellctl.commissioning.procedures import (
     car_body_in_place,
     confirm_start,
     current_pose,
-    grab,
     move_or_skip,
     place_board,
     remove_board,
@@ -164,7 +164,7 @@ async def collect_verify(ctx: JobContext) -> Dataset:
             continue
         if k < n_views:
             view = plan.details["views_planned"][k]
-            frame = await grab(ctx)
+            frame = await grab(ctx, "verify")
             draft.images[f"{view['name']}.png"] = frame.image
             draft.manifest["views"].append({**view, "image": f"{view['name']}.png", "T_B_H": pose_list(reported), "T_B_H_target": pose_list(X)})
         else:
