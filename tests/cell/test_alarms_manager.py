@@ -125,6 +125,21 @@ async def test_first_out_stop_reason_is_kept_until_reset() -> None:
     assert am.stop_reason is None
 
 
+async def test_a_fault_that_aborts_a_standing_cell_replaces_the_standing_stop_reason() -> None:
+    # In Stopped (a commissioning job runs there) the laser lost is named (its Hold cannot act); the robot lost
+    # then aborts the cell, and it is the stop reason the operator reads: "Unhold" is refused in Aborted.
+    m = await machine_in(S.STOPPED)
+    am = manager(m)
+    laser = await am.raise_alarm(AlarmCode.LASER_LOST, source="laser")
+    assert m.state == S.STOPPED and am.stop_reason is not None and am.stop_reason.uid == laser.uid
+    robot = await am.raise_alarm(AlarmCode.ROBOT_LOST, source="robot")
+    assert m.state == S.ABORTING
+    assert am.stop_reason is not None and am.stop_reason.uid == robot.uid
+    await m.state_complete()
+    later = await am.raise_alarm(AlarmCode.CAMERA_LOST, source="camera")  # standing in Aborted: first-out kept
+    assert later.reaction is None and am.stop_reason.uid == robot.uid
+
+
 async def test_acknowledge_event_and_condition_alarms() -> None:
     am = manager(None)
     event = await am.raise_alarm(AlarmCode.ALIGNMENT_FAILED, source="align")

@@ -69,6 +69,7 @@ async def test_a_binned_camera_is_refused_by_the_camera_and_hand_eye_procedures_
         assert job["state"] == "refused" and camera.sizes == [(512, 512)], (job, camera.sizes)
         assert "frame_size" in job["error"] and "512 x 512 px" in job["error"] and "2048 x 2048 px" in job["error"], job
         assert "layout.camera" in job["error"] and "binning" in job["error"], job
+        assert "fx, fy" in job["error"] and "divides each by b" in job["error"], job  # binning scales the focal lengths too
         assert job["version_after"] is None and CalibrationStore(service.jobs.calibration_store.root).current() is None
 
         binning["on"] = False  # the camera's binning set back: the lens is calibrated at the full frame

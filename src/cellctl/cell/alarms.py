@@ -127,6 +127,7 @@ class AlarmManager:
         self._alarms: dict[str, Alarm] = {}
         self._history: deque[Alarm] = deque(maxlen=history)
         self._stop_reason: Alarm | None = None
+        self._stop_reason_standing = False  # named while the cell already stood; the next reaction that moves it takes over
         self._events: Fanout[AlarmEvent] = Fanout("alarm")
         self._tasks: set[asyncio.Task[None]] = set()
         self._installed = False
@@ -145,7 +146,7 @@ class AlarmManager:
     @property
     def stop_reason(self) -> Alarm | None:
         """The first-out alarm: the first whose reaction stopped production (in Aborted or Stopped, the first
-        with a reaction raised there), kept until reset."""
+        with a reaction raised there, until one's reaction moves the cell), kept until reset."""
         if self._stop_reason is None:
             return None
         return self._alarms.get(self._stop_reason.uid, self._stop_reason)
@@ -272,7 +273,7 @@ class AlarmManager:
         return [self.acknowledge(a.uid, by=by) for a in self.current() if not a.acknowledged]
 
     def reset_stop_reason(self) -> None:
-        self._stop_reason = None
+        self._stop_reason, self._stop_reason_standing = None, False
 
     async def drain(self) -> None:
         """Wait for reactions scheduled from machine events (tests, shutdown)."""
@@ -307,8 +308,8 @@ class AlarmManager:
             await m.command(command, actor="system", source=f"alarm:{alarm.code.value}")
         except CommandRefused:
             return  # the state moved on between the check and the command
-        if self._stop_reason is None:
-            self._stop_reason = alarm
+        if self._stop_reason is None or self._stop_reason_standing:  # a fault that moved the cell outranks a standing one
+            self._stop_reason, self._stop_reason_standing = alarm, False
         self._update(self._alarms.get(uid, alarm), AlarmEventKind.REACTED, self._clock(), reaction=command)
 
     def _name_standing_stop(self, uid: str, state: PackMLState) -> None:
@@ -316,11 +317,11 @@ class AlarmManager:
         no stop reason becomes the first-out stop reason: the one fault that keeps it there, until a Reset."""
         alarm = self._alarms.get(uid)
         if self._stop_reason is None and state in _STANDING_STOPS and alarm is not None and alarm.active:
-            self._stop_reason = alarm
+            self._stop_reason, self._stop_reason_standing = alarm, True
 
     def _on_machine_event(self, ev: MachineEvent) -> None:
         if ev.command in STOP_REASON_RESET_COMMANDS:
-            self._stop_reason = None
+            self._stop_reason, self._stop_reason_standing = None, False
         if ev.state_after == PackMLState.EXECUTE and ev.state_changed:
             task = asyncio.get_running_loop().create_task(self._react_pending())
             self._tasks.add(task)

@@ -31,7 +31,7 @@ def frame_size_refusal(ctx: JobContext, part: str, width_px: int, height_px: int
     said = f"the camera delivers {width_px} x {height_px} px frames but {source} {w} x {h} px: "
     if source.startswith("layout"):
         fix = (f"set the camera's Width/Height, binning and decimation to {w} x {h} px, or set layout.camera's "
-               "width_px, height_px and its nominal cx, cy to the camera's frame")  # fmt: skip
+               "width_px, height_px, fx, fy, cx and cy to the camera's frame (a b x b binning divides each by b)")  # fmt: skip
     else:
         fix = ("check the camera's Width/Height, binning and decimation, and that devices.camera.serial_number names "
                "this cell's camera; a replaced camera is calibrated first (`cellctl calibrate camera`)")  # fmt: skip
