@@ -4,6 +4,7 @@ running service's ``GET /dashboard/shifts``, after its start-up recovery."""
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
 from pathlib import Path
 
 from service_test_support import AUTH, api_client, running_service, sim_config
@@ -32,7 +33,9 @@ async def test_an_interrupted_install_is_a_not_ok_part_of_the_current_shift(tmp_
     async with running_service(tmp_path, config) as service, api_client(service) as client:
         states = sorted(c.state.value for c in await service.orchestrator.store.cycles())
         assert states == ["done", "failed", "interrupted"]  # the start-up recovery marked the killed one
-        r = await client.get("/dashboard/shifts", params={"count": 1}, headers=AUTH)
+        # one shift a day, starting about 12 h from now: the cycles just written are in it whatever the time of day
+        starts = f"{(datetime.now(timezone.utc).hour + 12) % 24:02d}:00"
+        r = await client.get("/dashboard/shifts", params={"count": 1, "starts": starts}, headers=AUTH)
         assert r.status_code == 200, r.text
         shift = r.json()["shifts"][0]
         assert (shift["good"], shift["not_ok"]) == (1, 2), shift

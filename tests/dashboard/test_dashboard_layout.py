@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import re
 from collections.abc import Iterator
+from datetime import datetime, timezone
 from typing import Any
 
 import httpx
@@ -24,6 +25,7 @@ from dashboard_test_support import (
     shot,
 )
 
+from cellctl.api.dashboard import SHIFT_STARTS
 from cellctl.domain import AlarmCode
 
 pytestmark = browser_marks()
@@ -49,8 +51,16 @@ def cycle_ids(cell: LiveCell, client: httpx.Client) -> list[int]:
     return ids
 
 
+def _mid_shift_zone() -> str:
+    """A fixed-offset time zone whose local time is 4 h into a shift (starts 06, 14, 22): the module's cycles count
+    in the page's current shift whatever the time of day the test runs at."""
+    east = (2 - datetime.now(timezone.utc).hour) % 8  # local hour 2, 10 or 18
+    return "Etc/GMT" if east == 0 else f"Etc/GMT-{east}"  # the IANA sign is reversed: Etc/GMT-3 is UTC+3
+
+
 def _sized(browser: Any, width: int, height: int) -> tuple[Any, Page, PageLog]:
-    context = browser.new_context(viewport={"width": width, "height": height})
+    assert SHIFT_STARTS == ("06:00", "14:00", "22:00"), SHIFT_STARTS  # what _mid_shift_zone counts on
+    context = browser.new_context(viewport={"width": width, "height": height}, timezone_id=_mid_shift_zone())
     pg = context.new_page()
     log = PageLog()
     pg.on("console", lambda m: log.errors.append(m.text) if m.type == "error" else None)

@@ -36,7 +36,8 @@ async def test_ten_cycles_give_ten_results_once_in_order_matching_the_records(tm
                 retained = {t.status, t.state, t.result_last, t.calibration}
                 await asyncio.to_thread(late.wait_for, "the retained topics", lambda: retained <= {m.topic for m in late.received})
                 kept = {m.topic: m for m in late.received if m.retain}
-        await asyncio.sleep(0.2)
+        await asyncio.to_thread(sub.wait_for, "the clean stop's offline status",  # not a guessed delay: a loaded machine
+                                lambda: any(m.json()["online"] is False for m in sub.on(t.status) if m.payload))
         bodies = [m.json() for m in got]
         assert [b["cycle_id"] for b in bodies] == [r["id"] for r in records]  # once each, in cycle order
         assert len(sub.on(t.result)) == 10

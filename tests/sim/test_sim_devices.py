@@ -107,12 +107,13 @@ async def test_timeout_stop_and_busy() -> None:
     stopped = (await robot.read_pose(timeout_s=T_OUT)).to_matrix()
     travelled = stopped[1, 3] - start[1, 3]
     assert 0.0 < travelled < 1000.0
-    # A move interrupted by a stop raises MotionInterrupted.
-    back = asyncio.create_task(robot.move(_request(start), timeout_s=T_OUT))
+    # A move interrupted by a stop raises MotionInterrupted (on to the far target: about 1.6 s, so a stalled
+    # test process cannot see it end before the stop; the way back was 12 mm, 0.3 s).
+    again = asyncio.create_task(robot.move(_request(target), timeout_s=T_OUT))
     await asyncio.sleep(0.1)
     await robot.stop(timeout_s=T_OUT)
     with pytest.raises(MotionInterrupted):
-        await back
+        await again
 
 
 async def test_call_timeouts_and_closing() -> None:

@@ -135,7 +135,9 @@ def matrix_to_xyz_fixed(R: ArrayLike) -> tuple[float, float, float]:
     if not is_rotation(M, tol=1e-6):
         raise ValueError("matrix_to_xyz_fixed needs a rotation matrix (orthonormal, det +1)")
     beta = float(np.arctan2(-M[2, 0], np.hypot(M[0, 0], M[1, 0])))
-    gamma = float(np.arctan2(M[2, 1], M[2, 2])) if np.cos(beta) > 1e-12 else 0.0
+    # below 1e-14 gamma is left 0: what it would have rotated is at most cos(beta) (a rounding-sized 1e-12 lock
+    # left out a gamma of pi/2 to 1e-12); above, arctan2 of such small terms is coarse but rebuilds R to rounding
+    gamma = float(np.arctan2(M[2, 1], M[2, 2])) if np.cos(beta) > 1e-14 else 0.0
     Mz = M @ rot_x(gamma).T @ rot_y(beta).T  # Rz(alpha), well conditioned even at the lock
     alpha = float(np.arctan2(Mz[1, 0], Mz[0, 0]))
     return alpha, beta, gamma
