@@ -122,7 +122,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 
 def _cmd_command(args: argparse.Namespace) -> int:
     res = _client(args).command(args.name)
-    print(f"{args.name}: now {res['state']}")
+    print(f"{args.name}: now {res['state']}" + (f" ({res['effect']})" if res.get("effect") else ""))
     return 0
 
 

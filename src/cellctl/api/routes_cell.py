@@ -10,6 +10,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.responses import StreamingResponse
+from pydantic import Field
 
 from cellctl.api.auth import SECURITY_SCHEME, Caller, TokenGuard
 from cellctl.api.health import judge
@@ -26,7 +27,7 @@ from cellctl.api.schemas_cell import (
 )
 from cellctl.cell.alarms import UnknownAlarm
 from cellctl.cell.orchestrator import CellOrchestrator
-from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
+from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed, TakenCommand
 from cellctl.domain import Alarm, PackMLCommand, UnitMode
 
 CommandName = enum.Enum("CommandName", {c.name.lower(): c.name.lower() for c in PackMLCommand if c.value})  # type: ignore[misc]
@@ -36,6 +37,15 @@ SSE_STATUS_PERIOD_S = 2.0
 """/events sends a fresh ``status`` event at least this often: device heartbeat ages stay current on
 the dashboard, and a client that hears nothing for a few periods knows its data is stale (an SSE
 comment would not do: EventSource never shows comments to the page)."""
+
+
+class CommandAnswer(CommandResult):
+    """A PackML command the cell carried out: by the state table, or where it has no edge by the cell's own rule."""
+
+    effect: str | None = Field(
+        None, description="what the command did where the state table has no edge for it, the state staying "
+        "(e.g. a Stop in Stopped cancels the running commissioning job); absent for a table edge",
+    )  # fmt: skip
 
 
 def alarm_view(a: Alarm) -> AlarmView:
@@ -69,14 +79,18 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     async def get_status() -> StatusView:
         return StatusView.model_validate(orch.status())
 
-    @router.post("/commands/{name}", response_model=CommandResult, responses={409: {"description": "the state table forbids it now"}})
-    async def post_command(name: CommandName, caller: Caller = Depends(guard.require)) -> CommandResult:  # type: ignore[valid-type]
+    @router.post(
+        "/commands/{name}", response_model=CommandAnswer, response_model_exclude_none=True,
+        responses={409: {"description": "the state table forbids it now (and no job is there for a Stop in Stopped to cancel)"}},
+    )  # fmt: skip
+    async def post_command(name: CommandName, caller: Caller = Depends(guard.require)) -> CommandAnswer:  # type: ignore[valid-type]
         cmd = PackMLCommand[name.value.upper()]  # type: ignore[attr-defined]
         try:
             ev = await orch.command(cmd, actor=caller.actor, source=f"rest:{caller.source}")
         except CommandRefused as err:
             raise HTTPException(status.HTTP_409_CONFLICT, detail=str(err)) from None
-        return CommandResult(command=cmd.name.lower(), state=ev.state_after.name, mode=ev.mode_after.name)
+        effect = ev.effect if isinstance(ev, TakenCommand) else None
+        return CommandAnswer(command=cmd.name.lower(), state=ev.state_after.name, mode=ev.mode_after.name, effect=effect)
 
     @router.post("/mode/{name}", response_model=CommandResult, responses={409: {"description": "modes change only in some states"}})
     async def post_mode(name: ModeName, caller: Caller = Depends(guard.require)) -> CommandResult:  # type: ignore[valid-type]

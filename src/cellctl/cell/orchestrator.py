@@ -462,7 +462,8 @@ class CellOrchestrator:
     # -- commands and status ------------------------------------------------------------------
 
     async def command(self, command: PackMLCommand, *, actor: str, source: str) -> MachineEvent:
-        """A PackML command (raises the machine's CommandRefused when the table forbids it)."""
+        """A PackML command from any source (REST and dashboard, PLC, OPC UA): CommandRefused when the table forbids it
+        and no taker carries it out (then the answer is a TakenCommand with its effect, e.g. a Stop in Stopped's cancelled job)."""
         return await self.machine.command(command, actor=actor, source=source)
 
     def status(self) -> dict[str, Any]:

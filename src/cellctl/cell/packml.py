@@ -2,7 +2,9 @@
 
 :data:`TRANSITIONS` is the single source of truth: every commanded edge ``(state, command) ->
 next state`` and every state-complete (SC) edge of an acting state. The machine, the REST API's
-409, the dashboard's greyed buttons and ``docs/packml_states.md`` are all derived from it.
+409, the dashboard's greyed buttons and ``docs/packml_states.md`` are all derived from it. One
+exception leaves the table and the state alone: a taker (:meth:`PackMLMachine.add_taker`) may carry
+out a command with no edge, e.g. a Stop in Stopped that cancels a running commissioning job.
 
 Structure (OPC 30050): Aborting and Aborted sit outside the *Cleared* superstate; Clearing,
 Stopped, Stopping and the *Running* sub-machine sit inside it. Abort is accepted from any state
@@ -21,12 +23,18 @@ from __future__ import annotations
 
 import asyncio
 import enum
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+from dataclasses import dataclass, fields
 from datetime import datetime, timezone
 from types import MappingProxyType
 
 from cellctl.cell.observers import Fanout
+from cellctl.cell.packml_errors import CommandBlocked as CommandBlocked
+from cellctl.cell.packml_errors import CommandNotAllowed as CommandNotAllowed
+from cellctl.cell.packml_errors import CommandRefused as CommandRefused
+from cellctl.cell.packml_errors import CycleStepNotAllowed as CycleStepNotAllowed
+from cellctl.cell.packml_errors import ModeChangeNotAllowed as ModeChangeNotAllowed
+from cellctl.cell.packml_errors import PackMLError as PackMLError
 from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 from cellctl.domain import EventKind as EventKind  # re-exported: the machine's events
 from cellctl.domain import MachineEvent as MachineEvent
@@ -158,34 +166,7 @@ def commands_allowed_in(state: PackMLState) -> frozenset[PackMLCommand]:
     return frozenset(c for (s, c) in COMMANDED if s == state)
 
 
-# --- Errors --------------------------------------------------------------------------------------
-
-
-class PackMLError(Exception):
-    """A request the state machine does not carry out."""
-
-
-class CommandRefused(PackMLError):
-    """A command was not carried out (the API answers 409; the PLC gets cmd_result 1, or 5 for an interlock)."""
-
-    def __init__(self, state: PackMLState, command: PackMLCommand, reason: str) -> None:
-        super().__init__(f"{command.name.title()} refused in {state.name.title()}: {reason}")
-        self.state = state
-        self.command = command
-        self.reason = reason
-
-
-class CommandNotAllowed(CommandRefused):
-    """The transition table has no edge for this command in this state."""
-
-    def __init__(self, state: PackMLState, command: PackMLCommand, allowed: Iterable[PackMLCommand]) -> None:
-        self.allowed = tuple(sorted(allowed))
-        names = ", ".join(c.name.title() for c in self.allowed) or "none"
-        super().__init__(state, command, f"the PackML state model does not allow it (allowed here: {names})")
-
-
-class CommandBlocked(CommandRefused):
-    """The table allows the command, but an interlock (guard) holds it back, e.g. an active alarm."""
+# --- Errors (the others are in :mod:`cellctl.cell.packml_errors`) ------------------------------
 
 
 class StateCompleteNotAllowed(PackMLError):
@@ -197,24 +178,6 @@ class StateCompleteNotAllowed(PackMLError):
             f"finish by SC ({', '.join(s.name.title() for s in sorted(STATE_COMPLETE))})"
         )
         self.state = state
-
-
-class ModeChangeNotAllowed(PackMLError):
-    """A unit mode change outside the states that allow it (the API answers 409)."""
-
-    def __init__(self, state: PackMLState, current: UnitMode, requested: UnitMode, allowed: Iterable[PackMLState]):
-        names = ", ".join(s.name.title() for s in sorted(allowed))
-        super().__init__(
-            f"unit mode change {current.name.title()} -> {requested.name.title()} refused in "
-            f"{state.name.title()}: modes change only in {names}"
-        )
-        self.state = state
-        self.current = current
-        self.requested = requested
-
-
-class CycleStepNotAllowed(PackMLError):
-    """A cycle step set outside Execute (steps are a sub-state of Execute)."""
 
 
 # --- Snapshots -----------------------------------------------------------------------------------
@@ -238,6 +201,23 @@ Guard = Callable[[PackMLState, PackMLCommand], "str | None"]
 """An interlock: returns a reason to refuse the command, or None to let it through. Must be fast
 and must not block (it runs under the machine's lock and for every ``allowed_commands()``)."""
 
+TakenAction = Callable[[str, str], Awaitable[str]]
+"""Carries out a taken command for ``(actor, source)`` once the machine's lock is released (the state
+stays); returns what it did, for the answer and the log. It must not raise for a normal outcome."""
+
+Taker = Callable[[PackMLState, PackMLCommand], "TakenAction | None"]
+"""Takes a command the table has no edge for in this state: returns the action that carries it out, or
+None to leave it refused. Fast and non-blocking, like a guard."""
+
+
+@dataclass(frozen=True)
+class TakenCommand(MachineEvent):
+    """What :meth:`PackMLMachine.command` returns for a command a taker carried out: the event (the state
+    stays) and ``effect``, what the taker did (e.g. the commissioning job a Stop in Stopped cancelled)."""
+
+    effect: str = ""
+
+
 Observer = Callable[[MachineEvent], object]
 
 
@@ -255,6 +235,9 @@ class PackMLMachine:
     synchronously, in order, under the lock (a callback must not block; to act, e.g. issue a
     command, it schedules a task). ``subscribe_queue()`` hands out an asyncio queue fed in order.
     An exception in a callback is logged and does not stop the machine or the other observers.
+
+    Takers (``add_taker``) carry out a command the table has no edge for in the current state without
+    leaving it (e.g. Stop in Stopped cancels a running commissioning job); the table is unchanged.
 
     Args:
         initial_state: Aborted (default) or Stopped; after a restart the cell never resumes running.
@@ -296,6 +279,7 @@ class PackMLMachine:
         self._lock = asyncio.Lock()
         self._changed = asyncio.Condition()
         self._guards: dict[PackMLCommand, list[Guard]] = {}
+        self._takers: dict[PackMLCommand, list[Taker]] = {}
         self._events: Fanout[MachineEvent] = Fanout("PackML")
 
     # -- reading ------------------------------------------------------------------------------
@@ -321,9 +305,14 @@ class PackMLMachine:
                 out[cmd] = reason
         return out
 
+    def taken_commands(self) -> frozenset[PackMLCommand]:
+        """Commands the table has no edge for here that a taker would carry out now."""
+        table = commands_allowed_in(self._state)
+        return frozenset(c for c in self._takers if c not in table and self._taken(c) is not None)
+
     def allowed_commands(self) -> frozenset[PackMLCommand]:
-        """The commands that would be carried out now (table edge exists and no guard objects)."""
-        return commands_allowed_in(self._state) - self.blocked_commands().keys()
+        """The commands that would be carried out now (a table edge no guard objects to, or a taker's)."""
+        return commands_allowed_in(self._state) - self.blocked_commands().keys() | self.taken_commands()
 
     def mode_change_allowed(self) -> bool:
         return self._state in self.mode_change_states
@@ -334,7 +323,7 @@ class PackMLMachine:
             state=self._state,
             mode=self._mode,
             cycle_step=self._step,
-            allowed_commands=commands_allowed_in(self._state) - blocked.keys(),
+            allowed_commands=commands_allowed_in(self._state) - blocked.keys() | self.taken_commands(),
             blocked_commands=MappingProxyType(blocked),
             mode_change_allowed=self.mode_change_allowed(),
             state_since=self._since,
@@ -346,6 +335,10 @@ class PackMLMachine:
     def add_guard(self, command: PackMLCommand, guard: Guard) -> None:
         """Add an interlock on ``command`` (checked after the table allows it)."""
         self._guards.setdefault(PackMLCommand(command), []).append(guard)
+
+    def add_taker(self, command: PackMLCommand, taker: Taker) -> None:
+        """Let ``taker`` carry out ``command`` where the table has no edge for it (asked only there)."""
+        self._takers.setdefault(PackMLCommand(command), []).append(taker)
 
     def subscribe(self, callback: Observer) -> Callable[[], None]:
         """Call ``callback(event)`` on every change; returns a function that unsubscribes."""
@@ -366,16 +359,23 @@ class PackMLMachine:
 
         ``actor`` says who (user name, ``plc``, ``system``), ``source`` from where (client
         address, ``modbus``, ``alarm:<code>``); both go into the event for the audit log.
+        Where the table has no edge a taker may carry it out: its event (the state stays) is
+        published, then its action runs outside the lock; the answer is a :class:`TakenCommand`.
         """
         cmd = self._as_command(command)
         async with self._lock:
             target = next_state(self._state, cmd)
-            if target is None:
+            if target is not None:
+                reason = self._guard_reason(cmd)
+                if reason is not None:
+                    raise CommandBlocked(self._state, cmd, reason)
+                return await self._move(EventKind.COMMAND, target, actor, source, cmd)
+            action = self._taken(cmd)
+            if action is None:
                 raise CommandNotAllowed(self._state, cmd, commands_allowed_in(self._state))
-            reason = self._guard_reason(cmd)
-            if reason is not None:
-                raise CommandBlocked(self._state, cmd, reason)
-            return await self._move(EventKind.COMMAND, target, actor, source, cmd)
+            ev = await self._emit(EventKind.COMMAND, self._state, self._state, self._mode, self._step, actor, source, cmd)
+        effect = await action(actor, source)
+        return TakenCommand(**{f.name: getattr(ev, f.name) for f in fields(ev)}, effect=effect)
 
     async def state_complete(self, *, actor: str = "system", source: str = "cell") -> MachineEvent:
         """The acting state's work is done (SC): follow its SC edge."""
@@ -440,6 +440,13 @@ class PackMLMachine:
             reason = guard(self._state, cmd)
             if reason is not None:
                 return reason
+        return None
+
+    def _taken(self, cmd: PackMLCommand) -> TakenAction | None:
+        for taker in self._takers.get(cmd, ()):
+            action = taker(self._state, cmd)
+            if action is not None:
+                return action
         return None
 
     async def _move(

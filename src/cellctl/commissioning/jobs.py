@@ -5,7 +5,9 @@ no cycle can run then (cycles run only in Execute), and while the job runs Start
 none can begin. Stop or Abort (from the dashboard, the PLC or an alarm's reaction) cancels the
 job, as the engineer's cancel does: the robot is told to stop at once, the job ends
 ``cancelled`` with the samples it collected written as a partial dataset, and the calibration
-set in use stays as it was. Every move of a job runs at the procedure's reduced speed.
+set in use stays as it was. In Stopped, where the state table has no Stop, a Stop is taken while a
+job runs or starts (a taker on the machine): it cancels the job and the cell stays Stopped. Every
+move of a job runs at the procedure's reduced speed.
 
 A job that collected its dataset computes it off the event loop; a result that passes its gates
 becomes a new version of the calibration set, a refused one leaves the set unchanged and says
@@ -17,14 +19,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import (CalibrationSet, CalibrationStore, check_ready, command, damage_text,
-                                                 recipe_slot)
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready, command, recipe_slot
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
@@ -33,10 +33,11 @@ from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end
 from cellctl.cell.cycle import CellDevices
 from cellctl.cell.events import EventHub
-from cellctl.cell.packml import CYCLE_STATES, PackMLMachine
+from cellctl.cell.packml import PackMLMachine, TakenAction
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, Witness, describe_source
 from cellctl.commissioning.job_end import ended_by, keep_what_was_collected, say_where_the_robot_was_left
+from cellctl.commissioning.job_run import RunningJob, calibration_in_use, config_for, way_to_a_job
 from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
 from cellctl.commissioning.prompts import Answer, Prompt, PromptDesk
@@ -57,27 +58,6 @@ JOB_STATES_ALLOWED = frozenset({PackMLState.STOPPED, PackMLState.IDLE})
 _CANCELLING_STATES = frozenset({PackMLState.STOPPING, PackMLState.ABORTING})
 PROGRESS_PERSIST_EVERY = 10
 LAST_FRAMES_KEPT = 4
-
-
-def _way_to_a_job(state: PackMLState) -> str:
-    """What to send to reach Stopped or Idle (a Stop in Execute, Held or Suspended ends the cycle in progress)."""
-    if state is PackMLState.ABORTED:
-        return "send Clear first"
-    return "send Stop first" + ("" if state not in CYCLE_STATES else ", once the cycle in progress has ended: "
-                                "Stop ends a running (or held) cycle at once and drops the queued ones")  # fmt: skip
-
-
-@dataclass
-class _Running:
-    record: JobRecord
-    task: asyncio.Task[None] | None = None
-    ctx: JobContext | None = None
-    cancel_reason: str | None = None
-    frame: Frame | None = None
-    frames: int = 0
-    started: float = field(default_factory=time.monotonic)
-    progress: dict[str, Any] = field(default_factory=dict)
-    updates: int = 0
 
 
 class JobManager:
@@ -118,14 +98,16 @@ class JobManager:
         self.witness = witness
         self.call_timeout_s = call_timeout_s
         self.desk = PromptDesk(events.publish)
-        self._running: _Running | None = None
+        self._running: RunningJob | None = None
         self._finished: dict[int, asyncio.Event] = {}
         self._pump: asyncio.Task[None] | None = None
         self._lock = asyncio.Lock()
         self._starting: str | None = None  # a job between its state check and its start: Start is held back meanwhile
         self._last_frames: dict[int, Frame] = {}
         self.schedule: VerifySchedule | None = None
+        self._halts: set[asyncio.Task[None]] = set()  # cancels a Stop began: they finish even if its caller gives up
         machine.add_guard(PackMLCommand.START, self._start_guard)
+        machine.add_taker(PackMLCommand.STOP, self._stop_taker)
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -167,8 +149,13 @@ class JobManager:
     async def _follow(self, queue: asyncio.Queue[MachineEvent]) -> None:
         while True:
             ev = await queue.get()
+            if not ev.state_changed or ev.state_after not in _CANCELLING_STATES:
+                continue
             run = self._running
-            if run is None or not ev.state_changed or ev.state_after not in _CANCELLING_STATES:
+            if run is None and self._starting is not None:  # a job between its state check and its start
+                async with self._lock:
+                    run = self._running
+            if run is None:
                 continue
             cmd = ev.command.name.lower() if ev.command is not None else "a state change"
             with contextlib.suppress(Exception):
@@ -180,6 +167,36 @@ class JobManager:
         if run is None:
             return None if self._starting is None else f"a commissioning job ({self._starting}) is starting: wait for it or cancel it"
         return f"commissioning job {run.record.id} ({run.record.procedure}) is running: wait for it or cancel it first"
+
+    def _stop_taker(self, state: PackMLState, command: PackMLCommand) -> TakenAction | None:
+        """A Stop in Stopped (no edge there) while a job runs or starts: it cancels the job, the cell stays Stopped.
+        (In Idle, Stop's edge to Stopping cancels it: :meth:`_follow`.)"""
+        run = self._running
+        if state not in JOB_STATES_ALLOWED or (run is None and self._starting is None):
+            return None
+
+        async def cancel_the_job(actor: str, source: str) -> str:
+            return await self._cancel_on_stop(run, state, actor=actor, source=source)
+
+        return cancel_the_job
+
+    async def _cancel_on_stop(self, run: RunningJob | None, state: PackMLState, *, actor: str, source: str) -> str:
+        """Cancel the job for a taken Stop; answer once the robot was told to stop (the job ends in its own time)."""
+        if run is None:  # it was starting: it has started (or been refused) once the submit lock is free
+            async with self._lock:
+                run = self._running
+            if run is None:
+                return "the commissioning job that was starting did not start: nothing to cancel"
+        rec = run.record
+        if run.cancel_reason is not None:
+            return f"commissioning job {rec.id} ({rec.procedure}) was already being cancelled ({run.cancel_reason})"
+        halt = asyncio.create_task(self._halt(run, actor=actor, source=source,
+                                              reason=f"stop by {actor} in {state.name.lower()}"))  # fmt: skip
+        self._halts.add(halt)
+        halt.add_done_callback(self._halts.discard)
+        await asyncio.shield(halt)
+        return (f"cancelled commissioning job {rec.id} ({rec.procedure}): the robot was told to stop; "
+                f"the job ends cancelled with what it collected, the cell stays {state.name.title()}")  # fmt: skip
 
     # -- queries --------------------------------------------------------------------------------
 
@@ -223,14 +240,7 @@ class JobManager:
 
     def current_calibration(self) -> CalibrationSet | None:
         """The set in use (None before the first calibration); a damaged one is JobRefused saying how to restore it."""
-        try:
-            return self.calibration_store.current()
-        except (ValueError, OSError) as err:  # CalibrationSetError is a ValueError; alarm 1305 says the same
-            try:
-                version = self.calibration_store.current_version()
-            except (ValueError, OSError):  # the pointer itself is what is damaged (mistyped, empty, unreadable)
-                version = None
-            raise JobRefused(damage_text(self.calibration_store, err, version), conflict=True) from None
+        return calibration_in_use(self.calibration_store)
 
     # -- plans ----------------------------------------------------------------------------------
 
@@ -240,7 +250,7 @@ class JobManager:
         start = await self._robot_pose()
         cal = await asyncio.to_thread(self.current_calibration)
         try:
-            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, self._config_for(opts), cal, opts, start)
+            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, config_for(self.config, opts), cal, opts, start)
         except (PlanError, CalibrationRefused) as err:
             raise JobRefused(str(err)) from None
 
@@ -258,12 +268,12 @@ class JobManager:
         async with self._lock:
             if self._running is not None:
                 r = self._running.record
-                raise JobRefused(f"job {r.id} ({r.procedure}) is running: one job at a time; cancel it or wait", conflict=True)
+                raise JobRefused(f"job {r.id} ({r.procedure}) is running: one job at a time; wait, or cancel it (Ctrl-C in its cellctl, the dashboard, POST /jobs/{r.id}/cancel)", conflict=True)  # fmt: skip
             state = self.machine.state
             if state not in JOB_STATES_ALLOWED:
                 raise JobRefused(
                     f"the cell is {state.name}: commissioning jobs run in STOPPED or IDLE only (no cycle can run then); "
-                    + _way_to_a_job(state),
+                    + way_to_a_job(state),
                     conflict=True,
                 )
             self._starting = procedure  # from here a Start waits: no cycle may begin beside the job
@@ -274,7 +284,7 @@ class JobManager:
         self._publish(run)
         return run.record
 
-    async def _create(self, procedure: str, opts: dict[str, Any], *, actor: str, source: str) -> _Running:
+    async def _create(self, procedure: str, opts: dict[str, Any], *, actor: str, source: str) -> RunningJob:
         """The job's record and task, once its procedure's parts are calibrated (under the submit lock)."""
         cal = await asyncio.to_thread(self.current_calibration)
         slot = recipe_slot(opts.get("recipe"), self.config.default_recipe)
@@ -286,7 +296,7 @@ class JobManager:
         rec = await self.store.create_job(
             procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version
         )
-        run = _Running(rec)
+        run = RunningJob(rec)
         self._running = run
         self._finished[rec.id] = asyncio.Event()
         await self.store.append_audit(actor=actor, source=source, action="job.start",
@@ -300,19 +310,25 @@ class JobManager:
         if run is None or run.record.id != job_id:
             rec = await self.store.job(job_id)
             raise JobRefused(f"job {job_id} is not running (it is {rec.state}); nothing to cancel", conflict=True)
-        if run.cancel_reason is None:
-            run.cancel_reason = reason or f"cancelled by {actor}"
-            await self.store.append_audit(actor=actor, source=source, action="job.cancel", params={"job_id": job_id, "reason": run.cancel_reason})
-            try:
-                await self.devices.robot.stop(timeout_s=self.call_timeout_s)
-            except DeviceError as err:
-                log.error("job %d: the robot did not take the stop: %s", job_id, err)
-            if run.task is not None:
-                run.task.cancel()
+        await self._halt(run, actor=actor, source=source, reason=reason)
         if run.task is not None:
             with contextlib.suppress(asyncio.CancelledError):
                 await asyncio.shield(run.task)
         return await self.store.job(job_id)
+
+    async def _halt(self, run: RunningJob, *, actor: str, source: str, reason: str | None) -> None:
+        """The first cancel of a job: audit it, stop the robot at once, cancel the job's task (a later one does nothing)."""
+        if run.cancel_reason is not None:
+            return
+        job_id = run.record.id
+        run.cancel_reason = reason or f"cancelled by {actor}"
+        await self.store.append_audit(actor=actor, source=source, action="job.cancel", params={"job_id": job_id, "reason": run.cancel_reason})
+        try:
+            await self.devices.robot.stop(timeout_s=self.call_timeout_s)
+        except DeviceError as err:
+            log.error("job %d: the robot did not take the stop: %s", job_id, err)
+        if run.task is not None:
+            run.task.cancel()
 
     async def answer(self, job_id: int, prompt_id: int, answer: Answer) -> Prompt:
         """Answer the job's open prompt (audited with who answered)."""
@@ -325,7 +341,7 @@ class JobManager:
 
     # -- the job itself -------------------------------------------------------------------------
 
-    def _publish(self, run: _Running) -> None:
+    def _publish(self, run: RunningJob) -> None:
         r = run.record
         prompts = self.desk.open_prompts(r.id)
         run.updates += 1
@@ -337,30 +353,24 @@ class JobManager:
              "prompt": prompts[0].as_dict() if prompts else None, "update": run.updates},
         )  # fmt: skip
 
-    def _progress(self, run: _Running) -> Callable[[int, int, str], None]:
+    def _progress(self, run: RunningJob) -> Callable[[int, int, str], None]:
         def report(done: int, total: int, message: str) -> None:
             if run.cancel_reason is not None:
                 # The cancel's task.cancel() can be lost when it lands as an awaited driver call completes
                 # (asyncio.wait_for on Python 3.11 may swallow it): the next step of the job ends it instead.
                 raise asyncio.CancelledError(run.cancel_reason)
-            elapsed = time.monotonic() - run.started
-            plan = run.ctx.plan if run.ctx is not None else None
-            left = None
-            if plan is not None and plan.moves_s and done > 0:
-                est_done = max(plan.estimated_s - plan.remaining_s(done), 1e-6)
-                left = plan.remaining_s(done) * max(elapsed / est_done, 0.0)
-            run.progress = {"done": done, "total": total, "message": message, "elapsed_s": elapsed, "time_left_s": left}
+            run.note_progress(done, total, message)
             self._publish(run)
             if run.updates % PROGRESS_PERSIST_EVERY == 0 or done == total:
                 asyncio.get_running_loop().create_task(self._persist_progress(run))
 
         return report
 
-    async def _persist_progress(self, run: _Running) -> None:
+    async def _persist_progress(self, run: RunningJob) -> None:
         with contextlib.suppress(Exception):
             run.record = await self.store.update_job(run.record.id, progress=run.progress)
 
-    def _on_plan(self, run: _Running) -> Callable[[MotionPlan], None]:
+    def _on_plan(self, run: RunningJob) -> Callable[[MotionPlan], None]:
         def show(plan: MotionPlan) -> None:
             summary = plan.summary()
             run.record = replace(run.record, plan=summary)
@@ -369,11 +379,11 @@ class JobManager:
 
         return show
 
-    async def _persist_plan(self, run: _Running, summary: dict[str, Any]) -> None:
+    async def _persist_plan(self, run: RunningJob, summary: dict[str, Any]) -> None:
         with contextlib.suppress(Exception):
             await self.store.update_job(run.record.id, plan=summary)
 
-    def _on_frame(self, run: _Running) -> Callable[[Frame], None]:
+    def _on_frame(self, run: RunningJob) -> Callable[[Frame], None]:
         def take(frame: Frame) -> None:
             run.frame = frame
             run.frames += 1
@@ -381,20 +391,10 @@ class JobManager:
 
         return take
 
-    def _config_for(self, opts: Mapping[str, Any]) -> CellConfig:
-        """The configuration a job runs with: its recipe's, and the hand-eye method it asks for."""
-        config = self.config.for_recipe(opts.get("recipe") or self.config.default_recipe)
-        method = opts.get("method")
-        if method is None:
-            return config
-        proc = config.calibration.procedure
-        proc = proc.model_copy(update={"hand_eye": proc.hand_eye.model_copy(update={"method": method})})
-        return config.model_copy(update={"calibration": config.calibration.model_copy(update={"procedure": proc})})
-
-    async def _run(self, run: _Running, cal: CalibrationSet | None, opts: dict[str, Any]) -> None:
+    async def _run(self, run: RunningJob, cal: CalibrationSet | None, opts: dict[str, Any]) -> None:
         rec = run.record
         proc = ALL_PROCEDURES[rec.procedure]
-        config = self._config_for(opts)
+        config = config_for(self.config, opts)
         when = datetime.now(timezone.utc)
         dest = default_dataset_dir(self.calibration_store.root, proc.kind, when).with_name(
             f"{proc.kind}-{when:%Y%m%dT%H%M%S}Z-job{rec.id}"
@@ -460,7 +460,7 @@ class JobManager:
             result["stored_version"] = None
         return fields
 
-    async def _finish(self, run: _Running, ctx: JobContext, fields: dict[str, Any]) -> None:
+    async def _finish(self, run: RunningJob, ctx: JobContext, fields: dict[str, Any]) -> None:
         rec = run.record
         try:
             await keep_what_was_collected(ctx, fields, rec.id)

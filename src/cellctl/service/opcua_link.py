@@ -9,15 +9,18 @@ may be tried again once the cell is ready.
 from __future__ import annotations
 
 import asyncio
+import logging
 from typing import Any
 
 from cellctl.cell.alarms import UnknownAlarm
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.cell.outcome import result_message
-from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed
+from cellctl.cell.packml import CommandRefused, ModeChangeNotAllowed, TakenCommand
 from cellctl.domain import Alarm, PackMLCommand, UnitMode
 from cellctl.opcua.port import Refused, Snapshot
 from cellctl.store import CycleRecord, CycleRequest, CycleState, IdempotencyConflict
+
+log = logging.getLogger(__name__)
 
 OPCUA_SCOPE = "opcua"
 FINISHED = (CycleState.DONE, CycleState.FAILED, CycleState.INTERRUPTED)
@@ -43,9 +46,11 @@ class OpcUaCellLink:
 
     async def command(self, command: PackMLCommand, *, actor: str) -> None:
         try:
-            await self._orch.command(command, actor=actor, source="opcua")
+            ev = await self._orch.command(command, actor=actor, source="opcua")
         except CommandRefused as err:
             raise Refused("BadInvalidState", str(err)) from None
+        if isinstance(ev, TakenCommand):  # e.g. a Stop in Stopped that cancelled a commissioning job: Good
+            log.info("OPC UA command %s by %s: %s", command.name, actor, ev.effect)
 
     async def change_mode(self, mode: UnitMode, *, actor: str) -> None:
         try:

@@ -20,7 +20,7 @@ from dataclasses import astuple
 
 from cellctl.cell.orchestrator import CellOrchestrator, CycleRefused
 from cellctl.cell.outcome import summarize
-from cellctl.cell.packml import CommandNotAllowed, CommandRefused, ModeChangeNotAllowed
+from cellctl.cell.packml import CommandNotAllowed, CommandRefused, ModeChangeNotAllowed, TakenCommand
 from cellctl.domain import AlarmCode, CycleStep, PackMLCommand, UnitMode
 from cellctl.plc.clearance import ClearanceWatch, FittedWall, flange_to_wall_mm
 from cellctl.plc.facade import (
@@ -216,11 +216,13 @@ class PlcCellLink:
     async def command(self, command: PackMLCommand) -> CommandReply:
         """1 (invalid in state) when the state model has no such edge, 5 (blocked) when an interlock holds it back."""
         try:
-            await self._orch.command(command, actor=PLC_ACTOR, source="plc")
+            ev = await self._orch.command(command, actor=PLC_ACTOR, source="plc")
         except CommandRefused as err:
             reply = CommandReply.INVALID_IN_STATE if isinstance(err, CommandNotAllowed) else CommandReply.BLOCKED
             log.warning("PLC command %s refused (cmd_result %d %s): %s", command.name, reply, reply.name, err)
             return reply
+        if isinstance(ev, TakenCommand):  # e.g. a Stop in Stopped that cancelled a commissioning job: accepted
+            log.info("PLC command %s: %s", command.name, ev.effect)
         return CommandReply.ACCEPTED
 
     async def change_mode(self, mode: UnitMode) -> CommandReply:
