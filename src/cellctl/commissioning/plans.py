@@ -6,7 +6,8 @@ procedures that build on earlier ones, the calibration set. Every pose is checke
 robot's working range (poses outside it are dropped with the reason); the plan reports how many
 poses remain, how the rotations between them are spread (hand-eye needs rotation axes in several
 directions) and the robot time it will take at the procedure's reduced speed. ``cellctl
-calibrate ... --dry-run`` prints it; a job shows it before the first move.
+calibrate ... --dry-run`` prints it; a job shows it before the first move. A board plan left with fewer
+views than its computation accepts (min_views) is refused then, before anything moves.
 """
 
 from __future__ import annotations
@@ -21,9 +22,10 @@ import numpy as np
 from cellctl.align import plan_spot_poses
 from cellctl.calibration.board import BoardSpec
 from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
+from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
-from cellctl.calibration.poses import plan_board_views, plan_laser_poses
+from cellctl.calibration.poses import PosePlan, plan_board_views, plan_laser_poses
 from cellctl.calibration.teach import nominal_shooting_pose
 from cellctl.config.feature import shot_aim_mm
 from cellctl.config.calibration_procedure import BoardConfig
@@ -35,10 +37,19 @@ SPREAD_POSES = 60
 LASER_SPARE = 0.2
 """Laser poses a job plans beyond the gate's ``calibration.procedure.laser.min_poses`` readings, as a share of
 it: a few readings out of the sensor's range (or poses the robot refuses) must not leave the job short."""
+MARGIN_WIDTH_PX = 2048
+"""The image width (px) calibration.procedure.camera.margin_px is stated for; it scales with layout.camera.width_px."""
+MAX_VIEWS = 200
+"""The most board views a job may ask for (options.views, cellctl.commissioning.registry.check_options)."""
 
 
 class PlanError(ValueError):
     """No usable plan: the message says which setting or missing calibration stops it."""
+
+
+class TooFewViews(PlanError, CalibrationRefused):
+    """A board plan with fewer views than its computation accepts: the gate's too_few_views, known before anything moves
+    (a job ends refused, as the gate would end it after collecting)."""
 
 
 @dataclass
@@ -181,26 +192,77 @@ def board_place(config: CellConfig, board: BoardConfig, at_mm: Sequence[float]) 
     }
 
 
-def plan_board(config: CellConfig, *, views: int | None = None, start: Pose | None = None, procedure: str = "camera") -> MotionPlan:
-    """Views of the checkerboard stuck on the wall (camera intrinsics and hand-eye)."""
+def board_margin_px(config: CellConfig) -> float:
+    """How far inside the image the board must stay (px of this camera): calibration.procedure.camera.margin_px is
+    stated for a :data:`MARGIN_WIDTH_PX` wide image and scales with layout.camera.width_px (a binned camera's is smaller)."""
+    return float(config.calibration.procedure.camera.margin_px) * (config.layout.camera.width_px / MARGIN_WIDTH_PX)
+
+
+def board_min_views(config: CellConfig, procedure: str) -> tuple[int, str]:
+    """The fewest views the procedure's computation accepts, and the setting that says so."""
+    if procedure == "hand_eye":
+        return config.calibration.procedure.hand_eye.min_views, "calibration.procedure.hand_eye.min_views"
+    return config.calibration.procedure.camera.min_views, "calibration.procedure.camera.min_views"
+
+
+def _board_views(config: CellConfig, n: int) -> PosePlan:
     cc = config.calibration.procedure.camera
     lay = config.layout
-    K_nom, D_nom = lay.camera.camera_matrix(), lay.camera.dist_coeffs()
-    size = (lay.camera.width_px, lay.camera.height_px)
-    outline = board_spec(cc.board).outline(cc.board.border_mm)
-    T_B_P = pose_in_plane(nominal_T0(config), cc.board_on_wall_mm)
+    return plan_board_views(
+        pose_in_plane(nominal_T0(config), cc.board_on_wall_mm), board_spec(cc.board).outline(cc.board.border_mm),
+        lay.camera_mount.T_H_C(), lay.camera.camera_matrix(), lay.camera.dist_coeffs(), (lay.camera.width_px, lay.camera.height_px),
+        n, _reach_check(config), distance_mm=cc.distance_mm, tilt_deg=cc.tilt_deg, spin_deg=cc.spin_deg,
+        margin_px=board_margin_px(config), seed=0,
+    )  # fmt: skip
+
+
+def plan_board(config: CellConfig, *, views: int | None = None, start: Pose | None = None, procedure: str = "camera") -> MotionPlan:
+    """Views of the checkerboard stuck on the wall (camera intrinsics and hand-eye).
+
+    Raises TooFewViews (a PlanError), before anything moves, when fewer views fit than the procedure's computation needs."""
+    cc = config.calibration.procedure.camera
     n = views if views is not None else cc.n_views
     if n < 3:
         raise PlanError(f"views: at least 3 board views are needed, got {n}")
-    plan = plan_board_views(
-        T_B_P, outline, lay.camera_mount.T_H_C(), K_nom, D_nom, size, n, _reach_check(config),
-        distance_mm=cc.distance_mm, tilt_deg=cc.tilt_deg, spin_deg=cc.spin_deg, margin_px=cc.margin_px, seed=0,
-    )  # fmt: skip
+    plan = _board_views(config, n)
+    need, setting = board_min_views(config, procedure)
+    if len(plan.flange_poses) < need:
+        raise TooFewViews(procedure, "too_few_views", _too_few_views(config, n, plan, need, setting))
     labels = [f"view_{k:03d}" for k in range(len(plan.flange_poses))]
     details = {"tilt_deg": [min(plan.tilt_deg, default=0.0), max(plan.tilt_deg, default=0.0)],
                "distance_mm": [min(plan.distance_mm, default=0.0), max(plan.distance_mm, default=0.0)],
                "board": board_place(config, cc.board, cc.board_on_wall_mm)}  # fmt: skip
     return make_plan(config, procedure, plan.flange_poses, labels, plan.dropped, start, details)
+
+
+def _too_few_views(config: CellConfig, n: int, plan: PosePlan, need: int, setting: str) -> str:
+    """Why a board plan is short, and the fixes: the --views that plans enough (if any does), the settings."""
+    cc, w = config.calibration.procedure.camera, config.layout.camera.width_px
+    out_of_view = sum(1 for d in plan.dropped if d.endswith("board leaves the image"))
+    # planned(N) = min(N, views that fit among the first 4N + 8 candidates): it grows with N, so bisect
+    lo, hi, ask = n + 1, MAX_VIEWS, None
+    if n >= MAX_VIEWS or len(_board_views(config, MAX_VIEWS).flange_poses) < need:
+        lo = hi + 1  # not even the most views a job may ask for
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        if len(_board_views(config, mid).flange_poses) >= need:
+            ask, hi = mid, mid - 1
+        else:
+            lo = mid + 1
+    fit = len(plan.flange_poses)
+    if ask is None:
+        more = f"no --views up to {MAX_VIEWS} plans enough: "
+    else:
+        more = (f"run it with --views {ask} (options.views; default calibration.procedure.camera.n_views), which plans "
+                f"{len(_board_views(config, ask).flange_poses)}" + (", or " if fit < n else ""))  # fmt: skip
+    if fit == n:
+        return f"{n} board views are asked for, and the calibration needs at least {need} ({setting}). Nothing moved: {more}"
+    return (f"only {fit} of the {n} board views asked for fit ({len(plan.dropped)} candidate view(s) left out: "
+            f"{out_of_view} because the board left the image, {len(plan.dropped) - out_of_view} out of the robot's reach), and "
+            f"the calibration needs at least {need} ({setting}). Nothing moved: {more}let more views fit: a smaller "
+            f"calibration.procedure.camera.margin_px ({cc.margin_px:g} px stated for a {MARGIN_WIDTH_PX} px wide image, "
+            f"{board_margin_px(config):g} px on this {w} px wide camera), a larger distance_mm ({cc.distance_mm[0]:g} to "
+            f"{cc.distance_mm[1]:g} mm) or a smaller tilt_deg ({cc.tilt_deg[0]:g} to {cc.tilt_deg[1]:g} deg)")  # fmt: skip
 
 
 def plan_laser(config: CellConfig, *, poses: int | None = None, start: Pose | None = None) -> MotionPlan:

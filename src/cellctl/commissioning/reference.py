@@ -19,7 +19,8 @@ JOB_STATE_MEANINGS = {
     "running": "collecting: moving the robot, reading the sensors, or waiting at a prompt",
     "computing": "the dataset is complete; the calibration is being computed from it",
     "done": "computed and passed its gates; stored as a new calibration-set version (unless store = false)",
-    "refused": "computed and failed a gate (the reason says which); the set in use is unchanged",
+    "refused": ("failed a gate, computed or (a plan too short for it) before anything moved; the reason says which; "
+                "the set in use is unchanged"),
     "failed": "a device or software fault ended it; the set in use is unchanged",
     "cancelled": "cancelled (engineer, Stop or Abort): the robot was stopped, the partial dataset kept, the set unchanged",
     "interrupted": "the service stopped while it ran (found at the next start)",

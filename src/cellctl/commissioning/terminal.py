@@ -9,6 +9,7 @@ Ctrl-C cancels the job: the service stops the robot at once and keeps the partia
 
 from __future__ import annotations
 
+import math
 import queue
 import sys
 import threading
@@ -124,9 +125,11 @@ def _parse(line: str, prompt: dict[str, Any]) -> tuple[str, float | None] | str:
         return ("confirm", None)
     if prompt.get("value_label"):
         try:
-            return ("value", float(text))
+            value = float(text)
         except ValueError:
-            pass
+            value = math.nan
+        if math.isfinite(value):  # "nan", "inf" and 1e999 are not a measured size: asked again, as any other word
+            return ("value", value)
     return f"'{line.strip()}' is not an answer: press Enter to confirm" + (", type a number" if prompt.get("value_label") else "") + " or c to cancel"
 
 
@@ -296,6 +299,10 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
         out.write(f"job {job_id} {job['state']} after {time.monotonic() - t0:.1f} s\n")
         print_result(job, out)
         return 130
+    except BaseException as err:  # a fault of this side: the job must not stay open, its prompts with nobody to answer them
+        bar.clear()
+        cancel_after_fault(client, job_id, err, out)
+        raise
     finally:
         stop.set()
     bar.clear()
@@ -311,6 +318,22 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
     if job["state"] == "cancelled" and str(job.get("error") or "").startswith(SERVICE_STOPPING):
         service_gone(out, client.url, job, SERVICE_STOPPING)
     return exit_status(job)
+
+
+def cancel_after_fault(client: CellClient, job_id: int, err: BaseException, out: TextIO) -> None:
+    """This terminal stops following job ``job_id`` on an error it does not handle: cancel the job (the robot stops)."""
+    out.write(f"\nstopped following job {job_id} on an error ({type(err).__name__}: {err}); cancelling the job, the robot "
+              "is told to stop ...\n")  # fmt: skip
+    out.flush()
+    try:
+        job = client.cancel_job(job_id)
+    except ServiceError as cancel_err:
+        out.write(f"job {job_id} could not be cancelled from here ({cancel_err}): cancel it on the dashboard "
+                  f"({client.url}/#/commissioning) or with POST {client.url}/jobs/{job_id}/cancel\n")  # fmt: skip
+        out.flush()
+        return
+    out.write(f"job {job_id} {job['state']}\n")
+    print_result(job, out)
 
 
 def service_gone(out: TextIO, url: str, job: dict[str, Any], why: str) -> None:

@@ -43,6 +43,8 @@ class CameraCalibrationConfig(StrictModel):
     distance_mm: tuple[Finite, Finite] = (400.0, 470.0)  # camera to board centre
     tilt_deg: tuple[Finite, Finite] = (12.0, 35.0)
     spin_deg: Finite = Field(35.0, ge=0, le=180)
+    # Keep the board (with its border) this far inside the image in every planned view: px of a 2048 px wide image,
+    # scaled by layout.camera.width_px / 2048 (7.5 px on a 512 px camera binned 4 x 4).
     margin_px: Finite = Field(30.0, ge=0)
     refine: Literal["subpix", "sb"] = "subpix"
     # k3 held at 0 (OpenCV's CALIB_FIX_K3): the board fills the middle of the view, so a free k3 trades
