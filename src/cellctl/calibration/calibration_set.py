@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shlex
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Literal
@@ -374,10 +375,16 @@ def check_ready(
             if used is None:
                 problems.append(f"{label}: does not record which {dep} it was computed with; run `{cmd}` again")
             elif have is not None and have.status == "ok" and have.id != used:
-                problems.append(
-                    f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
-                )
+                problems.append(f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
+                                + _offline_way(name, p))
     return problems
+
+
+def _offline_way(name: str, p: PartRecord) -> str:
+    """The other way to redo a stale part: recompute the dataset it was computed from ("": it records none)."""
+    return "" if p.dataset is None else (", or, if nothing was touched since its dataset was recorded, recompute that dataset "
+                                         f"offline once the parts it is computed with are current: `{COMMANDS[name]} --dataset "
+                                         f"{shlex.quote(p.dataset.path)}`")
 
 
 def store_root(directory: str | Path, workdir: str | Path) -> Path:

@@ -5,7 +5,8 @@ the command starts it over REST, follows it on the event stream with a progress 
 prompt and sends the engineer's answer, and prints the result (the job stores a new version of
 the calibration set when the result passes its gates). ``--dry-run`` prints the plan and moves
 nothing; Ctrl-C cancels the job (the robot stops at once). ``--dataset DIR`` instead computes
-offline, in this process, from a saved dataset and records the result in the store folder.
+offline, in this process, from a saved dataset and records the result in the store folder (not
+when it is the part in use again: the same dataset, the same values); it names the parts it builds on.
 
 Exit status: 0 done, 1 refused, failed or cancelled (or a verification found drift), 2 usage or
 configuration problem, 130 cancelled with Ctrl-C.
@@ -14,19 +15,27 @@ configuration problem, 130 cancelled with Ctrl-C.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSetError, CalibrationStore, check_ready, store_root
+from pydantic import ValidationError
+
+from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationSetError, CalibrationStore, check_ready, store_root
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir
 from cellctl.client import CellClient, service_url
 from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS
 from cellctl.config import load_config
+
+if TYPE_CHECKING:
+    from cellctl.calibration.compute import Outcome
+    from cellctl.calibration.set_parts import PartRecord
 
 JOB_HELP = (
     "Runs as a job of the running service (cellctl serve): a progress bar, each prompt answered at the keyboard "
@@ -63,6 +72,67 @@ def _store(args: argparse.Namespace) -> CalibrationStore:
     return CalibrationStore(Path(args.store) if args.store else store_root(config.calibration.directory, Path(args.workdir)))
 
 
+SAME_TOL = 1e-9  # relative, and absolute in the part's units (px, mm, rad): a recompute within it is the same part
+
+
+def _close(a: Any, b: Any) -> bool:
+    """Equal values, numbers within SAME_TOL (dicts and lists walked)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool) and not isinstance(b, bool):
+        return math.isclose(a, b, rel_tol=SAME_TOL, abs_tol=SAME_TOL)
+    return bool(a == b)
+
+
+def _same_part(p: PartRecord | None, outcome: Outcome, sha: str) -> bool:
+    """``p`` (the part in use) was computed from the dataset with manifest SHA-256 ``sha``, by the same method from
+    the same parts, and ``outcome`` recomputed its values within SAME_TOL: storing it would change nothing but its id."""
+    values = getattr(p, "values", None)
+    if p is None or p.status != "ok" or values is None or p.dataset is None or p.dataset.manifest_sha256 != sha:
+        return False
+    if p.method != outcome.method or p.inputs != outcome.inputs:
+        return False
+    try:
+        fresh = type(values).model_validate(outcome.values)
+    except ValidationError:
+        return False  # not a valid part: recording it says why
+    return _close(values.model_dump(), fresh.model_dump())
+
+
+def _sets(store: CalibrationStore, cal: CalibrationSet | None) -> Iterator[CalibrationSet]:
+    """The set in use, then the store's other versions, newest first (a damaged one left out: it cannot say)."""
+    if cal is not None:
+        yield cal
+    for v in reversed(store.versions()):
+        if cal is None or v != cal.version:
+            try:
+                yield store.load(v)
+            except (CalibrationSetError, OSError):
+                continue
+
+
+def _made_from(store: CalibrationStore, cal: CalibrationSet | None, name: str, recipe: str | None, sha: str) -> PartRecord | None:
+    """The newest part ``name`` (``recipe``'s own, if it names one) computed from the dataset with manifest SHA-256 ``sha``:
+    the set in use's, else the newest in the history (None: none recorded)."""
+    for one in _sets(store, cal):
+        p = one.part(name, recipe)
+        if p is not None and p.status == "ok" and p.dataset is not None and p.dataset.manifest_sha256 == sha:
+            return p
+    return None
+
+
+def _say_inputs(outcome: Outcome, recorded: PartRecord | None) -> None:
+    """Which parts of the set in use the result was computed with, and which the part stored from the dataset was."""
+    for dep, used in outcome.inputs.items():
+        print(f"  computed with {dep} {used} (the set in use)")
+        then = None if recorded is None else recorded.inputs.get(dep)
+        if recorded is not None and then is not None and then != used:
+            print(f"  note: this dataset gave {outcome.part} {recorded.id}, computed with {dep} {then}; this result is "
+                  f"computed with {dep} {used} instead, so it differs from that one by the change of {dep}")
+
+
 def _offline(args: argparse.Namespace, procedure: str) -> int:
     """Compute from a saved dataset in this process; store the result unless --no-store."""
     from cellctl.calibration.recording import record
@@ -76,7 +146,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     store = _store(args)
     try:
         current = store.current()
-        ds = read_dataset(args.dataset, proc.kind)
+        ds = read_dataset(Path(os.path.abspath(args.dataset)), proc.kind)  # recorded as a path that works from anywhere
         cell, config = config, config.for_recipe(ds.manifest.get("recipe") or config.default_recipe)  # a recipe's dataset: its settings
     except (CalibrationSetError, DatasetError, KeyError) as err:
         print(f"{procedure}: {err}", file=sys.stderr)
@@ -96,11 +166,19 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
         print(f"  {line}")
     for w in outcome.warnings:
         print(f"  warning: {w}")
-    print(f"  dataset: {ds.root}")
     if procedure == "verify":
+        print(f"  dataset: {ds.root}")
         return 0 if outcome.quality.get("passed") else 1
+    sha = ds.ref().manifest_sha256
+    _say_inputs(outcome, _made_from(store, current, outcome.part, outcome.recipe, sha) if outcome.inputs else None)
+    print(f"  dataset: {ds.root}")
     if args.no_store:
         print("not stored (--no-store)")
+        return 0
+    in_use = None if current is None else current.part(outcome.part, outcome.recipe)
+    if in_use is not None and _same_part(in_use, outcome, sha):
+        label = outcome.part + (f" of recipe {outcome.recipe}" if outcome.recipe is not None else "")
+        print(f"identical to the {label} in use ({in_use.id}); not stored: the calibration set in use is unchanged")
         return 0
     when = datetime.now(timezone.utc)
     try:
