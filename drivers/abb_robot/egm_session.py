@@ -156,7 +156,6 @@ class EgmSession:
         assert peer is not None
         deadline = deadline_in(timeout_s)
         await self.link.ensure_connected(deadline)
-        await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
         current = await self.verbs.read_pose_by(deadline, reconnect=False)
         dist = math.dist(current.position_mm, target.position_mm)
         angle = math.degrees(unit_quaternion.angle_between(current.quaternion_wxyz, target.quaternion_wxyz))
@@ -167,6 +166,8 @@ class EgmSession:
                 f"{s.egm_max_correction_mm:g} / egm_max_correction_deg={s.egm_max_correction_deg:g}; use move()",
                 "LIMIT",
             )
+        # the EGM process starts only for a correction that will run (refused ones do not wait for it)
+        await peer.start(timeout_s=max(deadline - time.monotonic(), 0.001))
         session_before = peer.snapshot().session
         generation = peer.set_reference(target, tolerance_mm=tolerance_mm, tolerance_rad=tolerance_rad)
         band_mm = tolerance_mm / math.sqrt(3.0)

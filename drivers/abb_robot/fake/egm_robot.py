@@ -14,7 +14,8 @@ the robot, which is what the feedback reports). The session ends
 - on STOP, on motors off, or on an unreachable reference.
 
 The last datagram of a session carries MCI_STOPPED (converged, stopped) or MCI_ERROR.
-Optional seeded loss drops outgoing datagrams and incoming replies at the given rates.
+Optional seeded loss drops outgoing datagrams and incoming replies at the given rates, each
+datagram by what it is (seqno), not by when it comes: see :func:`loss_draw`.
 
 The same thread and socket run the Position Stream (:mod:`abb_robot.fake.egm_stream`) between
 sessions: one EGM user at a time, as the RAPID module allows.
@@ -100,10 +101,13 @@ class EgmSessionStats:
     rtt_ms: list[float] = field(default_factory=list)
     dropped_seqnos: list[int] = field(default_factory=list)
     missed_seqnos: list[int] = field(default_factory=list)
+    reply_seqnos: list[int] = field(default_factory=list)  # of every EgmSensor read, dropped or not (-1: none)
+    dropped_reply_seqnos: list[int] = field(default_factory=list)
 
     def summary(self) -> dict[str, object]:
         d = asdict(self)
-        del d["dropped_seqnos"]
+        for name in ("dropped_seqnos", "reply_seqnos", "dropped_reply_seqnos"):
+            del d[name]
         rtt = np.asarray(self.rtt_ms)
         d["rtt_ms"] = {
             "count": int(rtt.size),
@@ -112,6 +116,16 @@ class EgmSessionStats:
             "max": float(rtt.max()) if rtt.size else None,
         }
         return d
+
+
+OUT, IN, IN_UNNUMBERED = 0, 1, 2  # loss_draw's directions: EgmRobot, EgmSensor by seqno, EgmSensor by place
+
+
+def loss_draw(seed: int, direction: int, session: int, index: int) -> float:
+    """The draw in [0, 1) that drops one datagram when below the rate: ``default_rng([seed, direction,
+    session, index]).random()``, session counted from 0 by this fake, index the seqno (an EgmSensor
+    without one: its place among the session's replies). The host's timing cannot change it."""
+    return float(np.random.default_rng([seed, direction, session, index]).random())
 
 
 @dataclass(frozen=True)
@@ -138,7 +152,7 @@ class EgmRobotSide:
         self.robot = robot
         self.config = config
         self.sensor_address = (config.egm_sensor_host, config.egm_sensor_port)
-        self._rng = np.random.default_rng(config.seed)
+        self._sessions = 0  # sessions run so far: the next one's number in loss_draw
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.bind(("0.0.0.0" if config.egm_sensor_host not in ("127.0.0.1", "localhost") else "127.0.0.1", 0))
         self._sock.setblocking(False)
@@ -149,7 +163,9 @@ class EgmRobotSide:
         self._pending: tuple[EgmSessionParams, Callable[[EgmOutcome], None]] | None = None
         self._active = False
         self.last_stats: EgmSessionStats | None = None
-        self.stream = StreamRunner(robot, config, self._sock, self.sensor_address, self._rng, self._wake)
+        self.stream = StreamRunner(
+            robot, config, self._sock, self.sensor_address, np.random.default_rng(config.seed), self._wake
+        )
         self._thread = threading.Thread(target=self._run, name="fake-egm-robot", daemon=True)
         self._thread.start()
 
@@ -232,6 +248,9 @@ class EgmRobotSide:
         dyn = self.config.egm
         robot = self.robot
         stats = EgmSessionStats()
+        session = self._sessions
+        self._sessions += 1
+        seed, loss_out, loss_in = self.config.seed, self.config.egm_loss_out, self.config.egm_loss_in
         self._drain()  # stale replies of an earlier session
         t0 = time.perf_counter()
         wall0 = time.time()
@@ -310,7 +329,7 @@ class EgmRobotSide:
                 active_ref or tcp, robot.motors_on, mci, converged, min(100.0, 100.0 * speed / dyn.max_speed_mm_s),
             )
             data = msg.SerializeToString()
-            if self.config.egm_loss_out > 0 and self._rng.random() < self.config.egm_loss_out:
+            if loss_out > 0 and loss_draw(seed, OUT, session, seq) < loss_out:
                 stats.dropped_out += 1
                 stats.dropped_seqnos.append(seq)
                 awaiting = False
@@ -343,10 +362,16 @@ class EgmRobotSide:
                 if not ready:
                     break
                 for raw, t_rx in self._drain():
-                    if self.config.egm_loss_in > 0 and self._rng.random() < self.config.egm_loss_in:
+                    msg = _sensor_message(raw)
+                    numbered = msg is not None and msg.header.HasField("seqno")
+                    reply_seq = msg.header.seqno if numbered else -1  # type: ignore[union-attr]
+                    stats.reply_seqnos.append(reply_seq)
+                    way, index = (IN, reply_seq) if numbered else (IN_UNNUMBERED, len(stats.reply_seqnos) - 1)
+                    if loss_in > 0 and loss_draw(seed, way, session, index) < loss_in:
                         stats.dropped_in += 1
+                        stats.dropped_reply_seqnos.append(reply_seq)
                         continue
-                    ref = _parse_sensor(raw)
+                    ref = None if msg is None else _sensor_reference(msg)
                     if ref is None:
                         stats.bad_replies += 1
                         continue
@@ -428,13 +453,18 @@ def _fill_pose(target: pb.EgmPose, pose: CartesianPose) -> None:
     target.orient.u0, target.orient.u1, target.orient.u2, target.orient.u3 = q
 
 
-def _parse_sensor(raw: bytes) -> CartesianPose | None:
-    """The pose reference in an EgmSensor datagram; None if it is not a usable one."""
+def _sensor_message(raw: bytes) -> pb.EgmSensor | None:
+    """An EgmSensor datagram parsed; None if it is garbage."""
     msg = pb.EgmSensor()
     try:
         msg.ParseFromString(raw)
     except Exception:  # noqa: BLE001 - protobuf raises DecodeError and friends; any of them means garbage
         return None
+    return msg
+
+
+def _sensor_reference(msg: pb.EgmSensor) -> CartesianPose | None:
+    """The pose reference in an EgmSensor; None if it is not a usable one."""
     if msg.header.mtype != pb.EgmHeader.MSGTYPE_CORRECTION or not msg.planned.HasField("cartesian"):
         return None
     cart = msg.planned.cartesian
