@@ -43,10 +43,10 @@ def test_a_second_recipe_is_taught_on_its_own_and_the_first_keeps_its_teaching(t
     first = dict(first_recipe="side-window")
     before = store.current()
     assert check_ready(before, later, recipe="side-window", **first) == []
-    # not taught yet: only its own parts are missing, each with the command that makes it
+    # not taught yet: only its own parts are missing, each with the command that makes it, in the order to run them
     assert check_ready(before, later, recipe="door-window", **first) == [
-        "pixel_map of recipe door-window: missing; run `cellctl calibrate nine-point --recipe door-window`",
         "teaching of recipe door-window: missing; run `cellctl teach --recipe door-window`",
+        "pixel_map of recipe door-window: missing; run `cellctl calibrate nine-point --recipe door-window`",
     ]
     _teach(store, "door-window", -400.0)
     cal = store.current()

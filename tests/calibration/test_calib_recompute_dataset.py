@@ -85,7 +85,7 @@ def test_recomputing_the_dataset_of_the_part_in_use_stores_nothing(tmp_path: Pat
     assert _files(store.root) == before  # no new version, the pointer as it was
     assert check_ready(store.current(), NOW + timedelta(hours=1)) == [
         f"{p}: missing; run `cellctl {c}`" for p, c in
-        (("laser", "calibrate laser"), ("pixel_map", "calibrate nine-point"), ("teaching", "teach"))
+        (("laser", "calibrate laser"), ("teaching", "teach"), ("pixel_map", "calibrate nine-point"))
     ]  # fmt: skip
 
 

@@ -152,6 +152,7 @@ PACKML_COMMANDS = {
 def test_a_state_event_carries_the_commands_of_its_state(cell: LiveCell, client: httpx.Client) -> None:
     """The page patches the state from a state event; the commands must come with it, not stay the old state's
     (an Unhold greyed out in Held as "not allowed in HELD" until the next /status)."""
+    to_execute(client)  # away from Aborted first, so that to_aborted below moves the cell (run alone, it starts there)
     events: list[dict] = []
     streaming = threading.Event()
 

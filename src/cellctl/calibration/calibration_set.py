@@ -58,7 +58,7 @@ from cellctl.vision.lens import Lens
 
 FORMAT = "cellctl-calibration-set"
 FORMAT_VERSION = 1
-PART_NAMES = ("camera", "hand_eye", "laser", "pixel_map", "teaching")
+PART_NAMES = ("camera", "hand_eye", "laser", "teaching", "pixel_map")  # the order they are commissioned in
 # Which parts each part is computed from: a part is stale once one of these has been replaced.
 DEPENDS_ON: dict[str, tuple[str, ...]] = {
     "camera": (),
@@ -71,8 +71,8 @@ COMMANDS = {
     "camera": "cellctl calibrate camera",
     "hand_eye": "cellctl calibrate hand-eye",
     "laser": "cellctl calibrate laser",
-    "pixel_map": "cellctl calibrate nine-point",
     "teaching": "cellctl teach",
+    "pixel_map": "cellctl calibrate nine-point",
 }
 RECIPE_PART_NAMES = ("teaching", "pixel_map")  # each recipe has its own; the others are the cell's
 
