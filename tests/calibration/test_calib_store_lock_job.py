@@ -4,28 +4,16 @@
 from __future__ import annotations
 
 import asyncio
-import time
 from pathlib import Path
-from typing import Any
 
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, job_ended, running_service, sim_config
 from test_calib_store_lock import _other_writer
 
 import cellctl.calibration.set_lock as set_lock
 
 CONFIG = {"calibration": {"source": "set", "auto_calibrate_in_sim": False}, "sim": {"time_scale": 0.001},
           "sim.operator": {"answers": "all"}, "plc": {"enabled": False}}  # fmt: skip
-
-
-async def _finished(client: Any, job_id: int, timeout_s: float = 60.0) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = (await client.get(f"/jobs/{job_id}")).json()
-        if job["state"] not in ("running", "computing"):
-            return job
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not end within {timeout_s} s")
 
 
 async def test_a_job_refused_by_a_busy_store_fails_naming_the_other_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -41,7 +29,7 @@ async def test_a_job_refused_by_a_busy_store_fails_naming_the_other_process(tmp_
                 await asyncio.sleep(0.01)
             r = await client.post("/jobs", json={"procedure": "laser", "options": {"poses": 120}}, headers=AUTH)
             assert r.status_code == 201, r.text
-            job = await _finished(client, r.json()["id"])
+            job = await job_ended(client, r.json()["id"])
         finally:
             other.kill()
             other.wait()

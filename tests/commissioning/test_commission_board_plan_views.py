@@ -9,7 +9,6 @@ accepts is refused before anything moves, in a dry run and in a job, naming the 
 from __future__ import annotations
 
 import asyncio
-import time
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from service_test_support import AUTH, ROOT, api_client, running_service, sim_config
+from service_test_support import AUTH, ROOT, api_client, job_ended, running_service, sim_config
 
 from cellctl.commissioning.plans import PlanError, nominal_T0, plan_board
 from cellctl.config import CellConfig, parse_config
@@ -87,16 +86,6 @@ def test_a_plan_short_of_its_gate_is_refused_naming_the_numbers_and_a_views_that
         plan_board(binned_config(), views=5)
 
 
-async def _wait_end(client: Any, job_id: int, timeout_s: float = 30.0) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = (await client.get(f"/jobs/{job_id}")).json()
-        if job["state"] not in ("running", "computing"):
-            return job
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not end within {timeout_s} s")
-
-
 async def test_a_job_whose_plan_is_short_is_refused_before_the_robot_moves(tmp_path: Path) -> None:
     cfg = sim_config(**{"calibration": {"source": "set", "auto_calibrate_in_sim": False}, "sim.operator": {"answers": "actions"},
                         "plc": {"enabled": False}, "calibration.procedure.camera": {"margin_px": 120.0}})  # fmt: skip
@@ -116,7 +105,7 @@ async def test_a_job_whose_plan_is_short_is_refused_before_the_robot_moves(tmp_p
         arm.begin_motion = lambda *a, **k: began.append(a) or begin(*a, **k)  # every move the controller starts
         r = await client.post("/jobs", json={"procedure": "camera", "options": {}}, headers=AUTH)
         assert r.status_code == 201, r.text
-        job = await _wait_end(client, r.json()["id"])
+        job = await job_ended(client, r.json()["id"])
         assert job["state"] == "refused" and job["error"].startswith("too_few_views: only 6 of the 12"), job
         assert "calibration.procedure.camera.margin_px" in job["error"] and "--views" in job["error"], job
         assert not job.get("progress") and job["dataset"] is None, job  # no pose visited, nothing collected

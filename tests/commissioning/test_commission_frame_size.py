@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, job_ended, running_service, sim_config
 
 from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.ports import Frame
@@ -43,16 +42,10 @@ class BinnedCamera:
         return getattr(self._camera, name)
 
 
-async def _job(client: Any, procedure: str, timeout_s: float = 180.0) -> dict[str, Any]:
+async def _job(client: Any, procedure: str) -> dict[str, Any]:
     r = await client.post("/jobs", json={"procedure": procedure}, headers=AUTH)
     assert r.status_code == 201, r.text
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = (await client.get(f"/jobs/{r.json()['id']}")).json()
-        if job["state"] not in ("running", "computing"):
-            return job
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"{procedure} job did not end")
+    return await job_ended(client, r.json()["id"])
 
 
 async def test_a_binned_camera_is_refused_by_the_camera_and_hand_eye_procedures_naming_the_fix(tmp_path: Path) -> None:

@@ -6,13 +6,12 @@
 from __future__ import annotations
 
 import asyncio
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, job_ended, running_service, sim_config
 
 import cellctl.commissioning.verify as verify
 from cellctl.cell.alarms import AlarmCode
@@ -110,16 +109,6 @@ def test_a_check_is_due_after_n_glasses_or_h_hours_and_never_when_both_are_off()
     assert check_due(10**6, 10**6, VerifyCalibrationConfig()) is None
 
 
-async def _wait_job(client: Any, job_id: int, timeout_s: float = 300.0) -> dict[str, Any]:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = (await client.get(f"/jobs/{job_id}")).json()
-        if job["state"] not in ("running", "computing"):
-            return job
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"job {job_id} did not end")
-
-
 VERIFY_CELL = {"calibration": {"source": "set", "auto_calibrate_in_sim": False}, "plc": {"enabled": False},
                "devices": {"laser": {"kind": "sim"}, "robot": {"kind": "sim"}},
                "calibration.procedure.verify": {"laser_stands": 4}}  # fmt: skip
@@ -133,7 +122,7 @@ async def calibrate_sensors(client: Any) -> None:
     for procedure in ("camera", "hand_eye", "laser"):
         r = await client.post("/jobs", json={"procedure": procedure}, headers=AUTH)
         assert r.status_code == 201, r.text
-        assert (await _wait_job(client, r.json()["id"]))["state"] == "done"
+        assert (await job_ended(client, r.json()["id"]))["state"] == "done"
 
 
 async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_the_camera_moved(
@@ -143,7 +132,7 @@ async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_th
         await calibrate_sensors(client)
         version = service.jobs.current_calibration().version
         r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
-        job = await _wait_job(client, r.json()["id"])
+        job = await job_ended(client, r.json()["id"])
         assert job["state"] == "done" and job["result"]["quality"]["passed"], job
         q = job["result"]["quality"]
         assert q["hand_eye"]["translation_mm"] < 0.25 and q["hand_eye"]["rotation_deg"] < 0.025 and q["laser"]["readings"] >= 40
@@ -152,7 +141,7 @@ async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_th
         twin = service.extras["twin"].cell
         twin.T_H_C = twin.T_H_C @ make_pose(axis_angle_to_matrix(np.radians(0.05) * np.array([0.0, 0.6, 0.8])), [0.3, 0.0, 0.0])
         r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
-        job = await _wait_job(client, r.json()["id"])
+        job = await job_ended(client, r.json()["id"])
         q = job["result"]["quality"]
         assert job["state"] == "done" and not q["passed"], job
         assert q["hand_eye"]["rotation_deg"] > 0.025 and "cellctl calibrate hand-eye" in " ".join(q["beyond_limits"])
@@ -167,7 +156,7 @@ async def test_verify_in_the_service_passes_an_unchanged_cell_and_alarms_when_th
         monkeypatch.setattr(SimulatedOperator, "act",
                             lambda op, p: act(op, p) * 1.003 if p.kind is PromptKind.PLACE_BOARD else act(op, p))  # fmt: skip
         r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
-        job = await _wait_job(client, r.json()["id"])
+        job = await job_ended(client, r.json()["id"])
         import re
 
         sizes = re.search(r"calibrated with \((\d+\.\d+) mm squares\), but (\d+\.\d+) mm was given", job["error"] or "")
@@ -237,7 +226,7 @@ async def test_a_check_whose_laser_poses_were_all_refused_says_the_laser_was_not
         monkeypatch.setattr(verify, "move_or_skip", noting)
         robot.move = refusing
         r = await client.post("/jobs", json={"procedure": "verify"}, headers=AUTH)
-        job = await _wait_job(client, r.json()["id"])
+        job = await job_ended(client, r.json()["id"])
         passed = (job.get("result") or {}).get("quality", {}).get("passed")
         assert not (job["state"] == "done" and passed), f"the check passed a laser it never read: {job['result']}"
         assert job["state"] == "refused", job

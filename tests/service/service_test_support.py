@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import time
 import tomllib
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -47,6 +49,17 @@ async def running_service(workdir: Path, config: CellConfig | None = None) -> As
         yield service
     finally:
         await service.stop()
+
+
+async def job_ended(client: httpx.AsyncClient, job_id: int, timeout_s: float = 300.0) -> dict[str, Any]:
+    """A commissioning job's record once it has ended (neither running nor computing), waiting at most ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job: dict[str, Any] = (await client.get(f"/jobs/{job_id}")).json()
+        if job["state"] not in ("running", "computing"):
+            return job
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not end within {timeout_s} s")
 
 
 @contextlib.asynccontextmanager
