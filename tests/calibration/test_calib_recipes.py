@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 from calib_test_support import INPUTS, NOW, VALUES
 
-from cellctl.calibration.calibration_set import CalibrationStore, check_ready, load_calibration_set, make_part
+from cellctl.calibration.calibration_set import CalibrationStore, load_calibration_set, make_part
+from cellctl.calibration.readiness import check_ready
 
 
 def _cell(root: Path) -> CalibrationStore:

@@ -20,9 +20,10 @@ import numpy as np
 import pytest
 from calib_test_support import NOW, board_views, config, scratch, store_with_camera
 
-from cellctl.calibration.calibration_set import CalibrationStore, check_ready
+from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.compute import Outcome, compute_hand_eye
 from cellctl.calibration.dataset import Dataset, write_dataset
+from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.recording import record
 from cellctl.cli import DEFAULT_CONFIG, main
 

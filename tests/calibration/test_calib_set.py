@@ -13,11 +13,11 @@ from calib_test_support import NOW, INPUTS, VALUES
 from cellctl.calibration.calibration_set import (
     CalibrationSetError,
     CalibrationStore,
-    check_ready,
     load_calibration_set,
     make_part,
 )
 from cellctl.calibration.dataset import DatasetError, read_dataset, write_dataset
+from cellctl.calibration.readiness import check_ready
 
 
 

@@ -12,7 +12,8 @@ import pytest
 
 from calib_test_support import INPUTS, NOW, VALUES, config
 
-from cellctl.calibration.calibration_set import CalibrationStore, check_ready, make_part
+from cellctl.calibration.calibration_set import CalibrationStore, make_part
+from cellctl.calibration.readiness import check_ready
 from cellctl.commissioning.auto import Needed, parts_needed
 from cellctl.commissioning.plans import PlanError, plan_teaching
 from cellctl.config import CellConfig

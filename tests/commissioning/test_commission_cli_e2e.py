@@ -21,7 +21,8 @@ import httpx
 import pytest
 from service_test_support import TOKEN, free_port, sim_toml, start_serve, wait_up
 
-from cellctl.calibration.calibration_set import CalibrationStore, check_ready
+from cellctl.calibration.calibration_set import CalibrationStore
+from cellctl.calibration.readiness import check_ready
 
 STEPS = (("calibrate", "camera"), ("calibrate", "hand-eye"), ("calibrate", "laser"), ("teach",), ("calibrate", "nine-point"))
 

@@ -15,7 +15,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "calibration"))
 from calib_test_support import INPUTS, NOW, VALUES  # noqa: E402
 
-from cellctl.calibration.calibration_set import CalibrationStore, check_ready, make_part, parts_of  # noqa: E402
+from cellctl.calibration.calibration_set import CalibrationStore, make_part, parts_of  # noqa: E402
+from cellctl.calibration.readiness import check_ready  # noqa: E402
 from cellctl.calibration.source import CalibrationSetSource  # noqa: E402
 from cellctl.config import parse_config  # noqa: E402
 
@@ -60,9 +61,9 @@ def test_each_recipe_finds_its_own_teaching_by_name_in_any_order(tmp_path: Path)
     assert check_ready(cal, LATER, recipe="door-window", first_recipe="door-window") == []
     assert cal.taught(parts_of(cal, "door-window", "door-window")).T0[1, 3] == cal.taught().T0[1, 3] - 400.0
     assert check_ready(cal, LATER, recipe="side-glass", first_recipe="side-glass") == [
-        "pixel_map of recipe side-glass: missing; run `cellctl calibrate nine-point --recipe side-glass`",
         "teaching of recipe side-glass: missing; run `cellctl teach --recipe side-glass`",
-    ]
+        "pixel_map of recipe side-glass: missing; run `cellctl calibrate nine-point --recipe side-glass`",
+    ]  # in the order they are commissioned
 
 
 def test_a_newer_teaching_in_the_first_place_for_that_recipe_is_the_one_read(tmp_path: Path) -> None:

@@ -46,7 +46,8 @@ def copy_set(src: Path, dst: Path) -> None:
 def _set_usable(directory: Path) -> bool:
     from datetime import datetime, timezone
 
-    from cellctl.calibration.calibration_set import CalibrationStore, check_ready
+    from cellctl.calibration.calibration_set import CalibrationStore
+    from cellctl.calibration.readiness import check_ready
 
     try:
         return not check_ready(CalibrationStore(directory).current(), datetime.now(timezone.utc))

@@ -8,7 +8,8 @@
   simulated cell, and the ``cellctl calibrate``/``cellctl teach`` commands.
 """
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationSetError, CalibrationStore, check_ready
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationSetError, CalibrationStore
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.readiness import check_ready
 
 __all__ = ["CalibrationRefused", "CalibrationSet", "CalibrationSetError", "CalibrationStore", "check_ready"]

@@ -33,7 +33,6 @@ from cellctl.calibration.calibration_set import (
     PART_NAMES,
     CalibrationSet,
     CalibrationStore,
-    check_ready,
     command,
     damage_text,
     history_row,
@@ -41,6 +40,7 @@ from cellctl.calibration.calibration_set import (
     store_root,
 )
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.taught_shot import taught_profile_of
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig

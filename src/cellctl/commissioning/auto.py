@@ -12,7 +12,8 @@ import logging
 from datetime import datetime, timezone
 from typing import NamedTuple
 
-from cellctl.calibration.calibration_set import RECIPE_PART_NAMES, check_ready
+from cellctl.calibration.calibration_set import RECIPE_PART_NAMES
+from cellctl.calibration.readiness import check_ready
 from cellctl.cell.packml import PackMLMachine
 from cellctl.commissioning.jobs import JOB_STATES_ALLOWED, JobManager
 from cellctl.commissioning.procedures import ORDER

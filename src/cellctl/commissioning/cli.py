@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationSetError, CalibrationStore, check_ready, store_root
+from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationSetError, CalibrationStore, store_root
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.readiness import check_ready
 from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir
 from cellctl.client import CellClient, service_url
 from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS

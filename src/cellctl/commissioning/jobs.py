@@ -24,10 +24,11 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, check_ready, command, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, command, recipe_slot
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.recording import record
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end

@@ -1,0 +1,92 @@
+"""Whether a calibration set lets a recipe go into production: every part present, ok, in date, taught for it and
+computed from the parts the set holds now; one line per problem, each naming the command that mends it."""
+
+from __future__ import annotations
+
+import shlex
+from datetime import datetime, timedelta
+
+from cellctl.calibration.calibration_set import (
+    COMMANDS,
+    DEPENDS_ON,
+    PART_NAMES,
+    RECIPE_PART_NAMES,
+    CalibrationSet,
+    command,
+    parts_of,
+    wall_read_problem,
+)
+from cellctl.calibration.set_parts import PartRecord, TeachingPart
+from cellctl.calibration.taught_shot import shot_problem
+from cellctl.config import CellConfig
+
+
+def check_ready(
+    cal: CalibrationSet | None,
+    now: datetime,
+    *,
+    recipe: str | None = None,
+    first_recipe: str | None = None,
+    config: CellConfig | None = None,
+) -> list[str]:
+    """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
+
+    A part is a problem when it is missing, failed, expired, dated in the future, or was
+    computed from a part that has since been replaced (stale); a teaching is one when it was
+    taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
+    or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
+    """
+    if now.tzinfo is None:
+        raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
+    if cal is None:
+        return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
+    slot = parts_of(cal, recipe, first_recipe)
+    problems: list[str] = []
+    for name in PART_NAMES:
+        p = cal.part(name, slot)
+        cmd = command(name, slot)
+        label = f"{name} of recipe {slot}" if name in RECIPE_PART_NAMES and slot is not None else name
+        if p is None:
+            problems.append(f"{label}: missing; run `{cmd}`")
+            continue
+        if p.status == "failed":
+            problems.append(f"{label}: the last calibration failed ({p.failure}); fix the cause and run `{cmd}` again")
+            continue
+        expires = p.calibrated_utc + timedelta(days=p.valid_days)
+        if now >= expires:
+            problems.append(
+                f"{label}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
+                f"valid {p.valid_days:g} days); run `{cmd}`"
+            )
+        if p.calibrated_utc > now + timedelta(minutes=5):
+            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
+        taught_for = getattr(getattr(p, "values", None), "recipe", None)
+        wanted = recipe or first_recipe
+        if taught_for is not None and wanted is not None and taught_for != wanted:
+            problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
+        elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:
+            of_recipe = wanted or config.default_recipe
+            if of_recipe not in {r.name for r in config.process.recipes}:
+                problems.append(f"{label}: [[process.recipes]] does not list recipe {of_recipe}; "
+                                "add the recipe to the configuration or teach one it lists")
+            elif (why := wall_read_problem(p.values.wall_read, config.for_recipe(of_recipe).process.align)) is not None:
+                problems.append(f"{label}: {why}; run `{cmd}` again, so the cycle reads the wall where it was taught")
+            elif (why := shot_problem(p.values.shot, config.for_recipe(of_recipe), of_recipe)) is not None:
+                problems.append(f"{label}: {why} (`{cmd}`, then the parts computed with it)")
+        for dep in DEPENDS_ON[name]:
+            used = p.inputs.get(dep)
+            have = cal.part(dep, slot)
+            if used is None:
+                problems.append(f"{label}: does not record which {dep} it was computed with; run `{cmd}` again")
+            elif have is not None and have.status == "ok" and have.id != used:
+                problems.append(f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
+                                + _offline_way(name, p))
+    return problems
+
+
+def _offline_way(name: str, p: PartRecord) -> str:
+    """The other way to redo a stale part: recompute the dataset it was computed from ("": it records none)."""
+    return "" if p.dataset is None else (", or, if nothing was touched since its dataset was recorded, recompute that dataset "
+                                         f"offline once the parts it is computed with are current: `{COMMANDS[name]} --dataset "
+                                         f"{shlex.quote(p.dataset.path)}`")
+
