@@ -228,7 +228,8 @@ def test_the_guard_keeps_the_twin_out() -> None:
 
 
 def test_serve_in_hardware_mode_brings_up_the_real_drivers(cell: Cell) -> None:
-    assert "(mode hardware)" in cell.serve.out_path.read_text()  # the status has no field for the root's mode
+    # the status has no field for the root's mode; serve prints it just after the API answers (so: wait for it)
+    _wait("serve's start line", lambda: "(mode hardware)" in cell.serve.out_path.read_text(), 10.0, cell.serve.logs)
 
     def all_up() -> dict[str, Any] | None:
         st = cell.status()
