@@ -48,7 +48,8 @@ class CommandReply(enum.IntEnum):
 
 
 COMMAND_REPLY_TEXT: dict[CommandReply, str] = {
-    CommandReply.ACCEPTED: "Accepted: the command (or mode change) was carried out.",
+    CommandReply.ACCEPTED: "Accepted: the command (or mode change) was carried out (a Stop in Stopped while a "
+                           "commissioning job runs cancels the job; the cell stays Stopped).",
     CommandReply.INVALID_IN_STATE: "Refused: the PackML state model does not allow this command in the current "
                                    "state (a unit mode request: not in this state; see Start-up and states). Send "
                                    "a command the state allows.",
