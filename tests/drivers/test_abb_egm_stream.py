@@ -439,3 +439,23 @@ async def test_the_frame_stays_fixed_while_streaming() -> None:
     module = (Path(__file__).parents[2] / "drivers" / "abb_robot" / "rapid" / "CellctlServer.mod").read_text()
     handle = module[module.index("FUNC bool HandleLine") :]
     assert handle.index('IF cellctl_stream_on AND (verb="TOOL" OR verb="WOBJ") THEN') < handle.index("Forward id,CMD_TOOL;")
+
+
+async def test_a_guidance_session_is_stamped_on_the_streams_controller_clock() -> None:
+    # One controller clock: a guidance session's header.tm and feedBack.time are the uptime the position stream
+    # reads (a session-relative tm made a session's last datagram, read just after a stream began, a clock step).
+    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor.bind((LOOPBACK, 0))
+    sensor.settimeout(1.0)
+    fake = start_fake(egm_sensor_port=sensor.getsockname()[1], time_scale=0.2, egm_uptime_ms=123_456)
+    try:
+        async with raw_client(fake) as c:
+            assert (await c.ask("1 HELLO 1"))[0].startswith("1 OK 1 ")
+            assert await c.ask("2 EGM 0.1 0.1 1") == ["2 ACK"]
+            first = await asyncio.to_thread(_receive, sensor)
+            assert first.header.seqno == 0 and 123_456 <= first.header.tm < 133_456, first.header
+            assert first.feedBack.time.sec == first.header.tm // 1000
+            assert (await c.ask("3 STOP"))[0] == "3 OK 1"  # a session was running
+    finally:
+        fake.stop_thread()
+        sensor.close()

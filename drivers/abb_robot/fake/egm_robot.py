@@ -1,8 +1,9 @@
 """The robot side of EGM in the fake controller: a pose-mode session like ``EGMRunPose``.
 
 While a session runs, a dedicated thread sends an ``EgmRobot`` datagram every ``period_s``
-(4 ms) from its own UDP socket to the sensor's address, with seqno counting from 0, ``tm`` in
-ms since the session started, the TCP pose (current tool, work object) as feedback, the
+(4 ms) from its own UDP socket to the sensor's address, with seqno counting from 0, ``tm`` and
+``feedBack.time`` on the controller's uptime clock (the position stream's, one clock as on a
+controller), the TCP pose (current tool, work object) as feedback, the
 reference in use as planned pose, and motor, MCI and RAPID states. Between two sends it drains
 the ``EgmSensor`` replies and keeps the newest reference. The robot follows the reference after
 a dead time, as a first-order lag limited in speed; without new replies it holds the last
@@ -253,7 +254,6 @@ class EgmRobotSide:
         seed, loss_out, loss_in = self.config.seed, self.config.egm_loss_out, self.config.egm_loss_in
         self._drain()  # stale replies of an earlier session
         t0 = time.perf_counter()
-        wall0 = time.time()
         next_tick = t0
         last_reply = t0
         seq = 0
@@ -324,8 +324,9 @@ class EgmRobotSide:
                 joints = robot.model.joints(current)
             except ValueError:
                 pass  # noise put the pose a hair past a limit: report the last joints
+            uptime_s = self.stream.clock.ms(time.monotonic()) / 1000.0  # one controller clock for sessions and streams
             msg = _robot_message(
-                seq, now - t0, wall0 + (now - t0), tcp, joints,
+                seq, uptime_s, uptime_s, tcp, joints,
                 active_ref or tcp, robot.motors_on, mci, converged, min(100.0, 100.0 * speed / dyn.max_speed_mm_s),
             )
             data = msg.SerializeToString()
