@@ -9,37 +9,29 @@ refusal asks whether that recipe's car body stands in the cell.
 from __future__ import annotations
 
 import asyncio
-import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import httpx
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
+from service_test_support import AUTH, api_client, job_ended, running_service, sim_config
 
 from cellctl.commissioning.prompts import Prompt, PromptKind
 from cellctl.sim.operator import SimulatedOperator
 
 pytestmark = pytest.mark.timeout(600)
 
-FINISHED = {"done", "refused", "failed", "cancelled", "interrupted"}
 FIRST, DOOR = "side-window", "door-window"  # config/sim.toml's recipes: the first one's opening is [layout.opening]
 CELL = {"calibration": {"source": "set", "auto_calibrate_in_sim": False}, "plc": {"enabled": False},
         "devices": {"laser": {"kind": "sim"}, "robot": {"kind": "sim"}},
         "calibration.procedure.verify": {"laser_stands": 4}}  # fmt: skip
 
 
-async def _job(client: httpx.AsyncClient, procedure: str, timeout_s: float = 300.0, **options: Any) -> dict[str, Any]:
+async def _job(client: httpx.AsyncClient, procedure: str, **options: Any) -> dict[str, Any]:
     r = await client.post("/jobs", json={"procedure": procedure, "options": options}, headers=AUTH)
     assert r.status_code == 201, r.text
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = (await client.get(f"/jobs/{r.json()['id']}")).json()
-        if job["state"] in FINISHED:
-            return job
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"{procedure} job did not end within {timeout_s} s")
+    return await job_ended(client, r.json()["id"])
 
 
 async def _command(client: httpx.AsyncClient, name: str) -> str:

@@ -9,37 +9,15 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
-from service_test_support import AUTH, api_client, job_ended, running_service, sim_config
+from service_test_support import AUTH, BinnedCamera, api_client, job_ended, running_service, sim_config
 
 from cellctl.calibration.calibration_set import CalibrationStore
-from cellctl.ports import Frame
 
 pytestmark = pytest.mark.timeout(240)
-
-
-class BinnedCamera:
-    """The cell's camera with 4 x 4 binning switched on while ``binned()`` says so."""
-
-    def __init__(self, camera: Any, binned: Callable[[], bool]) -> None:
-        self._camera, self._binned = camera, binned
-        self.sizes: list[tuple[int, int]] = []
-
-    async def grab(self, *, timeout_s: float) -> Frame:
-        frame = await self._camera.grab(timeout_s=timeout_s)
-        if self._binned():
-            h, w = frame.image.shape
-            frame = dataclasses.replace(frame, image=frame.image.reshape(h // 4, 4, w // 4, 4).mean(axis=(1, 3)).astype(np.uint8))
-        self.sizes.append((frame.image.shape[1], frame.image.shape[0]))
-        return frame
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._camera, name)
 
 
 async def _job(client: Any, procedure: str) -> dict[str, Any]:

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import time
 import tomllib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 from shared_support import free_port  # noqa: F401 - the service tests import it from here
 
 from cellctl.config import CellConfig, parse_config
+from cellctl.ports import Frame
 from cellctl.service import build_service
 from cellctl.service.compose import Service
 
@@ -49,6 +52,26 @@ async def running_service(workdir: Path, config: CellConfig | None = None) -> As
         yield service
     finally:
         await service.stop()
+
+
+class BinnedCamera:
+    """The cell's camera with 4 x 4 binning switched on while ``binned()`` says so (2048 x 2048 -> 512 x 512 px)."""
+
+    def __init__(self, camera: Any, binned: Callable[[], bool]) -> None:
+        self._camera, self._binned = camera, binned
+        self.sizes: list[tuple[int, int]] = []  # (width, height) of every frame handed on
+
+    async def grab(self, *, timeout_s: float) -> Frame:
+        frame = await self._camera.grab(timeout_s=timeout_s)
+        if self._binned():
+            h, w = frame.image.shape
+            image = frame.image.reshape(h // 4, 4, w // 4, 4).mean(axis=(1, 3)).astype(np.uint8)
+            frame = dataclasses.replace(frame, image=image)
+        self.sizes.append((frame.image.shape[1], frame.image.shape[0]))
+        return frame
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._camera, name)
 
 
 async def job_ended(client: httpx.AsyncClient, job_id: int, timeout_s: float = 300.0) -> dict[str, Any]:

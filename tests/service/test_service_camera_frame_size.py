@@ -11,38 +11,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
-from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
+from service_test_support import AUTH, BinnedCamera, api_client, back_to_execute, running_service, sim_config, to_execute
 from shared_support import eventually
 
 from cellctl.domain import CycleStep
-from cellctl.ports import Frame
 
 pytestmark = pytest.mark.timeout(180)
 
 CAMERA_GRAB_FAILED = 1105  # docs/alarm_reactions.md: camera_grab_failed, class sensor_lost, event
 SOFTWARE_FAULT = 1501
-
-
-class BinnedCamera:
-    """The cell's camera with 4 x 4 binning switched on while ``binned()`` says so."""
-
-    def __init__(self, camera: Any, binned: Callable[[], bool]) -> None:
-        self._camera, self._binned = camera, binned
-        self.sizes: list[tuple[int, int]] = []  # (width, height) of every frame handed to the cycle
-
-    async def grab(self, *, timeout_s: float) -> Frame:
-        frame = await self._camera.grab(timeout_s=timeout_s)
-        if self._binned():
-            h, w = frame.image.shape
-            image = frame.image.reshape(h // 4, 4, w // 4, 4).mean(axis=(1, 3)).astype(np.uint8)
-            frame = dataclasses.replace(frame, image=image)
-        self.sizes.append((frame.image.shape[1], frame.image.shape[0]))
-        return frame
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._camera, name)
 
 
 def _binned_camera(service: Any, binned: Callable[[], bool]) -> BinnedCamera:

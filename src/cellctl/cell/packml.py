@@ -436,18 +436,10 @@ class PackMLMachine:
             ) from None
 
     def _guard_reason(self, cmd: PackMLCommand) -> str | None:
-        for guard in self._guards.get(cmd, ()):
-            reason = guard(self._state, cmd)
-            if reason is not None:
-                return reason
-        return None
+        return next((r for g in self._guards.get(cmd, ()) if (r := g(self._state, cmd)) is not None), None)
 
     def _taken(self, cmd: PackMLCommand) -> TakenAction | None:
-        for taker in self._takers.get(cmd, ()):
-            action = taker(self._state, cmd)
-            if action is not None:
-                return action
-        return None
+        return next((a for t in self._takers.get(cmd, ()) if (a := t(self._state, cmd)) is not None), None)
 
     async def _move(
         self, kind: EventKind, target: PackMLState, actor: str, source: str, cmd: PackMLCommand | None
