@@ -45,6 +45,15 @@ class Dataset:
     def kind(self) -> str:
         return str(self.manifest["kind"])
 
+    @property
+    def measured_utc(self) -> datetime | None:
+        """When the cell was measured: the manifest's ``written_utc`` (the end of the capture), None if unreadable."""
+        try:
+            t = datetime.fromisoformat(str(self.manifest["written_utc"]))
+        except (KeyError, ValueError):
+            return None
+        return t.astimezone(timezone.utc) if t.tzinfo is not None else None
+
     def image(self, name: str) -> NDArray[np.uint8]:
         """An image of the dataset, checked against its recorded SHA-256."""
         files = self.manifest.get("files", {})

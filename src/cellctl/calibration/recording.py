@@ -34,13 +34,20 @@ def validity_days(config: CellConfig, part: str) -> float:
     return float(config.calibration.max_age_days)
 
 
-def record(store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config: CellConfig, when: datetime, note: str = "") -> CalibrationSet:
-    """Store a calibration that passed its gates as a new version of the set."""
+def record(
+    store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config: CellConfig, when: datetime, note: str = "",
+    measured: datetime | None = None,
+) -> CalibrationSet:
+    """Store a calibration that passed its gates as a new version of the set, at ``when``.
+
+    The part counts as calibrated at ``measured`` (the dataset's capture, for a recompute of older data) or else at
+    ``when``: its validity runs from the measurement, not from the computing.
+    """
     part = make_part(
         outcome.part,
         values=outcome.values,
         method=outcome.method,
-        when=when,
+        when=measured or when,
         valid_days=validity_days(config, outcome.part),
         quality=outcome.quality,
         warnings=outcome.warnings,

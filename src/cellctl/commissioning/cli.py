@@ -19,7 +19,7 @@ import math
 import os
 import sys
 from collections.abc import Callable, Iterator
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -183,11 +183,14 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
         return 0
     when = datetime.now(timezone.utc)
     try:
-        saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}")
+        saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}",
+                       measured=ds.measured_utc)  # its validity runs from the capture, not from today
     except CalibrationSetError as err:  # the store busy with another writer, or its set in use damaged
         print(f"{procedure}: not stored: {err}", file=sys.stderr)
         return 1
     print(f"stored as version {saved.version} in {store.root}")
+    if ds.measured_utc is not None and when - ds.measured_utc > timedelta(hours=1):
+        print(f"  calibrated as of the dataset's capture, {ds.measured_utc:%Y-%m-%d %H:%M} UTC: its validity runs from then")
     problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
     return 0
