@@ -32,8 +32,9 @@ from cellctl.cli_args import (
     port_number,
     positive_int,
     positive_number,
+    remote_client,
 )
-from cellctl.client import CellClient, ServiceError, service_url
+from cellctl.client import CellClient, ServiceError
 from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.loader import check_tokens
@@ -94,8 +95,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace, config: CellConfig | None = None) -> CellClient:
-    config = config or load_config(args.config)
-    return CellClient(service_url(args.url, config.api.host, config.api.port), args.token)
+    return remote_client(args, config or load_config(args.config))
 
 
 def _cmd_status(args: argparse.Namespace) -> int:

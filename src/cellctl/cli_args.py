@@ -5,10 +5,16 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import ssl
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
+
+from cellctl.client import URL_ENV, CellClient, pinned_to, service_url, trusting_ca
+
+if TYPE_CHECKING:
+    from cellctl.config.schema import CellConfig
 
 WORKDIR_ENV = "CELLCTL_WORKDIR"
 
@@ -36,10 +42,32 @@ class CliParser(argparse.ArgumentParser):
 
 
 def add_remote_options(p: argparse.ArgumentParser) -> None:
-    """``--url`` and ``--token`` of a command that talks to the running service."""
+    """``--url``, ``--token`` and ``--ca`` of a command that talks to the running service."""
     p.add_argument("--url", default=None,
                    help="the running service (default: $CELLCTL_URL, else the host and port of the configuration's [api])")  # fmt: skip
     p.add_argument("--token", default=None, help="bearer token (default: $CELLCTL_TOKEN)")
+    p.add_argument("--ca", default=None, type=Path, metavar="PEM",
+                   help="PEM of the CA that signed the service's HTTPS certificate (default: the system's CAs or "
+                        "$SSL_CERT_FILE; without --url or $CELLCTL_URL, the configuration's own api.tls_cert)")  # fmt: skip
+
+
+def remote_client(args: argparse.Namespace, config: CellConfig) -> CellClient:
+    """The client of the service ``args`` name (``--url``, else $CELLCTL_URL, else the configuration's [api]).
+
+    Over HTTPS it trusts ``--ca``; else, for the configuration's own [api] with ``tls_cert``, exactly that
+    certificate (read from serve's workdir, as the service reads it); else the system's CAs.
+    """
+    api = config.api
+    given = args.url or os.environ.get(URL_ENV)
+    url = service_url(given, api.host, api.port, tls=api.tls_cert is not None)
+    verify: ssl.SSLContext | bool = True
+    if args.ca is not None:
+        verify = trusting_ca(args.ca)
+    elif not given and api.tls_cert is not None:
+        cert = api.rooted(default_workdir()).tls_cert
+        assert cert is not None
+        verify = pinned_to(cert)
+    return CellClient(url, args.token, verify=verify)
 
 
 def whole_number(minimum: int) -> Callable[[str], int]:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import ssl
 import time
 import uuid
 from collections.abc import Iterator
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
@@ -18,8 +21,9 @@ TOKEN_ENV = "CELLCTL_TOKEN"
 URL_ENV = "CELLCTL_URL"
 
 
-def service_url(given: str | None, api_host: str | None = None, api_port: int | None = None) -> str:
-    """The service's URL: ``given``, else $CELLCTL_URL, else the configuration's [api] (a wildcard host as loopback)."""
+def service_url(given: str | None, api_host: str | None = None, api_port: int | None = None, tls: bool = False) -> str:
+    """The service's URL: ``given``, else $CELLCTL_URL, else the configuration's [api] (a wildcard host as loopback;
+    ``https`` when it serves TLS)."""
     if given:
         return given
     if os.environ.get(URL_ENV):
@@ -27,11 +31,40 @@ def service_url(given: str | None, api_host: str | None = None, api_port: int | 
     if api_port is None:
         return DEFAULT_URL
     host = api_host if api_host and api_host not in ("0.0.0.0", "::", "") else "127.0.0.1"
-    return f"http://{host}:{api_port}"
+    return f"{'https' if tls else 'http'}://{host}:{api_port}"
 
 
 class ServiceError(RuntimeError):
     """The service answered with an error (the message carries its detail) or could not be reached."""
+
+
+_PEM_CERT = re.compile(r"-----BEGIN CERTIFICATE-----.+?-----END CERTIFICATE-----", re.S)
+
+
+def trusting_ca(pem: Path) -> ssl.SSLContext:
+    """A client context trusting the CA certificates of the PEM file ``pem`` (hostname checked)."""
+    try:
+        return ssl.create_default_context(cafile=str(pem))
+    except (OSError, ssl.SSLError) as err:
+        raise ServiceError(f"--ca {pem}: cannot use it as the CA that signed the service's certificate ({err}); "
+                           "give the PEM file of the plant's CA") from None
+
+
+def pinned_to(cert: Path) -> ssl.SSLContext:
+    """A client context trusting exactly the first certificate of ``cert`` (the service's own, chain first), under
+    whatever name it was issued for: the CLI on the cell's computer reaches its service on loopback."""
+    try:
+        first = _PEM_CERT.search(cert.read_text(encoding="ascii", errors="replace"))
+    except OSError as err:
+        raise ServiceError(f"api.tls_cert {cert}: cannot read the service's certificate to trust it ({err.strerror}); run "
+                           "the CLI from serve's --workdir (or set $CELLCTL_WORKDIR), or give --url https://... with --ca") from None
+    if first is None:
+        raise ServiceError(f"api.tls_cert {cert}: no PEM certificate in it; give the certificate the service serves")
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.check_hostname = False  # the certificate itself is the trust anchor: only the holder of its key gets through
+    ctx.verify_flags |= ssl.VERIFY_X509_PARTIAL_CHAIN
+    ctx.load_verify_locations(cadata=first.group(0))
+    return ctx
 
 
 def _detail(r: httpx.Response) -> str:
@@ -43,16 +76,31 @@ def _detail(r: httpx.Response) -> str:
     return str(body.get("detail", r.text)) if isinstance(body, dict) else r.text
 
 
+def _reach_hint(url: str, err: httpx.HTTPError) -> str:
+    """What to check when the service could not be reached: its certificate, its scheme, or that it runs."""
+    if "CERTIFICATE_VERIFY_FAILED" in str(err):
+        return "its HTTPS certificate is not trusted: give --ca with the PEM of the CA that signed it, or $SSL_CERT_FILE"
+    if url.startswith("http://") and isinstance(err, httpx.RemoteProtocolError):
+        return "if it serves HTTPS ([api] tls_cert), use https://"
+    return "is `cellctl serve` running?"
+
+
 class CellClient:
     """Talks to a running ``cellctl serve``. ``token`` defaults to $CELLCTL_TOKEN."""
 
-    def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0) -> None:
+    def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0,
+                 verify: ssl.SSLContext | bool = True) -> None:  # fmt: skip
         self.url = url.rstrip("/")
         self._token = token if token is not None else os.environ.get(TOKEN_ENV)
+        self._verify, self._timeout_s = verify, timeout_s
         try:
-            self._http = httpx.Client(base_url=self.url, timeout=timeout_s)
+            self._http = httpx.Client(base_url=self.url, timeout=timeout_s, verify=verify)
         except (httpx.InvalidURL, ValueError) as err:  # e.g. "Invalid port: '19x'"
             raise ServiceError(f"--url {url!r} (or ${URL_ENV}) is not a valid URL ({err}): give e.g. {DEFAULT_URL}") from None
+
+    def another(self) -> CellClient:
+        """A second client of the same service, token and trust (e.g. for the event stream beside the requests)."""
+        return CellClient(self.url, self._token, self._timeout_s, self._verify)
 
     def close(self) -> None:
         self._http.close()
@@ -69,7 +117,7 @@ class CellClient:
         try:
             r = self._http.request(method, path, **kw)
         except httpx.HTTPError as err:
-            raise ServiceError(f"cannot reach the cell service at {self.url}: {err} (is `cellctl serve` running?)") from None
+            raise ServiceError(f"cannot reach the cell service at {self.url}: {err} ({_reach_hint(self.url, err)})") from None
         except httpx.InvalidURL as err:
             raise ServiceError(f"{method} {path}: not a valid URL under --url {self.url!r} ({err})") from None
         if r.status_code >= 400:

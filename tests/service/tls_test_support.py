@@ -41,6 +41,35 @@ def self_signed(folder: Path, name: str = "api") -> tuple[Path, Path]:
     return cert_path, key_path
 
 
+def plant_chain(folder: Path, names: tuple[str, ...]) -> dict[str, Path]:
+    """A plant CA (``ca.pem``) and two servers it signed: ``cell-chain.pem`` / ``cell-key.pem`` (DNS names ``names``,
+    the chain leaf first, as [api] tls_cert takes it) and ``other-chain.pem`` / ``other-key.pem`` (the same names)."""
+    now = datetime.datetime.now(datetime.timezone.utc)
+
+    def issue(cn: str, issuer: x509.Name | None, signer: ec.EllipticCurvePrivateKey | None, ca: bool) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey]:
+        key = ec.generate_private_key(ec.SECP256R1())
+        subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+        b = (x509.CertificateBuilder().subject_name(subject).issuer_name(issuer or subject).public_key(key.public_key())
+             .serial_number(x509.random_serial_number())
+             .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=1))
+             .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))  # fmt: skip
+        if not ca:
+            b = b.add_extension(x509.SubjectAlternativeName([x509.DNSName(n) for n in names]), critical=False)
+        return b.sign(signer or key, hashes.SHA256()), key
+
+    ca, ca_key = issue("plant CA", None, None, True)
+    pem = lambda c: c.public_bytes(serialization.Encoding.PEM)  # noqa: E731
+    out = {"ca": folder / "ca.pem"}
+    out["ca"].write_bytes(pem(ca))
+    for name in ("cell", "other"):
+        cert, key = issue(name, ca.subject, ca_key, False)
+        out[name], out[f"{name}-key"] = folder / f"{name}-chain.pem", folder / f"{name}-key.pem"
+        out[name].write_bytes(pem(cert) + pem(ca))
+        out[f"{name}-key"].write_bytes(_key_pem(key))
+        os.chmod(out[f"{name}-key"], 0o600)
+    return out
+
+
 def other_key(path: Path, passphrase: bytes | None = None) -> Path:
     """A new EC key (not any certificate's) written to ``path`` (mode 0600), encrypted with ``passphrase`` if given."""
     path.write_bytes(_key_pem(ec.generate_private_key(ec.SECP256R1()), passphrase))

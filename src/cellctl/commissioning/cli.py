@@ -29,8 +29,8 @@ from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, Cali
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.readiness import check_ready
-from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir
-from cellctl.client import CellClient, service_url
+from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir, remote_client
+from cellctl.client import CellClient
 from cellctl.commissioning.registry import ALL_PROCEDURES, HAND_EYE_METHODS
 from cellctl.config import load_config
 
@@ -49,8 +49,7 @@ COMMAND_PROCEDURES = {"camera": "camera", "hand-eye": "hand_eye", "laser": "lase
 
 
 def _client(args: argparse.Namespace) -> CellClient:
-    config = load_config(args.config)
-    return CellClient(service_url(args.url, config.api.host, config.api.port), args.token)
+    return remote_client(args, load_config(args.config))
 
 
 def _options(args: argparse.Namespace, procedure: str) -> dict[str, Any]:

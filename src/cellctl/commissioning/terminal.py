@@ -178,7 +178,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
     job_id = int(job["id"])
     inbox: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue()
     stop = threading.Event()
-    watcher = events_client or CellClient(client.url, client._token)
+    watcher = events_client or client.another()
 
     def listen() -> None:
         try:
