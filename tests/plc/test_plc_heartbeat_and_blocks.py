@@ -129,12 +129,32 @@ async def test_plc_writes_into_the_cell_block_are_refused_and_change_nothing() -
         skip = {2, CELL_BLOCK.register("refused_write_count").address - CELL_BLOCK.start}  # heartbeat, count
         assert [w for i, w in enumerate(after.registers) if i not in skip] == \
                [w for i, w in enumerate(before.registers) if i not in skip]
-        assert server.refused_writes == 4
-        await plc.wait_cell(lambda c: c["refused_write_count"] == 4, "refused_write_count = 4")
+        assert server.refused_writes == 5  # the four, and the write across the gap: it reached into the cell block
+        await plc.wait_cell(lambda c: c["refused_write_count"] == 5, "refused_write_count = 5")
         # the PLC block stays writable, and the cell never wrote into it
         assert (await plc.read_plc_block())[10] == 0  # cycle_request as the PLC left it
         await plc.write(recipe_id=3)
         assert (await plc.read_plc_block())[5] == 3
+
+
+async def test_a_write_reaching_into_the_cell_block_from_below_is_refused_counted_and_writes_nothing() -> None:
+    cell = MemoryCell()
+    async with running_cell(cell) as (server, plc):
+        client = plc.client
+        await plc.write(recipe_id=3)
+        plc_before = await plc.read_plc_block()
+        spans = [(CELL_BLOCK.start - 2, 4), (PLC_BLOCK.end - 2, CELL_BLOCK.start - PLC_BLOCK.end + 4),
+                 (PLC_BLOCK.start, CELL_BLOCK.start - PLC_BLOCK.start + 2)]  # from the gap, the PLC block's end, its start
+        for k, (address, n) in enumerate(spans, start=1):
+            rr = await client.write_registers(address, [0xBEEF] * n, device_id=1)
+            assert rr.isError() and rr.exception_code == 2, (address, n, rr)
+            await plc.wait_cell(lambda c, k=k: c["refused_write_count"] == k, f"refused_write_count = {k}")
+        assert server.refused_writes == len(spans)
+        assert await plc.read_plc_block() == plc_before  # nothing of the PLC block they spanned was written either
+        rr = await client.write_registers(PLC_BLOCK.end - 2, [0, 0, 0], device_id=1)  # into the gap alone: not counted
+        assert rr.isError() and rr.exception_code == 2
+        await asyncio.sleep(0.1)
+        assert server.refused_writes == len(spans)
 
 
 async def test_another_unit_id_gets_exception_11_without_a_traceback_and_changes_nothing(

@@ -43,8 +43,9 @@ in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other
   (list the PLC and the HMI; firewall the port).
 - The **cell block** ({c_start}-{c_last}) is written only by the cell. A PLC write into it is refused
   with exception code 2 (illegal data address), leaves it unchanged and counts in
-  `refused_write_count`. Addresses between the blocks do not exist (exception code 2), so read
-  each block with its own request.
+  `refused_write_count`, also when it starts below the block (a write offset too low). Addresses
+  between the blocks do not exist (exception code 2, not counted), so read and write each block with
+  its own request.
 - Reserved addresses of the cell block read 0. Reserved addresses of the PLC block are not read by
   the cell and keep what a client writes there: write 0 to them (or leave them out of the write), as a
   later map version may give them a meaning.

@@ -103,9 +103,10 @@ class _UnitGate:
     the exception response for every function code it serves from the datastore.
     """
 
-    def __init__(self, inner: object, unit_id: int) -> None:
+    def __init__(self, inner: object, unit_id: int, refuse_write: Callable[[int, int, int], ExcCodes | None]) -> None:
         self._inner = inner
         self._unit_id = unit_id
+        self._refuse_write = refuse_write  # (func_code, address, count): before pymodbus checks the addresses
         self.refused: dict[int, int] = {}
 
     def _admit(self, device_id: int, func_code: int) -> bool:
@@ -128,6 +129,8 @@ class _UnitGate:
                               values: list[int] | list[bool]) -> ExcCodes | None:
         if not self._admit(device_id, func_code):
             return ExcCodes(UNIT_ID_EXCEPTION)
+        if (refused := self._refuse_write(func_code, address, len(values))) is not None:
+            return refused  # e.g. a write from the gap into the cell block, which pymodbus refuses without the hook
         return await self._inner.async_setValues(device_id, func_code, address, values)  # type: ignore[attr-defined,no-any-return]
 
     def device_ids(self) -> list[int]:
@@ -193,7 +196,7 @@ class PlcServer:
             action=self._on_access,
         )
         server = GuardedTcpServer(device, address=(cfg.host, cfg.port), networks=cfg.client_networks())
-        self._gate = _UnitGate(server.context, cfg.unit_id)
+        self._gate = _UnitGate(server.context, cfg.unit_id, self._refused_cell_write)
         server.context = self._gate  # type: ignore[assignment]
         self._server = server
         self._wake = asyncio.Event()
@@ -316,15 +319,21 @@ class PlcServer:
         n = len(set_values) if set_values else count
         if _CELL_WRITING.get():
             return ExcCodes.ILLEGAL_ADDRESS if PLC_BLOCK.overlaps(address, n) else None
-        if CELL_BLOCK.overlaps(address, n):
-            self._refused_writes += 1
-            level = logging.WARNING if self._refused_writes % 1000 == 1 else logging.DEBUG
-            log.log(level, "refused PLC write (FC%d) to %d..%d: the cell block is written only by the "
-                    "cell (%d refused so far)", func_code, address, address + n - 1, self._refused_writes)
-            self._wake.set()
-            return ExcCodes.ILLEGAL_ADDRESS
+        if (refused := self._refused_cell_write(func_code, address, n)) is not None:
+            return refused
         self._wake.set()
         return None
+
+    def _refused_cell_write(self, func_code: int, address: int, n: int) -> ExcCodes | None:
+        """A PLC's register write reaching into the cell block, from anywhere: refused (exception 2) and counted."""
+        if func_code not in _HOLDING_REGISTER_FCS or _CELL_WRITING.get() or not CELL_BLOCK.overlaps(address, n):
+            return None
+        self._refused_writes += 1
+        level = logging.WARNING if self._refused_writes % 1000 == 1 else logging.DEBUG
+        log.log(level, "refused PLC write (FC%d) to %d..%d: the cell block is written only by the "
+                "cell (%d refused so far)", func_code, address, address + n - 1, self._refused_writes)
+        self._wake.set()
+        return ExcCodes.ILLEGAL_ADDRESS
 
     async def _flush(self) -> None:
         """Put the whole cell image on the wire in one datastore write (the PLC never sees half)."""
