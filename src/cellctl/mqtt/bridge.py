@@ -13,6 +13,10 @@ It follows the orchestrator's :class:`~cellctl.cell.events.EventHub`:
   code is listed (inactive and acknowledged);
 - ``job`` done, and every ``CALIBRATION_POLL_S``: the retained ``calibration`` when its version changed.
 
+After every connection's backlog (:meth:`EventBridge.snapshot`) it queues the retained values again,
+``result/last`` included: the newest finished cycle at or below the high-water mark (the bound may
+have dropped every ``result/last`` of an outage; a first start has none).
+
 The hub drops a slow subscriber's oldest events; a gap in its sequence makes the bridge queue
 the state, the alarms and the results again from their sources (and empty the ``alarm/{code}``
 of every alarm that ended meanwhile), so nothing but an
@@ -34,9 +38,11 @@ from cellctl.mqtt import payloads
 from cellctl.mqtt.outbox import Outbox
 from cellctl.mqtt.topics import CellTopics
 from cellctl.store.outbox import RESULT_KIND, OutboxMessage
+from cellctl.store.records import CycleState
 
 log = logging.getLogger(__name__)
 
+UNFINISHED = (CycleState.QUEUED, CycleState.RUNNING)  # cycles that have no result yet
 CALIBRATION_POLL_S = 5.0  # a set written by `cellctl calibrate --dataset` outside the service is seen this late at most
 
 
@@ -77,6 +83,7 @@ class EventBridge:
         self._last_event = 0
         self._alarm_seen: dict[str, tuple[bool, bool, int]] = {}  # uid -> (active, acknowledged, code) as last published
         self._calibration: tuple[Any, bool] | None = None  # (version, damaged) as last queued
+        self._results = asyncio.Lock()  # a result/last of the snapshot never supersedes a newer one of catch_up
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -111,12 +118,13 @@ class EventBridge:
                     await self._handle(q.get_nowait())
 
     async def snapshot(self) -> None:
-        """Queue the retained state, alarms and calibration as they are now (after every connection's backlog)."""
+        """Queue the retained state, alarms, calibration and result/last as they are now (after every connection's backlog)."""
         await self._put_state(*self._state_now())
         for a in self.alarms.current():
             await self.outbox.put([OutboxMessage(self.topics.alarm(a.code), payloads.alarm(a), "alarm", retain=True)])
         self._calibration = None
         await self._check_calibration()
+        await self._put_result_last()
 
     # -- following the hub ----------------------------------------------------------------------
 
@@ -161,6 +169,10 @@ class EventBridge:
 
     async def catch_up(self) -> int:
         """Queue the result of every finished cycle above the high-water mark, in order; returns how many."""
+        async with self._results:
+            return await self._catch_up()
+
+    async def _catch_up(self) -> int:
         n = 0
         while ids := await self.store.outbox_result_backlog(limit=50):
             for cid in ids:
@@ -174,6 +186,20 @@ class EventBridge:
                 )  # fmt: skip
                 n += bool(done.seqs)
         return n
+
+    async def _put_result_last(self) -> None:
+        """Queue the retained ``result/last`` of the newest finished cycle at or below the high-water mark."""
+        async with self._results:  # the mark read and this queued before any newer result's result/last
+            hwm = (await self.store.outbox_counts()).result_hwm
+            before = None if hwm is None else hwm + 1
+            while page := await self.store.cycles(limit=50, before_id=before):
+                for rec in page:
+                    msg = None if rec.state in UNFINISHED else result_message(await self.store.cycle(rec.id))
+                    if msg is not None:
+                        body = payloads.result(msg)
+                        await self.outbox.put([OutboxMessage(self.topics.result_last, body, "result_last", retain=True)])
+                        return
+                before = page[-1].id
 
     # -- alarms ---------------------------------------------------------------------------------
 

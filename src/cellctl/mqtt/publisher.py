@@ -6,8 +6,8 @@ duplicates the row the outbox sends again anyway. A connection has a retained ``
 ({"online": false}); once connected it publishes the retained ``status`` {"online": true}, then
 an ``outbox/dropped`` report if the bound dropped messages while it was away, and sends the rows
 oldest first, deleting each only after :meth:`aiomqtt.Client.publish` returned (the broker's
-PUBACK). Once the backlog is out it lets the bridge queue the current state, alarms and
-calibration again (a broker without persistence lost them; after the backlog, they cannot
+PUBACK). Once the backlog is out it lets the bridge queue the current state, alarms,
+calibration and result/last again (a broker without persistence lost them; after the backlog, they cannot
 push a result out of a full outbox). A second task iterates the
 client's messages: it ends when the connection is lost, even while there is nothing to send.
 After a failure it waits ``reconnect_min_s``, doubled each time up to ``reconnect_max_s``, with

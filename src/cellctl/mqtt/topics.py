@@ -35,7 +35,7 @@ TOPICS: tuple[TopicSpec, ...] = (
     TopicSpec("result", False, "result", "once per finished cycle (done, failed or interrupted), in cycle order",
               "the cycle's result: ok, error code, part and car ids, measured deviation (null when not measured), "
               "corrections (null when none was computed), times"),
-    TopicSpec("result/last", True, "result_last", "with every result", "the same payload as the last `result`"),
+    TopicSpec("result/last", True, "result_last", "with every result; after each connection's backlog", "the same payload as the last `result`"),
     TopicSpec("alarm/{code}", True, "alarm", "an alarm of that code raised, cleared or acknowledged; after each "
               "connection's backlog; emptied once it is inactive and acknowledged", "the alarm's state; an empty message clears the topic"),
     TopicSpec("alarm/events", False, "alarm_event", "every raise, clear and acknowledgement",
