@@ -99,7 +99,8 @@ def _state_vars(machine: str) -> tuple[Var, ...]:
 
 
 RESULT_FIELDS: tuple[Var, ...] = (
-    Var("Cycle/LastResult/CycleId", "cellctl", "UInt32", "the finished cycle's id (REST /cycles/{id})"),
+    Var("Cycle/LastResult/CycleId", "cellctl", "UInt32",
+        "the finished cycle's id (REST /cycles/{id}); written last, after the cycle's other LastResult fields: key on it"),
     Var("Cycle/LastResult/RequestId", "cellctl", "String", "the idempotency key it was started with (StartCycle's RequestId)"),
     Var("Cycle/LastResult/Recipe", "cellctl", "String", "recipe name"),
     Var("Cycle/LastResult/PartId", "cellctl", "String", "the glass's part id"),

@@ -13,8 +13,10 @@ from cellctl.opcua.nodeset import (
     Arg,
     node_id_text,
 )
+from cellctl.opcua.publishing import MIN_PUBLISHING_INTERVAL_MS
 
 _NS = {"packml": "PackML", "cellctl": "cellctl"}
+_MIN_MS = f"{MIN_PUBLISHING_INTERVAL_MS:g} ms"
 
 
 def _args(args: tuple[Arg, ...]) -> str:
@@ -47,6 +49,17 @@ def render_markdown() -> str:
             kind += " (property)"
         lines.append(f"| `{node_id_text(cell, v.path)}` | {_NS[v.ns]} | {kind} | {v.description} |")
     lines += [
+        "",
+        "### The last result",
+        "",
+        "When a cycle finishes, the server writes its `Cycle/LastResult/*` fields and then `CycleId`, last: once",
+        "`CycleId` shows a cycle, every other LastResult field holds that cycle's value. Key on `CycleId`: subscribe",
+        "to it and to the fields you need in one subscription, and when `CycleId` changes, file the values you hold.",
+        "One cycle's changes reach a subscription in one notification, never part of them first (a field whose value",
+        f"equals the previous cycle's is not notified again). For this the server grants publishing intervals of {_MIN_MS}",
+        f"and more: a shorter request, 0 included, is revised to {_MIN_MS} (OPC UA Part 4 lets a server revise it;",
+        "CreateSubscription answers the revised interval). `Cycle/GetResult(RequestId)` reads one cycle's result",
+        "in one call.",
         "",
         "## Methods",
         "",

@@ -30,6 +30,7 @@ from cellctl.opcua.alarms import AlarmConditions
 from cellctl.opcua.channel_guard import NoneDiscoveryOnlyServer
 from cellctl.opcua.nodeset import METHODS, STATE_MACHINES, UNIT_MODES, state_path
 from cellctl.opcua.port import OpcUaCell, Refused
+from cellctl.opcua.publishing import Publishing
 from cellctl.opcua.security import (
     CellRuleset,
     CellUserManager,
@@ -79,6 +80,7 @@ class CellOpcUaServer:
         self._server: Server | None = None
         self._space: CellAddressSpace | None = None
         self._alarms: AlarmConditions | None = None
+        self._publishing: Publishing | None = None
         self._task: asyncio.Task[None] | None = None
         self._processed = 0
         self._defective = 0
@@ -114,6 +116,7 @@ class CellOpcUaServer:
         users.watch(server.iserver)  # tells a certificate user's token from an anonymous one's channel certificate
         server.iserver.bind_condition_methods = True  # ConditionRefresh; must precede init()
         await server.init()
+        self._publishing = Publishing(server)  # a batch of writes reaches a subscriber in one notification
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"cellctl {self._cell.cell_id}")
         await server.set_application_uri(self.application_uri)
@@ -262,17 +265,21 @@ class CellOpcUaServer:
             return
         measured = r.get("measured_deviation") or {}
         values: dict[str, Any] = {
-            "CycleId": int(r["cycle_id"]), "RequestId": str(r.get("request_id") or ""), "Recipe": r["recipe"],
+            "RequestId": str(r.get("request_id") or ""), "Recipe": r["recipe"],
             "PartId": r["part_id"], "CarId": r.get("car_id") or "", "Ok": bool(r["ok"]), "ErrorCode": int(r["error_code"]),
             "Reason": r.get("reason") or "", "MeasuredDeviation": _six(measured),
             "CycleTime": float(r["cycle_time_s"]), "CalibrationVersion": r.get("calibration_version") or "",
             "FinishedAt": datetime.fromisoformat(r["finished_at"]) if r.get("finished_at") else NULL_TIME,
             **{f"Measured/{k}": float(measured.get(k, 0.0)) for k in DEVIATION_KEYS},
+            "CycleId": int(r["cycle_id"]),  # last: when it changes, every field above is this cycle's (the trigger)
         }  # fmt: skip
         # a cycle that measured nothing has no figures: BadNoData (no value), not a Good 0.0 (a perfect install)
         figures = ua.StatusCodes.Good if measured else ua.StatusCodes.BadNoData
-        for name, value in values.items():
-            await s.write(f"Cycle/LastResult/{name}", value, status=figures if name.startswith("Measured/") else ua.StatusCodes.Good)
+        assert self._publishing is not None
+        async with self._publishing.batch():  # one notification: no subscriber sees some fields of a cycle alone
+            for name, value in values.items():
+                status = figures if name.startswith("Measured/") else ua.StatusCodes.Good
+                await s.write(f"Cycle/LastResult/{name}", value, status=status)
 
     # -- methods ---------------------------------------------------------------------------------
 
