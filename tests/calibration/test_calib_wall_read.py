@@ -50,9 +50,10 @@ def test_a_teaching_read_standing_is_refused_for_a_cell_that_now_reads_on_the_mo
         "so the cycle reads the wall where it was taught"
     ]
     # the service's auto-commissioning teaches again (and nothing else)
-    jobs = SimpleNamespace(current_calibration=store.current, config=on_the_move)
+    years = {"calibration": cfg.calibration.model_copy(update={"max_age_days": 3650.0})}  # the parts' validity, as recorded
+    jobs = SimpleNamespace(current_calibration=store.current, config=on_the_move.model_copy(update=years))
     assert parts_needed(jobs) == [Needed("teaching")]  # type: ignore[arg-type]
-    as_taught = parts_needed(SimpleNamespace(current_calibration=store.current, config=cfg))  # type: ignore[arg-type]
+    as_taught = parts_needed(SimpleNamespace(current_calibration=store.current, config=cfg.model_copy(update=years)))  # type: ignore[arg-type]
     assert [n for n in as_taught if n.recipe is None] == []  # (the second recipe, never taught, comes next)
     # without the configuration (e.g. a set checked on its own) nothing is compared
     assert check_ready(store.current(), LATER) == []

@@ -52,10 +52,21 @@ class LinkReport(BaseModel):
     silent_for_s: float | None = Field(None, description="with lost: how long the PLC's heartbeat has been silent")
 
 
-class CalibrationProblems(BaseModel):
-    """Why production may not start now (empty: it may)."""
+class RecipeProblems(BaseModel):
+    """Whether one recipe's cycles would find the calibration ready, and if not why."""
 
-    problems: list[str]
+    ready: bool = Field(description="no problems: its cycles would find the calibration ready")
+    problems: list[str] = Field(description="what keeps it from production, the cell's parts included, one line each "
+                                            "naming the command that mends it (empty: ready)")
+
+
+class CalibrationProblems(BaseModel):
+    """Why production may not start now (empty: it may), for the cell's first recipe and for each recipe."""
+
+    problems: list[str] = Field(description="what keeps the cell's first recipe from production (the cell's parts "
+                                            "included); empty: it may start")
+    recipes: dict[str, RecipeProblems] = Field(description="each recipe of [[process.recipes]], by name: a cycle of a "
+                                                           "recipe whose own parts are not ready is refused (409)")
 
 
 class PrunedCounts(BaseModel):
@@ -164,6 +175,10 @@ class CalibrationPartSummary(BaseModel):
 
     status: str = Field(description="ok or failed")
     calibrated_utc: str
+    expires_utc: str | None = Field(
+        description="when it stops counting for production (ISO 8601, UTC): calibrated_utc plus the shorter of the "
+        "validity recorded with it and calibration.max_age_days; null for a failed part"
+    )
     method: str
     quality: dict[str, Any]
     failure: str | None
@@ -174,6 +189,8 @@ class RecipeReadiness(BaseModel):
 
     taught: bool = Field(description="its teaching is in the set (the oracle teaches every recipe from the truth)")
     ready: bool = Field(description="its cycles would find the calibration ready")
+    problems: list[str] = Field(description="what keeps it from production, the cell's parts included, one line each "
+                                            "naming the command that mends it (empty: ready)")
 
 
 class CalibrationSummary(BaseModel):

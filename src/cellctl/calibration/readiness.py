@@ -1,5 +1,9 @@
 """Whether a calibration set lets a recipe go into production: every part present, ok, in date, taught for it and
-computed from the parts the set holds now; one line per problem, each naming the command that mends it."""
+computed from the parts the set holds now; one line per problem, each naming the command that mends it.
+
+A part is in date until :func:`expires_utc`: its calibration time plus the shorter of the validity recorded with it
+(``valid_days``, the ``calibration.max_age_days`` in force when it was calibrated) and the running configuration's
+``calibration.max_age_days`` (lowering the limit applies at once; raising it, to parts calibrated after)."""
 
 from __future__ import annotations
 
@@ -21,6 +25,19 @@ from cellctl.calibration.taught_shot import shot_problem
 from cellctl.config import CellConfig
 
 
+def valid_days(part: PartRecord, config: CellConfig | None = None) -> float:
+    """How many days ``part`` counts from its calibration: its recorded ``valid_days``, capped by ``config``'s
+    ``calibration.max_age_days`` (no config: the recorded figure alone)."""
+    return part.valid_days if config is None else min(part.valid_days, float(config.calibration.max_age_days))
+
+
+def expires_utc(part: PartRecord, config: CellConfig | None = None) -> datetime | None:
+    """When ``part`` stops counting for production (UTC): ``calibrated_utc`` + :func:`valid_days`; None for a failed part."""
+    if part.status == "failed":
+        return None
+    return part.calibrated_utc + timedelta(days=valid_days(part, config))
+
+
 def check_ready(
     cal: CalibrationSet | None,
     now: datetime,
@@ -28,10 +45,12 @@ def check_ready(
     recipe: str | None = None,
     first_recipe: str | None = None,
     config: CellConfig | None = None,
+    parts: tuple[str, ...] = PART_NAMES,
 ) -> list[str]:
     """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
-    A part is a problem when it is missing, failed, expired, dated in the future, or was
+    ``parts`` limits the check to those parts (e.g. ``RECIPE_PART_NAMES``: the recipe's own). A part is a problem
+    when it is missing, failed, expired (:func:`expires_utc`, given the cell's ``config``), dated in the future, or was
     computed from a part that has since been replaced (stale); a teaching is one when it was
     taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
     or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
@@ -42,7 +61,7 @@ def check_ready(
         return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
     slot = parts_of(cal, recipe, first_recipe)
     problems: list[str] = []
-    for name in PART_NAMES:
+    for name in (n for n in PART_NAMES if n in parts):
         p = cal.part(name, slot)
         cmd = command(name, slot)
         label = f"{name} of recipe {slot}" if name in RECIPE_PART_NAMES and slot is not None else name
@@ -52,11 +71,13 @@ def check_ready(
         if p.status == "failed":
             problems.append(f"{label}: the last calibration failed ({p.failure}); fix the cause and run `{cmd}` again")
             continue
-        expires = p.calibrated_utc + timedelta(days=p.valid_days)
-        if now >= expires:
+        expires = expires_utc(p, config)
+        if expires is not None and now >= expires:
+            days = valid_days(p, config)
+            by = " by calibration.max_age_days" if days < p.valid_days else ""
             problems.append(
                 f"{label}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
-                f"valid {p.valid_days:g} days); run `{cmd}`"
+                f"valid {days:g} days{by}); run `{cmd}`"
             )
         if p.calibrated_utc > now + timedelta(minutes=5):
             problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")

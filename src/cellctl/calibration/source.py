@@ -31,6 +31,7 @@ import numpy as np
 
 from cellctl.calibration.calibration_set import (
     PART_NAMES,
+    RECIPE_PART_NAMES,
     CalibrationSet,
     CalibrationStore,
     command,
@@ -40,7 +41,7 @@ from cellctl.calibration.calibration_set import (
     store_root,
 )
 from cellctl.calibration.errors import CalibrationRefused
-from cellctl.calibration.readiness import check_ready
+from cellctl.calibration.readiness import check_ready, expires_utc
 from cellctl.calibration.taught_shot import taught_profile_of
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
@@ -208,6 +209,15 @@ class CalibrationSetSource:
             snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config
         )
 
+    def recipe_problems(self, recipe: str) -> list[str]:
+        """What keeps ``recipe``'s own parts (its teaching and nine-point map) from production: stale, expired,
+        taught with other settings...; [] with no set or a damaged one (its cycles then fail with the set's own problem)."""
+        snap = self._snapshot()
+        if snap.cal is None:
+            return []
+        return check_ready(snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe,
+                           config=self.config, parts=RECIPE_PART_NAMES)  # fmt: skip
+
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         snap = self._snapshot()
         if snap.damage is not None:
@@ -233,15 +243,18 @@ class CalibrationSetSource:
         parts = {}
         for name in PART_NAMES:
             p = cal.part(name)
+            expires = None if p is None else expires_utc(p, self.config)
             parts[name] = None if p is None else {
-                "status": p.status, "calibrated_utc": p.calibrated_utc.isoformat(), "method": p.method,
+                "status": p.status, "calibrated_utc": p.calibrated_utc.isoformat(),
+                "expires_utc": None if expires is None else expires.astimezone(timezone.utc).isoformat(), "method": p.method,
                 "quality": p.quality, "failure": p.failure,
             }  # fmt: skip
         now = datetime.now(timezone.utc)
         first = self.config.default_recipe
-        recipes = {r.name: {"ready": not check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config),
-                            "taught": cal.usable("teaching", self._slot(cal, r.name))}
-                   for r in self.config.process.recipes}  # fmt: skip
+        recipes = {}
+        for r in self.config.process.recipes:
+            lines = check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config)
+            recipes[r.name] = {"ready": not lines, "taught": cal.usable("teaching", self._slot(cal, r.name)), "problems": lines}
         return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes}
 
     def history(self) -> list[dict[str, Any]]:

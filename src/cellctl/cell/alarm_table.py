@@ -188,8 +188,8 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         ),
         AlarmCode.RECIPE_NOT_TAUGHT: AlarmSpec(
             FaultClass.WARNING,
-            "Cycle refused: its recipe is not taught (the code of that refusal; never raised): teach it with "
-            "`cellctl teach --recipe NAME`",
+            "Cycle refused: its recipe is not taught or its own parts not ready (the code of that refusal; never "
+            "raised): teach it with `cellctl teach --recipe NAME`, as `cellctl calibrate status` says",
             False,
         ),
         AlarmCode.CALIBRATION_CHECK_DUE: AlarmSpec(

@@ -34,6 +34,7 @@ from cellctl.cell.packml import (
     PackMLMachine,
 )
 from cellctl.cell.quality_loop import InstallQualityLoop
+from cellctl.cell.recipe_gate import calibration_status, cycle_refusal
 from cellctl.cell.recorder import StoreRecorder
 from cellctl.cell.robots import TrackedRobot
 from cellctl.cell.sources import CalibrationSource, SimTruth
@@ -279,14 +280,14 @@ class CellOrchestrator:
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
         """Queue a cycle under an idempotency key; the same key returns the same cycle, never a second one.
 
-        Raises CycleRefused, for a key it has not seen, when the cell is not in Execute or the recipe is not taught.
-        """
+        Raises CycleRefused, for a key it has not seen, when the cell is not in Execute or the recipe is not taught or
+        not ready (its teaching or nine-point map stale, expired...: :func:`cycle_refusal`)."""
         existing = await self.store.cycle_for_key(scope, key)
         if existing is None and (why := not_ready_for_cycle(self.machine.state, self.machine.mode)) is not None:
             raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, why)
-        untaught = None if existing is not None else self.calibration.untaught(request.recipe)
-        if untaught is not None:
-            raise CycleRefused(AlarmCode.RECIPE_NOT_TAUGHT, untaught)
+        refused = None if existing is not None else cycle_refusal(self.calibration, request.recipe)
+        if refused is not None:
+            raise CycleRefused(AlarmCode.RECIPE_NOT_TAUGHT, refused)
         result = await self.store.submit_cycle(request, scope=scope, key=key, actor=actor)
         if result.created:
             self._finished[result.cycle.id] = asyncio.Event()
@@ -491,7 +492,7 @@ class CellOrchestrator:
                 for name, h in (self.watchdog.health().items() if self.watchdog else [])
             },
             "links": {name: dict(report) for name, report in self._links.items()},
-            "calibration": {"problems": self.calibration.problems()},
+            "calibration": calibration_status(self.calibration, (r.name for r in self.config.process.recipes)),
             "spc": self.quality.snapshot(),
             **{name: part() for name, part in self._status_parts.items()},
         }

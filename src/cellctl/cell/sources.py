@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.domain import InstallDeviation
@@ -33,6 +33,16 @@ class CalibrationSource(Protocol):
 
     def untaught(self, recipe: str) -> str | None:
         """Why ``recipe`` is not taught in a calibrated cell (its teaching missing or failed), with the fix; else None."""
+        ...
+
+
+@runtime_checkable
+class RecipePartsCheck(Protocol):
+    """A calibration source that keeps each recipe's own parts (the calibration set; the oracle is always ready)."""
+
+    def recipe_problems(self, recipe: str) -> list[str]:
+        """What keeps ``recipe``'s own parts (teaching, nine-point map) from production, one line each naming the fix;
+        [] when they are ready, or when there is no usable set (the cycle then fails with the set's own problem)."""
         ...
 
 

@@ -147,7 +147,7 @@ same way.
 `recipe_id` must be the `id` of one of the config's `[[process.recipes]]` tables (each has an `id`
 1-65535, the number the PLC sends, and a `name`, which the cycle records and the REST API use).
 Any other `recipe_id` is refused with `error_code` {unknown_recipe}, and a recipe the cell has not
-been taught yet with {not_taught}. A config without `[[process.recipes]]` has this one (the
+been taught yet, or whose own teaching or nine-point map is not ready, with {not_taught}. A config without `[[process.recipes]]` has this one (the
 simulated cell's `config/sim.toml` lists its own: 1 side-window and 2 door-window):
 
 | recipe_id | name | description |

@@ -108,9 +108,10 @@ PLC_ERROR_TEXT: dict[PlcErrorCode, str] = {
                             "Manual, switch to Production first) and request again with a new id.",
     PlcErrorCode.ID_IN_USE: "Refused: the cell's store holds this cycle_req_id for another request it could "
                             "not match. Nothing ran; use a new id.",
-    PlcErrorCode.RECIPE_NOT_TAUGHT: "Refused: the recipe is one of the cell's but is not taught yet (`cellctl teach "
-                                    "--recipe NAME`, then its nine-point map). Nothing ran; request another recipe, "
-                                    "or this one with a new id once it is taught.",
+    PlcErrorCode.RECIPE_NOT_TAUGHT: "Refused: the recipe is one of the cell's but is not taught yet, or its teaching "
+                                    "or nine-point map is not ready (stale, expired; `cellctl calibrate status` names "
+                                    "the command: `cellctl teach --recipe NAME`, then its nine-point map). Nothing "
+                                    "ran; request another recipe, or this one with a new id once it is ready.",
 }
 
 
