@@ -144,17 +144,19 @@ def test_every_page_fits_the_screen_and_the_alarm_reads_without_scrolling(
         pg.click("nav a[data-page=alarms]")
         expect(pg.locator("#alarms-history td.when").first).to_have_text(re.compile(r"^\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2}$"))
         shot(pg, f"20-{width}x{height}-alarms.png")
-        # The calibration's due date: oldest part + calibration.max_age_days (90 days here).
+        # The calibration's due date: the part that expires first, by each part's own expiry as the service states it.
         # A part's quality is a long record (per-view residuals): folded, the page stays short.
         views = _bulky_calibrate_step({"steps": [{"step": "calibrate", "figures": {}}]})["steps"][0]["figures"]["calibration"]["parts"]["camera"]["quality"]
         pg.route("**/calibration", lambda route: route.fulfill(json={
             "current": {"source": "set", "version": 2, "parts": {
-                "camera": {"status": "ok", "calibrated_utc": "2026-01-05T08:00:00+00:00", "method": "zhang", "quality": views, "failure": None},
-                "hand_eye": {"status": "ok", "calibrated_utc": "2026-02-01T08:00:00+00:00", "method": "park", "quality": views, "failure": None},
+                "camera": {"status": "ok", "calibrated_utc": "2026-01-05T08:00:00+00:00", "expires_utc": "2026-04-05T08:00:00+00:00",
+                           "method": "zhang", "quality": views, "failure": None},
+                "hand_eye": {"status": "ok", "calibrated_utc": "2026-02-01T08:00:00+00:00", "expires_utc": "2026-05-02T08:00:00+00:00",
+                             "method": "park", "quality": views, "failure": None},
             }}, "problems": [], "versions": []}))  # fmt: skip
         pg.click("nav a[data-page=overview]")
         pg.click("nav a[data-page=calibration]")
-        expect(pg.locator("#cal-due-line")).to_contain_text("camera is the oldest part")
+        expect(pg.locator("#cal-due-line")).to_contain_text("camera expires first")
         expect(pg.locator("#cal-due-line")).to_contain_text(re.compile(r"Due 2026-04-0[45]"))
         expect(pg.locator("#cal-parts td[data-due=hand_eye]")).to_have_text(re.compile(r"2026-05-0[12]"))
         expect(pg.locator("#cal-due")).to_contain_text(re.compile(r"due 2026-04-0[45]"))

@@ -48,7 +48,7 @@ function alarmTable(alarms, { withAck, firstOutUid, compact = false }) {
         "tr",
         { "data-alarm": a.uid },
         codeCell,
-        el("td", {}, a.message, el("br"), el("span", { class: "muted", text: `${source}; ${state}` })),
+        el("td", { class: "msg" }, a.message, el("br"), el("span", { class: "muted", text: `${source}; ${state}` })),
         withAck ? el("td", {}, action) : null,
       );
     }

@@ -82,6 +82,16 @@ function route() {
 
 // -- live updates ---------------------------------------------------------------------------------
 
+// The calibration page follows the service's verdict: when the status's calibration problems or a
+// recipe's readiness change (a part expired, a new version came), /calibration is read again.
+let lastVerdict = null;
+function calibrationVerdict(status) {
+  const cal = status.calibration || {};
+  const key = JSON.stringify([cal.problems || [], cal.recipes || {}]);
+  if (lastVerdict !== null && key !== lastVerdict) schedule("calibration", refreshCalibration, 0);
+  lastVerdict = key;
+}
+
 function onEvent(kind, data) {
   const wasStale = model.stale && model.lastMessageAt !== 0;
   model.lastMessageAt = Date.now();
@@ -94,6 +104,7 @@ function onEvent(kind, data) {
       if (wasStale) schedule("all", resync, 0);
       else if ((data.current_cycle ?? null) !== (model.currentCycle ? model.currentCycle.id : null)) schedule("status", refreshStatus);
       renderStatus();
+      calibrationVerdict(data);
       break;
     case "state":
       if (model.status) {

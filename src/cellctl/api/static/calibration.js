@@ -1,20 +1,34 @@
-/* cellctl dashboard: the calibration page: whether the set is ready for production, the current
-   set (one row per part for a versioned set) and its versions. The commissioning page shows the
-   same versions table. */
+/* cellctl dashboard: the calibration page: whether the set is ready for production (for every
+   recipe, each not-ready one named with its problems), when it falls due (the parts' own expiry),
+   the current set (one row per part for a versioned set) and its versions. The commissioning page
+   shows the same versions table. The page is read again when the service's verdict changes (app.js,
+   from the status event) and when a shown due time passes (here). */
 
 import { getJSON } from "./api.js";
 import { figureList } from "./figures.js";
 import { $, el, setClass } from "./dom.js";
-import { DUE_SOON_DAYS, calibrationDue, partDue } from "./caldue.js";
-import { dateTime, day } from "./format.js";
-import { emit, model } from "./state.js";
+import { DUE_SOON_DAYS, calibrationDue, dueIn, nextExpiryMs, partDue } from "./caldue.js";
+import { readiness } from "./calready.js";
+import { dateTime } from "./format.js";
+import { emit, model, schedule } from "./state.js";
 import { renderCalibrationTile } from "./status.js";
+
+const RECHECK_MAX_MS = 6 * 3600e3; // the due texts ("in 5 h") are brought up to date at least this often
+let dueTimer = null;
 
 export async function refreshCalibration() {
   model.calibration = await getJSON("/calibration");
   renderCalibration();
   if (model.status) renderCalibrationTile();
   emit("calibration", model.calibration);
+  armDueTimer();
+}
+
+// Read the set again a second after the next part's expiry (the service's check is `now >= expiry`).
+function armDueTimer() {
+  clearTimeout(dueTimer);
+  const ms = nextExpiryMs(model.calibration);
+  dueTimer = setTimeout(() => schedule("calibration", refreshCalibration, 0), Math.min(ms === null ? RECHECK_MAX_MS : ms + 1000, RECHECK_MAX_MS));
 }
 
 // Each recipe: whether its own teaching is done and whether its cycles would find the calibration ready.
@@ -58,7 +72,7 @@ function calibrationCurrent(current) {
       el("th", { scope: "row", text: name }),
       status,
       el("td", { text: dateTime(p.calibrated_utc) }),
-      el("td", { "data-due": name, text: p.status === "ok" ? day(partDue(p.calibrated_utc, model.config.calibration_max_age_days)) : "-" }),
+      el("td", { "data-due": name, text: p.status === "ok" && partDue(p) ? dateTime(partDue(p)) : "-" }),
       el("td", { text: p.method || "-" }),
       el("td", {}, p.quality && Object.keys(p.quality).length ? figureList(p.quality) : "-", p.failure ? el("p", { text: p.failure }) : null),
     );
@@ -79,20 +93,43 @@ function calibrationCurrent(current) {
   );
 }
 
+// Whether the set lets every recipe go into production; the recipes that may not run, each with its
+// problems (each line names the command that mends it).
+function readinessPanel(r) {
+  const li = (line) => el("li", { text: line });
+  if (r.ready) {
+    const which = r.names.length > 1 ? `every recipe (${r.names.join(", ")}); ` : "";
+    return el("p", { class: "panel", "data-ready": "all", text: `Ready for production: ${which}the set is complete, valid and in date.` });
+  }
+  const every = r.names.length > 1 && r.readyNames.length === 0;
+  const out = [];
+  if (r.shared.length) {
+    out.push(el("strong", { text: every ? "Not ready for production (no recipe may run):" : "Not ready for production:" }));
+    out.push(el("ul", { "data-problems": "shared" }, r.shared.map(li)));
+  }
+  for (const [n, lines] of Object.entries(r.byRecipe)) {
+    if (lines && !lines.length) continue; // only the lines above
+    const head = `Recipe ${n}: not ready for production${lines ? ":" : " (the service gave no reason)."}`;
+    out.push(el("div", { "data-recipe-problems": n }, el("strong", { text: head }), lines ? el("ul", {}, lines.map(li)) : null));
+  }
+  if (r.readyNames.length) out.push(el("p", { "data-ready": "some", text: `Ready for production: ${r.readyNames.join(", ")}.` }));
+  return el("div", { class: "panel problems is-warn", role: "alert" }, out);
+}
+
 function renderCalibration() {
   const cal = model.calibration;
   if (!cal) return;
-  const problems = cal.problems || [];
-  $("cal-problems").replaceChildren(
-    problems.length
-      ? el("div", { class: "panel problems is-warn", role: "alert" }, el("strong", { text: "Not ready for production:" }), el("ul", {}, problems.map((p) => el("li", { text: p }))))
-      : el("p", { class: "panel", text: "Ready for production: the set is complete, valid and in date." }),
-  );
-  const maxAge = model.config.calibration_max_age_days;
-  const due = calibrationDue(cal, maxAge);
+  const r = readiness(cal.problems || [], (cal.current && cal.current.recipes) || {});
+  $("cal-problems").replaceChildren(readinessPanel(r));
+  const due = calibrationDue(cal);
+  const parts = Object.values((cal.current && cal.current.parts) || {}).filter((p) => p);
   $("cal-due-line").textContent = due
-    ? `Due ${day(due.due)} (${due.daysLeft < 0 ? `overdue by ${-due.daysLeft} d` : `in ${due.daysLeft} d`}): ${due.part} is the oldest part; a part older than ${maxAge} days keeps the cell from production.`
-    : `No due date: the set has no dated part (a part older than ${maxAge} days keeps the cell from production).`;
+    ? `Due ${dateTime(due.due)} (${dueIn(due)}): ${due.part} expires first; an expired part keeps the cell from production.`
+    : parts.some((p) => p.status === "ok")
+      ? "No due date: the service states no expiry for the set's parts."
+      : parts.length
+        ? "No due date: no part of the set is ok (a failed or missing part keeps the cell from production)."
+        : "No due date: the set has no dated part.";
   setClass($("cal-due-line"), "is-warn", due && due.daysLeft < DUE_SOON_DAYS);
   $("cal-current").replaceChildren(calibrationCurrent(cal.current));
   $("cal-history").replaceChildren(versionsTable(cal.versions || [], cal.current ? cal.current.version : null));

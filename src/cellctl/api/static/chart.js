@@ -7,7 +7,9 @@
    - without one (the cycle time) the scale is robust: up to 1.8 x the median (or 1.25 x the upper
      quartile, if more), so one slow cycle (a self-calibration) does not flatten the rest; a point
      above it is clipped to the top edge, drawn as an up arrow and labelled with its value. The
-     median is drawn as a dashed line. */
+     median is drawn as a dashed line.
+   A point with `counted: false` (a failed cycle's partial time) is drawn hollow, off the line, and
+   left out of the headline value, the median and the scale. */
 
 import { el, svg } from "./dom.js";
 import { isNum, num, signed } from "./format.js";
@@ -37,12 +39,14 @@ function scaleOf(ys, band) {
   return { lo, hi, median };
 }
 
-export function chart({ title, unit, band, points, digits, emptyText, width, height }) {
+export function chart({ title, unit, band, points, digits, emptyText, width, height, uncountedNote }) {
   const W = Math.max(200, Math.round(width || 300)), H = height || 150, L = 58, R = 12, T = 34, B = 22;
   const values = points.filter((p) => isNum(p.y));
+  const counted = values.filter((p) => p.counted !== false);
+  const uncounted = values.length - counted.length;
   const box = el("div", { class: "chart" });
   const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, width: W, height: H, role: "img" });
-  const latest = values.length ? values[values.length - 1].y : null;
+  const latest = counted.length ? counted[counted.length - 1].y : null;
   const hasBand = isNum(band);
   const outside = (v) => hasBand && Math.abs(v) > band;
   root.append(svg("text", { x: 6, y: 19, class: "chart-title", text: `${title} [${unit}]` }));
@@ -57,7 +61,8 @@ export function chart({ title, unit, band, points, digits, emptyText, width, hei
     box.append(root);
     return box;
   }
-  const { lo, hi, median } = scaleOf(values.map((p) => p.y), band);
+  const { lo, hi, median } = scaleOf((counted.length ? counted : values).map((p) => p.y), band);
+  const hasMedian = counted.length > 0;
   const n = points.length;
   const xAt = (i) => L + (n === 1 ? (W - L - R) / 2 : (i * (W - L - R)) / (n - 1));
   const yAt = (v) => T + ((hi - Math.min(Math.max(v, lo), hi)) * (H - T - B)) / (hi - lo);
@@ -81,13 +86,15 @@ export function chart({ title, unit, band, points, digits, emptyText, width, hei
     root.append(tick(0, "0"), tick(hi, signed(hi, scaleDigits)), tick(lo, signed(lo, scaleDigits)));
   } else {
     root.append(svg("line", { class: "axis", x1: L, x2: W - R, y1: yAt(lo), y2: yAt(lo) }));
-    root.append(svg("line", { class: "tol", x1: L, x2: W - R, y1: yAt(median), y2: yAt(median) }));
     root.append(tick(lo, num(lo, 1)), tick(hi, num(hi, 1)));
-    root.append(svg("text", { class: "tick", x: L + 4, y: yAt(median) - 4, text: `median ${num(median, digits)}` }));
+    if (hasMedian) {
+      root.append(svg("line", { class: "tol", x1: L, x2: W - R, y1: yAt(median), y2: yAt(median) }));
+      root.append(svg("text", { class: "tick", x: L + 4, y: yAt(median) - 4, text: `median ${num(median, digits)}` }));
+    }
   }
   const path = [];
   points.forEach((p, i) => {
-    if (isNum(p.y)) path.push(`${xAt(i).toFixed(1)},${yAt(p.y).toFixed(1)}`);
+    if (isNum(p.y) && p.counted !== false) path.push(`${xAt(i).toFixed(1)},${yAt(p.y).toFixed(1)}`);
   });
   root.append(svg("polyline", { class: "series", points: path.join(" ") }));
   let outCount = 0;
@@ -99,13 +106,13 @@ export function chart({ title, unit, band, points, digits, emptyText, width, hei
     const tip = svg("title", { text: `cycle ${p.id}: ${hasBand ? signed(p.y, digits) : num(p.y, digits)} ${unit}` });
     if (p.y > hi || p.y < lo) {
       // Clipped to the edge: an arrow pointing the way the value went, and the value itself.
-      clipped += 1;
+      if (p.counted !== false) clipped += 1;
       const x = xAt(i), up = p.y > hi, y = up ? T : H - B, d = up ? 9 : -9;
       root.append(svg("polygon", { class: "pt clipped", points: `${x - 6},${y + d} ${x},${y} ${x + 6},${y + d}` }, tip));
       root.append(svg("text", { class: "tick clip-note", x: Math.min(x + 8, W - R - 40), y: up ? T + 12 : H - B - 4, text: num(p.y, digits) }));
       return;
     }
-    const cls = "pt" + (out ? " out" : "") + (p.nok ? " nok" : "");
+    const cls = "pt" + (out ? " out" : "") + (p.nok || p.counted === false ? " nok" : "");
     root.append(svg("circle", { class: cls, cx: xAt(i), cy: yAt(p.y), r: out ? 5 : 3.5 }, tip));
   });
   if (n === 1) {
@@ -115,12 +122,15 @@ export function chart({ title, unit, band, points, digits, emptyText, width, hei
     root.append(svg("text", { class: "tick", x: W - R, y: H - 4, "text-anchor": "end", text: `cycle ${points[n - 1].id}` }));
   }
   const scale = hasBand ? `\u00b1${num(hi, scaleDigits)} ${unit}` : `${num(lo, 1)} to ${num(hi, 1)} ${unit}`;
-  const label = [`${title}: ${values.length} cycles, latest ${num(latest, digits)} ${unit}, scale ${scale}`];
+  const head = counted.length ? `latest ${num(latest, digits)} ${unit}` : "none counted yet";
+  const label = [`${title}: ${counted.length} cycles, ${head}, scale ${scale}`];
   if (hasBand) label.push(`${outCount} outside plus or minus ${band} ${unit}`, bandState === "off-scale" ? "tolerance band beyond the scale" : "tolerance band shown");
-  else label.push(`median ${num(median, digits)} ${unit}`, `${clipped} above the scale, clipped`);
+  else label.push(hasMedian ? `median ${num(median, digits)} ${unit}` : "no median", `${clipped} outside the scale, clipped`);
+  if (uncounted) label.push(`${uncounted} ${uncountedNote || "more drawn hollow, not counted"}`);
   root.setAttribute("aria-label", label.join(", "));
   box.dataset.outside = String(outCount);
   box.dataset.points = String(values.length);
+  box.dataset.counted = String(counted.length);
   box.dataset.scale = scale;
   box.dataset.band = bandState;
   box.dataset.clipped = String(clipped);

@@ -66,14 +66,22 @@ export function renderTrends() {
     return c;
   });
   $("trend-charts").replaceChildren(...charts);
-  const timed = chronological.filter((c) => isNum(c.cycle_time_s)).slice(-TREND_CYCLES);
+  // The takt: the good parts' cycle times (done and not marked not OK: as the shift table's median
+  // counts them), the last TREND_CYCLES of them; the other cycles' times in between (a failed
+  // cycle's partial time) are drawn hollow and not counted.
+  const good = (c) => c.state === "done" && c.part_ok !== false;
+  const timed = chronological.filter((c) => isNum(c.cycle_time_s));
+  const goodIds = timed.filter(good).map((c) => c.id);
+  const since = goodIds.length ? goodIds[Math.max(0, goodIds.length - TREND_CYCLES)] : null;
+  const shown = since === null ? timed.slice(-TREND_CYCLES) : timed.filter((c) => c.id >= since);
   const ct = chart({
     title: "Takt (cycle time)",
     unit: "s",
     band: null,
-    points: timed.map((c) => ({ id: c.id, y: c.cycle_time_s, nok: c.state !== "done" })),
+    points: shown.map((c) => ({ id: c.id, y: c.cycle_time_s, nok: !good(c), counted: good(c) })),
     digits: 2,
     emptyText: "no finished cycle yet",
+    uncountedNote: "failed or not OK cycles drawn hollow, not counted",
     width: chartWidth($("cycle-time-chart"), 1),
     height: 130,
   });

@@ -4,7 +4,8 @@
 
 import { forgetToken, getJSON, getLatest, post, saveToken, token } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
-import { DUE_SOON_DAYS, calibrationDue } from "./caldue.js";
+import { DUE_SOON_DAYS, calibrationDue, dueIn } from "./caldue.js";
+import { readiness, readinessLines, readinessWord } from "./calready.js";
 import { clock, day, isNum } from "./format.js";
 import { renderSpc } from "./spc.js";
 import { applyStale } from "./stale.js";
@@ -62,6 +63,10 @@ export function renderStatus() {
   renderSpc();
 }
 
+const ENDED_CYCLES = new Set(["done", "failed", "interrupted"]);
+
+// The part of the cycle running now, else of the newest cycle that ended (never a queued one),
+// and how many cycles wait in the queue (/status queued_cycles).
 export function renderPart() {
   const st = model.status;
   const node = $("part");
@@ -69,11 +74,13 @@ export function renderPart() {
   let prefix = "";
   if (st && st.current_cycle && model.currentCycle && model.currentCycle.id === st.current_cycle) {
     rec = model.currentCycle;
-  } else if (model.digest.length) {
-    rec = model.digest[0];
+  } else {
+    rec = model.digest.find((c) => ENDED_CYCLES.has(c.state)) || null;
     prefix = "last: ";
   }
   node.textContent = rec ? `${prefix}${rec.part_id} / ${rec.car_id || "-"}` : "-";
+  const queued = st && isNum(st.queued_cycles) ? st.queued_cycles : 0;
+  $("part-queued").textContent = queued ? `${queued} queued` : "";
 }
 
 export function renderDevices() {
@@ -103,21 +110,31 @@ export function renderDevices() {
   list.replaceChildren(...items);
 }
 
+// The service's verdict for every recipe: the status's calibration.recipes (each with its problems),
+// else GET /calibration's current.recipes (each ready or not).
+export function calibrationReadiness() {
+  const cal = (model.status && model.status.calibration) || {};
+  const current = model.calibration && model.calibration.current;
+  const recipes = cal.recipes || (current && current.recipes) || {};
+  return readiness(cal.problems || [], recipes);
+}
+
 export function renderCalibrationTile() {
-  const problems = (model.status && model.status.calibration && model.status.calibration.problems) || [];
+  const r = calibrationReadiness();
   const tile = $("tile-cal");
   const current = model.calibration && model.calibration.current;
   const version = current && current.version !== undefined && current.version !== null ? `, set v${current.version}` : "";
-  $("cal").textContent = problems.length ? `NOT READY (${problems.length})` : `ready${version}`;
-  const due = calibrationDue(model.calibration, model.config.calibration_max_age_days);
+  $("cal").textContent = r.ready ? `ready${version}` : readinessWord(r);
+  const due = calibrationDue(model.calibration);
   const soon = due && due.daysLeft < DUE_SOON_DAYS;
+  const rel = due ? dueIn(due) : "";
   $("cal-due").textContent = due
-    ? `due ${day(due.due)} (${due.daysLeft < 0 ? "overdue" : `${due.daysLeft} d`})`
-    : current && current.parts ? "due: no part calibrated" : "no due date";
+    ? `due ${day(due.due)} (${rel.replace(/^in /, "")})`
+    : current && current.parts ? "due: no valid part" : "no due date";
   tile.title =
-    (problems.length ? problems.join("\n") : "The calibration set is complete, valid and in date.") +
-    (due ? `\nDue ${day(due.due)}: ${due.part} turns ${model.config.calibration_max_age_days} days old.` : "");
-  setClass(tile, "is-warn", problems.length > 0 || soon);
+    (r.ready ? "Every recipe is ready for production: the set is complete, valid and in date." : readinessLines(r).join("\n")) +
+    (due ? `\nDue ${day(due.due)} (${rel}): ${due.part} expires first.` : "");
+  setClass(tile, "is-warn", !r.ready || soon);
 }
 
 function renderCommands() {

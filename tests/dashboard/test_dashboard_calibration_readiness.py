@@ -1,0 +1,197 @@
+"""The dashboard's calibration verdict in a real headless Chromium against the simulated cell serving a versioned
+calibration set built in the test: a recipe that is not ready is shown not ready in the header tile and on the
+calibration page, named with its problems (the service's own lines, each naming the command); the due dates are
+the parts' own expiry as the service states it (never re-derived from calibration.max_age_days); the page, left
+open, follows the service when a recipe's readiness changes or a part expires. Truth: GET /calibration and
+GET /status over httpx, and the dates the test calibrated the parts at."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from dashboard_test_support import LiveCell, browser_marks, chromium_missing_reason, shot, sim_config
+
+from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
+
+pytestmark = browser_marks(120)
+if not chromium_missing_reason():
+    from playwright.sync_api import Page, expect
+
+CELL_PARTS = ("camera", "hand_eye", "laser", "teaching", "pixel_map")
+RECIPE_PARTS = ("teaching", "pixel_map")
+POSE = np.eye(4).tolist()
+VALUES: dict[str, dict[str, Any]] = {  # valid values of each part (the set's readiness checks shape and links, not accuracy)
+    "camera": {"K": [[5249.6, 0.0, 1014.7], [0.0, 5248.6, 1012.0], [0.0, 0.0, 1.0]], "dist": [-0.158, -0.025, -3e-4, 4e-4, 0.04],
+               "image_size": [2048, 2048]},
+    "hand_eye": {"T_H_C": POSE},
+    "laser": {"r": [43.68, -40.49, 90.10], "l": (np.array([0.9977, 0.0626, 0.0265]) / np.linalg.norm([0.9977, 0.0626, 0.0265])).tolist()},
+    "teaching": {"T0": POSE, "C_Pos_0": POSE, "g_Pos_0": POSE, "u_d": 1014.0, "v_d": 1012.0, "theta_d": 0.0, "top_angle_d": 0.0,
+                 "right_angle_d": 0.0},
+    "pixel_map": {"affine": [[0.0762, 0.0, -77.3], [0.0, 0.0762, -77.1]], "scale_mm_per_px": 0.0762},
+}  # fmt: skip
+
+
+def commit(store: CalibrationStore, names: tuple[str, ...], recipe: str | None, when: datetime, valid_days: float = 90.0) -> None:
+    """Calibrate ``names`` at ``when`` (recorded valid ``valid_days``), in ``recipe``'s own place (None: the cell's)."""
+    for name in names:
+        cur = store.current()
+        inputs = {dep: cur.part(dep, recipe).id for dep in DEPENDS_ON[name]} if cur else {}  # type: ignore[union-attr]
+        values = dict(VALUES[name], recipe=recipe or "side-window") if name == "teaching" else VALUES[name]
+        part = make_part(name, values=values, method="test", when=when, valid_days=valid_days, inputs=inputs)
+        store.commit(name, part, now=when, recipe=recipe)
+
+
+def serve(tmp_path: Path, store: CalibrationStore) -> LiveCell:
+    """The simulated cell on the set at ``store`` (config/sim.toml: calibration.max_age_days = 90)."""
+    cfg = sim_config(calibration={"source": "set", "auto_calibrate_in_sim": False, "directory": str(store.root)})
+    assert cfg.calibration.max_age_days == 90.0
+    return LiveCell(tmp_path / "cell", cfg)
+
+
+@pytest.fixture()
+def utc_page(browser: Any) -> Iterator[tuple[Page, list[str]]]:
+    """A 1920 x 1080 page in UTC (the dates it shows are UTC dates), and its script errors."""
+    context = browser.new_context(viewport={"width": 1920, "height": 1080}, timezone_id="UTC")
+    pg = context.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    pg.set_default_timeout(15_000)
+    try:
+        yield pg, errors
+    finally:
+        context.close()
+
+
+def open_calibration(pg: Page, url: str) -> None:
+    pg.goto(url + "/#/calibration")
+    expect(pg.locator("body")).to_have_attribute("data-ready", "1")
+    expect(pg.locator("#live")).to_have_text("live")
+
+
+def wait_for(client: httpx.Client, what: str, ok: Any, deadline_s: float = 60.0) -> dict[str, Any]:
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end:
+        cal = client.get("/calibration").json()
+        if ok(cal):
+            return dict(cal)
+        time.sleep(0.2)
+    raise AssertionError(f"{what} not within {deadline_s} s: {client.get('/calibration').json()}")
+
+
+def test_a_recipe_not_ready_is_named_with_its_problems_and_the_open_page_follows_its_teaching(
+    tmp_path: Path, utc_page: tuple[Page, list[str]]
+) -> None:
+    """The laser redone and the first recipe re-taught (the README's steps without --recipe): the door window's
+    teaching was computed with the old laser. The header said "ready" and the page "Ready for production: the set
+    is complete, valid and in date"; then the door window is re-taught while the page stays open."""
+    pg, errors = utc_page
+    store = CalibrationStore(tmp_path / "calibration")
+    t0 = datetime.now(timezone.utc) - timedelta(hours=2)
+    commit(store, CELL_PARTS, None, t0)
+    commit(store, RECIPE_PARTS, "door-window", t0)
+    commit(store, ("laser",), None, t0 + timedelta(minutes=10))
+    commit(store, RECIPE_PARTS, None, t0 + timedelta(minutes=20))
+    with serve(tmp_path, store) as live, httpx.Client(base_url=live.url, timeout=15.0) as client:
+        cal = client.get("/calibration").json()
+        recipes = cal["current"]["recipes"]
+        door = recipes["door-window"]["problems"]
+        assert recipes["door-window"]["ready"] is False and door and all("door-window" in line and "`cellctl " in line for line in door), recipes
+        assert recipes["side-window"] == {"taught": True, "ready": True, "problems": []} and cal["problems"] == [], cal
+        status = client.get("/status").json()["calibration"]
+        assert status["recipes"]["door-window"] == {"ready": False, "problems": door}, status
+        open_calibration(pg, live.url)
+        # the header: not ready, naming the recipe and how many problems
+        expect(pg.locator("#cal")).to_have_text(f"NOT READY: door-window ({len(door)})")
+        assert "\n".join(door) in (pg.locator("#tile-cal").get_attribute("title") or "")
+        # the page: the recipe named with each of its problems, the recipe that may run named as such
+        problems = pg.locator("#cal-problems")
+        expect(problems.locator("[data-recipe-problems=door-window] li")).to_have_text(door)
+        expect(problems.locator("[data-recipe-problems=door-window] strong")).to_contain_text("door-window: not ready")
+        expect(problems.locator("[data-ready=some]")).to_have_text("Ready for production: side-window.")
+        expect(problems).not_to_contain_text("complete, valid and in date")
+        expect(pg.locator("#cal-recipes [data-recipe=door-window] td").nth(1)).to_have_text("not ready")
+        shot(pg, "calibration-recipe-not-ready.png")
+        # re-taught while the page stays open (no cycle, no navigation): the page and the tile follow the service
+        commit(store, RECIPE_PARTS, "door-window", datetime.now(timezone.utc))
+        cal = wait_for(client, "door-window ready", lambda c: c["current"]["recipes"]["door-window"]["ready"])
+        expect(problems).to_have_text("Ready for production: every recipe (side-window, door-window); the set is complete, valid and in date.")
+        expect(pg.locator("#cal")).to_have_text(f"ready, set v{cal['current']['version']}")
+        expect(pg.locator("#cal-recipes [data-recipe=door-window] td").nth(1)).to_have_text("ready")
+    assert errors == [], errors
+
+
+def test_due_dates_are_each_parts_own_expiry_not_the_configured_age(tmp_path: Path, utc_page: tuple[Page, list[str]]) -> None:
+    """Parts recorded valid 30 days under a configuration that now says 90 (max_age_days): the camera is due 20 days
+    from now, the laser 1.5 days overdue. The page dated every part calibrated + 90 days ("laser ... in 58 d")."""
+    pg, errors = utc_page
+    store = CalibrationStore(tmp_path / "calibration")
+    now = datetime.now(timezone.utc)
+    camera_at, laser_at, rest_at = now - timedelta(days=10), now - timedelta(days=31.5), now - timedelta(hours=1)
+    commit(store, ("camera",), None, camera_at, valid_days=30.0)
+    commit(store, ("hand_eye",), None, rest_at)
+    commit(store, ("laser",), None, laser_at, valid_days=30.0)
+    commit(store, RECIPE_PARTS, None, rest_at)
+    commit(store, RECIPE_PARTS, "door-window", rest_at)
+    truth = {"camera": camera_at + timedelta(days=30), "laser": laser_at + timedelta(days=30),
+             **{n: rest_at + timedelta(days=90) for n in ("hand_eye", "teaching", "pixel_map")}}  # fmt: skip
+    with serve(tmp_path, store) as live, httpx.Client(base_url=live.url, timeout=15.0) as client:
+        cal = client.get("/calibration").json()
+        parts = cal["current"]["parts"]
+        for name, due in truth.items():  # the service states the expiry the test recorded
+            assert datetime.fromisoformat(parts[name]["expires_utc"]) == due, (name, parts[name])
+        assert any(line.startswith("laser: expired on") for line in cal["problems"]), cal["problems"]
+        open_calibration(pg, live.url)
+        for name, due in truth.items():
+            expect(pg.locator(f"#cal-parts td[data-due={name}]")).to_contain_text(f"{due:%Y-%m-%d}")
+        laser_due = truth["laser"]
+        overdue_days = math.floor((datetime.now(timezone.utc) - laser_due) / timedelta(days=1))
+        assert overdue_days == 1
+        expect(pg.locator("#cal-due-line")).to_contain_text(f"Due {laser_due:%Y-%m-%d}")
+        expect(pg.locator("#cal-due-line")).to_contain_text("(overdue by 1 d): laser expires first")
+        expect(pg.locator("#cal-due")).to_have_text(f"due {laser_due:%Y-%m-%d} (overdue by 1 d)")
+        expect(pg.locator("#cal-problems")).to_contain_text("laser: expired on")
+    assert errors == [], errors
+
+
+def test_the_open_page_follows_a_part_expiring_and_says_overdue_without_a_day_count(
+    tmp_path: Path, utc_page: tuple[Page, list[str]]
+) -> None:
+    """The camera's recorded validity ends about 20 s after the page opened; nothing else happens in the cell (no
+    cycle, no navigation). The page kept "Ready for production" until the operator navigated, and a part minutes
+    overdue read "overdue by 1 d"."""
+    pg, errors = utc_page
+    store = CalibrationStore(tmp_path / "calibration")
+    start = datetime.now(timezone.utc)
+    at = start - timedelta(hours=1)
+    expires = start + timedelta(seconds=25)
+    commit(store, ("camera",), None, at, valid_days=(expires - at) / timedelta(days=1))
+    commit(store, CELL_PARTS[1:], None, at)
+    commit(store, RECIPE_PARTS, "door-window", at)
+    with serve(tmp_path, store) as live, httpx.Client(base_url=live.url, timeout=15.0) as client:
+        cal = client.get("/calibration").json()
+        assert cal["problems"] == [] and datetime.fromisoformat(cal["current"]["parts"]["camera"]["expires_utc"]) == expires, cal
+        open_calibration(pg, live.url)
+        expect(pg.locator("#cal-problems")).to_contain_text("Ready for production: every recipe")
+        expect(pg.locator("#cal-due-line")).to_contain_text("camera expires first")
+        assert datetime.now(timezone.utc) < expires, "the page opened too late to see the part expire"
+        cal = wait_for(client, "the camera's expiry", lambda c: bool(c["problems"]))
+        lines = cal["problems"]
+        assert [line for line in lines if line.startswith("camera: expired on")] == lines, lines
+        assert all(r["problems"] == lines for r in cal["current"]["recipes"].values()), cal["current"]["recipes"]
+        # within a few status periods, without navigating
+        expect(pg.locator("#cal-problems li")).to_have_text(lines)
+        expect(pg.locator("#cal-problems")).not_to_contain_text("Ready for production")
+        expect(pg.locator("#cal")).to_have_text(f"NOT READY ({len(lines)})")
+        expect(pg.locator("#cal-due-line")).to_contain_text("(overdue): camera expires first")
+        expect(pg.locator("#cal-due")).to_have_text(f"due {expires:%Y-%m-%d} (overdue)")
+        shot(pg, "calibration-expired-while-open.png")
+    assert errors == [], errors
