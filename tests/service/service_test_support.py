@@ -183,3 +183,19 @@ def wait_up(url: str, proc: Any, workdir: Path, deadline_s: float = 60.0) -> Non
             pass
         assert proc.poll() is None and time.monotonic() < end, (workdir / "service.log").read_text()
         time.sleep(0.1)
+
+
+def truth_values(cal: Any, recipe: str) -> dict[str, dict[str, Any]]:
+    """The oracle's calibration of ``recipe`` (the twin's truth) as the set's part values."""
+    lens, t, m, taught = cal.lens, cal.template, cal.nine_point, cal.taught
+    angle = lambda a: None if not np.isfinite(a) else float(a)  # noqa: E731
+    return {
+        "camera": {"K": lens.camera_matrix.tolist(), "dist": [lens.k1, lens.k2, lens.p1, lens.p2, lens.k3],
+                   "image_size": [lens.width_px, lens.height_px]},
+        "hand_eye": {"T_H_C": np.asarray(cal.T_H_C).tolist()},
+        "laser": {"r": np.asarray(cal.laser_r).tolist(), "l": np.asarray(cal.laser_l).tolist()},
+        "teaching": {"recipe": recipe, "T0": taught.T0.tolist(), "C_Pos_0": taught.C_Pos_0.tolist(),
+                     "g_Pos_0": taught.g_Pos_0.tolist(), "u_d": t.u_px, "v_d": t.v_px, "theta_d": t.theta_rad,
+                     "top_angle_d": angle(t.top_angle_rad), "right_angle_d": angle(t.right_angle_rad)},
+        "pixel_map": {"affine": m.matrix.tolist(), "scale_mm_per_px": float(np.sqrt(abs(np.linalg.det(m.matrix[:, :2]))))},
+    }  # fmt: skip

@@ -14,10 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-import numpy as np
 from plc_test_support import PlcClient
 from pymodbus.client import AsyncModbusTcpClient
-from service_test_support import AUTH, ROOT, _command, api_client, running_service, to_execute
+from service_test_support import AUTH, ROOT, _command, api_client, running_service, to_execute, truth_values
 
 from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
 from cellctl.config import CellConfig, parse_config
@@ -41,22 +40,6 @@ def recipes_config(cal_dir: Path | None, recipes: list[dict[str, Any]] | None = 
 
 def sim_recipes() -> list[dict[str, Any]]:
     return list(tomllib.loads((ROOT / "config" / "sim.toml").read_text())["process"]["recipes"])
-
-
-def truth_values(cal: Any, recipe: str) -> dict[str, dict[str, Any]]:
-    """The oracle's calibration of ``recipe`` (the twin's truth) as the set's part values."""
-    lens, t, m, taught = cal.lens, cal.template, cal.nine_point, cal.taught
-    angle = lambda a: None if not np.isfinite(a) else float(a)  # noqa: E731
-    return {
-        "camera": {"K": lens.camera_matrix.tolist(), "dist": [lens.k1, lens.k2, lens.p1, lens.p2, lens.k3],
-                   "image_size": [lens.width_px, lens.height_px]},
-        "hand_eye": {"T_H_C": np.asarray(cal.T_H_C).tolist()},
-        "laser": {"r": np.asarray(cal.laser_r).tolist(), "l": np.asarray(cal.laser_l).tolist()},
-        "teaching": {"recipe": recipe, "T0": taught.T0.tolist(), "C_Pos_0": taught.C_Pos_0.tolist(),
-                     "g_Pos_0": taught.g_Pos_0.tolist(), "u_d": t.u_px, "v_d": t.v_px, "theta_d": t.theta_rad,
-                     "top_angle_d": angle(t.top_angle_rad), "right_angle_d": angle(t.right_angle_rad)},
-        "pixel_map": {"affine": m.matrix.tolist(), "scale_mm_per_px": float(np.sqrt(abs(np.linalg.det(m.matrix[:, :2]))))},
-    }  # fmt: skip
 
 
 def commit(store: CalibrationStore, cal: Any, recipe: str, names: tuple[str, ...], slot: str | None, *,
