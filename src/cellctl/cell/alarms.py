@@ -21,7 +21,7 @@ import asyncio
 import enum
 import uuid
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 
@@ -271,6 +271,13 @@ class AlarmManager:
 
     def acknowledge_all(self, *, by: str) -> list[Alarm]:
         return [self.acknowledge(a.uid, by=by) for a in self.current() if not a.acknowledged]
+
+    def restore(self, alarms: Iterable[Alarm]) -> None:
+        """List latched alarms a previous run left unacknowledged (now inactive), as they were: no event, no reaction;
+        they are acknowledged like any other."""
+        for a in alarms:
+            if not a.condition and not a.acknowledged and a.uid not in self._alarms:
+                self._alarms[a.uid] = replace(a, active=False)
 
     def reset_stop_reason(self) -> None:
         self._stop_reason, self._stop_reason_standing = None, False

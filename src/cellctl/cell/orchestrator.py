@@ -161,6 +161,8 @@ class CellOrchestrator:
         """Recover from the last run, then start the state actor, persistence and the cycle worker."""
         report = await self.store.recover()
         await self.quality.load()
+        alarm_events = self.alarms.subscribe_queue()  # before the recovery alarms: their raise is stored as well
+        self.alarms.restore(await self.store.unacknowledged_events())  # a restart keeps them listed until acknowledged
         for ic in report.interrupted:
             detail = f"cycle {ic.cycle_id} was interrupted in {ic.step.name.lower()}"
             if ic.install_started:
@@ -168,7 +170,7 @@ class CellOrchestrator:
             await self.alarms.raise_alarm(AlarmCode.CYCLE_INTERRUPTED, source="cycle", detail=detail, cycle_id=ic.cycle_id)
         for q, sink in (
             (self.machine.subscribe_queue(), self._on_machine_event),
-            (self.alarms.subscribe_queue(), self._on_alarm_event),
+            (alarm_events, self._on_alarm_event),
         ):
             self._tasks.append(asyncio.create_task(self._pump(q, sink)))
         self._worker_task = asyncio.create_task(self._worker())
