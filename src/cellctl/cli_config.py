@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import errno
-import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,6 +14,7 @@ from cellctl.config.loader import check_tokens
 from cellctl.cli_args import default_workdir
 from cellctl.commissioning.wall_plan import wall_plan
 from cellctl.folders import calibration_folder_problem
+from cellctl.listen import port_problem
 
 
 def _device(dev: Any) -> str:
@@ -143,27 +142,6 @@ def _listeners(config: CellConfig) -> list[tuple[str, str, int]]:
     if config.opcua.enabled:
         out.append(("[opcua] port", config.opcua.host, config.opcua.port))
     return [(setting, host, port) for setting, host, port in out if port != 0]
-
-
-def port_problem(setting: str, host: str, port: int) -> str | None:
-    """Why a server could not listen on ``host``:``port`` now (tried with a bind, closed at once); None if it could."""
-    section = setting.split()[0]
-    try:
-        family, kind, proto, _, addr = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM,
-                                                           flags=socket.AI_PASSIVE)[0]  # fmt: skip
-        with socket.socket(family, kind, proto) as sock:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers do: TIME_WAIT is no obstacle
-            sock.bind(addr)
-    except socket.gaierror as err:
-        return f"{section} host {host!r} is not an address of this machine ({err.strerror}); set it to one of them"
-    except OSError as err:
-        if err.errno == errno.EADDRINUSE:
-            return f"another program listens on {host}:{port} ({setting}): stop it or choose another port"
-        if err.errno == errno.EACCES:
-            return (f"cannot listen on {host}:{port} ({setting}): {err.strerror}; choose a port of 1024 or above, or "
-                    "give the service CAP_NET_BIND_SERVICE (as deploy/cellctl.service does)")
-        return f"cannot listen on {host}:{port} ({setting}): {err.strerror}; set {section} host to an address of this machine"
-    return None
 
 
 SECRETS_READ = ("every API token, OPC UA password and certificate could be read, and the MQTT and API TLS files; the "

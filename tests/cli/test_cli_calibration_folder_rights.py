@@ -48,5 +48,5 @@ def test_config_check_and_serve_refuse_a_folder_the_service_may_not_use(tmp_path
     check = _cellctl(tmp_path, "config", "check", "--config", str(cfg), "--secrets", "--workdir", str(tmp_path))
     assert check.returncode == 2 and why in check.stderr, check.stdout + check.stderr
     serve = _cellctl(tmp_path, "serve", "--config", str(cfg), "--workdir", str(tmp_path))
-    assert serve.returncode == 1 and serve.stderr.strip().splitlines()[-1].startswith(f"error: {why}"), serve.stderr
+    assert serve.returncode == 2 and serve.stderr.strip().splitlines()[-1].startswith(f"error: {why}"), serve.stderr
     assert not (tmp_path / "var" / "cellctl.db").exists()  # refused before the store was made

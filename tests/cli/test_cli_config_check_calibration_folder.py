@@ -72,7 +72,7 @@ def test_a_folder_under_a_file_is_refused_by_serve_before_it_starts(tmp_path: Pa
                               capture_output=True, text=True, timeout=30, env=env)  # fmt: skip
     except subprocess.TimeoutExpired:
         pytest.fail("serve started with its calibration folder under a file")
-    assert done.returncode == 1, done.stderr
+    assert done.returncode == 2, done.stderr  # a configuration problem
     assert done.stderr.strip().splitlines() == [f"error: calibration.directory {folder}: the folder cannot be created "
                                                 f"({tmp_path / 'file.txt'} is a file, not a folder); {FIX} (e.g. "
                                                 "\"var/calibration\" under --workdir, or /var/lib/cellctl/calibration)"]  # fmt: skip

@@ -25,6 +25,7 @@ from cellctl.domain import (
     PackMLState,
     UnitMode,
 )
+from cellctl.listen import listen_problem
 from cellctl.opcua.address_space import NULL_TIME, CellAddressSpace
 from cellctl.opcua.alarms import AlarmConditions
 from cellctl.opcua.channel_guard import NoneDiscoveryOnlyServer
@@ -146,9 +147,9 @@ class CellOpcUaServer:
         await self._write_constants()
         try:
             await server.start()
-        except OSError as err:
-            raise OpcUaPortInUse(f"the OPC UA server cannot listen on {cfg.host}:{cfg.port} ({err.strerror}); "
-                                  "change [opcua] port or stop what uses it") from None  # fmt: skip
+        except OSError as err:  # the setting to change follows from the cause: a busy port, a foreign host, ...
+            raise OpcUaPortInUse(f"the OPC UA server cannot listen on {cfg.host}:{cfg.port}: "
+                                 f"{listen_problem('[opcua]', cfg.host, cfg.port, err)}") from None  # fmt: skip
         if server.bserver is not None:
             self.port = server.bserver.port
         if "None" in cfg.security_policies or cfg.allow_anonymous:

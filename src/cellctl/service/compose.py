@@ -34,12 +34,13 @@ from cellctl.commissioning.jobs import JobManager
 from cellctl.config.schema import CellConfig
 from cellctl.domain import PackMLState, UnitMode
 from cellctl.folders import calibration_folder_problem
+from cellctl.listen import port_problem
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.service.store_lock import StoreInUse, StoreLock
 from cellctl.store import AsyncCellStore
-from cellctl.store.connection import make_store_folder
+from cellctl.store.connection import StoreDamaged, StorePathError, check_store_path, make_store_folder
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +56,9 @@ class ServiceError(RuntimeError):
 
 
 class ServiceConfigError(ServiceError):
-    """A configuration problem found at start (a secret, certificate or key file that cannot be used): starting again
-    cannot help, so ``serve`` exits 2, not 1 (a port another program holds can clear; that stays a ServiceError)."""
+    """A configuration problem found at start (a secret, certificate or key file, or a folder or file the configuration
+    names, such as ``[store] path`` or ``calibration.directory``, that cannot be used): starting again cannot help, so
+    ``serve`` exits 2, not 1 (a port another program holds can clear; that stays a ServiceError)."""
 
 
 @dataclass
@@ -177,10 +179,7 @@ class Service:
             if not server.started:
                 with contextlib.suppress(BaseException):
                     await task
-                raise ServiceError(
-                    f"the REST API cannot listen on {self.config.api.host}:{self.config.api.port}; "
-                    "is another cellctl running? change [api] port or stop the other one"
-                )
+                raise ServiceError(self._api_listen_problem())
             print(f"cellctl serving on {self.api_url} (mode {self.config.mode}); Ctrl-C stops", flush=True)
             if self.opcua_server is not None:
                 print(f"OPC UA on {self.opcua_server.endpoint} (namespace urn:cellctl:opcua, docs/opcua_nodeset.md)", flush=True)
@@ -199,6 +198,12 @@ class Service:
                 with contextlib.suppress(Exception):
                     await self._ending
             await self.stop()
+
+    def _api_listen_problem(self) -> str:
+        """Why uvicorn could not listen (it logs the error and exits): the cause found again by a trial bind."""
+        host, port = self.config.api.host, self.config.api.port
+        why = port_problem("[api] port", host, port) or "check [api] host and [api] port (uvicorn's log above says why)"
+        return f"the REST API cannot listen on {host}:{port}: {why}"
 
     @property
     def api_url(self) -> str:
@@ -256,20 +261,23 @@ async def assemble_service(
     root = (workdir or Path.cwd()).resolve()
     robot = TrackedRobot(robot)
     if (problem := calibration_folder_problem(config.calibration.directory, root)) is not None:
-        raise ServiceError(problem)  # else the first calibration would fail long after a start that said nothing
+        raise ServiceConfigError(problem)  # else the first calibration would fail long after a start that said nothing
     cal_store = CalibrationStore(store_root(config.calibration.directory, root))
     source = calibration if calibration is not None else CalibrationSetSource(cal_store, config)
     db_path = Path(config.store.path)
     db_path = db_path if db_path.is_absolute() else root / db_path
-    make_store_folder(db_path)  # a file in the way, or no right to create it: StorePathError names [store] path
     lock = StoreLock(db_path)
     try:
+        make_store_folder(db_path)  # a file in the way, or no right to create it
+        check_store_path(db_path)  # a folder at the path, or a folder the service may not write in
         lock.acquire()  # before the store is opened: startup's recovery must never touch a running cell's cycles
         store = await AsyncCellStore.open(db_path, synchronous=config.store.synchronous, busy_timeout_s=config.store.busy_timeout_s)
     except StoreInUse as err:
         raise ServiceError(str(err)) from None
-    except BaseException:
+    except BaseException as err:
         lock.release()
+        if isinstance(err, StorePathError) and not isinstance(err, StoreDamaged):  # names [store] path and the fix
+            raise ServiceConfigError(str(err)) from None  # a restart cannot help: exit 2
         raise
     pk = config.packml
     machine = PackMLMachine(

@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 from cellctl.pidlock import LockHeld, holder, take
+from cellctl.store.connection import STORE_PATH_FIX, StorePathError
 
 
 class StoreInUse(RuntimeError):
@@ -23,17 +24,24 @@ class StoreLock:
     """The exclusive lock beside a store's database file (``<name>.lock``, holding the owner's pid)."""
 
     def __init__(self, db_path: Path) -> None:
+        self.db_path = db_path
         self.path = db_path.with_name(db_path.name + ".lock")
         self._fd: int | None = None
 
     def acquire(self) -> None:
-        """Take the lock, or raise StoreInUse naming the process that has it."""
+        """Take the lock, or raise StoreInUse naming the process that has it, or StorePathError (naming
+        ``[store] path`` and the fix) if the lock file cannot be made or written."""
         try:
             self._fd = take(self.path)
         except LockHeld as held:
             raise StoreInUse(
-                f"another cellctl service (pid {held.holder}) is running on the store {self.path.with_suffix('')}: stop it "
+                f"another cellctl service (pid {held.holder}) is running on the store {self.db_path}: stop it "
                 "first, or give this one its own [store] path"
+            ) from None
+        except OSError as err:
+            raise StorePathError(
+                f"[store] path {self.db_path}: its lock file {self.path} cannot be made or written "
+                f"({err.strerror or err}); give the service's user the right to, or {STORE_PATH_FIX}"
             ) from None
 
     def holder(self) -> str | None:

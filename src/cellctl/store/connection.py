@@ -16,6 +16,7 @@ microseconds (:func:`ts`); figures, requests and responses are stored as canonic
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -94,24 +95,32 @@ class StoreDamaged(StorePathError):
     """The file at ``[store] path`` is not a SQLite database, or a damaged one; the message names the file and the fix."""
 
 
-_FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
+STORE_PATH_FIX = "change [store] path to a file in a folder the service can write (e.g. path = \"var/cellctl.db\")"
 
 
 def check_store_path(path: Path, *, creatable: bool = False) -> None:
     """Raise :class:`StorePathError` unless ``path`` can be the database file: not a folder, in an existing folder
-    (``creatable``: or in one :func:`make_store_folder` could create, the dry run of ``config check --secrets``)."""
+    this process may write in (``creatable``: or in one :func:`make_store_folder` could create, the dry run of
+    ``config check --secrets``), the file itself, if there, readable and writable."""
     if path.is_dir():
         raise StorePathError(f"[store] path {path} is a folder; the store is one SQLite file: give a file's path, "
                              f"e.g. path = \"{path / 'cellctl.db'}\"")
     for folder in path.parents:
         if folder.exists() and not folder.is_dir():
-            raise StorePathError(f"[store] path {path} lies under {folder}, which is a file, not a folder; {_FIX}")
+            raise StorePathError(f"[store] path {path} lies under {folder}, which is a file, not a folder; {STORE_PATH_FIX}")
     if path.parent.is_dir():
+        # SQLite writes the file, its -wal and -shm beside it, and the service its .lock: the folder must allow it.
+        if not os.access(path.parent, os.W_OK | os.X_OK):
+            raise StorePathError(f"[store] path {path}: the service's user may not write in {path.parent}; give it "
+                                 f"the right to, or {STORE_PATH_FIX}")  # fmt: skip
+        if path.is_file() and not os.access(path, os.R_OK | os.W_OK):
+            raise StorePathError(f"[store] path {path}: the service's user may not read and write the file; give it "
+                                 f"the right to, or {STORE_PATH_FIX}")  # fmt: skip
         return
     if not creatable:
-        raise StorePathError(f"[store] path {path}: its folder {path.parent} does not exist: create it or {_FIX}")
+        raise StorePathError(f"[store] path {path}: its folder {path.parent} does not exist: create it or {STORE_PATH_FIX}")
     if (why := folder_problem(path.parent)) is not None:
-        raise StorePathError(f"[store] path {path}: its folder cannot be created ({why}); {_FIX}")
+        raise StorePathError(f"[store] path {path}: its folder cannot be created ({why}); {STORE_PATH_FIX}")
 
 
 def make_store_folder(path: Path) -> None:
@@ -119,8 +128,9 @@ def make_store_folder(path: Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        check_store_path(path)  # a file in the way is named
-        raise StorePathError(f"[store] path {path}: its folder cannot be created ({err.strerror or err}); {_FIX}") from None
+        check_store_path(path, creatable=True)  # a file in the way, or the folder without the right, is named
+        why = err.strerror or err
+        raise StorePathError(f"[store] path {path}: its folder cannot be created ({why}); {STORE_PATH_FIX}") from None
 
 
 @dataclass(frozen=True)
@@ -190,7 +200,7 @@ class Database:
         try:
             conn = sqlite3.connect(p, isolation_level=None, timeout=busy_timeout_s)
         except sqlite3.OperationalError as err:  # e.g. a folder the service may not write in
-            raise StorePathError(f"[store] path {p}: SQLite cannot open it ({err}); {_FIX}") from None
+            raise StorePathError(f"[store] path {p}: SQLite cannot open it ({err}); {STORE_PATH_FIX}") from None
         try:
             mode = conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
             if str(mode).lower() != "wal":
