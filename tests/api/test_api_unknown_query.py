@@ -17,6 +17,7 @@ DASHBOARD_QUERIES = [
     "/cycles?limit=200&state=failed",
     "/dashboard/cycles?limit=60",
     "/dashboard/shifts?tz_offset_min=60&count=3&starts=06%3A00%2C18%3A00",
+    "/dashboard/shifts?tz=Europe%2FBerlin&count=3&starts=06%3A00%2C18%3A00",
     "/dashboard/thumbs/1/x.png?width=256",
     "/jobs/1/image?width=640&frame=3",
 ]

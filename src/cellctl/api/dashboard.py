@@ -13,7 +13,9 @@ fonts), so the screen works on a cell network without internet. The page reads t
 - ``GET /dashboard/shifts``: good and not OK parts and the takt (median cycle time) of the
   current shift and the ones before it. Shifts begin at :data:`SHIFT_STARTS` (06:00, 14:00 and
   22:00) local time unless the request names others (``starts=06:00,18:00``); "local" is the
-  page's time zone, which it sends as ``tz_offset_min`` (minutes east of UTC).
+  page's time zone, which it sends by its IANA name (``tz=Europe/Berlin``: every shift's bounds
+  follow that zone's daylight saving time), or, from a browser that names none, as one offset
+  ``tz_offset_min`` (minutes east of UTC) for every shift.
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ import asyncio
 import statistics
 from collections import OrderedDict
 from dataclasses import asdict
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, time, timedelta, timezone, tzinfo
 from importlib import resources
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import cv2
 import numpy as np
@@ -63,22 +66,49 @@ SHIFT_SCAN_PAGES = 10
 """At most this many pages of 1000 cycles are read to count the shifts."""
 
 
-def shift_windows(now_utc: datetime, starts: list[str], tz_offset_min: int, count: int) -> list[tuple[datetime, datetime, datetime]]:
-    """The current shift and the ``count - 1`` before it, newest first: (start UTC, end UTC, start local)."""
-    offset = timedelta(minutes=tz_offset_min)
-    local_now = (now_utc + offset).replace(tzinfo=None)
+TZ_PATTERN = r"^[A-Za-z0-9_+\-/]{1,64}$"
+"""What an IANA time zone name may look like (``Europe/Berlin``, ``Etc/GMT-3``); the tz database decides if it is one."""
+
+
+def zone_named(name: str) -> ZoneInfo:
+    """The time zone of an IANA name, from the tz database; 422 naming the field when it has none of that name."""
+    try:
+        return ZoneInfo(name)
+    except (ZoneInfoNotFoundError, ValueError, OSError):
+        raise HTTPException(422, detail=(
+            f"query field 'tz': {name!r} is not a time zone this service's tz database knows; give an IANA name "
+            "such as Europe/Berlin or America/New_York, or leave tz out and send tz_offset_min (minutes east of UTC)"
+        )) from None  # fmt: skip
+
+
+def local_to_utc(wall: datetime, zone: tzinfo) -> datetime:
+    """When the naive local time ``wall`` begins in ``zone``, in UTC: of a time the clock shows twice (autumn)
+    the first, of a time it skips (spring) the moment it jumps past it (the first minute after that exists)."""
+    for minute in range(2 * 24 * 60):  # a gap is an hour, at most a day (Pacific/Apia skipped 2011-12-30)
+        t = wall + timedelta(minutes=minute)
+        utc = t.replace(tzinfo=zone).astimezone(UTC)
+        if utc.astimezone(zone).replace(tzinfo=None) == t:
+            return utc
+    raise ValueError(f"{wall} never occurs in {zone}")
+
+
+def shift_windows(
+    now_utc: datetime, starts: list[str], zone: tzinfo | int, count: int
+) -> list[tuple[datetime, datetime, datetime]]:
+    """The current shift and the ``count - 1`` before it, newest first: (start UTC, end UTC, start local, naive).
+
+    ``zone``: the plant's time zone (each bound in the offset it has then), or minutes east of UTC (one for all)."""
+    tz = zone if isinstance(zone, tzinfo) else timezone(timedelta(minutes=zone))
+    today = now_utc.astimezone(tz).date()
     minutes = sorted({int(h) * 60 + int(m) for h, m in (t.split(":") for t in starts)})
     days_back = count // len(minutes) + 2
-    today = datetime(local_now.year, local_now.month, local_now.day)
-    bounds = sorted(
-        today + timedelta(days=d, minutes=m) for d in range(-days_back, 2) for m in minutes
-    )
-    current = max(i for i, b in enumerate(bounds) if b <= local_now)
-    out = []
-    for i in range(current, current - count, -1):
-        start, end = bounds[i], bounds[i + 1]
-        out.append(((start - offset).replace(tzinfo=UTC), (end - offset).replace(tzinfo=UTC), start))
-    return out
+    bounds = sorted({  # a set: two starts in one skipped hour begin at the same moment, the shift between is none
+        local_to_utc(datetime.combine(today + timedelta(days=d), time()) + timedelta(minutes=m), tz)
+        for d in range(-days_back, 2) for m in minutes
+    })  # fmt: skip
+    current = max(i for i, b in enumerate(bounds) if b <= now_utc)
+    newest_first = range(current, current - count, -1)
+    return [(bounds[i], bounds[i + 1], bounds[i].astimezone(tz).replace(tzinfo=None)) for i in newest_first]
 
 
 def _utc(t: datetime) -> datetime:
@@ -88,7 +118,8 @@ def _utc(t: datetime) -> datetime:
 def count_shift(records: list[CycleRecord], start: datetime, end: datetime) -> tuple[int, int, float | None]:
     """Good and not OK cycles that ended in [start, end), and the median cycle time of the good ones.
 
-    A cycle a restart interrupted has no ``finished_at``: it ended when recovery marked it (``interrupted_at``)."""
+    A cycle a restart interrupted has no ``finished_at``: it ended when it was cut off (``interrupted_at``, its last
+    step or image), in that shift, not when the next start found it (a ``GET /parts`` window lists it then)."""
     good, not_ok, times = 0, 0, []
     for r in records:
         ended = r.finished_at or r.interrupted_at
@@ -208,13 +239,18 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
 
     @reads.get("/dashboard/shifts", response_model=ShiftCounts)
     async def dashboard_shifts(
-        tz_offset_min: int = Query(0, ge=-840, le=840, description="the page's time zone: minutes east of UTC"),
+        tz: str | None = Query(None, pattern=TZ_PATTERN, description=(
+            "the page's time zone, an IANA name (Europe/Berlin): each shift's bounds in the offset the zone has then")),
+        tz_offset_min: int = Query(0, ge=-840, le=840, description=(
+            "without tz: the page's time zone as minutes east of UTC, one offset for every shift")),
         starts: str = Query(",".join(SHIFT_STARTS), pattern=SHIFT_STARTS_PATTERN, description="shift starts, HH:MM local, comma separated"),
         count: int = Query(3, ge=1, le=21, description="the current shift and this many minus one before it"),
     ) -> ShiftCounts:
         """Good and not OK parts per shift, newest shift first."""
         boundaries = starts.split(",")
-        windows = shift_windows(datetime.now(UTC), boundaries, tz_offset_min, count)
+        now = datetime.now(UTC)
+        zone: tzinfo | int = tz_offset_min if tz is None else zone_named(tz)
+        windows = shift_windows(now, boundaries, zone, count)
         oldest = windows[-1][0]
         records: list[CycleRecord] = []
         before: int | None = None
@@ -232,7 +268,9 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
                 start_utc=start.isoformat(), end_utc=end.isoformat(), start_local=local.strftime("%Y-%m-%d %H:%M"),
                 current=i == 0, good=good, not_ok=not_ok, median_cycle_time_s=takt,
             ))  # fmt: skip
-        return ShiftCounts(shift_starts=sorted(set(boundaries)), tz_offset_min=tz_offset_min, shifts=shifts)
+        now_offset = now.astimezone(zone).utcoffset() if isinstance(zone, tzinfo) else None
+        offset = tz_offset_min if now_offset is None else now_offset // timedelta(minutes=1)
+        return ShiftCounts(shift_starts=sorted(set(boundaries)), tz=tz, tz_offset_min=offset, shifts=shifts)
 
     @reads.get("/dashboard/cycles", response_model=list[CycleDigest])
     async def dashboard_cycles(limit: int = Query(40, ge=1, le=200)) -> list[CycleDigest]:

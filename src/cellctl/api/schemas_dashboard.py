@@ -1,4 +1,4 @@
-"""Bodies of the dashboard's own feeds: ``/dashboard/config`` and ``/dashboard/cycles``."""
+"""Bodies of the dashboard's own feeds: ``/dashboard/config``, ``/dashboard/shifts`` and ``/dashboard/cycles``."""
 
 from __future__ import annotations
 
@@ -44,7 +44,8 @@ class ShiftCounts(BaseModel):
     """The current shift and the ones before it, newest first."""
 
     shift_starts: list[str]
-    tz_offset_min: int
+    tz: str | None = Field(description="the time zone asked (IANA name): each shift's bounds in its offset then; null: tz_offset_min")
+    tz_offset_min: int = Field(description="minutes east of UTC: the asked zone's offset now, or the one offset asked")
     shifts: list[ShiftCount]
 
 

@@ -40,9 +40,8 @@ from cellctl.store.outbox import OutboxRows
 from cellctl.store.parts import PartRows
 from cellctl.store.records import INTERRUPTED_REASONS, CycleState, InterruptedCycle, RecoveryReport
 from cellctl.store.retention import RetentionRows
+from cellctl.store.schema import cut_off_at
 from cellctl.store.spc import SpcRows
-
-
 
 
 class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows, PartRows, OutboxRows):
@@ -52,9 +51,11 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
         """Run once at startup, before anything else writes.
 
         Every cycle left queued or running by a process that died becomes ``interrupted`` with
-        the step it was in; steps left open get an error; alarms left active are closed (the
-        watchdog re-raises what is still wrong); in-flight idempotency keys of non-cycle requests
-        are released (their effect is unknown; the cell restarts in Aborted anyway).
+        the step it was in, ``interrupted_at`` when it was cut off as far as its record shows (its
+        newest step start or end or image, else its start, else its submission; UTC) and
+        ``interrupted_found_at`` now; steps left open get an error; alarms left active are closed
+        (the watchdog re-raises what is still wrong); in-flight idempotency keys of non-cycle
+        requests are released (their effect is unknown; the cell restarts in Aborted anyway).
         Calling it again finds nothing.
         """
         now = ts(self._clock())
@@ -67,10 +68,11 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
                 InterruptedCycle(int(r[0]), CycleState(r[1]), CycleStep(r[2]), r[3] is not None) for r in rows
             )
             c.execute(  # with its reason, as a failed cycle has one (REST, the PLC, OPC UA and MQTT show it)
-                "UPDATE cycles SET state = 'interrupted', interrupted_step = current_step, interrupted_at = ?, "
-                "error = COALESCE(error, CASE WHEN state = 'queued' THEN ? WHEN install_started_at IS NULL THEN ? ELSE ? END) "
-                "WHERE state IN ('queued', 'running')",
-                (now, *INTERRUPTED_REASONS),
+                "UPDATE cycles SET state = 'interrupted', interrupted_step = current_step, "
+                f"interrupted_at = {cut_off_at(':found')}, interrupted_found_at = :found, "
+                "error = COALESCE(error, CASE WHEN state = 'queued' THEN :queued WHEN install_started_at IS NULL "
+                "THEN :before ELSE :after END) WHERE state IN ('queued', 'running')",
+                dict(zip(("found", "queued", "before", "after"), (now, *INTERRUPTED_REASONS), strict=True)),
             )
             c.execute(
                 "UPDATE cycle_steps SET error = 'interrupted: the cell process stopped during this step' "

@@ -274,8 +274,32 @@ WHERE state = 'interrupted' AND error IS NULL;
 again, or check the glass by hand). The version also marks what older releases cannot read: alarm
 1703 (record write failed) and the closed loops kept under their recipe's name."""
 
+
+def cut_off_at(found: str) -> str:
+    """SQL for when the cycle of the ``cycles`` row was cut off, as far as its record shows: the newest of its steps'
+    ``started_at`` and ``finished_at`` and its images' ``created_at`` not after ``found`` (an SQL expression: when
+    the service found it cut off), else its ``started_at``, else its ``created_at``; never after ``found``.
+    :data:`V9_INTERRUPTED_CUT_OFF` is built with it: change it only together with a new migration."""
+
+    def newest(column: str, table: str) -> str:
+        return f"COALESCE((SELECT MAX({column}) FROM {table} WHERE cycle_id = cycles.id AND {column} <= {found}), '')"
+
+    evidence = ", ".join(newest(c, t) for c, t in (("started_at", "cycle_steps"), ("finished_at", "cycle_steps"),
+                                                    ("created_at", "cycle_images")))  # fmt: skip
+    return f"MIN({found}, COALESCE(NULLIF(MAX({evidence}), ''), cycles.started_at, cycles.created_at))"
+
+
+V9_INTERRUPTED_CUT_OFF = f"""
+ALTER TABLE cycles ADD COLUMN interrupted_found_at TEXT;
+UPDATE cycles SET interrupted_found_at = interrupted_at, interrupted_at = {cut_off_at("cycles.interrupted_at")}
+WHERE interrupted_at IS NOT NULL;
+"""
+"""A cycle the service died in keeps two times: ``interrupted_at``, when it was cut off (its last step or image), and
+``interrupted_found_at``, when the next start found it (what ``interrupted_at`` held before). Cycles interrupted
+before this version get both from what they recorded; a cycle resumed after it counts only what came before."""
+
 MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE,
-                             V8_INTERRUPTED_REASONS)
+                             V8_INTERRUPTED_REASONS, V9_INTERRUPTED_CUT_OFF)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 NAME_THE_FIRST_RECIPES_LOOP = (

@@ -1,18 +1,37 @@
 /* cellctl dashboard: the shift counters on the overview: good parts, not OK ones and the takt
    (median cycle time of the good ones) of the current shift, big, and of the two before it. The
    shifts begin at the dashboard config's shift_starts (06:00, 14:00, 22:00 unless the service
-   says otherwise) in this browser's time zone; GET /dashboard/shifts counts them. */
+   says otherwise) in this browser's time zone, sent by its IANA name so that every shift follows its
+   daylight saving time; GET /dashboard/shifts counts them. */
 
 import { getLatest } from "./api.js";
 import { $, el, setClass } from "./dom.js";
 import { clock, num } from "./format.js";
 import { model } from "./state.js";
 
+// The browser's time zone, an IANA name (Europe/Berlin), or "" when it names none.
+function browserZone() {
+  try {
+    return Intl.DateTimeFormat().resolvedOptions().timeZone || "";
+  } catch (_) {
+    return "";
+  }
+}
+
 export async function refreshShifts() {
-  const tz = -new Date().getTimezoneOffset();
   const starts = (model.config.shift_starts || []).join(",");
-  const query = `tz_offset_min=${tz}&count=3` + (starts ? `&starts=${encodeURIComponent(starts)}` : "");
-  const shifts = await getLatest("shifts", `/dashboard/shifts?${query}`);
+  const base = "/dashboard/shifts?count=3" + (starts ? `&starts=${encodeURIComponent(starts)}` : "");
+  // Without a zone name: today's offset for every shift (an hour off for the shifts before a DST change).
+  const byOffset = `${base}&tz_offset_min=${-new Date().getTimezoneOffset()}`;
+  const zone = browserZone();
+  let shifts;
+  try {
+    shifts = await getLatest("shifts", zone ? `${base}&tz=${encodeURIComponent(zone)}` : byOffset);
+  } catch (err) {
+    // 422: the service's tz database lacks this zone (a name newer than it); count by the offset instead.
+    if (!zone || !/: 422 /.test(String(err && err.message))) throw err;
+    shifts = await getLatest("shifts", byOffset);
+  }
   if (shifts === null) return;
   model.shifts = shifts;
   renderShifts();
