@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import select
+import shlex
 import signal
 import sys
 import tempfile
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
+from pydantic import ValidationError
 
 from cellctl.cli_args import (
     WORKDIR_ENV,
@@ -37,7 +39,7 @@ from cellctl.cli_args import (
 from cellctl.client import CellClient, ServiceError
 from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
-from cellctl.config.loader import check_tokens
+from cellctl.config.loader import check_tokens, format_validation_errors
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
 from cellctl.service.compose import ServiceConfigError
 from cellctl.service.compose import ServiceError as BuildError
@@ -73,14 +75,27 @@ class UsageError(ValueError):
     """A bad option value found after parsing; ``main`` prints it on one line and exits 2 (as argparse does)."""
 
 
+def _with_api_options(config: CellConfig, args: argparse.Namespace) -> CellConfig:
+    """The configuration with ``serve --host/--port`` in [api], validated again as a whole (the file's rules, e.g.
+    that [api], [plc] and [opcua] each have their own port, hold for the options too); ConfigError names them."""
+    given = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+    if not given:
+        return config
+    data = config.model_dump()
+    data["api"] |= given
+    options = " ".join(f"--{k} {shlex.quote(str(v))}" for k, v in given.items())
+    try:
+        return CellConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(format_validation_errors(f"{args.config} with serve {options}", err)) from None
+
+
 def _cmd_serve(args: argparse.Namespace) -> int:
     from cellctl.service import build_service  # the composition root: imports the drivers
 
-    config = load_config(args.config)
+    config = _with_api_options(load_config(args.config), args)
     workdir = Path(args.workdir)  # relative token, password and TLS files from it, as every other path
     api, opcua = config.api.rooted(workdir), config.opcua.rooted(workdir)
-    if args.host is not None or args.port is not None:
-        api = api.model_copy(update={k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None})
     if api is not config.api or opcua is not config.opcua:
         config = config.model_copy(update={"api": api, "opcua": opcua})
     check_tokens(config, str(args.config))  # a token it cannot read refuses the start, before anything runs
@@ -210,7 +225,8 @@ def _cmd_parts_export(args: argparse.Namespace) -> int:
     until = _moment("--until", args.until) or datetime.now(timezone.utc)
     if since is not None and until <= since:
         raise UsageError(f"--until ({until.isoformat()}) must be later than --since ({since.isoformat()})")
-    installs = _client(args).parts(car_id=args.car_id, since=since, until=until)
+    bound = [until.isoformat()]  # the cell's clock may stand behind this host's: it answers the bound it applied
+    installs = _client(args).parts(car_id=args.car_id, since=since, until=until, applied=lambda b: bound.__setitem__(0, b))
     if args.output == "-":
         try:
             n = write_json_lines(sys.stdout, installs)
@@ -227,7 +243,7 @@ def _cmd_parts_export(args: argparse.Namespace) -> int:
             print(f"error: cannot write {out}: {err.strerror or err}", file=sys.stderr)
             return 1
         where = str(out)
-    print(f"wrote {n} part install{'s' if n != 1 else ''} (ended {args.since} to {until.isoformat()}) to {where}", file=sys.stderr)
+    print(f"wrote {n} part install{'s' if n != 1 else ''} (ended {args.since} to {bound[0]}) to {where}", file=sys.stderr)
     return 0
 
 
@@ -237,7 +253,7 @@ def _cmd_parts_show(args: argparse.Namespace) -> int:
     print(f"glass {history['part_id']}: {len(installs)} install{'s' if len(installs) != 1 else ''}")
     for i in installs:
         verdict = "running" if i["ok"] is None else "OK" if i["ok"] else f"NOT OK ({i['error_code']}: {i['reason']})"
-        took = "" if i["cycle_time_s"] is None else f" in {i['cycle_time_s']:.1f} s"
+        took = "" if i["cycle_time_s"] is None or i["state"] == "interrupted" else f" in {i['cycle_time_s']:.1f} s"
         print(f"cycle {i['cycle_id']}: {i['state']} {verdict}{took}; car {i['car_id'] or '-'}, recipe {i['recipe']}, "
               f"calibration set {i['calibration_version'] or '-'}, ended {i['finished_at'] or i['interrupted_at'] or '-'}")  # fmt: skip
         print(f"    measured (gaps, flush): {_fmt_six(i['measured_deviation'])}")
@@ -359,7 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_parts_export)
     p = parts.add_parser("show", help="a readable summary of every install of one glass")
     add_remote_options(p)
-    p.add_argument("part_id", help="the glass's part id")
+    p.add_argument("part_id", help="the glass's part id, any characters ('/' too; after -- when it begins with -)")
     p.set_defaults(func=_cmd_parts_show)
 
     p = sub.add_parser("align", help="run the laser alignment on the simulated cell in-process and score it")

@@ -8,11 +8,10 @@ import re
 import ssl
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import datetime
 from pathlib import Path
 from typing import Any
-from urllib.parse import quote
 
 import httpx
 
@@ -166,11 +165,13 @@ class CellClient:
         since: datetime | None = None,
         until: datetime | None = None,
         page_size: int = 100,
+        applied: Callable[[str], None] | None = None,
     ) -> Iterator[dict[str, Any]]:
         """Every install matching the filters (``GET /parts``), oldest first, fetched a page at a time as it is iterated.
 
         ``since``/``until`` must be timezone-aware (the window is on when the install ended: since
-        inclusive, until exclusive).
+        inclusive, until exclusive). The cell applies ``until`` no later than its own clock: ``applied`` is
+        called with the bound it used (the next window's ``since``), which the later pages keep.
         """
         params: dict[str, Any] = {"limit": page_size}
         for name, value in (("car_id", car_id), ("part_id", part_id), ("since", since), ("until", until)):
@@ -178,14 +179,23 @@ class CellClient:
                 params[name] = value.isoformat() if isinstance(value, datetime) else value
         while True:
             page = self._call("GET", "/parts", params=params, headers=self._headers())
+            if until is not None and page.get("until") and params.get("until") != page["until"]:
+                params["until"] = page["until"]
+                if applied is not None:
+                    applied(page["until"])
             yield from page["installs"]
             if page["next"] is None:
                 return
             params["after"] = page["next"]
 
     def part(self, part_id: str) -> dict[str, Any]:
-        """Every install of one glass (``GET /parts/{part_id}``)."""
-        return self._call("GET", f"/parts/{quote(part_id, safe='')}", headers=self._headers())
+        """Every install of one glass (``GET /part-history?part_id=``: a query carries any id, where a URL path folds
+        "." and ".."); a :class:`ServiceError` saying "no glass with part id ..." when none is recorded."""
+        history = self._call("GET", "/part-history", params={"part_id": part_id}, headers=self._headers())
+        if not isinstance(history, dict) or history.get("part_id") != part_id or not isinstance(history.get("installs"), list):
+            raise ServiceError(f"GET /part-history: {self.url} answered something that is not the history of glass "
+                               f"{part_id!r}: is --url the cell service?")  # fmt: skip
+        return history
 
     # commissioning jobs
     def plan_job(self, procedure: str, options: dict[str, Any], *, poses: bool = False) -> dict[str, Any]:

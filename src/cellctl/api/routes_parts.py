@@ -1,4 +1,8 @@
-"""Part traceability: ``GET /parts`` (installs by car body, glass and time window) and ``GET /parts/{part_id}``.
+"""Part traceability: ``GET /parts`` (installs by car body, glass and time window), one glass's history.
+
+A glass's history is ``GET /parts/{part_id}`` (the id percent-encoded; it may hold "/", which
+Starlette decodes before routing, so the route takes the rest of the path) and
+``GET /part-history?part_id=``, the form that carries every id: URL paths fold "." and "..".
 
 Each install is the document of :class:`cellctl.api.schemas_parts.PartInstall`. Its images are
 checked against the SHA-256 recorded when they were written, on every request (the files are read
@@ -13,11 +17,12 @@ import hashlib
 from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, HTTPException, Query, status
 from fastapi import Path as PathParam
 from pydantic import AfterValidator, BeforeValidator
+from starlette.convertors import PathConvertor, register_url_convertor
 
 from cellctl.api.auth import TokenGuard
 from cellctl.api.routes_cell import alarm_view
@@ -34,6 +39,18 @@ PAGE_MAX = 200
 """The most installs one ``GET /parts`` answers (each install's images are read and hashed)."""
 
 TIME_FORMAT = "ISO 8601 with a timezone, e.g. 2025-03-01T06:00:00+01:00 or 2025-03-01T05:00:00Z"
+
+HISTORY_QUERY = "/part-history"
+"""One glass's history by a query parameter: it carries any part id, "/", "." and ".." included."""
+
+
+class PartIdConvertor(PathConvertor):
+    """A part id as the rest of a URL path: any characters, "/" included, at least one (``/parts/`` stays the list)."""
+
+    regex = ".+"
+
+
+register_url_convertor("part_id", PartIdConvertor())
 
 
 def aware_utc(t: datetime) -> datetime:
@@ -127,7 +144,7 @@ async def part_installs(image_dir: Path, installs: Sequence[StoredInstall]) -> l
 
 
 def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
-    """Both routes are reads (read access, like ``/cycles``)."""
+    """Every route is a read (read access, like ``/cycles``)."""
     reads = APIRouter(tags=["parts"], dependencies=guard.reads())
 
     @reads.get("/parts", response_model=PartsPage)
@@ -147,14 +164,13 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         if since is not None and until is not None and until <= since:
             raise HTTPException(422, detail=f"query field 'until': {until.isoformat()} must be later than since ({since.isoformat()})")
         page = await orch.store.part_installs(car_id=car_id, part_id=part_id, since=since, until=until, after_id=after, limit=limit)
-        return PartsPage(installs=await part_installs(orch.image_dir, page.installs), next=page.next_after)
+        return PartsPage(installs=await part_installs(orch.image_dir, page.installs), next=page.next_after,
+                         until=None if page.until is None else page.until.isoformat())
 
-    @reads.get(
-        "/parts/{part_id}", response_model=PartHistory,
-        responses={404: {"model": ErrorBody, "description": "no install of this glass is recorded"}},
-    )  # fmt: skip
-    async def get_part(part_id: Annotated[str, PathParam(min_length=1, max_length=MAX_TEXT_LEN, description="the glass")]) -> PartHistory:
-        """Every install of one glass, oldest first."""
+    not_found: dict[int | str, dict[str, Any]] = {404: {"model": ErrorBody, "description": "no install of this glass is recorded"}}
+
+    async def history(part_id: str) -> PartHistory:
+        """Every install of ``part_id``, oldest first; 404 naming the id when none is recorded."""
         installs: list[StoredInstall] = []
         after: int | None = None
         while True:
@@ -166,8 +182,24 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
         if not installs:
             raise HTTPException(
                 status.HTTP_404_NOT_FOUND,
-                detail=f"no install of glass {part_id!r} is recorded (retention may have pruned it; GET /parts lists what is kept)",
+                detail=f"no glass with part id {part_id!r} is recorded (retention may have pruned it; GET /parts lists what is kept)",
             )
         return PartHistory(part_id=part_id, installs=await part_installs(orch.image_dir, installs))
+
+    @reads.get(HISTORY_QUERY, response_model=PartHistory, responses=not_found)
+    async def get_part_history(
+        part_id: Annotated[str, Query(min_length=1, max_length=MAX_TEXT_LEN, description="the glass: any part id")],
+    ) -> PartHistory:
+        """Every install of one glass, oldest first: the form for every part id ("/", "." and ".." included)."""
+        return await history(part_id)
+
+    @reads.get("/parts/{part_id:part_id}", response_model=PartHistory, responses=not_found)
+    async def get_part(
+        part_id: Annotated[str, PathParam(min_length=1, max_length=MAX_TEXT_LEN, description=(
+            "the glass, percent-encoded (a '/' in it may be sent as is or as %2F); a URL path cannot carry the ids "
+            f"'.' and '..' (clients fold them): {HISTORY_QUERY}?part_id= takes every id"))],
+    ) -> PartHistory:  # fmt: skip
+        """Every install of one glass, oldest first (the same as ``GET /part-history?part_id=``)."""
+        return await history(part_id)
 
     return reads

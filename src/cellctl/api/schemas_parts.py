@@ -1,4 +1,4 @@
-"""Bodies of the part traceability routes (``GET /parts``, ``GET /parts/{part_id}``).
+"""Bodies of the part traceability routes (``GET /parts``, ``GET /parts/{part_id}``, ``GET /part-history``).
 
 One :class:`PartInstall` is the whole record of one install: what was asked, with which
 calibration set, every step's figures, the images with their SHA-256 and the state of their
@@ -68,7 +68,9 @@ class PartInstall(BaseModel):
     started_at: str | None
     finished_at: str | None
     install_started_at: str | None = Field(description="when the robot was first commanded to install (null: never)")
-    interrupted_at: str | None = Field(description="when the service found the cycle cut off by its own stop")
+    interrupted_at: str | None = Field(description=(
+        "when the service's stop cut the cycle off, as far as its record shows: its last step start or end or image "
+        "(else its start); its record was closed, and a since/until window lists it, when the service next started"))
     interrupted_step: str | None
     calibration_version: str | None = Field(description="the calibration set version the cycle ran with")
     ok: bool | None = Field(description="installed and measured inside the tolerance; null while the cycle runs")
@@ -91,10 +93,13 @@ class PartsPage(BaseModel):
 
     installs: list[PartInstall]
     next: int | None = Field(description="pass as ?after= (same filters) for the next page; null on the last page")
+    until: str | None = Field(None, description="the window's end as applied (ISO 8601, UTC): `until`, or the cell's "
+                              "clock when `until` lies ahead of it; pass it as `until` for the next pages and as the "
+                              "next window's `since`")
 
 
 class PartHistory(BaseModel):
-    """``GET /parts/{part_id}``: every install of one glass, oldest first."""
+    """``GET /parts/{part_id}`` and ``GET /part-history?part_id=``: every install of one glass, oldest first."""
 
     part_id: str
     installs: list[PartInstall]

@@ -7,11 +7,13 @@ acknowledged by whom, cleared). ``GET /parts`` and ``cellctl parts export`` are 
 :meth:`PartRows.part_installs`.
 
 Filters combine (AND): the car body (``car_id``), the glass (``part_id``) and a time window.
-The window is on when the cycle *ended*: ``finished_at``, or ``interrupted_at`` for a cycle the
-service died in. ``since`` is inclusive and ``until`` exclusive, so back-to-back windows
-``[a, b)``, ``[b, c)`` list every ended install exactly once (what an MES export polls for); a
-window lists ended cycles only (a queued or running one has no end yet, and its record is not
-final). Without a window, queued and running cycles are listed too.
+The window is on when the cycle's record *ended*: ``finished_at``, or for a cycle the service
+died in ``interrupted_found_at``, when the next start closed its record (its ``interrupted_at``,
+when it was cut off, may lie in a window an MES already exported while the cycle still ran).
+``since`` is inclusive and ``until`` exclusive, so back-to-back windows ``[a, b)``, ``[b, c)``
+list every ended install exactly once (what an MES export polls for); a window lists ended
+cycles only (a queued or running one has no end yet, and its record is not final). Without a
+window, queued and running cycles are listed too.
 
 Paging: ascending cycle id (the order the cell ran them). ``after_id`` is the previous page's
 :attr:`PartPage.next_after`; a page that is not full is the last (``next_after`` None).
@@ -33,8 +35,8 @@ from cellctl.store.records import AuditEntry, CycleRecord
 MAX_PAGE = 1000
 """The most installs one :meth:`PartRows.part_installs` call returns."""
 
-ENDED_AT = "COALESCE(finished_at, interrupted_at)"
-"""When a cycle ended, the time the window filters on."""
+ENDED_AT = "COALESCE(finished_at, interrupted_found_at)"
+"""When a cycle's record ended, the time the window filters on (recovery sets ``interrupted_found_at``)."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,7 @@ class PartPage:
 
     installs: tuple[PartInstall, ...]
     next_after: int | None
+    until: datetime | None = None  # the window's end as applied: never past the store's clock at the query
 
 
 class PartRows(Database):
@@ -88,6 +91,8 @@ class PartRows(Database):
                 args.append(value)
         if since is not None and until is not None and until <= since:
             raise ValueError(f"until ({until.isoformat()}) must be later than since ({since.isoformat()})")
+        if until is not None:  # an install ending later than now would miss this window and the next one
+            until = min(until, self._clock())
         if since is not None:
             where.append(f"{ENDED_AT} >= ?")
             args.append(ts(since))
@@ -102,7 +107,7 @@ class PartRows(Database):
             sql += " WHERE " + " AND ".join(where)
         rows = self._conn.execute(f"{sql} ORDER BY id LIMIT ?", (*args, limit + 1)).fetchall()
         page = tuple(PartInstall(record, self.cycle_actions(record.id)) for record in (full_cycle(self._conn, r) for r in rows[:limit]))
-        return PartPage(page, page[-1].record.id if len(rows) > limit else None)
+        return PartPage(page, page[-1].record.id if len(rows) > limit else None, until)
 
     def cycle_actions(self, cycle_id: int) -> CycleActions:
         """The audit entries and alarms filed under ``cycle_id`` (both empty for an unknown cycle)."""
