@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from shared_support import run_cli
 
-from cellctl.config import load_config
+from cellctl.config import ConfigError, load_config
 
 SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 # The opening is x in [-2000, 0], y in [0, 1500] of T0 (config/sim.toml): a spot at its middle hits no wall.
@@ -20,14 +20,14 @@ def test_a_refused_alignment_is_one_line_naming_the_spot_to_move(tmp_path: Path,
     assert text.count(SPOT_ON_THE_WALL) == 1, "config/sim.toml's process.align.spots_mm changed; update this test"
     cfg = tmp_path / "cell.toml"
     cfg.write_text(text.replace(SPOT_ON_THE_WALL, SPOT_IN_THE_OPENING), encoding="utf-8")
-    spots = load_config(cfg).process.align.spots_mm  # the configuration itself is valid: the alignment refuses
-    k = [list(map(float, s)) for s in spots].index([-1000.0, 750.0])
+    k = [list(map(float, s)) for s in load_config(SIM).process.align.spots_mm].index([-1000.0, 1560.0])
+    with pytest.raises(ConfigError, match=rf"process\.align\.spots_mm\[{k}\] \[-1000, 750\] lies in the opening"):
+        load_config(cfg)  # refused at load, before any cycle could find no wall there
 
     rc, out, err = run_cli(capsys, "--config", str(cfg), "align", "--runs", "1")
-    assert rc == 1, err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    assert err.startswith("cellctl align: run 1 refused: ") and f"process.align.spots_mm[{k}]" in err, err
-    assert "run 1:" not in out  # no result printed for the refused run
+    assert rc == 2, err
+    assert "Traceback" not in err and f"process.align.spots_mm[{k}]" in err and "move it onto the wall" in err, err
+    assert "run 1:" not in out  # nothing ran
 
 
 def test_a_spot_out_of_the_robots_reach_is_refused_on_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

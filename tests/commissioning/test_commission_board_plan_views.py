@@ -31,6 +31,7 @@ def binned_config(**camera_procedure: Any) -> CellConfig:
     data["layout"] = tomllib.loads((ROOT / "config" / "sim.toml").read_text())["layout"]
     data["layout"]["camera"].update(width_px=512, height_px=512, fx=BINNED_FX, fy=BINNED_FX, cx=256.0, cy=256.0)
     data.setdefault("vision", {})["roi"] = {"x_px": 0, "y_px": 0, "width_px": 512, "height_px": 512}
+    data["vision"].setdefault("gap", {}).update(start_px=110.0, length_px=140.0, min_points=60)  # the 2048 px window, binned 4 x 4
     if camera_procedure:
         data["calibration"].setdefault("procedure", {}).setdefault("camera", {}).update(camera_procedure)
     return parse_config(data, "hardware.example.toml, binned camera (test)")

@@ -121,6 +121,7 @@ def _hardware_config(tmp: Path, ready: dict[str, Any], tlsimu: str, api_port: in
     # another size than the lens's): the data sheet's lens binned 4 x 4.
     data["layout"]["camera"].update(width_px=512, height_px=512, fx=5250.0 / 4, fy=5250.0 / 4, cx=256.0, cy=256.0)
     data.setdefault("vision", {})["roi"] = {"x_px": 0, "y_px": 0, "width_px": 512, "height_px": 512}
+    data["vision"].setdefault("gap", {}).update(start_px=110.0, length_px=140.0, min_points=60)  # the 2048 px window, binned 4 x 4
     dev = data["devices"]
     dev["laser"].update(
         kind="keyence_lkg", port=ready["lkg_port"], dialect=ready["dialect"], display_unit=ready["display_unit"],

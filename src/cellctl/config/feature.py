@@ -24,6 +24,9 @@ MIN_STRAIGHT_EDGE_MM = 20.0  # of each edge beside the arc, for the corner metho
 # height, so the arc runs from it down to the right and the straight top edge runs on to the left.
 _ARC_TANGENT_AT = (0.22, 0.15)
 _PLACEMENT_MARGIN_DEG = 8.0  # coverage kept beyond the limit for the car body's placement error
+# How far from its nominal pixel (layout.camera's principal point) the shooting pose may put the corner: the
+# real lens's principal point and the hand-eye's error (the twin's lens: 9 px and 12 px off the data sheet's).
+_CORNER_MARGIN_PX = 40.0
 
 FeatureKind = Literal["corner", "arc"]
 
@@ -103,6 +106,57 @@ def arc_view_problem(config: CellConfig) -> str | None:
             f"vision.shot_aim_mm = {tuple(round(v, 1) for v in shot_aim_mm(config))}: the {r:g} mm corner's arc spans "
             f"{coverage:.0f} deg of the view (at least {need:g}) and the top edge runs {straight:.0f} px beyond it "
             f"(at least {2.0 * tan.min_length_px:g}); leave shot_aim_mm out for the default aim or move it"
+        )
+    return None
+
+
+def gap_window_problem(config: CellConfig) -> str | None:
+    """Why ``[vision.gap]``'s window along the top or the right edge may keep fewer pixels inside the image than the
+    inspection measures on (corner method), or None.
+
+    At the nominal shooting pose, as :func:`arc_view` (no distortion). The glass's window, measured from the glass's
+    corner ``process.inspect.nominal_gap_mm`` inside the opening's, reaches nearer the border than the opening's;
+    the corner is taken ``_CORNER_MARGIN_PX`` nearer it too (the real lens's principal point is not the data sheet's).
+    """
+    if feature_kind(config) != "corner":
+        return None  # the arc corner is inspected on its arcs (cellctl.vision.arc_gap): no window
+    g, cam = config.vision.gap, config.layout.camera
+    need, need_name = max((g.min_points, "min_points"), (g.cross_sections, "cross_sections"))
+    nominal = _to_px(config, np.array([feature_point_mm(config)]))[0]
+    gap_mm = float(config.process.inspect.nominal_gap_mm)
+    gap_px = gap_mm / _mm_per_px(config)[0]
+    t = np.arange(g.start_px, g.start_px + g.length_px + 1e-9, 1.0)
+    m = float(g.border_margin_px)
+    lo, hi = np.array([m, m]), np.array([cam.width_px - 1 - m, cam.height_px - 1 - m])
+    edges = (("top", np.array([-1.0, 0.0]), "left of"), ("right", np.array([0.0, 1.0]), "below"))
+    worst = {name: nominal + (_CORNER_MARGIN_PX + gap_px) * away for name, away, _ in edges}  # the glass's corner
+    room = min(worst["top"][0] - m, hi[1] - worst["right"][1])  # px from it to the border, along the shorter edge
+    for name, away, side in edges:
+        pts = worst[name] + t[:, None] * away
+        inside = int(np.sum(np.all((pts >= lo) & (pts <= hi), axis=1)))
+        if inside >= need:
+            continue
+        needs = f"fewer than the vision.gap.{need_name} = {need} px the inspection measures each edge on"
+        if len(t) < need:
+            return (f"vision.gap.length_px = {g.length_px:g} gives each edge's window {len(t)} px, {needs}; "
+                    f"raise length_px to at least {need - 1}")
+        arc_px = float(config.layout.opening.corner_radius_mm) / _mm_per_px(config)[0]
+        seen = bool(np.all((nominal >= lo + _CORNER_MARGIN_PX) & (nominal <= hi - _CORNER_MARGIN_PX)))
+        if not seen:
+            fix = "move vision.shot_aim_mm (leave it out: the corner at the image's centre) so the edge runs in view"
+        elif room - need + 1 >= arc_px:
+            fix = f"lower vision.gap.start_px to at most {room - need + 1:.0f} (keeping it past the corner's arc, {arc_px:.0f} px)"
+        else:
+            fix = (f"this image leaves {max(room - arc_px + 1, 0.0):.0f} px beyond the corner's arc ({arc_px:.0f} px): "
+                   f"set start_px just past the arc and lower vision.gap.{need_name} to fit, or check layout.camera")
+        return (
+            f"vision.gap.start_px = {g.start_px:g} and length_px = {g.length_px:g} put the {name} edge's window "
+            f"{g.start_px:g} to {g.start_px + g.length_px:g} px {side} the corner: the shooting pose puts the opening's "
+            f"corner at ({nominal[0]:.0f}, {nominal[1]:.0f}) px by layout.camera (the real lens's within "
+            f"{_CORNER_MARGIN_PX:g} px of it) and the glass's process.inspect.nominal_gap_mm = {gap_mm:g} ({gap_px:.0f} px) "
+            f"further in, so as little as {inside} px of the glass's window lies inside the {cam.width_px} x "
+            f"{cam.height_px} px image (vision.gap.border_margin_px = {g.border_margin_px} from its border), {needs}, "
+            f"and the inspection could refuse every cycle; {fix}"
         )
     return None
 

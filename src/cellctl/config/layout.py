@@ -169,6 +169,47 @@ class LayoutConfig(StrictModel):
     robot: RobotEnvelope = RobotEnvelope()
 
 
+_CORNER_NAMES = ("upper-right", "upper-left", "lower-left", "lower-right")  # T's origin, then x = -width, y = height
+
+
+def opening_placement_problem(layout: LayoutConfig) -> str | None:
+    """Why ``layout.opening`` cannot stand before the robot of ``layout.robot`` (None: it can).
+
+    Its ``wall_normal`` must point into the wall, away from the robot's reach centre; and each of
+    its corners must lie where the laser can read it: within the robot's reach plus the laser's
+    range and its mounting's distance from the wrist centre (mm, robot base frame).
+    """
+    o, robot = layout.opening, layout.robot
+    n, corner = as_array(o.wall_normal), as_array(o.corner_position_mm)
+    centre = as_array(robot.reach_centre_mm)
+    away = float(n @ (corner - centre))
+    if away <= 0.0:
+        return (f"layout.opening.wall_normal = {_vec(o.wall_normal)} points back at the robot: the opening's corner "
+                f"(corner_position_mm = {_vec(o.corner_position_mm)}) lies {_vec(corner - centre)} mm from "
+                f"layout.robot.reach_centre_mm, and the normal must point into the wall, away from the robot "
+                f"(their dot product is {away:.0f} mm); flip its sign (wall_normal = {_vec(-n)})")  # fmt: skip
+    T = o.T_B_T_nominal()
+    xy = np.array([[0.0, 0.0], [-o.width_mm, 0.0], [-o.width_mm, o.height_mm], [0.0, o.height_mm]])
+    pts = T[:3, :3] @ np.column_stack([xy, np.zeros(4)]).T + T[:3, 3:4]
+    dist = np.linalg.norm(pts.T - centre, axis=1)
+    k = int(np.argmax(dist))
+    mount = float(np.linalg.norm(layout.laser_mount.r + np.array([0.0, 0.0, robot.wrist_to_flange_mm])))
+    limit = robot.reach_mm + layout.laser_mount.range_max_mm + mount
+    if dist[k] > limit:
+        return (f"layout.opening.up = {_vec(o.up)}, corner_position_mm = {_vec(o.corner_position_mm)}, width_mm = "
+                f"{o.width_mm:g} and height_mm = {o.height_mm:g} put the opening's {_CORNER_NAMES[k]} corner at "
+                f"{_vec(pts[:, k])} mm in the robot base, {dist[k]:.0f} mm from layout.robot.reach_centre_mm: beyond the "
+                f"robot's reach (layout.robot.reach_mm = {robot.reach_mm:g}) plus the laser's range "
+                f"({layout.laser_mount.range_max_mm:g}) and its mounting ({mount:.0f} mm from the wrist centre), so no "
+                "pose reads the wall there; check up's sign (it points up along the wall, in the robot base frame), "
+                "those figures (mm) and layout.robot.reach_mm")  # fmt: skip
+    return None
+
+
+def _vec(v: ArrayLike) -> str:
+    return "[" + ", ".join(f"{float(x) + 0.0:g}" for x in np.asarray(v, dtype=float)) + "]"  # + 0.0: no -0
+
+
 # The twin's car body stands at the layout's opening and its robot reaches as far as the layout's:
 # these fields of [sim.world] and [sim.robot] are filled from [layout] (never set there).
 TWIN_FIELDS_FROM_LAYOUT: dict[tuple[str, str], tuple[str, str]] = {

@@ -12,14 +12,14 @@ from cellctl.config.api import ApiConfig
 from cellctl.config.calibration import CalibrationConfig
 from cellctl.config.cell import ProcessConfig
 from cellctl.config.devices import DevicesConfig
-from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig
+from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig, opening_placement_problem
 from cellctl.config.mqtt import MqttConfig
 from cellctl.config.opcua import OpcUaConfig
 from cellctl.config.plc import PlcConfig
 from cellctl.config.recipe import RECIPE_SECTIONS, Recipe, merge_into
 from cellctl.config.sim import SimConfig
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
-from cellctl.config.feature import arc_view_problem, feature_kind
+from cellctl.config.feature import arc_view_problem, feature_kind, gap_window_problem
 from cellctl.config.types import StrictModel
 from cellctl.config.vision import VisionConfig
 
@@ -86,8 +86,13 @@ class CellConfig(StrictModel):
             return data
         layout = data.get("layout") if isinstance(data.get("layout"), dict) else {}
         defaults = LayoutConfig()
+        # An invalid [layout] table is not copied: its own error names it, a copy would repeat it as the twin's
+        # (naming a [sim] section the file may not have).
+        broken = {ls for ls, _ in TWIN_FIELDS_FROM_LAYOUT.values() if not _valid_layout_part(ls, layout.get(ls))}
         for (section, field), (lsection, lfield) in TWIN_FIELDS_FROM_LAYOUT.items():
             part = layout.get(lsection)
+            if lsection in broken:
+                continue
             value = part[lfield] if isinstance(part, dict) and lfield in part else getattr(getattr(defaults, lsection), lfield)
             given = sim.get(section)
             if given is not None and not isinstance(given, dict):
@@ -134,6 +139,14 @@ class CellConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _opening_before_the_robot(self) -> "CellConfig":
+        """The opening's wall faces the robot, and the robot reaches the whole opening (every recipe's view too)."""
+        problem = opening_placement_problem(self.layout)
+        if problem is not None:
+            raise ValueError(problem)
+        return self
+
+    @model_validator(mode="after")
     def _roi_in_the_image(self) -> "CellConfig":
         cam = self.layout.camera
         self.vision.roi.check_inside(cam.width_px, cam.height_px)
@@ -154,6 +167,14 @@ class CellConfig(StrictModel):
             if problem is not None:
                 r = self.layout.opening.corner_radius_mm
                 raise ValueError(f"layout.opening.corner_radius_mm = {r:g} makes the arc the feature, but {problem}")
+        return self
+
+    @model_validator(mode="after")
+    def _gap_window_in_the_image(self) -> "CellConfig":
+        """The inspection's window along each edge (``[vision.gap]``) keeps the pixels it measures on in the image."""
+        problem = gap_window_problem(self)
+        if problem is not None:
+            raise ValueError(problem)
         return self
 
     @model_validator(mode="after")
@@ -182,9 +203,9 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="after")
     def _spots_fit_the_opening(self) -> "CellConfig":
-        """Each flush spot's glass reading on the glass, its wall reading on the wall (every recipe's view runs
-        it with its own opening; the alignment's spots a recipe keeps are checked with its views)."""
-        problem = spots_problem(self)
+        """The alignment's wall spots (or sweep) on the wall; each flush spot's glass reading on the glass, its
+        wall reading on the wall (every recipe's view runs it too, with its own opening and spots)."""
+        problem = align_spots_problem(self) or spots_problem(self)
         if problem is not None:
             raise ValueError(problem)
         return self
@@ -202,13 +223,9 @@ class CellConfig(StrictModel):
             if not recipe.overrides():
                 continue
             try:
-                views[recipe.name] = view = CellConfig.model_validate(self._recipe_data(recipe))
+                views[recipe.name] = CellConfig.model_validate(self._recipe_data(recipe))
             except ValidationError as err:
                 problems += [_recipe_problem(k, recipe, e) for e in err.errors() if not _twin_copy(recipe, e)]
-                continue
-            # the cell's alignment spots around another opening (the cell's own, in its opening, the alignment refuses)
-            if recipe.opening and not recipe.align and (why := align_spots_problem(view)) is not None:
-                problems.append(_recipe_problem(k, recipe, {"loc": (), "msg": why, "type": "value_error"}))
         if problems:
             raise ValueError("recipe settings that make no valid cell:\n    - " + "\n    - ".join(problems))
         return views
@@ -239,6 +256,17 @@ class CellConfig(StrictModel):
     def default_recipe(self) -> str:
         """The first recipe's name: a cycle that names none is one of these."""
         return self.process.recipes[0].name
+
+
+def _valid_layout_part(name: str, part: Any) -> bool:
+    """Whether ``[layout.<name>]`` as given (None: left out) is a valid table of its own."""
+    if not isinstance(part, dict):
+        return True  # left out (the defaults), or not a table: [layout]'s own check says so
+    try:
+        LayoutConfig.model_fields[name].annotation.model_validate(part)  # type: ignore[union-attr]
+    except ValidationError:
+        return False
+    return True
 
 
 def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
@@ -272,14 +300,27 @@ def _in_rounded_rect(x: float, y: float, left: float, right: float, top: float, 
 
 
 def align_spots_problem(config: CellConfig) -> str | None:
-    """Why an alignment spot (where the cycle reads the wall) lies in the opening of ``layout.opening``, or None."""
+    """Why a place where the alignment reads the wall (a spot, or a point of the sweep's path) lies in the opening
+    of ``layout.opening`` (T, mm), or None."""
     o, align = config.layout.opening, config.process.align
-    for k, (x, y) in enumerate(align.wall_spots_mm()):
-        if _in_rounded_rect(x, y, -o.width_mm, 0.0, 0.0, o.height_mm, o.corner_radius_mm):
-            which = f"[{k}]" if align.mode == "stop_and_go" else ""
-            return (f"{align.wall_setting()}{which} [{x:g}, {y:g}] lies in the opening ({o.width_mm:g} x {o.height_mm:g} "
-                    f"mm, corner radius {o.corner_radius_mm:g}), where the laser reads no wall; move it onto the wall")
+    stops, spots = align.wall_stops(), align.wall_spots_mm()
+    for k in sorted(range(len(spots)), key=lambda k: bool(stops) and k not in stops):  # a sweep's corners first
+        x, y = spots[k]
+        if not _in_rounded_rect(x, y, -o.width_mm, 0.0, 0.0, o.height_mm, o.corner_radius_mm):
+            continue
+        where = (f"{align.wall_setting()}[{k}] [{x:g}, {y:g}] lies" if not stops else
+                 f"{align.wall_setting()}[{stops.index(k)}] [{x:g}, {y:g}] lies" if k in stops else
+                 f"{align.wall_setting()}: the leg from corner {_leg_of(stops, k)} to {_leg_of(stops, k) + 1} passes "
+                 f"[{x:.0f}, {y:.0f}],")  # fmt: skip
+        return (f"{where} in the opening ({o.width_mm:g} x {o.height_mm:g} mm, corner radius {o.corner_radius_mm:g}: "
+                f"x in [{-o.width_mm:g}, 0], y in [0, {o.height_mm:g}] of T), where the laser reads no wall and the "
+                "cycle would fail; move it onto the wall (x > 0 or y < 0 of T, or beyond the opening's far sides)")
     return None
+
+
+def _leg_of(stops: tuple[int, ...], k: int) -> int:
+    """The leg (from corner j to j + 1) of a sweep's path that point ``k`` along it lies on."""
+    return max(j for j, s in enumerate(stops) if s < k)
 
 
 def spots_problem(config: CellConfig) -> str | None:

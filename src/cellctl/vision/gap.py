@@ -220,7 +220,11 @@ def measure_gaps(
                 raise GapRefused(
                     GapRefusal.EDGE_MISSING,
                     f"the {name} edge's straight part ({start:g} to {start + config.length_px:g} px from the template's "
-                    f"corner) has only {len(along)} px inside the image; is the camera at the shooting pose?",
+                    f"corner) has only {len(along)} px inside the image (vision.gap.border_margin_px = "
+                    f"{config.border_margin_px} from its border), fewer than vision.gap.cross_sections = "
+                    f"{config.cross_sections}: set vision.gap.start_px and length_px (a recipe's in its "
+                    "[process.recipes.vision.gap]) so the window lies in the image, or check that the camera stood at "
+                    "the shooting pose",
                 )
             prof, o_step, g_step = find_gap_steps(img, lens, name, seeds[name], along, config, feature, darker, gap_px_expected)
             profiles[name] = prof
@@ -255,7 +259,8 @@ def measure_gaps(
                 failed = [c for c in edge_checks if not c.passed]
                 if failed:
                     raise GapRefused(
-                        _as_gap_refusal(failed[0].refusal.value), f"the {which}'s {name} edge: refused: {failed[0].describe()}"
+                        _as_gap_refusal(failed[0].refusal.value),
+                        f"the {which}'s {name} edge: refused: {failed[0].describe()}{_points_hint(failed[0], config)}",
                     )
     except GapRefused as r:
         return GapMeasurement(
@@ -287,6 +292,15 @@ def _check_taught(
             f"at {prof.steps[k].offset_px:+.1f} px (from the template's line): the car body shows another edge than "
             "taught; teach the recipe again if it changed, or set [vision.feature]",
         )
+
+
+def _points_hint(check: Check, config: GapVisionConfig) -> str:
+    """For too few edge points: the settings of the window they are measured in (empty for other checks)."""
+    if not check.name.endswith("edge points"):
+        return ""
+    return (f" (vision.gap.min_points): the window vision.gap.start_px = {config.start_px:g}, length_px = "
+            f"{config.length_px:g} may run out of the image; set them (a recipe's in its [process.recipes.vision.gap]) "
+            "so it lies inside")
 
 
 def _as_gap_refusal(value: str) -> GapRefusal:
