@@ -11,35 +11,15 @@ import contextlib
 import os
 import sqlite3
 import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
 from urllib.parse import quote
 
 import httpx
-from service_test_support import AUTH, ROOT, TOKEN, free_port, running_service, sim_config, to_execute
+from service_test_support import AUTH, ROOT, TOKEN, running_service, served, sim_config, to_execute
 
-from cellctl.api.app import create_app
-from cellctl.service.compose import Service
-from cellctl.service.http import make_server
 
 IDS = ("8K0/845/201", ".", "..", "a%2Fb", "Ä/ü 1")
 DOTS = (".", "..")
-
-
-@contextlib.asynccontextmanager
-async def served(service: Service) -> AsyncIterator[str]:
-    """The service's REST API on a loopback port (as `cellctl serve` gives it)."""
-    port = free_port()
-    server = make_server(create_app(service.orchestrator, service.config.api, service.jobs), "127.0.0.1", port, lambda: None)
-    task = asyncio.create_task(server.serve())
-    try:
-        while not server.started:
-            assert not task.done(), "the HTTP server did not start"
-            await asyncio.sleep(0.02)
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        await task
 
 
 async def parts_show(url: str, part_id: str) -> tuple[int, str, str]:
@@ -114,9 +94,9 @@ async def test_every_recorded_part_id_is_found_by_rest_and_the_cli(tmp_path: Pat
 async def test_the_list_is_still_the_list_and_both_forms_are_documented(tmp_path: Path) -> None:
     async with running_service(tmp_path, sim_config(plc={"enabled": False})) as service, served(service) as url:
         async with httpx.AsyncClient(base_url=url, headers=AUTH) as client:
-            assert (await client.get("/parts")).json() == {"installs": [], "next": None}
+            assert (await client.get("/parts")).json() == {"installs": [], "next": None, "until": None}
             r = await client.get("/parts/", follow_redirects=True)  # not a glass with an empty id: the list, as before
-            assert r.status_code == 200 and r.json() == {"installs": [], "next": None}, r.text
+            assert r.status_code == 200 and r.json() == {"installs": [], "next": None, "until": None}, r.text
             schema = (await client.get("/openapi.json")).json()
     history = {"$ref": "#/components/schemas/PartHistory"}
     for path, where in (("/parts/{part_id}", "path"), ("/part-history", "query")):

@@ -199,3 +199,22 @@ def truth_values(cal: Any, recipe: str) -> dict[str, dict[str, Any]]:
                      "top_angle_d": angle(t.top_angle_rad), "right_angle_d": angle(t.right_angle_rad)},
         "pixel_map": {"affine": m.matrix.tolist(), "scale_mm_per_px": float(np.sqrt(abs(np.linalg.det(m.matrix[:, :2]))))},
     }  # fmt: skip
+
+
+@contextlib.asynccontextmanager
+async def served(service: Service) -> AsyncIterator[str]:
+    """The service's REST API on a loopback port, as `cellctl serve` gives it (for a CLI in a subprocess)."""
+    from cellctl.api.app import create_app
+    from cellctl.service.http import make_server
+
+    port = free_port()
+    server = make_server(create_app(service.orchestrator, service.config.api, service.jobs), "127.0.0.1", port, lambda: None)
+    task = asyncio.create_task(server.serve())
+    try:
+        while not server.started:
+            assert not task.done(), "the HTTP server did not start"
+            await asyncio.sleep(0.02)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        await task

@@ -12,27 +12,23 @@ as the real ``cellctl`` in a subprocess, against the same service on a loopback 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hashlib
 import json
 import os
 import sys
-from collections.abc import AsyncIterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
-from service_test_support import AUTH, TOKEN, api_client, free_port, running_service, to_execute
+from service_test_support import AUTH, TOKEN, api_client, running_service, served, to_execute
 
-from cellctl.api.app import create_app
 from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
 from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.domain import CycleStep
 from cellctl.service.compose import Service
-from cellctl.service.http import make_server
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = "side-window"
@@ -93,22 +89,6 @@ async def install_held_by_the_operator(service: Service, client: httpx.AsyncClie
     record = await service.orchestrator.wait_cycle(cid, 30)
     assert record.state.value == "failed" and record.error and record.error.startswith("stopped"), record
     return cid
-
-
-@contextlib.asynccontextmanager
-async def served(service: Service) -> AsyncIterator[str]:
-    """The service's REST API on a loopback port (for the CLI in a subprocess)."""
-    port = free_port()
-    server = make_server(create_app(service.orchestrator, service.config.api, service.jobs), "127.0.0.1", port, lambda: None)
-    task = asyncio.create_task(server.serve())
-    try:
-        while not server.started:
-            assert not task.done(), "the HTTP server did not start"
-            await asyncio.sleep(0.02)
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        await task
 
 
 async def cellctl(url: str, *args: str) -> tuple[int, str, str]:
@@ -234,7 +214,7 @@ async def test_bad_part_queries_are_refused_naming_the_field(tmp_path: Path) -> 
                 assert name in r.json()["detail"], (params, r.json())
         r = await client.get("/parts/G-none")
         assert r.status_code == 404 and "G-none" in r.json()["detail"]
-        assert (await client.get("/parts", params={"since": "2026-03-01T06:00:00+01:00"})).json() == {"installs": [], "next": None}
+        assert (await client.get("/parts", params={"since": "2026-03-01T06:00:00+01:00"})).json() == {"installs": [], "next": None, "until": None}
         schema = (await client.get("/openapi.json")).json()
         assert schema["paths"]["/parts"]["get"]["responses"]["200"]["content"]["application/json"]["schema"] == {
             "$ref": "#/components/schemas/PartsPage"

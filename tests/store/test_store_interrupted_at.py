@@ -130,6 +130,7 @@ def test_the_shift_counts_take_the_cut_off_and_an_export_window_the_found_time_o
     clock.now = FOUND
     with CellStore.open(db, clock=clock) as store:
         store.recover()
+        clock.now = datetime(2026, 3, 2, 14, 0, 1, tzinfo=timezone.utc)  # the morning shift is over: its window is whole
         night = (late[1], datetime(2026, 3, 2, 6, 0, tzinfo=timezone.utc))
         morning = (night[1], datetime(2026, 3, 2, 14, 0, tzinfo=timezone.utc))
         listed = {w: [i.record.id for i in store.part_installs(since=w[0], until=w[1]).installs] for w in (late, night, morning)}
