@@ -133,10 +133,9 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @reads.get("/calibration", response_model=CalibrationView, response_model_exclude_unset=True)
     async def get_calibration() -> CalibrationView:
         versions = await asyncio.to_thread(orch.calibration.history)
-        current = orch.calibration.summary()
-        for name, recipe in (current.get("recipes") or {}).items():  # a source may leave them out (the oracle: never any)
-            recipe.setdefault("problems", orch.calibration.problems(name))
-        return CalibrationView.model_validate({"current": current, "problems": orch.calibration.problems(), "versions": versions})
+        return CalibrationView.model_validate(
+            {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
+        )
 
     @reads.get(
         "/events", response_class=StreamingResponse,

@@ -171,7 +171,7 @@ class OracleCalibrationSource:
     def summary(self) -> dict[str, Any]:
         first = self._cals.get(self._config.default_recipe)
         return {"source": "twin truth (oracle)", "template_px": None if first is None else [first.template.u_px, first.template.v_px],
-                "recipes": {r.name: {"ready": True, "taught": True} for r in self._config.process.recipes}}  # fmt: skip
+                "recipes": {r.name: {"ready": True, "taught": True, "problems": []} for r in self._config.process.recipes}}  # fmt: skip
 
     def history(self) -> list[dict[str, Any]]:
         return []
