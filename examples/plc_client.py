@@ -2,12 +2,14 @@
 then cycles by the four-way handshake, printing each result. The same handshake as the IEC 61131-3
 program beside it (examples/plc_handshake.st); addresses, types and bits are docs/plc_register_map.md's.
 
-    python examples/plc_client.py --host 127.0.0.1 --port 5020 --recipe 1 --part 4711 --cycles 2
+    python examples/plc_client.py --host 127.0.0.1 --port 5020 --recipe 1 --part 4711 --car-body 30117 --cycles 2
 
 The cell is the Modbus TCP server; this is the client, as the PLC is. It needs only pymodbus
 (``pip install pymodbus``). Each cycle gets a new nonzero ``cycle_req_id`` (a real PLC keeps its
 counter in retained memory: the cell never runs an id twice, and answers a repeated id with that
-id's stored result and ``replayed`` = 1). Exit status 0 when every cycle ended ``ok``.
+id's stored result and ``replayed`` = 1). A ``done`` with ``error_code`` 901-904 (the interface's own codes)
+is no result: the cycle may still be queued or running, so the client asks again with the same id until the
+real result comes. Exit status 0 when every cycle ended ``ok``.
 """
 
 from __future__ import annotations
@@ -25,14 +27,15 @@ from pymodbus.client import AsyncModbusTcpClient
 # -- the register map (docs/plc_register_map.md, map version 1.x) ---------------------------------
 MAP_MAJOR = 1
 PLC_HEARTBEAT, CNTRL_CMD, CMD_CHANGE_REQUEST = 0, 1, 2  # PLC block, 0-31: written by the PLC
-RECIPE_ID, PART_ID, CYCLE_REQ_ID, CYCLE_REQUEST = 5, 6, 8, 10  # part_id, cycle_req_id: uint32 (two words)
+RECIPE_ID, PART_ID, CYCLE_REQ_ID, CYCLE_REQUEST, CAR_BODY_ID = 5, 6, 8, 10, 11  # part, req, car body: uint32
 CELL_START, CELL_SIZE = 100, 64  # cell block, 100-163: written by the cell, read in one FC3 request
 CELL_UINT16 = {
     "map_version_major": 100, "cell_heartbeat": 102, "state_current": 103, "cycle_step": 105, "stop_reason_id": 106,
     "cycle_flags": 107, "result_recipe_id": 114, "error_code": 115, "cmd_ack": 130, "cmd_ack_cmd": 131,
     "cmd_result": 132, "inspection_status": 137,
 }  # fmt: skip
-CELL_UINT32 = {"cycle_ack_id": 108, "result_req_id": 110, "result_part_id": 112, "cycle_time_ms": 128}
+CELL_UINT32 = {"cycle_ack_id": 108, "result_req_id": 110, "result_part_id": 112, "cycle_time_ms": 128,
+               "result_car_body_id": 150}
 CELL_FLOAT32 = {
     "dx_mm": 116, "dy_mm": 118, "dz_mm": 120, "drx_deg": 122, "dry_deg": 124, "drz_deg": 126,
     "meas_dx_mm": 138, "meas_dy_mm": 140, "meas_dz_mm": 142, "meas_drx_deg": 144, "meas_dry_deg": 146, "meas_drz_deg": 148,
@@ -45,7 +48,9 @@ RESET, START, UNHOLD, CLEAR = 1, 2, 5, 9
 STOPPED, IDLE, EXECUTE, ABORTED, HELD = 2, 4, 6, 9, 11
 ACTING = {1, 3, 7, 8, 10, 12, 13, 14, 15, 16}  # clearing, starting, stopping, ..., completing
 TO_EXECUTE = {ABORTED: [CLEAR, RESET, START], STOPPED: [RESET, START], IDLE: [START], HELD: [UNHOLD], EXECUTE: []}
-CMD_RESULTS = {0: "accepted", 1: "invalid in state", 2: "busy", 3: "bad parameter", 4: "no answer"}
+CMD_RESULTS = {0: "accepted", 1: "invalid in state", 2: "busy", 3: "bad parameter", 4: "no answer", 5: "blocked"}
+# error_code values that are no result ("Stored: no"): the cycle may still be queued or running; ask the same id again
+NOT_RESULTS = {901: "cycle_req_id_zero", 902: "cell_no_answer", 903: "result_timeout", 904: "cell_bad_answer"}
 
 
 class HandshakeError(RuntimeError):
@@ -130,15 +135,29 @@ class Plc:
                 raise HandshakeError(f"command {cmd} answered {result} ({CMD_RESULTS.get(result, '?')}); stop reason "
                                      f"{(await self.read_cell())['stop_reason_id']}")  # fmt: skip
 
-    async def cycle(self, req_id: int, recipe_id: int, part_id: int, timeout_s: float) -> dict[str, Any]:
-        """The four-way cycle handshake; returns the cell block as read at ``done``."""
+    async def cycle(self, req_id: int, recipe_id: int, part_id: int, timeout_s: float,
+                    car_body_id: int = 0) -> dict[str, Any]:
+        """The four-way cycle handshake; returns the cell block as read at the ``done`` with this id's result.
+        A ``done`` with error_code 901-904 is none: drop the request, wait until ``done`` clears and ask again
+        with the same id (busy while its cycle is queued or runs, at once replayed if it has ended). Never a
+        new id for it: that would run a second cycle. ``timeout_s`` is for each asking, from request to done."""
+        if not 0 < req_id <= 0xFFFFFFFF:
+            raise HandshakeError(f"cycle_req_id {req_id}: give each cycle a nonzero uint32 id")
         await self.wait("ready", lambda c: c["ready"])
-        # recipe_id (5), part_id (6-7), cycle_req_id (8-9) and cycle_request (10) are contiguous: one FC16 write
-        await self.write(RECIPE_ID, [recipe_id, *self._words(part_id), *self._words(req_id), 1])
-        done = await self.wait(f"done of cycle {req_id}", lambda c: c["done"] and c["cycle_ack_id"] == req_id, timeout_s)
-        await self.write(CYCLE_REQUEST, [0])
-        await self.wait("done cleared", lambda c: not c["done"])
-        return done
+        while True:
+            # recipe_id (5), part_id (6-7), cycle_req_id (8-9), cycle_request (10) and car_body_id (11-12) are
+            # contiguous: one FC16 write (car_body_id 0 when none is given, never what an earlier client left)
+            await self.write(RECIPE_ID, [recipe_id, *self._words(part_id), *self._words(req_id), 1,
+                                         *self._words(car_body_id)])
+            done = await self.wait(f"done of cycle {req_id}", lambda c: c["done"] and c["cycle_ack_id"] == req_id,
+                                   timeout_s)
+            await self.write(CYCLE_REQUEST, [0])
+            await self.wait("done cleared", lambda c: not c["done"])
+            code = done["error_code"]
+            if code not in NOT_RESULTS:
+                return done
+            print(f"warning: cycle_req_id {req_id}: error_code {code} ({NOT_RESULTS[code]}) is no result; "
+                  "asking the cell again with the same id", file=sys.stderr, flush=True)
 
 
 def report(done: dict[str, Any]) -> str:
@@ -150,6 +169,8 @@ def report(done: dict[str, Any]) -> str:
     if done["inspection_status"]:
         text += (f"; measured {done['meas_dx_mm']:+.3f} {done['meas_dy_mm']:+.3f} {done['meas_dz_mm']:+.3f} mm "
                  f"({'within' if done['inspection_status'] == 1 else 'outside'} the tolerance)")  # fmt: skip
+    if done["result_car_body_id"]:
+        text += f"; car body {done['result_car_body_id']}"
     return text
 
 
@@ -170,7 +191,8 @@ async def main(args: argparse.Namespace) -> int:
         req_id = args.req_id or int(time.time()) & 0x7FFFFFFF  # new and nonzero; a PLC keeps a retained counter
         all_ok = True
         for n in range(args.cycles):
-            done = await plc.cycle(req_id + n, args.recipe, args.part + n, args.cycle_timeout)
+            car_body = args.car_body + n if args.car_body else 0
+            done = await plc.cycle(req_id + n, args.recipe, args.part + n, args.cycle_timeout, car_body)
             print(report(done), flush=True)
             all_ok = all_ok and bool(done["ok"])
         return 0 if all_ok else 1
@@ -192,11 +214,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--word-order", choices=("big", "little"), default="big", help="[plc] float_word_order")
     p.add_argument("--recipe", type=int, default=1, help="an id of the cell's [[process.recipes]]")
     p.add_argument("--part", type=int, default=1, help="part_id of the first cycle (the next ones count up)")
+    p.add_argument("--car-body", type=int, default=0,
+                   help="car_body_id of the first cycle (the next ones count up); 0: none given")
     p.add_argument("--cycles", type=int, default=1)
     p.add_argument("--req-id", type=int, default=0, help="cycle_req_id of the first cycle (default: from the clock)")
     p.add_argument("--heartbeat-period", type=float, default=0.5, help="s; at most heartbeat_timeout_s / 5")
     p.add_argument("--timeout", type=float, default=15.0, help="s for each command handshake step")
-    p.add_argument("--cycle-timeout", type=float, default=300.0, help="s from the request to done")
+    p.add_argument("--cycle-timeout", type=float, default=300.0,
+                   help="s from the request (and from each asking again) to done")
     return p.parse_args(argv)
 
 
