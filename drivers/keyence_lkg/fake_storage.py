@@ -7,6 +7,7 @@ then (keyence_lkg.fake_commands.TimedSource, as the twin can), exactly as the co
 would; from any other source when the thread gets there (on a busy host, late: how often is
 :attr:`StorageState.late`); ``AP`` stops, ``AN`` tells whether it still
 stores and how many it holds, ``AO,<OUT>`` sends them in one line (refused while storing).
+A wrong argument count is refused with 21 / 61, a bad or unstored OUT with 22 / 62 (keyence_lkg.md A6).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from keyence_lkg.errors import PARAMETER_ERROR, STATUS_ERROR, Dialect
+from keyence_lkg.errors import PARAMETER_COUNT_ERROR, PARAMETER_ERROR, STATUS_ERROR, Dialect
 from keyence_lkg.storage import SAMPLING_CYCLE_US, STORAGE_MULTIPLIERS
 from keyence_lkg.units import NO_VALUE
 
@@ -72,7 +73,7 @@ class StorageCommands:
 
     def _aq(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
         if params:
-            raise Refuse(PARAMETER_ERROR[self.dialect])
+            raise Refuse(PARAMETER_COUNT_ERROR[self.dialect])
         if self.storage.storing:
             raise Refuse(STATUS_ERROR[self.dialect])
         self.storage = StorageState()
@@ -80,7 +81,7 @@ class StorageCommands:
 
     def _as(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
         if params:
-            raise Refuse(PARAMETER_ERROR[self.dialect])
+            raise Refuse(PARAMETER_COUNT_ERROR[self.dialect])
         outs, cycle_s, count = self._storage_setup()
         if not outs or count < 1:
             raise Refuse(STATUS_ERROR[self.dialect])  # no OUT to store
@@ -90,18 +91,20 @@ class StorageCommands:
 
     def _ap(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
         if params:
-            raise Refuse(PARAMETER_ERROR[self.dialect])
+            raise Refuse(PARAMETER_COUNT_ERROR[self.dialect])
         self.storage.storing = False
         return "AP", ()
 
     def _an(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
         if params:
-            raise Refuse(PARAMETER_ERROR[self.dialect])
+            raise Refuse(PARAMETER_COUNT_ERROR[self.dialect])
         return f"AN,{int(self.storage.storing)},{self.storage.taken}", ()
 
     def _ao(self, main: str, params: list[str]) -> tuple[str, tuple[float | None, ...]]:
-        if len(params) != 1 or not params[0].isdigit():
-            raise Refuse(PARAMETER_ERROR[self.dialect])
+        if len(params) != 1:
+            raise Refuse(PARAMETER_COUNT_ERROR[self.dialect])  # wrong argument count: 21 / 61
+        if not params[0].isdigit():
+            raise Refuse(PARAMETER_ERROR[self.dialect])  # bad value: 22 / 62
         if self.storage.storing:
             raise Refuse(STATUS_ERROR[self.dialect])
         tokens = self.storage.values.get(int(params[0]))

@@ -1,10 +1,11 @@
 """The robot side of EGM in the fake controller: a pose-mode session like ``EGMRunPose``.
 
 While a session runs, a dedicated thread sends an ``EgmRobot`` datagram every ``period_s``
-(4 ms) from its own UDP socket to the sensor's address, with seqno counting from 0, ``tm`` and
-``feedBack.time`` on the controller's uptime clock (the position stream's, one clock as on a
-controller), the TCP pose (current tool, work object) as feedback, the
-reference in use as planned pose, and motor, MCI and RAPID states. Between two sends it drains
+(4 ms) from its own UDP socket to the sensor's address, with seqno counting from 0, ``tm`` on the
+controller's uptime clock (the position stream's, one clock as on a controller), ``feedBack.time``
+and ``planned.time`` the wall clock at the same instant (UNIX s and us, as egm.proto defines
+``EgmClock``), the TCP pose (current tool, work object) as feedback, the reference in use as
+planned pose, and motor, MCI and RAPID states. Between two sends it drains
 the ``EgmSensor`` replies and keeps the newest reference. The robot follows the reference after
 a dead time, as a first-order lag limited in speed; without new replies it holds the last
 reference (without repeatability noise: EGM converges on the controller's own measurement of
@@ -41,7 +42,7 @@ import numpy as np
 from abb_robot import unit_quaternion
 from abb_robot.egm import egm_pb2 as pb
 from abb_robot.egm.peer_core import set_realtime_priority
-from abb_robot.fake.egm_stream import StreamRunner
+from abb_robot.fake.egm_stream import StreamRunner, egm_clock
 from abb_robot.fake.model import rot_x, rot_y, rot_z
 from abb_robot.fake.robot import FakeRobot, interpolate
 from cellctl.ports import CartesianPose
@@ -324,9 +325,9 @@ class EgmRobotSide:
                 joints = robot.model.joints(current)
             except ValueError:
                 pass  # noise put the pose a hair past a limit: report the last joints
-            uptime_s = self.stream.clock.ms(time.monotonic()) / 1000.0  # one controller clock for sessions and streams
+            clock, t_now = self.stream.clock, time.monotonic()  # one controller clock for sessions and streams
             msg = _robot_message(
-                seq, uptime_s, uptime_s, tcp, joints,
+                seq, clock.ms(t_now) / 1000.0, clock.epoch_s(t_now), tcp, joints,
                 active_ref or tcp, robot.motors_on, mci, converged, min(100.0, 100.0 * speed / dyn.max_speed_mm_s),
             )
             data = msg.SerializeToString()
@@ -429,17 +430,16 @@ def _robot_message(
     seq: int, t_s: float, wall_s: float, tcp: CartesianPose, joints_rad: tuple[float, ...], planned: CartesianPose,
     motors_on: bool, mci: int, converged: bool, utilization: float,
 ) -> pb.EgmRobot:
+    """One session datagram: ``t_s`` the uptime (s) for ``tm``, ``wall_s`` the wall clock (UNIX s) for ``EgmClock``."""
     msg = pb.EgmRobot()
     msg.header.seqno = seq
     msg.header.tm = int(t_s * 1000.0) & 0xFFFFFFFF
     msg.header.mtype = pb.EgmHeader.MSGTYPE_DATA
     _fill_pose(msg.feedBack.cartesian, tcp)
     msg.feedBack.joints.joints.extend(math.degrees(j) for j in joints_rad)
-    msg.feedBack.time.sec = int(wall_s)
-    msg.feedBack.time.usec = int((wall_s - int(wall_s)) * 1e6)
+    msg.feedBack.time.sec, msg.feedBack.time.usec = egm_clock(wall_s)
     _fill_pose(msg.planned.cartesian, planned)
-    msg.planned.time.sec = int(wall_s)
-    msg.planned.time.usec = int((wall_s - int(wall_s)) * 1e6)
+    msg.planned.time.sec, msg.planned.time.usec = egm_clock(wall_s)
     msg.motorState.state = pb.EgmMotorState.MOTORS_ON if motors_on else pb.EgmMotorState.MOTORS_OFF
     msg.mciState.state = mci
     msg.mciConvergenceMet = converged

@@ -1,14 +1,15 @@
 """The robot side of EGM's Position Stream in the fake controller (``EGMStreamStart`` / ``EGMStreamStop``).
 
 While a stream runs, the EGM thread sends an ``EgmRobot`` every ``period_s`` (4 ms) to the sensor's
-address and reads nothing back: seqno from 0, ``header.tm`` and ``feedBack.time`` on the
-controller's uptime-like clock (ms, wrapping at 2**32; not UNIX time), the TCP pose in the current
-tool and work object as feedback and planned pose (taken from :meth:`FakeRobot.tcp`, so a running
-RAPID move shows), motor, MCI (stopped: no guidance runs) and RAPID states. The samples lie on the
-controller's 4 ms grid of whole milliseconds; each is stamped with the whole millisecond nearest to
-the instant its pose was read, which is the grid's when the thread wakes on time (a sample read
-late skips the grid ticks it overran, so no ``tm`` comes twice). Instants are ``time.monotonic``,
-the fake robot's clock.
+address and reads nothing back: seqno from 0, ``header.tm`` on the controller's uptime-like clock
+(ms, wrapping at 2**32; not UNIX time), ``feedBack.time`` and ``planned.time`` (``EgmClock``) the
+wall clock at the instant ``tm`` names (s and us since 1 Jan 1970, as egm.proto defines it: the
+host's ``time.time``), the TCP pose in the current tool and work object as feedback and planned
+pose (taken from :meth:`FakeRobot.tcp`, so a running RAPID move shows), motor, MCI (stopped: no
+guidance runs) and RAPID states. The samples lie on the controller's 4 ms grid of whole
+milliseconds; each is stamped with the whole millisecond nearest to the instant its pose was
+read, which is the grid's when the thread wakes on time (a sample read late skips the grid ticks
+it overran, so no ``tm`` comes twice). Instants are ``time.monotonic``, the fake robot's clock.
 
 Faults for tests: a seeded share of the datagrams dropped (``egm_loss_out``), each datagram
 leaving up to ``egm_stream_jitter_s`` after its sample (seeded, uniform), and
@@ -39,7 +40,8 @@ SAMPLE_WINDOW_S = 0.0002
 
 
 class UptimeClock:
-    """The controller's ms clock: ``tm`` (u32 ms) and ``feedBack.time`` (s) as functions of ``time.monotonic``.
+    """The controller's clocks as functions of ``time.monotonic``: the uptime ``tm`` (u32 ms) and the wall
+    clock of ``EgmClock`` (UNIX s, the host's ``time.time``).
 
     Args:
         start_ms: the clock's reading (ms) at construction.
@@ -55,6 +57,22 @@ class UptimeClock:
     def at_ms(self, ms: float) -> float:
         """The monotonic time (s) at which the clock reads ``ms``."""
         return self.boot + ms / 1000.0
+
+    def epoch_s(self, t: float) -> float:
+        """The wall clock at monotonic time ``t`` (UNIX s): ``time.time()`` read now, carried back to ``t``."""
+        for _ in range(3):  # a thread switch between the reads is retried (the offset within 0.2 ms)
+            m0 = time.monotonic()
+            wall = time.time()
+            m1 = time.monotonic()
+            if m1 - m0 < SAMPLE_WINDOW_S:
+                break
+        return wall + t - 0.5 * (m0 + m1)
+
+
+def egm_clock(wall_s: float) -> tuple[int, int]:
+    """``EgmClock`` (sec, usec) of a UNIX time (s), to the nearest microsecond."""
+    sec, usec = divmod(round(wall_s * 1e6), 1_000_000)
+    return sec, usec
 
 
 @dataclass
@@ -195,7 +213,8 @@ def run_stream(
             pass  # a pose a hair past a limit: report the last joints
         ms = round(clock.ms(t))
         msg = pb.EgmRobot()  # a new one each time: a cleared upb message keeps what it held in its arena
-        _fill(msg, seq, ms, tcp.position_mm, tcp.quaternion_wxyz, joints, robot.motors_on)
+        wall_s = clock.epoch_s(clock.at_ms(ms))  # the instant tm names, on the wall clock
+        _fill(msg, seq, ms, wall_s, tcp.position_mm, tcp.quaternion_wxyz, joints, robot.motors_on)
         stats.seqnos.append(seq)
         stats.tm.append(ms & 0xFFFFFFFF)
         stats.sampled_at.append(t)
@@ -228,19 +247,20 @@ def run_stream(
 
 
 def _fill(
-    msg: pb.EgmRobot, seq: int, ms: int, pos: tuple[float, float, float], q: tuple[float, float, float, float],
-    joints_rad: tuple[float, ...], motors_on: bool,
+    msg: pb.EgmRobot, seq: int, ms: int, wall_s: float, pos: tuple[float, float, float],
+    q: tuple[float, float, float, float], joints_rad: tuple[float, ...], motors_on: bool,
 ) -> None:
+    """One stream datagram: ``ms`` the uptime stamp (ms), ``wall_s`` the wall clock at that instant (UNIX s)."""
     msg.header.seqno = seq
     msg.header.tm = ms & 0xFFFFFFFF
     msg.header.mtype = pb.EgmHeader.MSGTYPE_DATA
-    sec, msec = divmod(ms, 1000)
+    sec, usec = egm_clock(wall_s)
     for part in (msg.feedBack, msg.planned):  # the fake's servo has no lag: planned = measured
         c = part.cartesian
         c.pos.x, c.pos.y, c.pos.z = pos
         c.orient.u0, c.orient.u1, c.orient.u2, c.orient.u3 = q
         part.joints.joints.extend(math.degrees(j) for j in joints_rad)
-        part.time.sec, part.time.usec = sec, msec * 1000
+        part.time.sec, part.time.usec = sec, usec
     msg.motorState.state = pb.EgmMotorState.MOTORS_ON if motors_on else pb.EgmMotorState.MOTORS_OFF
     msg.mciState.state = pb.EgmMCIState.MCI_STOPPED
     msg.rapidExecState.state = pb.EgmRapidCtrlExecState.RAPID_RUNNING
