@@ -160,3 +160,54 @@ async def test_a_cycle_stopped_before_its_first_step_waits_for_the_unhold_or_end
         assert await _command(client, "abort") == "ABORTED"
         rec = await service.store.cycle(other)
         assert rec.state.value == "failed" and rec.error is not None and rec.error.startswith("not started")
+
+
+async def test_complete_waits_for_the_queued_cycles_too_and_each_of_them_runs(tmp_path: Path) -> None:
+    """The MES queues two installs, then asks for Complete until it is taken: never while one still waits its turn
+    (it would wait in the queue of a Complete cell, then start by itself after the next Reset and Start)."""
+    async with running_service(tmp_path, sim_config(plc={"enabled": False})) as service, api_client(service) as client:
+        a, b = await _one_running_one_queued(service, client)
+        slow_moves(service, 1.0 / 30.0)
+        refusals: list[str] = []
+        while (r := await client.post("/commands/complete", headers=AUTH)).status_code != 200:
+            assert r.status_code == 409, r.text
+            refusals.append(r.json()["detail"])
+            await asyncio.sleep(0.002)
+        assert any(f"queued cycles {b}" in why for why in refusals), refusals[-3:]
+        await _until("the cell is Complete", lambda: _in_state(client, "COMPLETE"))
+        recs = [(await client.get(f"/cycles/{c}")).json() for c in (a, b)]
+        assert [r["state"] for r in recs] == ["done", "done"], recs
+        assert (await client.get("/status")).json()["queued_cycles"] == 0
+
+
+async def test_a_request_stored_as_a_stop_comes_is_dropped_at_once_not_left_queued(tmp_path: Path) -> None:
+    async with running_service(tmp_path, sim_config(plc={"enabled": False})) as service, api_client(service) as client:
+        orch = service.orchestrator
+        await to_execute(client)
+        submit = orch.store.submit_cycle
+
+        async def stop_meanwhile(*args: Any, **kwargs: Any) -> Any:  # the Stop lands while the request is stored
+            stopping = asyncio.create_task(client.post("/commands/stop", headers=AUTH))
+            await _until("the cell leaves Execute", lambda: _left_execute(client))
+            result = await submit(*args, **kwargs)
+            await stopping
+            return result
+
+        orch.store.submit_cycle = stop_meanwhile  # type: ignore[method-assign]
+        cid = await _submit(client, "late")
+        orch.store.submit_cycle = submit  # type: ignore[method-assign]
+        rec = (await client.get(f"/cycles/{cid}")).json()
+        assert rec["state"] == "failed" and "not started" in rec["error"], rec
+        assert (await client.get("/status")).json()["queued_cycles"] == 0
+        for cmd in ("reset", "start"):
+            await _command(client, cmd)
+        await asyncio.sleep(1.0)
+        assert (await client.get(f"/cycles/{cid}")).json()["started_at"] is None  # never started by itself later
+
+
+async def _left_execute(client: Any) -> bool:
+    return (await client.get("/status")).json()["state"] != "EXECUTE"
+
+
+async def _in_state(client: Any, state: str) -> bool:
+    return bool((await client.get("/status")).json()["state"] == state)

@@ -65,7 +65,9 @@ _ACTING = {
 # Entering these stops a running cycle (and the robot).
 _STOP_CYCLE = {PackMLState.STOPPING, PackMLState.ABORTING, PackMLState.HOLDING, PackMLState.SUSPENDING}
 # Entering these also ends the cycles queued behind it: production ends here, a Hold or Suspend only pauses it.
-_DROP_QUEUED = {PackMLState.STOPPING, PackMLState.ABORTING}
+_DROP_QUEUED = {PackMLState.STOPPING, PackMLState.ABORTING, PackMLState.COMPLETING}
+_KEEP_QUEUED = {PackMLState.EXECUTE, *_STOP_CYCLE, PackMLState.HELD, PackMLState.UNHOLDING, PackMLState.SUSPENDED,
+                PackMLState.UNSUSPENDING} - _DROP_QUEUED  # a request stored as the cell left these is dropped at once
 
 
 def _commands_view(st: MachineStatus) -> dict[str, Any]:
@@ -135,22 +137,20 @@ class CellOrchestrator:
         machine.add_guard(PackMLCommand.COMPLETE, self._complete_guard)
 
     def _complete_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
-        """Complete ends production in a wait state: not while a cycle still moves the robot."""
-        if self._busy is None:
-            return None
-        return f"cycle {self._busy} is running: Complete once it has ended, or Stop or Hold it first"
+        """Complete ends production in a wait state: not while a cycle still moves the robot or waits its turn."""
+        if self._busy is not None:
+            return f"cycle {self._busy} is running: Complete once it has ended, or Stop or Hold it first"
+        if self._pending:
+            return f"queued cycles {', '.join(map(str, self._pending))}: Complete once they have ended, or Stop to drop them"
+        return None
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
         self._status_parts[name] = part
 
     def note_link(self, name: str, state: str, **details: float) -> None:
-        """A link outside the devices (the PLC) reports its state, for /status and the dashboard.
-
-        The state is kept with the time it was reported (``since_utc``) and any figures given
-        (e.g. ``silent_for_s`` when the PLC's heartbeat stopped), so a page opened later sees
-        what an event would have told it.
-        """
+        """A link outside the devices (the PLC) reports its state for /status and the dashboard, kept with its time
+        (``since_utc``) and figures (e.g. ``silent_for_s``), so a page opened later sees what an event told."""
         report: dict[str, Any] = {"link": state, "since_utc": datetime.now(timezone.utc).isoformat(), **details}
         self._links[name] = report
         self.events.publish(name, report)
@@ -178,12 +178,9 @@ class CellOrchestrator:
             await self.watchdog.start()
 
     async def stop(self) -> None:
-        """Stop background work. A running cycle is left as it is (the next start marks it interrupted).
-
-        The worker and its cycle are cancelled once and waited for: the cycle's shielded clean-up
-        (the sweep's stream and laser storage, the stopped cycle's record) runs to its end, its events
-        still pumped. A second cancel would cut that clean-up loose; the service bounds this wait.
-        """
+        """Stop background work; a running cycle is left as it is (the next start marks it interrupted). The worker and
+        its cycle are cancelled once and waited for: the cycle's shielded clean-up (the sweep's stream and laser storage,
+        its record) runs to its end, its events pumped (a second cancel would cut it loose; the service bounds the wait)."""
         if self.watchdog is not None:
             await self.watchdog.stop()
         if self._cycle_task is not None:
@@ -296,6 +293,8 @@ class CellOrchestrator:
             self._pending.append(result.cycle.id)
             self._kick()
             self.events.publish("cycle", {"cycle_id": result.cycle.id, "state": "queued", "part_id": request.part_id})
+            if (state := self.machine.state) not in _KEEP_QUEUED:  # a Stop, Abort or Complete came while it was stored
+                await self._drop_queued(f"the cell went to {state.name.lower()} before it began")
         return result
 
     async def wait_cycle(self, cycle_id: int, timeout_s: float) -> CycleRecord:
