@@ -24,6 +24,7 @@ from abb_robot.settings import AbbRobotSettings
 from abb_robot.verbs import RobotVerbs
 from cellctl.ports import (
     CartesianPose,
+    DeviceDisconnected,
     DeviceProtocolError,
     DeviceRejected,
     DeviceTimeout,
@@ -32,13 +33,18 @@ from cellctl.ports import (
 
 
 def egm_peer_for(settings: AbbRobotSettings, name: str) -> EgmPeer | None:
-    """The sensor-side EGM peer the settings ask for (None when ``egm_port`` is None)."""
+    """The sensor-side EGM peer the settings ask for (None when ``egm_port`` is None).
+
+    It prefers the controller's address (``host``): its datagrams are taken whoever else sent first; a
+    sender at another address (NAT, a name resolving elsewhere) is taken while the controller is not heard.
+    """
     if settings.egm_port is None:
         return None
     return EgmPeer(
         EgmPeerSettings(
             port=settings.egm_port,
             bind_host=settings.egm_bind_host,
+            preferred_host=settings.host,
             max_rate_hz=settings.egm_max_rate_hz,
             receive_timeout_s=settings.egm_receive_timeout_s,
             settle_cycles=settings.egm_settle_cycles,
@@ -203,6 +209,10 @@ class EgmSession:
         assert peer is not None
         t_ack = time.monotonic()
         while not final.done():
+            died = peer.died()
+            if died is not None:
+                await self.link.stop_quietly()
+                raise DeviceDisconnected(self.name, f"EGM correction stopped: {died}; the next EGM use starts it again")
             snap = peer.snapshot()
             now = time.monotonic()
             if snap.session > session_before and snap.received_at is not None:

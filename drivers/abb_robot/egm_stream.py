@@ -35,9 +35,16 @@ import numpy as np
 
 from abb_robot import protocol as P
 from abb_robot.egm.peer import EgmPeer
-from abb_robot.egm.peer_core import F_FB_TIME, F_GEN, F_POS, F_QUAT, F_RX, F_SEQNO, F_TM, STREAM_WIDTH
+from abb_robot.egm.peer_core import F_FB_TIME, F_GEN, F_POS, F_QUAT, F_RX, F_SEQNO, F_SRC, F_TM, STREAM_WIDTH
 from abb_robot.link import RapidLink, deadline_in
-from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceProtocolError, DeviceRejected, PoseSample
+from cellctl.ports import (
+    CartesianPose,
+    DeviceDisconnected,
+    DeviceProtocolError,
+    DeviceRejected,
+    DeviceTimeout,
+    PoseSample,
+)
 
 MAX_SAMPLES = 262_144
 """A stream keeps its newest samples, at most this many (about 17 min at 4 ms)."""
@@ -70,6 +77,8 @@ class PoseStreamStats:
             the last one received cannot be seen).
         gap_events: gaps of one or more datagrams.
         overwritten: datagrams the peer's ring dropped before they were read.
+        other_sender: datagrams dropped because they came from a sender the peer was locked onto before
+            the controller took the lock (a stray one: not this robot's poses).
         stamp: what timed the samples: "tm", "feedBack.time" or "receive".
         offset_s: host ``time.monotonic`` minus controller time at the stream's first sample (s):
             the lower envelope of (receive - tm).
@@ -83,6 +92,7 @@ class PoseStreamStats:
     lost: int
     gap_events: int
     overwritten: int
+    other_sender: int
     stamp: str
     offset_s: float
     delay_p50_s: float
@@ -190,6 +200,8 @@ class EgmStream:
         self._chunks: list[np.ndarray] = []
         self._count = 0
         self._overwritten = 0
+        self._other = 0  # records dropped as another sender's (the lock moved on to the controller)
+        self._src = math.nan  # the sender of the records held (IPv4 as an integer)
         self._stamp = ""
         self._stamp0 = math.nan
         self._offset = math.inf
@@ -197,6 +209,8 @@ class EgmStream:
         self._last: np.ndarray | None = None
         self._latest: PoseSample | None = None  # built from _last when asked (latest() is polled every few ms)
         self._ended = False  # the controller ended the stream (a STOP); its samples wait for stop()
+        self._acked_at = self._ended_at = math.nan  # when STREAM 1 was acknowledged, when a STOP ended it (monotonic s)
+        self._foreign0 = 0  # the peer's count of datagrams refused from other senders, at STREAM 1
         self._guard = ClockGuard()
         self._broken = ""  # why the stream was refused (its clock stepped); latest() is None, stop() raises
 
@@ -232,7 +246,9 @@ class EgmStream:
         c = self.clock()
         self._reset(peer.begin_stream(), since, c - 0.5 * (m0 + time.monotonic()))
         try:
+            self._foreign0 = peer.counter("foreign")
             await self._request(1, deadline)
+            self._acked_at = time.monotonic()
         except BaseException:
             peer.end_stream()
             self._gen = None
@@ -246,18 +262,44 @@ class EgmStream:
         A link that is down already ended the stream on the controller: the samples come all the
         same. Any other error (refused while the robot moves, no answer) is raised and the stream
         goes on, collected as before: stop it again. A stream whose controller clock stepped is
-        stopped and refused: :class:`DeviceProtocolError` (its records stay for inspection).
+        stopped and refused: :class:`DeviceProtocolError` (its records stay for inspection). A stream
+        whose EGM process died is stopped and refused: :class:`DeviceDisconnected` (the next start
+        starts the process again). A stream that ran ``egm_receive_timeout_s`` or longer without a
+        single datagram is stopped and refused: :class:`DeviceTimeout` (the controller sends them
+        elsewhere, or the firewall drops them).
         """
         if self._gen is None or self.peer is None:
             raise DeviceRejected(self.name, "no position stream was started; call start_stream first")
         deadline = deadline_in(timeout_s)
+        ended_at = self._ended_at if self._ended else time.monotonic()
         if not self._ended:  # a STOP has ended it already (and STREAM is refused while the robot decelerates)
             await self._end_on_controller(deadline)
             self.peer.end_stream()
         self._gen, self._ended = None, False
+        died = self.peer.died()
+        if died is not None:
+            raise DeviceDisconnected(self.name, f"{died} during the position stream: its samples are incomplete, so "
+                                     "the stream is refused; start it again (that starts the EGM process again)")
         if self._broken:
             raise DeviceProtocolError(self.name, self._broken)
+        ran = ended_at - self._acked_at
+        if self._count == 0 and ran >= self.peer.settings.receive_timeout_s:
+            raise DeviceTimeout(self.name, self._nothing_came(ran))
         return self.samples()
+
+    def _nothing_came(self, ran: float) -> str:
+        """Why a stream that ran ``ran`` s got no datagram: where the controller should send them."""
+        assert self.peer is not None
+        port = self.peer.port
+        refused = self.peer.counter("foreign") - self._foreign0
+        locked = self.peer.snapshot().controller
+        other = "" if refused <= 0 or locked is None else (
+            f"; {refused} datagrams from other senders were refused meanwhile (the EGM peer is locked onto "
+            f"{locked[0]}:{locked[1]}; the robot's host is {self.link.settings.host})")
+        return (f"no EGM datagram came in the {ran:.2f} s the position stream ran, though the controller "
+                f"acknowledged STREAM 1: check the controller's UDPUC device (remote address: this PC as the "
+                f"controller reaches it; remote port: {port}, egm_port) and that the PC firewall lets UDP port "
+                f"{port} in{other}")
 
     async def _end_on_controller(self, deadline: float) -> None:
         """``STREAM 0`` (a link that is down has ended it already), then collect the datagrams sent before
@@ -295,7 +337,7 @@ class EgmStream:
         if self.active and self.peer is not None:
             self._drain()
             self.peer.end_stream()
-            self._ended = True
+            self._ended, self._ended_at = True, time.monotonic()
 
     def discard(self) -> None:
         """Forget a running stream without a request (the robot is being closed; BYE ends it)."""
@@ -320,9 +362,13 @@ class EgmStream:
 
     def _reset(self, gen: int, since: int, clock_offset: float) -> None:
         self._gen, self._since, self._ended = gen, since, False
-        self._chunks, self._count, self._overwritten, self._last, self._latest = [], 0, 0, None, None
+        self._overwritten, self._other, self._clock_offset = 0, 0, clock_offset
+        self._collect_anew()
+
+    def _collect_anew(self) -> None:
+        """Drop what was collected: the samples, their clock mapping and its checks."""
+        self._chunks, self._count, self._last, self._latest, self._src = [], 0, None, None, math.nan
         self._stamp, self._stamp0, self._offset = "", math.nan, math.inf
-        self._clock_offset = clock_offset
         self._guard, self._broken = ClockGuard(), ""
 
     def _drain(self) -> int:
@@ -334,6 +380,16 @@ class EgmStream:
         rows = rows[rows[:, F_GEN] == self._gen]
         if not len(rows):
             return 0
+        src = rows[:, F_SRC]
+        moved = np.flatnonzero(src != src[-1])
+        if moved.size or (self._count and src[-1] != self._src):
+            # The peer's lock moved on (the controller took it from a stray sender): what came from the one
+            # before is not this robot's pose, and its stamps are on another clock. Start from the new sender.
+            start = int(moved[-1]) + 1 if moved.size else 0
+            self._other += self._count + start
+            rows = rows[start:]
+            self._collect_anew()
+        self._src = float(src[-1])
         if not self._stamp:
             first = rows[0]
             self._stamp = "tm" if math.isfinite(first[F_TM]) else (
@@ -404,7 +460,8 @@ class EgmStream:
         ctl = np.sort(rows[ok, _CTL])
         delay = rows[ok, F_RX] - (rows[ok, _CTL] + self._offset)
         return PoseStreamStats(
-            received=len(rows), lost=lost, gap_events=gaps, overwritten=self._overwritten, stamp=self._stamp,
+            received=len(rows), lost=lost, gap_events=gaps, overwritten=self._overwritten, other_sender=self._other,
+            stamp=self._stamp,
             offset_s=self._offset if math.isfinite(self._offset) else math.nan,
             delay_p50_s=float(np.median(delay)) if delay.size else math.nan,
             delay_max_s=float(delay.max()) if delay.size else math.nan,

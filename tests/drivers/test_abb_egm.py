@@ -288,7 +288,9 @@ async def test_peer_locks_on_supervises_sequences_and_replies(isolation: str) ->
         ctl.send(b"\x08\x96\x01garbage")
         await _until(lambda: peer.stats().bad == 1)
         assert peer.stats().bad == 1
-        ctl.send(_robot_msg(0))  # seqno 0: the controller started a new session
+        restart = pb.EgmRobot.FromString(_robot_msg(0))
+        restart.header.tm = 1000  # seqno 0 stamped after the last datagram: the controller restarted EGM
+        ctl.send(restart.SerializeToString())
         await _until(lambda: peer.stats().sessions == 2)
         assert peer.stats().sessions == 2
         ctl.send(_robot_msg(1, motors=2))

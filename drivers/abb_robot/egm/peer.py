@@ -2,10 +2,11 @@
 
 The controller is the UDP client: once per EGM cycle (4 ms) it sends ``EgmRobot`` to the port
 configured in its UDPUC device ("Remote Port Number"). :class:`EgmPeer` binds that port, locks
-onto the first sender's address (datagrams from any other address are counted and ignored),
-and answers each received cycle with one ``EgmSensor`` holding the newest reference, so it
-replies at the controller's rate, capped at ``max_rate_hz`` (250 Hz) by a token bucket that lets
-a late cycle catch up but never lets the average exceed the cap.
+onto one sender's address (datagrams from any other address are counted and ignored: the
+controller's address, ``preferred_host``, once heard; else the first sender's until it is silent
+for ``receive_timeout_s``), and answers each received cycle with one ``EgmSensor`` holding the
+newest reference, so it replies at the controller's rate, capped at ``max_rate_hz`` (250 Hz) by
+a token bucket that lets a late cycle catch up but never lets the average exceed the cap.
 
 The receive loop (:mod:`abb_robot.egm.peer_core`) runs in a child process of its own by default
 (``isolation="process"``: no interpreter lock shared with the cell's code, state in shared
@@ -13,8 +14,9 @@ memory, see :mod:`abb_robot.egm.peer_process`) or in a thread (``isolation="thre
 the socket to the newest datagram each time it wakes (older ones are counted as superseded,
 never answered late) and supervises:
 
-- sequence numbers: gaps (lost datagrams), duplicates, and datagrams older than the last one
-  (stale, discarded); seqno 0 or a new sender after silence starts a new session;
+- sequence numbers: gaps (lost datagrams), duplicates (a copy of the session's seqno 0 too), and
+  datagrams older than the last one (stale, discarded); seqno 0 stamped after the last datagram,
+  a new sender, silence or a new stream start a new session;
 - silence: no datagram for ``receive_timeout_s`` ends the session as far as the peer knows;
 - motor, RAPID and MCI state: motors off, RAPID stopped and MCI_ERROR are faults, MCI_STOPPED
   ends the session (RAPID_UNDEFINED is accepted: controllers report it after a restart);
@@ -77,6 +79,7 @@ from abb_robot.egm.peer_core import (
     set_realtime_priority,
     warm_up,
 )
+from abb_robot.egm.peer_converge import wait_converged
 from abb_robot.egm.peer_process import (
     REF_AT,
     RING,
@@ -87,6 +90,7 @@ from abb_robot.egm.peer_process import (
     command,
     stream_rows,
 )
+from abb_robot.egm.peer_start import exit_reason, resolve_ipv4
 from abb_robot.egm.peer_types import (
     EgmPeerSettings,
     EgmPeerStats,
@@ -94,12 +98,7 @@ from abb_robot.egm.peer_types import (
     latency_percentiles_ms,
     snapshot_from_status,
 )
-from cellctl.ports import (
-    CartesianPose,
-    DeviceDisconnected,
-    DeviceTimeout,
-    MotionInterrupted,
-)
+from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceTimeout
 
 __all__ = [
     "EgmPeer",
@@ -163,25 +162,44 @@ class EgmPeer:
 
     @property
     def running(self) -> bool:
-        """Started, not closed, and (with process isolation) the child still alive."""
-        if self._process is not None and self._process.poll() is not None:
-            return False
-        return self._running
+        """Started, not closed, and the loop (its child process, its thread) still alive."""
+        return self._running and self.died() is None
+
+    def died(self) -> str | None:
+        """Why the loop is gone though the peer was started and not closed (None: it runs, or was never started)."""
+        if not self._running:
+            return None
+        process, thread = self._process, self._thread
+        if process is not None and process.poll() is not None:
+            return f"the EGM process (pid {process.pid}) died ({exit_reason(process.returncode)})"
+        if thread is not None and not thread.is_alive():
+            return "the EGM receive thread ended"
+        return None
 
     async def start(self, *, timeout_s: float = 30.0) -> None:
-        """Bind the UDP port and start the receive loop. Safe to call twice.
+        """Bind the UDP port and start the receive loop. Safe to call twice; a loop that died is started
+        again (on the port bound before), and the log says so.
 
         With process isolation the child interpreter needs about half a second to start;
         ``timeout_s`` bounds that (DeviceTimeout when it does not report in time).
         """
+        deadline = time.monotonic() + timeout_s
         if self._running:
-            return
+            died = self.died()
+            if died is None:
+                return
+            log.warning("%s: %s; starting it again on UDP port %s", self.settings.name, died, self._port)
+            await self._release()
         self._running = True
         try:
+            preferred, why = await resolve_ipv4(self.settings.preferred_host, min(2.0, timeout_s / 2))
+            if why is not None:
+                log.warning("%s: %s: EGM is taken from the first sender (the lock passes on after %g s of silence)",
+                            self.settings.name, why, self.settings.receive_timeout_s)
             if self.settings.isolation == "thread":
-                self._start_thread()
+                self._start_thread(preferred)
             else:
-                await self._start_process(timeout_s)
+                await self._start_process(max(deadline - time.monotonic(), 0.001), preferred)
         except BaseException:
             self._running = False
             raise
@@ -189,19 +207,20 @@ class EgmPeer:
     def _bind_error(self, detail: str) -> DeviceDisconnected:
         return DeviceDisconnected(self.settings.name, f"{detail}; is another EGM peer running on that port?")
 
-    def _start_thread(self) -> None:
+    def _start_thread(self, preferred: tuple[str, ...]) -> None:
         s = self.settings
+        port = s.port if self._port is None else self._port
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            sock.bind((s.bind_host, s.port))
+            sock.bind((s.bind_host, port))
         except OSError as exc:
             sock.close()
-            raise self._bind_error(f"cannot bind UDP {s.bind_host}:{s.port} ({exc.strerror})") from exc
+            raise self._bind_error(f"cannot bind UDP {s.bind_host}:{port} ({exc.strerror})") from exc
         sock.setblocking(False)
         self._sock = sock
         self._port = int(sock.getsockname()[1])
         self._core = PeerCore(controller_host=s.controller_host, receive_timeout_s=s.receive_timeout_s,
-                              latency=LatencySink(), stream=StreamSink())
+                              latency=LatencySink(), stream=StreamSink(), preferred=preferred)
         self._core.apply_reference(self._reference_vec)
         self._thread = threading.Thread(target=self._thread_main, name=f"egm-peer-{self._port}", daemon=True)
         self._thread.start()
@@ -216,7 +235,7 @@ class EgmPeer:
         serve(self._sock, self._core, self.settings.max_rate_hz,
               Hooks(lock=self._lock, keep_going=lambda: self._running, wake_fds=[]))
 
-    async def _start_process(self, timeout_s: float) -> None:
+    async def _start_process(self, timeout_s: float, preferred: tuple[str, ...]) -> None:
         s = self.settings
         shm = SharedMemory(create=True, size=TOTAL * 8)
         array = np.ndarray((TOTAL,), dtype=np.float64, buffer=shm.buf)
@@ -228,7 +247,9 @@ class EgmPeer:
         self._stream_rows = stream_rows(array)
         self._status_block.write(empty_status())  # "nothing yet" until the child publishes
         self._ref_block.write(self._reference_vec)
-        process = subprocess.Popen(command(s, shm.name), stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        port = s.port if self._port is None else self._port
+        process = subprocess.Popen(command(s, shm.name, port=port, preferred=preferred), stdin=subprocess.PIPE,
+                                   stdout=subprocess.PIPE)
         self._process = process
         assert process.stdout is not None
         loop = asyncio.get_running_loop()
@@ -251,6 +272,9 @@ class EgmPeer:
         """Stop the loop and release the port. Safe to call twice."""
         if not self._running:
             return
+        await self._release()
+
+    async def _release(self) -> None:
         self._running = False
         if self.settings.isolation == "thread":
             thread = self._thread
@@ -410,6 +434,10 @@ class EgmPeer:
             )
         return dataclasses.replace(snap, reference=reference)
 
+    def counter(self, name: str) -> int:
+        """One counter of :meth:`stats` (``"foreign"``, ``"received"``, ...), without copying the latencies."""
+        return int(self._status()[S_STATS + STAT_NAMES.index(name)])
+
     def stats(self) -> EgmPeerStats:
         """Counters and reply latencies since the peer started."""
         v = self._status()
@@ -437,7 +465,7 @@ class EgmPeer:
 
         Needs an EGM session run by the controller's program. Raises DeviceTimeout when no EGM
         data arrives or the pose does not converge in ``timeout_s``, MotionInterrupted when the
-        session ends or faults first.
+        session ends or faults first, DeviceDisconnected when the receive loop dies meanwhile.
         """
         if not (timeout_s > 0 and math.isfinite(timeout_s)):
             raise ValueError(f"timeout_s must be > 0, got {timeout_s}")
@@ -450,40 +478,4 @@ class EgmPeer:
     ) -> CartesianPose:
         """Wait until the reference of ``generation`` has converged in a session numbered
         ``min_session`` or later; see :meth:`correct_to` for the errors."""
-        started = time.monotonic()
-        name = self.settings.name
-        while True:
-            snap = self.snapshot()
-            now = time.monotonic()
-            fresh = (
-                snap.session >= min_session
-                and snap.received_at is not None
-                and snap.received_at >= started - self.settings.receive_timeout_s
-            )
-            if fresh and snap.received_at is not None and now - snap.received_at > self.settings.receive_timeout_s:
-                raise MotionInterrupted(
-                    name, f"EGM data stopped: nothing for {now - snap.received_at:.2f} s on UDP port {self.port}"
-                )
-            if fresh and snap.fault is not None:
-                raise MotionInterrupted(name, f"EGM session faulted: {snap.fault}")
-            if (
-                fresh
-                and snap.reference_generation == generation
-                and snap.converged_cycles >= self.settings.settle_cycles
-                and snap.feedback is not None
-            ):
-                return snap.feedback
-            if fresh and snap.ended:
-                raise MotionInterrupted(name, f"EGM session ended ({snap.mci}) before the pose converged")
-            if not fresh and now - started > self.settings.receive_timeout_s:
-                raise DeviceTimeout(
-                    name,
-                    f"no EGM data on UDP port {self.port} within {self.settings.receive_timeout_s:g} s: check the "
-                    "controller's UDPUC remote address and port, the PC firewall, and that RAPID runs EGM",
-                )
-            if now >= deadline:
-                err = "" if snap.position_error_mm is None else (
-                    f"; last error {snap.position_error_mm:.3f} mm, {math.degrees(snap.rotation_error_rad or 0.0):.3f} deg"
-                )
-                raise DeviceTimeout(name, f"pose did not converge within {timeout_s:g} s{err}")
-            await asyncio.sleep(0.004)
+        return await wait_converged(self, generation, deadline=deadline, timeout_s=timeout_s, min_session=min_session)

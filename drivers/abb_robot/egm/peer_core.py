@@ -11,7 +11,8 @@ While the owner has a position stream on (:func:`reference_vector`'s ``stream``)
 answers nothing (in EGM's Position Stream the sensor sends nothing back) and appends every
 accepted datagram as one record of :data:`STREAM_WIDTH` floats to a :class:`StreamSink`:
 the stream's generation, seqno, ``header.tm`` (ms), ``feedBack.time`` (s), the receive time
-(``time.perf_counter()``, s) and the feedback pose (x y z mm, qw qx qy qz).
+(``time.perf_counter()``, s), the feedback pose (x y z mm, qw qx qy qz) and the sender's IPv4
+address (as an integer).
 """
 
 from __future__ import annotations
@@ -59,8 +60,8 @@ R_STREAM_GEN, R_STREAM_ON = 11, 12
 REF_LEN = 13
 
 # Stream record layout (one accepted datagram while a stream is on).
-F_GEN, F_SEQNO, F_TM, F_FB_TIME, F_RX, F_POS, F_QUAT = 0, 1, 2, 3, 4, 5, 8
-STREAM_WIDTH = 12
+F_GEN, F_SEQNO, F_TM, F_FB_TIME, F_RX, F_POS, F_QUAT, F_SRC = 0, 1, 2, 3, 4, 5, 8, 12
+STREAM_WIDTH = 13
 STREAM_RING = 1 << 16
 """Records the stream ring holds (262 s at 4 ms); the owner drains it whenever it looks."""
 
@@ -119,8 +120,11 @@ class PeerCore:
         receive_timeout_s: float,
         latency: LatencySink,
         stream: StreamSink | None = None,
+        preferred: Sequence[str] = (),
     ) -> None:
         self.controller_host = controller_host
+        self.preferred = frozenset(preferred)  # the configured controller's IPs: accepted over any other sender
+        self.preferred_heard = False  # a datagram came from them: from then on only they are accepted
         self.receive_timeout_s = receive_timeout_s
         self.latency = latency
         self.stream = stream if stream is not None else StreamSink(1)
@@ -131,8 +135,11 @@ class PeerCore:
         self.out = pb.EgmSensor()
         self.stats = dict.fromkeys(STAT_NAMES, 0.0)
         self.controller: tuple[str, int] | None = None
+        self.src = 0.0  # the controller's IPv4 address as an integer (stream records carry it)
         self.session = 0
         self.last_seq: int | None = None
+        self.last_tm: int | None = None  # header.tm of the newest accepted datagram (ms, u32)
+        self.first: tuple[int | None, bytes] | None = None  # the session's seqno-0 datagram: (header.tm, bytes)
         self.last_rx: float | None = None
         self.feedback: tuple[tuple[float, float, float], tuple[float, float, float, float]] | None = None
         self.joints: tuple[float, ...] = ()
@@ -179,8 +186,7 @@ class PeerCore:
         if self.controller_host is not None and addr[0] != self.controller_host:
             st["foreign"] += 1
             return False
-        fresh = silent or self.restart  # a new sender port of the same controller may take over
-        if self.controller is not None and addr != self.controller and not (fresh and addr[0] == self.controller[0]):
+        if self.controller is not None and addr != self.controller and not self._may_take_over(addr, silent):
             st["foreign"] += 1
             return False
         msg = pb.EgmRobot()  # a new one per datagram: a reused upb message grows its arena with every parse
@@ -200,7 +206,13 @@ class PeerCore:
             st["bad"] += 1
             return False
         seq = msg.header.seqno
-        new_session = self.controller is None or silent or seq == 0 or addr != self.controller or self.restart
+        tm = msg.header.tm if msg.header.HasField("tm") else None
+        new_session = self.controller is None or silent or addr != self.controller or self.restart
+        if not new_session and seq == 0:
+            if self.first is not None and (data == self.first[1] or (tm is not None and tm == self.first[0])):
+                st["duplicates"] += 1  # a copy of the session's first datagram (UDP may deliver one twice, or late)
+                return False
+            new_session = self._clock_went_on(tm)  # seqno 0 stamped after the last: the controller restarted EGM
         self.restart = False
         if not new_session and self.last_seq is not None:
             diff = (seq - self.last_seq) & 0xFFFFFFFF
@@ -220,10 +232,14 @@ class PeerCore:
             st["sessions"] += 1
             self.session += 1
             self.controller = addr
+            self.src = float(int.from_bytes(socket.inet_aton(addr[0]), "big"))
+            self.first = (tm, data) if seq == 0 else None
             self.hold = (pos, q)
             self.reply_seq = 0
             self.converged_cycles = 0
-        self.last_seq = seq
+        if addr[0] in self.preferred:
+            self.preferred_heard = True
+        self.last_seq, self.last_tm = seq, tm
         self.last_rx = t_rx
         self.feedback = (pos, q)
         self.joints = tuple(math.radians(j) for j in msg.feedBack.joints.joints)
@@ -235,7 +251,7 @@ class PeerCore:
             h, fb = msg.header, msg.feedBack
             self.stream.append((
                 self.stream_gen, seq, h.tm if h.HasField("tm") else NAN,
-                fb.time.sec + 1e-6 * fb.time.usec if fb.HasField("time") else NAN, t_rx, *pos, *q,
+                fb.time.sec + 1e-6 * fb.time.usec if fb.HasField("time") else NAN, t_rx, *pos, *q, self.src,
             ))
         ref = self.reference
         if ref is not None:
@@ -246,6 +262,27 @@ class PeerCore:
         else:
             self.pos_err = self.rot_err = None
         return True
+
+    def _may_take_over(self, addr: tuple[str, int], silent: bool) -> bool:
+        """Whether ``addr`` may take the lock from the sender it is on (``silent``: that one sent nothing for
+        ``receive_timeout_s``). The configured controller's address always may (from another address, or from
+        another port of its own once fresh); another sender only while the controller has not been heard, after
+        that silence (a stray sender or NAT: the lock is never kept by one gone quiet), or on a new stream from
+        the same IP (a new sender port)."""
+        assert self.controller is not None
+        if addr[0] in self.preferred:
+            return self.controller[0] not in self.preferred or silent or self.restart
+        if self.preferred_heard:
+            return False
+        return silent or (self.restart and addr[0] == self.controller[0])
+
+    def _clock_went_on(self, tm: int | None) -> bool:
+        """Whether a seqno-0 datagram stamped ``tm`` (ms, u32) comes after the newest accepted one: then the
+        controller began a new session; one stamped at or before it is an old datagram come late. Without
+        stamps to compare, a seqno 0 that is no copy of the session's first begins a new session."""
+        if tm is None or self.last_tm is None:
+            return True
+        return 0 < (tm - self.last_tm) & 0xFFFFFFFF <= 0x7FFFFFFF
 
     def reply_bytes(self, t_rx: float) -> bytes | None:
         """The EgmSensor for this cycle: the reference, or the session's start pose."""
@@ -398,6 +435,7 @@ def warm_up() -> None:
     for seq in (0, 1):
         msg.header.seqno = seq
         core.accept(msg.SerializeToString() if seq else data, ("127.0.0.1", 1), time.perf_counter())
+    core.accept(data, ("127.0.0.1", 1), time.perf_counter())  # a copy of the session's first
     core.reply_bytes(time.perf_counter())
     core.apply_reference(reference_vector(1, None, 0.0, 0.0, stream=(1, True)))
     msg.header.tm = 8

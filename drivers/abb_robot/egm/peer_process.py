@@ -138,6 +138,7 @@ def child_main(settings: Any, shm_name: str) -> None:
         receive_timeout_s=settings.receive_timeout_s,
         latency=SharedRing(array),
         stream=SharedStream(array),
+        preferred=settings.preferred,
     )
     vector = np.zeros(STATUS_LEN)
     last_ref_word = -1.0
@@ -177,7 +178,9 @@ def child_main(settings: Any, shm_name: str) -> None:
 SETTING_FIELDS = ("port", "bind_host", "controller_host", "max_rate_hz", "receive_timeout_s", "rt_priority")
 
 
-def command(settings: Any, shm_name: str) -> list[str]:
-    """The child's command line for these settings (an EgmPeerSettings)."""
+def command(settings: Any, shm_name: str, *, port: int, preferred: tuple[str, ...] = ()) -> list[str]:
+    """The child's command line for these settings (an EgmPeerSettings), binding ``port``, preferring the
+    controller's IPs ``preferred`` (resolved)."""
     fields = {name: getattr(settings, name) for name in SETTING_FIELDS}
+    fields["port"], fields["preferred"] = port, list(preferred)
     return [sys.executable, "-m", "abb_robot.egm._peer_child", json.dumps(fields), shm_name]

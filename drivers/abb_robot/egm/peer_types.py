@@ -53,6 +53,10 @@ class EgmPeerSettings:
         port: UDP port to bind (the controller's UDPUC "Remote Port Number").
         bind_host: local address to bind ("0.0.0.0": every interface).
         controller_host: if set, only datagrams from this IP are accepted.
+        preferred_host: the controller's address (IPv4 or a host name, resolved when the peer starts): its
+            datagrams are accepted whoever the peer is locked onto, and once it has been heard no other
+            sender is. Until then (unset, unresolvable, or NAT hides it) the first sender is locked onto,
+            and another takes over after ``receive_timeout_s`` of silence from it.
         max_rate_hz: average reply rate cap (token bucket, bursts of up to 3 replies).
         receive_timeout_s: silence after which the session counts as ended (or never started).
         settle_cycles: consecutive converged cycles :meth:`EgmPeer.correct_to` waits for.
@@ -65,6 +69,7 @@ class EgmPeerSettings:
     port: int = 6511
     bind_host: str = "0.0.0.0"
     controller_host: str | None = None
+    preferred_host: str | None = None
     max_rate_hz: float = 250.0
     receive_timeout_s: float = 0.5
     settle_cycles: int = 5
