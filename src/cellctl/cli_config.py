@@ -76,9 +76,10 @@ def wall_reading_in_use(config: CellConfig) -> str:
     return "this cell: on the move (process.align.mode), standing along the path in a cycle whose devices cannot"
 
 
-def _check_files(config: CellConfig, workdir: Path) -> None:
+def _check_files(config: CellConfig, workdir: Path) -> bool:
     """The files and folders the service reads or makes at start beside its secrets, as ``serve`` does (the same
-    functions, nothing created), paths taken from ``workdir``, then its listen ports; ConfigError naming each problem."""
+    functions, nothing created), paths taken from ``workdir``, then its listen ports unless this configuration's service
+    runs (then they are its own); ConfigError naming each problem. True when the ports were checked."""
     problems = _store_problems(config, workdir) + _mqtt_problems(config, workdir) + config.api.tls_problems(workdir)
     if (problem := calibration_folder_problem(config.calibration.directory, workdir)) is not None:
         problems.append(problem)
@@ -94,6 +95,7 @@ def _check_files(config: CellConfig, workdir: Path) -> None:
     if problems:
         raise ConfigError("\n".join([f"{len(problems)} problem(s) `serve` would refuse at start (from {workdir}):",
                                      *(f"  - {p}" for p in problems)]))
+    return running is None
 
 
 def _store_path(config: CellConfig, workdir: Path) -> Path:
@@ -145,7 +147,9 @@ def _listeners(config: CellConfig) -> list[tuple[str, str, int]]:
 
 
 SECRETS_READ = ("every API token, OPC UA password and certificate could be read, and the MQTT and API TLS files; the "
-                "store's and the OPC UA certificate's folders can be made, and every listen port is free now")
+                "store's and the OPC UA certificate's folders can be made, and ")
+PORTS_FREE = "every listen port is free now"
+PORTS_NOT_CHECKED = "the listen ports were not checked (the service of this configuration runs and holds them)"
 
 
 def _sim_problem(config: CellConfig, source: str) -> None:
@@ -159,13 +163,14 @@ def _sim_problem(config: CellConfig, source: str) -> None:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    ports_checked = False
     try:
         config = load_config(args.config)
         _sim_problem(config, str(args.config))
         if args.secrets:  # relative token and password files from --workdir, as serve takes them
             rooted = {"api": config.api.rooted(args.workdir), "opcua": config.opcua.rooted(args.workdir)}
             check_tokens(config.model_copy(update=rooted), str(args.config))
-            _check_files(config, args.workdir)
+            ports_checked = _check_files(config, args.workdir)
     except (ConfigError, TokenUnavailable) as err:
         print(f"NOT OK: {args.config}\n{err}", file=sys.stderr)
         return 2
@@ -177,7 +182,8 @@ def _cmd_check(args: argparse.Namespace) -> int:
     except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
         plan = [f"cannot be predicted from process.align on [layout]: {err}"]
     print("  wall readings           " + "\n                          ".join(plan))
-    print("  secrets                 " + (SECRETS_READ if args.secrets else
+    read = SECRETS_READ + (PORTS_FREE if ports_checked else PORTS_NOT_CHECKED)
+    print("  secrets                 " + (read if args.secrets else
                                           "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip
     if config.mode == "hardware" and (warning := config.api.plain_http_warning()) is not None:
         print(f"warning: {warning}")  # serve logs it too; not refused: a TLS proxy or a closed cell network may cover it

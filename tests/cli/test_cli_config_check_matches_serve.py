@@ -63,9 +63,29 @@ def test_missing_mqtt_files_are_refused_as_serve_refuses_them(tmp_path: Path, ca
     assert f"mqtt.tls.ca_file {tmp_path / 'missing-ca.pem'}: not a readable file; give the path of the PEM file" in err
     (tmp_path / "nope").write_text("Kq7-broker-pass-2026\n")  # the token rules: 16+ characters
     (tmp_path / "nope").chmod(0o600)
-    (tmp_path / "missing-ca.pem").write_text("-----BEGIN CERTIFICATE-----\n")
+    (tmp_path / "missing-ca.pem").write_text("-----BEGIN CERTIFICATE-----\n")  # a file, but no certificate
+    rc, out, err = _check(capsys, cfg, tmp_path)
+    assert rc == 2 and f"mqtt.tls.ca_file: {tmp_path / 'missing-ca.pem'} holds no PEM certificate" in err, err
+    (tmp_path / "missing-ca.pem").write_bytes(_self_signed_pem())
     rc, out, err = _check(capsys, cfg, tmp_path)
     assert rc == 0, err
+
+
+def _self_signed_pem() -> bytes:
+    """A CA certificate (PEM) for [mqtt.tls] ca_file."""
+    import datetime as dt
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    key, now = ec.generate_private_key(ec.SECP256R1()), dt.datetime.now(dt.UTC)
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "plant CA")])
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
+            .serial_number(x509.random_serial_number()).not_valid_before(now).not_valid_after(now + dt.timedelta(days=365))
+            .sign(key, hashes.SHA256()))  # fmt: skip
+    return cert.public_bytes(serialization.Encoding.PEM)
 
 
 def test_an_opcua_certificate_folder_under_a_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -2,14 +2,17 @@
 
 The service builds it when ``[mqtt] enabled`` (:mod:`cellctl.service.compose`), starts it after
 the orchestrator (its catch-up reads the recovered store) and stops it before the store closes.
-Credentials and TLS files are read at :meth:`MqttPublication.start`; one that cannot be used
-raises :class:`MqttSetupError` naming the field.
+Credentials and TLS files are read at :meth:`MqttPublication.start` (the TLS files loaded as the TLS client loads
+them); one that cannot be used raises :class:`MqttSetupError` naming the field.
 """
 
 from __future__ import annotations
 
+import datetime as dt
 import logging
 import os
+import re
+import ssl
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,6 +32,8 @@ log = logging.getLogger(__name__)
 
 STOP_GRACE_S = 3.0  # at a stop, how long pending messages may still be sent while the broker answers
 PASSWORD_FILE_MAX_BYTES = 4096
+EXPIRY_WARNING_DAYS = 30  # a client certificate with fewer days left is warned about at start (as the API's own)
+NEW_CLIENT_CERTIFICATE = "have the plant's CA issue a new client certificate, and restart the service"
 
 
 class MqttSetupError(ValueError):
@@ -60,8 +65,9 @@ def read_password(config: MqttConfig, workdir: Path) -> str | None:
 
 
 def tls_parameters(config: MqttConfig, workdir: Path) -> aiomqtt.TLSParameters | None:
-    """aiomqtt's TLS settings from ``mqtt.tls``, every file checked to be readable now, the client's key to be
-    readable by the service only (as the password file)."""
+    """aiomqtt's TLS settings from ``mqtt.tls``, every file loaded now as the TLS client loads it at connect (the CA
+    file, the client certificate with its key), the client's key readable by the service only (as the password file)
+    and the client certificate valid now."""
     tls = config.tls
     if tls is None:
         return None
@@ -77,7 +83,106 @@ def tls_parameters(config: MqttConfig, workdir: Path) -> aiomqtt.TLSParameters |
         if field == "key_file" and (exposed := open_to_everyone(path, path.stat())) is not None:  # the token files' rule
             raise MqttSetupError(f"mqtt.tls.key_file: {exposed}")
         files[field] = str(path)
-    return aiomqtt.TLSParameters(ca_certs=files["ca_file"], certfile=files["cert_file"], keyfile=files["key_file"])
+    ca, cert, key = files["ca_file"], files["cert_file"], files["key_file"]
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # what paho's tls_set builds and loads at each connect
+    try:
+        context.load_verify_locations(cafile=ca)
+    except (ssl.SSLError, OSError) as err:
+        raise MqttSetupError(f"mqtt.tls.ca_file: {ca} holds no PEM certificate OpenSSL can load ({_reason(err)}); give "
+                             "the PEM certificate of the CA that signed the broker's certificate") from None
+    if cert is not None and key is not None:
+        _load_client_pair(context, cert, key)
+        _check_validity(cert)
+    return aiomqtt.TLSParameters(ca_certs=ca, certfile=cert, keyfile=key)
+
+
+class _PassphraseAsked(Exception):
+    """OpenSSL asked for the client key's passphrase, which [mqtt] cannot give."""
+
+
+def _no_passphrase() -> bytes:
+    raise _PassphraseAsked  # never a prompt on the terminal (the service has none)
+
+
+def _reason(err: Exception) -> str:
+    """OpenSSL's words for a failed load, without the location in Python's C source."""
+    if not isinstance(err, ssl.SSLError):
+        return str(err)
+    text = err.reason or (err.args[1] if len(err.args) > 1 else str(err))
+    return "OpenSSL: " + re.sub(r"\s*\(_ssl\.c:\d+\)$", "", str(text))
+
+
+def _load_client_pair(context: ssl.SSLContext, cert: str, key: str) -> None:
+    """The client certificate and key loaded as TLS will; MqttSetupError naming the field at fault otherwise."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    try:
+        context.load_cert_chain(cert, key, password=_no_passphrase)
+        return
+    except _PassphraseAsked:
+        raise MqttSetupError(f"mqtt.tls.key_file: {key} is encrypted with a passphrase, which the service cannot be "
+                             f"given; write it unencrypted (openssl pkey -in {key} -out new.pem), chmod 600") from None
+    except (ssl.SSLError, OSError) as err:
+        failure = err
+    if isinstance(failure, ssl.SSLError) and failure.reason == "KEY_VALUES_MISMATCH":
+        if _key_of_a_later_certificate(cert, key):
+            raise MqttSetupError(f"mqtt.tls.cert_file: {cert} holds the certificate of mqtt.tls.key_file {key}, but not "
+                                 "first; put the client's own certificate first, the intermediate CA certificates "
+                                 "after it") from None
+        raise MqttSetupError(f"mqtt.tls.key_file: {key} is not the private key of mqtt.tls.cert_file {cert}; give the "
+                             "certificate's own key") from None
+    try:
+        x509.load_pem_x509_certificate(Path(cert).read_bytes())
+    except ValueError:
+        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not a PEM certificate ({_reason(failure)}); give the "
+                             "client certificate the plant's CA issued, PEM") from None
+    try:
+        serialization.load_pem_private_key(Path(key).read_bytes(), password=None)
+    except (ValueError, TypeError):
+        raise MqttSetupError(f"mqtt.tls.key_file: {key} is not a PEM private key ({_reason(failure)}); give the "
+                             "client certificate's own key, PEM, unencrypted") from None
+    raise MqttSetupError(f"mqtt.tls.cert_file, mqtt.tls.key_file: {cert} and {key} cannot be used by TLS "
+                         f"({_reason(failure)}); give the client certificate the plant's CA issued and its key") from None
+
+
+def _key_of_a_later_certificate(cert: str, key: str) -> bool:
+    """Whether ``key`` belongs to a certificate of ``cert`` after the first (a chain in the wrong order)."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    try:
+        public = serialization.load_pem_private_key(Path(key).read_bytes(), password=None).public_key()
+        return any(c.public_key() == public for c in x509.load_pem_x509_certificates(Path(cert).read_bytes())[1:])
+    except (ValueError, TypeError, OSError):
+        return False
+
+
+def _utc(when: dt.datetime) -> str:
+    return when.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _check_validity(cert: str, now: dt.datetime | None = None) -> None:
+    """MqttSetupError naming ``mqtt.tls.cert_file`` and its dates when the client certificate is not valid ``now`` (UTC,
+    default this computer's clock); a warning logged when fewer than EXPIRY_WARNING_DAYS remain."""
+    from cryptography import x509
+
+    try:
+        leaf = x509.load_pem_x509_certificate(Path(cert).read_bytes())  # the first certificate: the client's own
+    except ValueError as err:
+        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not a PEM certificate ({err}); give the client "
+                             "certificate the plant's CA issued, PEM") from None
+    now = now or dt.datetime.now(dt.UTC)
+    start, end = leaf.not_valid_before_utc, leaf.not_valid_after_utc
+    valid, fix = f"valid from {_utc(start)} to {_utc(end)}; now {_utc(now)}", NEW_CLIENT_CERTIFICATE
+    if now < start:
+        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not valid yet ({valid}), so the broker refuses it: check "
+                             f"this computer's clock, or {fix}")
+    if now > end:
+        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} has expired ({valid}), so the broker refuses it: {fix}")
+    if (days := (end - now).days) < EXPIRY_WARNING_DAYS:
+        log.warning("mqtt.tls.cert_file: %s expires in %d day(s), on %s; then the broker refuses it: %s before then",
+                    cert, days, _utc(end), fix)  # fmt: skip
 
 
 class MqttPublication:
