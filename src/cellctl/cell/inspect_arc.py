@@ -53,7 +53,8 @@ async def inspect_arc_corner(
     flush, flush_figures = await measure_flush(run, T2)
     radius_mm = -run.feature.point_mm[0]  # the arc's centre lies at (-R, R) in T
     plane = in_plane_from_arcs(
-        m, cal.nine_point, cal.lens, radius_mm=radius_mm, dz_mm=flush.dz_mm, working_distance_mm=run.process.working_distance_mm
-    )
+        m, cal.nine_point, cal.lens, radius_mm=radius_mm, dz_mm=flush.dz_mm, drx_rad=flush.drx_rad, dry_rad=flush.dry_rad,
+        working_distance_mm=run.process.working_distance_mm,
+    )  # each glass point at its depth on the flush's glass plane (a tilted glass's arc spans 100-300 mm)
     await _record(run, image, m, plane.as_dict())
     return await record_measured(run, plane, flush, flush_figures, arc=True)

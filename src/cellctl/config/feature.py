@@ -9,6 +9,7 @@ optical axis through the aim point ``vision.shot_aim_mm``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -27,6 +28,11 @@ _PLACEMENT_MARGIN_DEG = 8.0  # coverage kept beyond the limit for the car body's
 # How far from its nominal pixel (layout.camera's principal point) the shooting pose may put the corner: the
 # real lens's principal point and the hand-eye's error (the twin's lens: 9 px and 12 px off the data sheet's).
 _CORNER_MARGIN_PX = 40.0
+# How far past the corner's arc (its tangent points, the radius from the virtual corner) [vision.gap]'s window must
+# start: the window is set in nominal px, and the real scale may differ from layout.camera's by the nine-point map's
+# 3 % (calibration.pixel_map.MAP_SCALE_TOLERANCE), 1 mm at the window's ~34 mm. The twin's inspection holds 0.01 mm
+# with the window up to 4 mm onto the arc, and is 0.03 mm off at 11 mm (a 45 mm radius), refused as bowed at 16 mm.
+GAP_PAST_ARC_MM = 1.0
 
 FeatureKind = Literal["corner", "arc"]
 
@@ -117,6 +123,8 @@ def gap_window_problem(config: CellConfig) -> str | None:
     At the nominal shooting pose, as :func:`arc_view` (no distortion). The glass's window, measured from the glass's
     corner ``process.inspect.nominal_gap_mm`` inside the opening's, reaches nearer the border than the opening's;
     the corner is taken ``_CORNER_MARGIN_PX`` nearer it too (the real lens's principal point is not the data sheet's).
+    The window must also start ``GAP_PAST_ARC_MM`` past the corner's arc (``layout.opening.corner_radius_mm`` from
+    the corner): on the arc, the edges it fits are bent.
     """
     if feature_kind(config) != "corner":
         return None  # the arc corner is inspected on its arcs (cellctl.vision.arc_gap): no window
@@ -131,6 +139,8 @@ def gap_window_problem(config: CellConfig) -> str | None:
     edges = (("top", np.array([-1.0, 0.0]), "left of"), ("right", np.array([0.0, 1.0]), "below"))
     worst = {name: nominal + (_CORNER_MARGIN_PX + gap_px) * away for name, away, _ in edges}  # the glass's corner
     room = min(worst["top"][0] - m, hi[1] - worst["right"][1])  # px from it to the border, along the shorter edge
+    r_mm = float(config.layout.opening.corner_radius_mm)
+    first = (r_mm + GAP_PAST_ARC_MM) / _mm_per_px(config)[0]  # the first start past the arc
     for name, away, side in edges:
         pts = worst[name] + t[:, None] * away
         inside = int(np.sum(np.all((pts >= lo) & (pts <= hi), axis=1)))
@@ -140,14 +150,13 @@ def gap_window_problem(config: CellConfig) -> str | None:
         if len(t) < need:
             return (f"vision.gap.length_px = {g.length_px:g} gives each edge's window {len(t)} px, {needs}; "
                     f"raise length_px to at least {need - 1}")
-        arc_px = float(config.layout.opening.corner_radius_mm) / _mm_per_px(config)[0]
         seen = bool(np.all((nominal >= lo + _CORNER_MARGIN_PX) & (nominal <= hi - _CORNER_MARGIN_PX)))
         if not seen:
             fix = "move vision.shot_aim_mm (leave it out: the corner at the image's centre) so the edge runs in view"
-        elif room - need + 1 >= arc_px:
-            fix = f"lower vision.gap.start_px to at most {room - need + 1:.0f} (keeping it past the corner's arc, {arc_px:.0f} px)"
+        elif room - need + 1 >= first:
+            fix = f"lower vision.gap.start_px to at most {room - need + 1:.0f} (keeping it past the corner's arc, {first:.0f} px)"
         else:
-            fix = (f"this image leaves {max(room - arc_px + 1, 0.0):.0f} px beyond the corner's arc ({arc_px:.0f} px): "
+            fix = (f"this image leaves {max(room - first + 1, 0.0):.0f} px beyond the corner's arc ({first:.0f} px): "
                    f"set start_px just past the arc and lower vision.gap.{need_name} to fit, or check layout.camera")
         return (
             f"vision.gap.start_px = {g.start_px:g} and length_px = {g.length_px:g} put the {name} edge's window "
@@ -158,7 +167,37 @@ def gap_window_problem(config: CellConfig) -> str | None:
             f"{cam.height_px} px image (vision.gap.border_margin_px = {g.border_margin_px} from its border), {needs}, "
             f"and the inspection could refuse every cycle; {fix}"
         )
+    if g.start_px < first:
+        return _on_the_arc(config, r_mm, first, room - need + 1, need, need_name)
     return None
+
+
+def _on_the_arc(config: CellConfig, r_mm: float, first: float, last: float, need: int, need_name: str) -> str:
+    """The refusal of a ``[vision.gap]`` window starting on the corner's arc: ``first`` is the first start past it,
+    ``last`` the last that keeps ``need`` px of the window in the image (px along the edge from the corner)."""
+    g, mm_per_px = config.vision.gap, _mm_per_px(config)[0]
+    tol = config.process.tolerance
+    # A glass within tolerance (turned by orientation_deg, off by position_mm) shows its edge this far from the nominal
+    # gap at the window's middle, where the median profile finds it: the glass's search must reach it.
+    search = (first + g.length_px / 2.0) * math.tan(math.radians(tol.orientation_deg)) + tol.position_mm / mm_per_px
+    fix = f"raise vision.gap.start_px (a recipe's in its [process.recipes.vision.gap]) to at least {math.ceil(first)}"
+    if search > g.glass_search_px:
+        fix += (f" and vision.gap.glass_search_px to at least {math.ceil(search) + 1} (a glass within process.tolerance "
+                f"shows its edge up to {search:.0f} px from the nominal gap in the window moved out)")
+    kept = need - max(first - last, 0.0)  # px of the window the image holds from that start
+    if kept >= need:
+        fix += f"; a start up to {last:.0f} px keeps the window in the image"
+    elif kept >= 10:
+        fix += f", and lower vision.gap.{need_name} to the {kept:.0f} px the image then holds of the window"
+    else:
+        fix += "; but this image leaves no straight edge past the arc for the window: check layout.camera"
+    return (
+        f"vision.gap.start_px = {g.start_px:g} ({g.start_px * mm_per_px:.1f} mm at layout.camera's {mm_per_px:.4g} "
+        f"mm/px) starts the inspection's window along each edge on the corner's arc: layout.opening.corner_radius_mm = "
+        f"{r_mm:g} (a recipe's in its [process.recipes.opening]) ends the arc {r_mm:g} mm from the corner, and the window "
+        f"must start at least {GAP_PAST_ARC_MM:g} mm past it or the arc bends the edges the gaps are fitted to (the "
+        f"glass's offset off, or every inspection refused as bowed); {fix}"
+    )
 
 
 def arc_corner_config(config: CellConfig) -> ArcCornerConfig:

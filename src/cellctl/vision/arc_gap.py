@@ -8,7 +8,11 @@ concentric with the opening's, of radius R - gap. From one image at the shooting
    within ``search_px`` of the nominal gap inside it; that circle measured alone, with the glass's
    top edge beyond it for the orientation.
 3. In mm (:func:`in_plane_from_arcs`): both centres and top edges through the nine-point map, the
-   glass's scaled about the optical axis' foot for its depth (parallax, as cellctl.vision.gap_figures).
+   glass's moved along its rays to its depth (parallax, as cellctl.vision.gap_figures). Each glass
+   point gets its own depth from the flush's glass plane ``z = dz - dRy x + dRx y``: the arc and
+   its top edge run 100-300 mm from the axis, where one depth for a glass tilted 1 deg moves the
+   arc's centre by ~0.4 mm and turns the top line by ~0.1 deg. The circle and line are fitted in
+   the glass's plane (the tilt's foreshortening undone) and taken back to T's (x, y).
    A frame's corner lies at ``centre - R(phi) (-R, R)`` (the arc's centre at (-R, R) in its own
    frame, the glass's too: it is concentric), so the glass frame's offset from the opening's, in
    the opening's axes, is ``R(-phi_o) (G - O)`` and its turn ``phi_g - phi_o``.
@@ -24,6 +28,7 @@ from numpy.typing import NDArray
 
 from cellctl.config.arc_vision import ArcCornerConfig
 from cellctl.geometry.planar import rot2, wrap_angle
+from cellctl.vision.arc import fit_circle
 from cellctl.vision.arc_corner import ArcCornerMeasurement, detect_arc_corner, measure_circle
 from cellctl.vision.arc_profile import arc_profile
 from cellctl.vision.gap_figures import InPlaneGaps, line_to_mm
@@ -97,50 +102,77 @@ def measure_arc_gaps(
     return ArcGapMeasurement(opening, glass, "both arcs found")
 
 
+def _on_glass(p: F64, foot: F64, D: float, dz: float, slope: F64) -> F64:
+    """Where the rays through wall points ``p`` (mm, T's x, y; camera at depth -D over ``foot``) meet
+    the glass plane ``z = dz + slope . (x, y)`` (+ into the wall): their x, y (mm)."""
+    s = (D + dz + float(slope @ foot)) / (D - (p - foot) @ slope)
+    return foot + (p - foot) * s[:, None]
+
+
+def _tilt_2x2(drx_rad: float, dry_rad: float) -> F64:
+    """The glass plane's (x, y) to T's (x, y) under its tilt (rows and columns 0, 1 of Ry Rx)."""
+    return np.array([[math.cos(dry_rad), math.sin(dry_rad) * math.sin(drx_rad)], [0.0, math.cos(drx_rad)]])
+
+
 def in_plane_from_arcs(
-    m: ArcGapMeasurement, nine_point: AffineMap, lens: Lens, *, radius_mm: float, dz_mm: float,
-    working_distance_mm: float,
+    m: ArcGapMeasurement, nine_point: AffineMap, lens: Lens, *, radius_mm: float, dz_mm: float, drx_rad: float,
+    dry_rad: float, working_distance_mm: float,
 ) -> InPlaneGaps:
     """The glass's in-plane figures against the opening from the two arcs (module docstring).
 
-    ``top_gap_mm`` is the gap between the top edges at the opening's top tangent point,
-    ``right_gap_mm`` the gap across the arc at its middle (the right edge is out of view there):
-    the radii's difference plus the centres' offset along that radius.
+    ``dz_mm``, ``drx_rad``, ``dry_rad``: the flush's glass plane against the wall in T (+ into the
+    wall, cellctl.inspection.flush); T is taken as the opening's measured frame here (the map's
+    origin is the taught aim, not T's). ``top_gap_mm`` is the gap between the top edges at the
+    opening's top tangent point, ``right_gap_mm`` the gap across the arc at its middle (the right
+    edge is out of view there): the radii's difference plus the centres' offset along that radius.
     """
     if not m.ok:
         raise ValueError(f"the arcs were not both measured: {m.message}")
     glass = m.glass
     assert glass is not None and glass.centre_px is not None and m.opening.centre_px is not None
-    foot = nine_point.apply(np.array([[lens.cx, lens.cy]]))[0]
-    scale = (working_distance_mm + dz_mm) / working_distance_mm
-    o_top = line_to_mm(_top(m.opening), nine_point)  # type: ignore[arg-type]
-    g_top = line_to_mm(_top(glass), nine_point, foot_mm=foot, scale=scale)  # type: ignore[arg-type]
-    phi_o = math.atan2(-o_top.direction[1], -o_top.direction[0])  # the top line points to -x
-    phi_g = math.atan2(-g_top.direction[1], -g_top.direction[0])
-    o_c = nine_point.apply(m.opening.centre_px[None])[0]
-    g_c = foot + (nine_point.apply(glass.centre_px[None])[0] - foot) * scale
-    arc_centre = np.array([-radius_mm, radius_mm])
-    O = o_c - rot2(phi_o) @ arc_centre
-    G = g_c - rot2(phi_g) @ arc_centre
-    d = rot2(-phi_o) @ (G - O)
-    tangent = O + rot2(phi_o) @ np.array([-radius_mm, 0.0])  # the opening's top tangent point
-    n = g_top.normal if float(g_top.normal @ (rot2(phi_o) @ np.array([0.0, 1.0]))) >= 0 else -g_top.normal
-    mm_per_px = nine_point.mm_per_px
-    mid = rot2(phi_o) @ np.array([1.0, -1.0]) / math.sqrt(2.0)  # from the arc's centre through its middle, to the corner
+    top = _top(glass)
+    assert top is not None
     assert m.opening.radius_px is not None and glass.radius_px is not None
+    D, mm_per_px = working_distance_mm, nine_point.mm_per_px
+    scale = (D + dz_mm) / D
+    o_top = line_to_mm(_top(m.opening), nine_point)  # type: ignore[arg-type]
+    phi_o = math.atan2(-o_top.direction[1], -o_top.direction[0])  # the top line points to -x
+    arc_centre = np.array([-radius_mm, radius_mm])
+    O = nine_point.apply(m.opening.centre_px[None])[0] - rot2(phi_o) @ arc_centre
+
+    def in_T(px: F64) -> F64:
+        """Ideal px (N, 2) to mm in the opening's frame (T's x, y)."""
+        return (nine_point.apply(px) - O) @ rot2(phi_o)
+
+    foot = in_T(np.array([[lens.cx, lens.cy]]))[0]
+    slope, tilt = np.array([-dry_rad, drx_rad]), _tilt_2x2(drx_rad, dry_rad)
+    untilt = np.linalg.inv(tilt)
+    ends = _on_glass(in_T(np.vstack([top.point, top.point + 100.0 * top.direction])), foot, D, dz_mm, slope) @ untilt.T
+    g_top = Line2D(ends[0], (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0]))  # in the glass's plane
+    # The glass's circle: the detector's scaled for dz at T's origin, moved by what each point's own depth changes in a fit.
+    pts = in_T(glass.points_ideal[glass.inliers])
+    c_flat, r_flat = fit_circle(foot + (pts - foot) * scale)
+    c_own, r_own = fit_circle(_on_glass(pts, foot, D, dz_mm, slope) @ untilt.T)
+    g_c = foot + (in_T(glass.centre_px[None])[0] - foot) * scale + (c_own - c_flat)
+    phi_g = math.atan2(-g_top.direction[1], -g_top.direction[0])  # against the opening's
+    d = tilt @ (g_c - rot2(phi_g) @ arc_centre)  # G's origin, back in T's (x, y)
+    g_c, g_point = tilt @ g_c, tilt @ g_top.point
+    n = g_top.normal if g_top.normal[1] >= 0 else -g_top.normal
+    mid = np.array([1.0, -1.0]) / math.sqrt(2.0)  # from the arc's centre through its middle, to the corner
     return InPlaneGaps(
         dx_mm=float(d[0]),
         dy_mm=float(d[1]),
-        drz_rad=wrap_angle(phi_g - phi_o),
-        top_gap_mm=float((g_top.point - tangent) @ n),
-        right_gap_mm=float(m.opening.radius_px * mm_per_px - glass.radius_px * mm_per_px * scale + (o_c - g_c) @ mid),
-        top_angle_rad=float(phi_g - phi_o),
+        drz_rad=wrap_angle(phi_g),
+        top_gap_mm=float((g_point - np.array([-radius_mm, 0.0])) @ n),  # from the opening's top tangent point
+        right_gap_mm=float(m.opening.radius_px * mm_per_px - glass.radius_px * mm_per_px * scale - (r_own - r_flat)
+                           + (arc_centre - g_c) @ mid),
+        top_angle_rad=float(phi_g),
         right_angle_rad=float("nan"),
         reference_along_mm=radius_mm,
         opening_corner_mm=O,
         opening_angle_rad=phi_o,
-        glass_corner_mm=G,
-        glass_angle_rad=phi_g,
+        glass_corner_mm=O + rot2(phi_o) @ d,
+        glass_angle_rad=phi_o + phi_g,
         parallax_scale=scale,
-        foot_mm=foot,
+        foot_mm=O + rot2(phi_o) @ foot,
     )

@@ -83,16 +83,63 @@ def level_problem(crop: NDArray[np.uint8]) -> str:
     return f"no straight edge found in the region of interest ({levels})"
 
 
-def _tilt_note(ang: F64, cfg: CoarseConfig, missing: str) -> str:
+_ARC_STEP_DEG = 2.0  # segments of one straight edge differ by the Hough's angle step (0.5 deg); an arc's turn by more
+_ARC_CENTRE_DEG = 10.0  # a chord's end off its arc by the shrunk image's few px turns its bisector by a few deg
+_ARC_BAND_SHRUNK_PX = 6.0  # a Hough line follows an arc ~2 shrunk px each side of the dilated Canny line: twice that, more
+
+
+def _on_arcs(segs: F64, band_px: float) -> tuple[float, float] | None:
+    """The radii (px, least and most) of the concentric arcs the segments (K, 4) lie on as chords, or None.
+
+    A curved edge gives Hough segments as short chords, each square to the radius through its middle: their
+    perpendicular bisectors meet in the arcs' centre (the wall's, flange's and seal's arcs share it), their
+    directions turning along the arc (three directions at least), and each bulging from its arc by its sagitta
+    L^2 / 8r, at most ``band_px`` (the Hough's band, px). A straight edge's segments do not turn, a turned corner's two
+    edges give two directions and chords too long for any arc through the centre; scattered marks miss the centre.
+    """
+    if len(segs) < 3:
+        return None
+    d = segs[:, 2:] - segs[:, :2]
+    half = np.hypot(d[:, 0], d[:, 1]) / 2.0
+    u = d / (2.0 * half[:, None])
+    turn = np.sort((np.degrees(np.arctan2(u[:, 1], u[:, 0])) + 90.0) % 180.0 - 90.0)
+    if np.count_nonzero(np.diff(turn) > _ARC_STEP_DEG) < 2:  # one or two directions: straight edges (a turned corner)
+        return None
+    mid = (segs[:, :2] + segs[:, 2:]) / 2.0
+    A = np.einsum("ki,kj->ij", u, u)
+    if np.linalg.cond(A) > 1e6:
+        return None
+    c = np.linalg.solve(A, np.einsum("ki,kj,kj->i", u, u, mid))  # least squares: (c - mid_k) . u_k = 0 for all k
+    radial = mid - c
+    dist = np.hypot(radial[:, 0], radial[:, 1])
+    if np.max(np.abs(np.sum(radial * u, axis=1)) / np.maximum(dist, 1e-9)) > np.sin(np.radians(_ARC_CENTRE_DEG)):
+        return None
+    r = np.sqrt(dist**2 + half**2)  # a chord's middle lies inside its circle
+    if np.max(r - dist) > band_px:
+        return None
+    return float(r.min()), float(r.max())
+
+
+def _tilt_note(ang: F64, segs: F64, cfg: CoarseConfig, missing: str) -> str:
     """Why no edge along the rows (top) or columns (right) was kept, when segments leaning past the limit were dropped."""
     lean = np.abs(ang) if missing == "top" else 90.0 - np.abs(ang)  # from the rows, or from the columns
     leaning = lean[(lean > cfg.max_tilt_deg) & (lean < 45.0)]
     if len(leaning) == 0:
         return ""
-    return (
+    said = (
         f"; {len(leaning)} straight segment(s) lean {leaning.min():.1f}-{leaning.max():.1f} deg from the image "
-        f"{'rows' if missing == 'top' else 'columns'}, past vision.coarse.max_tilt_deg ({cfg.max_tilt_deg:g} deg): "
-        "check the car body's posture or raise the limit"
+        f"{'rows' if missing == 'top' else 'columns'}, past vision.coarse.max_tilt_deg ({cfg.max_tilt_deg:g} deg)"
+    )
+    curved = (np.abs(ang) > cfg.max_tilt_deg) & (np.abs(ang) < 90.0 - cfg.max_tilt_deg)
+    radii = _on_arcs(segs[curved], _ARC_BAND_SHRUNK_PX * cfg.downscale)
+    if radii is None:
+        return said + ": check the car body's posture or raise the limit"
+    return (
+        f"{said}, and lie on arcs about one centre (radius {radii[0]:.0f}-{radii[1]:.0f} px): the opening's rounded "
+        f"corner, with too little straight {missing} edge beside its arc in the region of interest; check "
+        "layout.opening.corner_radius_mm (a recipe's in its [process.recipes.opening]) against the opening (a large "
+        "radius leaves the corner method little straight edge in view), the car body's posture and placement (where "
+        "they put the corner) and vision.roi"
     )
 
 
@@ -205,7 +252,7 @@ def find_coarse_corner(
         missing = "top" if not tops else "right"
         what = "running along the image rows" if missing == "top" else "running along the image columns"
         message = f"no {missing} edge found: no straight edge {what} in the region of interest"
-        return CoarseFailure(missing, message + _tilt_note(ang, cfg, missing), segs)
+        return CoarseFailure(missing, message + _tilt_note(ang, segs, cfg, missing), segs)
 
     x0, y0 = roi.x_px, roi.y_px
     x1, y1 = roi.x_px + roi.width_px - 1, roi.y_px + roi.height_px - 1
