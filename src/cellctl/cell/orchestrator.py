@@ -138,11 +138,11 @@ class CellOrchestrator:
 
     def _complete_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
         """Complete ends production in a wait state: not while a cycle still moves the robot or waits its turn."""
+        queued = f"queued cycles {', '.join(map(str, self._pending))}" if self._pending else ""
         if self._busy is not None:
-            return f"cycle {self._busy} is running: Complete once it has ended, or Stop or Hold it first"
-        if self._pending:
-            return f"queued cycles {', '.join(map(str, self._pending))}: Complete once they have ended, or Stop to drop them"
-        return None
+            also = f" and {queued}" if queued else ""
+            return f"cycle {self._busy} is running{also}: Complete once it has ended, or Stop or Hold it first"
+        return f"{queued}: Complete once they have ended, or Stop to drop them" if queued else None
 
     def add_status(self, name: str, part: Callable[[], Any]) -> None:
         """Add ``name`` to every /status snapshot, from ``part()`` (e.g. the running commissioning job)."""
