@@ -75,22 +75,80 @@ def _detail(r: httpx.Response) -> str:
     return str(body.get("detail", r.text)) if isinstance(body, dict) else r.text
 
 
+_EXPIRED, _NOT_YET_VALID = 10, 9  # OpenSSL's X509_V_ERR_CERT_HAS_EXPIRED, X509_V_ERR_CERT_NOT_YET_VALID
+_NAME_MISMATCH = frozenset({62, 63, 64})  # X509_V_ERR_HOSTNAME_MISMATCH, _EMAIL_, _IP_ADDRESS_MISMATCH
+_UNTRUSTED = frozenset({2, 18, 19, 20, 21})  # no issuer found, self-signed leaf or chain, leaf signature unverifiable
+
+
+def _cause(err: BaseException, kind: type[BaseException]) -> BaseException | None:
+    """The first exception of type ``kind`` in ``err``'s chain (httpx wraps httpcore, which wraps ssl or the OS)."""
+    seen: set[int] = set()
+    e: BaseException | None = err
+    while e is not None and id(e) not in seen:
+        if isinstance(e, kind):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def _what_failed(err: httpx.HTTPError) -> str:
+    """What went wrong, from OpenSSL's verification reason or the OS's error only: never the exception's text, which
+    may quote the request (h11 quotes an illegal header value, the bearer token)."""
+    verify = _cause(err, ssl.SSLCertVerificationError)
+    if isinstance(verify, ssl.SSLCertVerificationError):
+        return f"CERTIFICATE_VERIFY_FAILED: {verify.verify_message}"
+    if isinstance(err, httpx.TimeoutException):
+        return f"no answer in time ({type(err).__name__})"
+    os_err = _cause(err, OSError)
+    if isinstance(os_err, OSError) and os_err.strerror:
+        return os_err.strerror
+    return type(err).__name__
+
+
 def _reach_hint(url: str, err: httpx.HTTPError) -> str:
-    """What to check when the service could not be reached: its certificate, its scheme, or that it runs."""
-    if "CERTIFICATE_VERIFY_FAILED" in str(err):
-        return "its HTTPS certificate is not trusted: give --ca with the PEM of the CA that signed it, or $SSL_CERT_FILE"
+    """What to check when the service could not be reached: its certificate (by OpenSSL's reason), its scheme, or
+    that it runs."""
+    verify = _cause(err, ssl.SSLCertVerificationError)
+    if isinstance(verify, ssl.SSLCertVerificationError):
+        code = verify.verify_code
+        if code == _EXPIRED:
+            return ("its HTTPS certificate (or its CA's) has expired, or this computer's clock is wrong: have the "
+                    "plant's CA issue a new api.tls_cert for the cell (another --ca does not help)")
+        if code == _NOT_YET_VALID:
+            return ("its HTTPS certificate is not valid yet: check the clock of this computer and of the cell, or have "
+                    "api.tls_cert issued valid from now")
+        if code in _NAME_MISMATCH:
+            host = httpx.URL(url).host
+            return (f"its HTTPS certificate is not issued for {host!r}: give --url with a name or address the "
+                    "certificate holds (its subjectAltName), or have api.tls_cert issued for this one")
+        if code in _UNTRUSTED:
+            return "its HTTPS certificate is not trusted: give --ca with the PEM of the CA that signed it, or $SSL_CERT_FILE"
+        return f"its HTTPS certificate was refused ({verify.verify_message}): check api.tls_cert and --ca"
     if url.startswith("http://") and isinstance(err, httpx.RemoteProtocolError):
         return "if it serves HTTPS ([api] tls_cert), use https://"
     return "is `cellctl serve` running?"
 
 
+def clean_token(token: str | None, source: str) -> str | None:
+    """The bearer token without surrounding white space (a CR or blank from a file or a copy-paste; the service
+    strips it too); None if empty. ServiceError naming ``source``, never the value, if it holds a control or
+    non-ASCII character: it cannot travel in an HTTP header."""
+    value = (token or "").strip()
+    if any(not (" " <= c <= "~") for c in value):
+        raise ServiceError(f"{source} holds control or non-ASCII characters, which an HTTP header cannot carry: give "
+                           "the token as the service's [api] tokens hold it (printable ASCII)")
+    return value or None
+
+
 class CellClient:
-    """Talks to a running ``cellctl serve``. ``token`` defaults to $CELLCTL_TOKEN."""
+    """Talks to a running ``cellctl serve``. ``token`` defaults to $CELLCTL_TOKEN (see :func:`clean_token`)."""
 
     def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0,
                  verify: ssl.SSLContext | bool = True) -> None:  # fmt: skip
         self.url = url.rstrip("/")
-        self._token = token if token is not None else os.environ.get(TOKEN_ENV)
+        given = (token, "--token") if token is not None else (os.environ.get(TOKEN_ENV), f"${TOKEN_ENV}")
+        self._token = clean_token(*given)
         self._verify, self._timeout_s = verify, timeout_s
         try:
             self._http = httpx.Client(base_url=self.url, timeout=timeout_s, verify=verify)
@@ -115,8 +173,9 @@ class CellClient:
         kw["headers"] = self._headers(kw.get("headers"))
         try:
             r = self._http.request(method, path, **kw)
-        except httpx.HTTPError as err:
-            raise ServiceError(f"cannot reach the cell service at {self.url}: {err} ({_reach_hint(self.url, err)})") from None
+        except httpx.HTTPError as err:  # its text only without the token: h11 quotes a header it refuses
+            why = _what_failed(err) if self._token else str(err)
+            raise ServiceError(f"cannot reach the cell service at {self.url}: {why} ({_reach_hint(self.url, err)})") from None
         except httpx.InvalidURL as err:
             raise ServiceError(f"{method} {path}: not a valid URL under --url {self.url!r} ({err})") from None
         if r.status_code >= 400:
@@ -234,7 +293,8 @@ class CellClient:
                             yield kind, json.loads(data)
                         kind, data = "message", ""
         except httpx.HTTPError as err:
-            raise ServiceError(f"the event stream of {self.url} ended: {err}") from None
+            why = _what_failed(err) if self._token else str(err)
+            raise ServiceError(f"the event stream of {self.url} ended: {why} ({_reach_hint(self.url, err)})") from None
 
     def bring_to_execute(self) -> str:
         """Send Clear/Reset/Start as the state needs to reach Execute; returns the state reached."""

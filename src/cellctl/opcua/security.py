@@ -28,7 +28,7 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from cellctl.config.api import open_to_everyone
+from cellctl.config.api import certificate_dates, open_to_everyone
 from cellctl.config.opcua import OpcUaConfig, OpcUaUser
 from cellctl.folders import folder_problem
 
@@ -227,7 +227,7 @@ def server_certificate_problem(cert_path: Path, key_path: Path) -> str | None:
     """What :func:`ensure_certificate` and :func:`certificate_uri` would refuse at start (dry run); None if nothing."""
     if cert_path.is_file() and key_path.is_file():
         try:
-            load_server_certificate(cert_path)
+            check_server_certificate_dates(cert_path, load_server_certificate(cert_path))
             load_server_private_key(key_path)
         except ServerCertificateError as err:
             return str(err)
@@ -266,6 +266,18 @@ def load_server_certificate(cert_path: Path) -> x509.Certificate:
         f"{cert_path} (or name a PEM file *.pem), or delete it and its key to have new ones made") from None
 
 
+def check_server_certificate_dates(cert_path: Path, cert: x509.Certificate) -> None:
+    """ServerCertificateError naming opcua.certificate and its dates if it is not valid now (clients refuse it); a
+    warning logged when it expires within EXPIRY_WARNING_DAYS."""
+    fix = (f"give a renewed certificate (the same application URI and key), or delete {cert_path} and its key to have "
+           "new ones made (and give the new certificate to the plant's clients)")
+    problem, warning = certificate_dates(cert, f"opcua.certificate {cert_path}", fix)
+    if problem is not None:
+        raise ServerCertificateError(problem)
+    if warning is not None:
+        log.warning("%s", warning)
+
+
 def load_server_private_key(key_path: Path) -> rsa.RSAPrivateKey:
     """The server's key as asyncua will load it (PEM if named .pem, else DER, no password); ServerCertificateError if not."""
     fix = "or delete it and its certificate to have new ones made"
@@ -291,12 +303,14 @@ def load_server_private_key(key_path: Path) -> rsa.RSAPrivateKey:
 
 def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) -> bool:
     """Create the server's self-signed certificate and key if either is absent; True if it created them.
-    Existing ones are checked: ServerCertificateError naming the setting if the key cannot be loaded.
+    Existing ones are checked: ServerCertificateError naming the setting if the certificate is not valid now (its
+    dates) or the key cannot be loaded.
 
     RSA 2048 / SHA-256, SubjectAltName the application URI, this host's name, localhost and
     127.0.0.1, valid ten years; the key is written readable by the service's user only.
     """
     if cert_path.is_file() and key_path.is_file():
+        check_server_certificate_dates(cert_path, load_server_certificate(cert_path))
         load_server_private_key(key_path)  # asyncua's own load would end the start in a traceback
         return False
     key = cert_gen.generate_private_key()
