@@ -90,7 +90,7 @@ def test_a_chain_with_the_ca_first_is_named_as_misordered(tmp_path: Path, capsys
     rc, out, err = _check(capsys, _config(tmp_path, pki), tmp_path)
     assert rc == 2 and "is not the private key" not in err, err
     assert (f"api.tls_cert: {pki['chain']} is in the wrong order: the certificate of api.tls_key {pki['key']} is "
-            "certificate 2 of 2 in it; the server's certificate must come first in api.tls_cert, the intermediate CA "
+            "certificate 2 in it; the server's certificate must come first in api.tls_cert, the intermediate CA "
             "certificates after it") in err, err
     other = issue(tmp_path, "other", NOW - DAY, NOW + 90 * DAY)  # a key of no certificate in the file: as before
     pki["key"].write_bytes(other["key"].read_bytes())

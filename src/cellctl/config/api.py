@@ -7,17 +7,14 @@ import logging
 import os
 import ssl
 import stat
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from cellctl.config.certificates import certificate_dates, key_certificate_index
 from cellctl.config.devices import is_loopback
 from cellctl.config.types import ListenHost, StrictModel, check_unique
-
-if TYPE_CHECKING:
-    from cryptography import x509
 
 log = logging.getLogger(__name__)
 
@@ -33,8 +30,6 @@ PLACEHOLDER_MARKS = ("change-me", "changeme", "change_me", "replace-with", "repl
 MIN_DISTINCT_CHARACTERS = 8
 TOKEN_FILE_MAX_BYTES = 4096
 MAKE_A_TOKEN = "python3 -c 'import secrets; print(secrets.token_urlsafe(32))'"
-EXPIRY_WARNING_DAYS = 30
-"""A served certificate (api.tls_cert, opcua.certificate) with fewer days left is warned about (check, start)."""
 DEFAULT_MAX_BODY_BYTES = 64 * 1024
 """The largest request body (bytes): the API's bodies (a cycle request, a job request, a prompt answer) are
 below 1 kB each; 64 kB leaves room for long ids and options without letting a client fill the memory."""
@@ -342,20 +337,10 @@ class ApiConfig(StrictModel):
 
 def _key_mismatch(cert_path: Path, key_path: Path) -> str:
     """What OpenSSL's KEY_VALUES_MISMATCH means here: a chain with the server's certificate not first, or another key."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
-
-    try:
-        certs = x509.load_pem_x509_certificates(cert_path.read_bytes())
-        public = serialization.load_pem_private_key(key_path.read_bytes(), password=None).public_key()
-    except (OSError, ValueError, TypeError):
-        certs, public = [], None
-    spki = (serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
-    mine = None if public is None else public.public_bytes(*spki)
-    own = [i for i, c in enumerate(certs) if c.public_key().public_bytes(*spki) == mine]
-    if own and own[0] > 0:
+    own = key_certificate_index(cert_path, key_path)
+    if own:
         return (f"api.tls_cert: {cert_path} is in the wrong order: the certificate of api.tls_key {key_path} is "
-                f"certificate {own[0] + 1} of {len(certs)} in it; the server's certificate must come first in "
+                f"certificate {own + 1} in it; the server's certificate must come first in "
                 "api.tls_cert, the intermediate CA certificates after it")
     return f"api.tls_key: {key_path} is not the private key of api.tls_cert {cert_path}; give the certificate's own key"
 
@@ -374,29 +359,6 @@ def _leaf_dates_problems(cert_path: Path) -> list[str]:
     if warning is not None:
         log.warning("%s", warning)
     return [problem] if problem is not None else []
-
-
-def _utc(when: datetime) -> str:
-    return when.strftime("%Y-%m-%d %H:%M UTC")
-
-
-def certificate_dates(cert: x509.Certificate, named: str, fix: str,
-                      now: datetime | None = None) -> tuple[str | None, str | None]:  # fmt: skip
-    """(problem, warning) of a certificate the service serves, by this computer's clock (``now``, UTC): the problem
-    when it is not valid yet or has expired (clients refuse it), the warning when fewer than EXPIRY_WARNING_DAYS
-    remain; ``named`` says the setting and the file, ``fix`` what to do."""
-    now = now or datetime.now(timezone.utc)
-    start, end = cert.not_valid_before_utc, cert.not_valid_after_utc
-    valid = f"valid from {_utc(start)} to {_utc(end)}"
-    if now < start:
-        return (f"{named} is not valid yet ({valid}; now {_utc(now)}), so clients refuse it: check this computer's "
-                f"clock, or {fix}"), None
-    if now > end:
-        return f"{named} has expired ({valid}; now {_utc(now)}), so clients refuse it: {fix}", None
-    days = (end - now).days
-    if days < EXPIRY_WARNING_DAYS:
-        return None, f"{named} expires in {days} day(s), on {_utc(end)}; then clients refuse it: {fix} before then"
-    return None, None
 
 
 class _PassphraseAsked(Exception):

@@ -8,7 +8,6 @@ them); one that cannot be used raises :class:`MqttSetupError` naming the field.
 
 from __future__ import annotations
 
-import datetime as dt
 import logging
 import os
 import re
@@ -19,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import aiomqtt
 
 from cellctl.config.api import TokenUnavailable, open_to_everyone, read_secret
+from cellctl.config.certificates import certificate_dates, key_certificate_index
 from cellctl.config.mqtt import MqttConfig
 from cellctl.mqtt.bridge import EventBridge
 from cellctl.mqtt.outbox import Outbox
@@ -32,7 +32,6 @@ log = logging.getLogger(__name__)
 
 STOP_GRACE_S = 3.0  # at a stop, how long pending messages may still be sent while the broker answers
 PASSWORD_FILE_MAX_BYTES = 4096
-EXPIRY_WARNING_DAYS = 30  # a client certificate with fewer days left is warned about at start (as the API's own)
 NEW_CLIENT_CERTIFICATE = "have the plant's CA issue a new client certificate, and restart the service"
 
 
@@ -126,7 +125,7 @@ def _load_client_pair(context: ssl.SSLContext, cert: str, key: str) -> None:
     except (ssl.SSLError, OSError) as err:
         failure = err
     if isinstance(failure, ssl.SSLError) and failure.reason == "KEY_VALUES_MISMATCH":
-        if _key_of_a_later_certificate(cert, key):
+        if key_certificate_index(cert, key):  # the key's certificate is in the file, but not first
             raise MqttSetupError(f"mqtt.tls.cert_file: {cert} holds the certificate of mqtt.tls.key_file {key}, but not "
                                  "first; put the client's own certificate first, the intermediate CA certificates "
                                  "after it") from None
@@ -146,25 +145,9 @@ def _load_client_pair(context: ssl.SSLContext, cert: str, key: str) -> None:
                          f"({_reason(failure)}); give the client certificate the plant's CA issued and its key") from None
 
 
-def _key_of_a_later_certificate(cert: str, key: str) -> bool:
-    """Whether ``key`` belongs to a certificate of ``cert`` after the first (a chain in the wrong order)."""
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
-
-    try:
-        public = serialization.load_pem_private_key(Path(key).read_bytes(), password=None).public_key()
-        return any(c.public_key() == public for c in x509.load_pem_x509_certificates(Path(cert).read_bytes())[1:])
-    except (ValueError, TypeError, OSError):
-        return False
-
-
-def _utc(when: dt.datetime) -> str:
-    return when.strftime("%Y-%m-%d %H:%M UTC")
-
-
-def _check_validity(cert: str, now: dt.datetime | None = None) -> None:
-    """MqttSetupError naming ``mqtt.tls.cert_file`` and its dates when the client certificate is not valid ``now`` (UTC,
-    default this computer's clock); a warning logged when fewer than EXPIRY_WARNING_DAYS remain."""
+def _check_validity(cert: str) -> None:
+    """MqttSetupError naming ``mqtt.tls.cert_file`` and its dates when the client certificate is not valid now; a
+    warning logged when fewer than config.certificates.EXPIRY_WARNING_DAYS remain."""
     from cryptography import x509
 
     try:
@@ -172,17 +155,12 @@ def _check_validity(cert: str, now: dt.datetime | None = None) -> None:
     except ValueError as err:
         raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not a PEM certificate ({err}); give the client "
                              "certificate the plant's CA issued, PEM") from None
-    now = now or dt.datetime.now(dt.UTC)
-    start, end = leaf.not_valid_before_utc, leaf.not_valid_after_utc
-    valid, fix = f"valid from {_utc(start)} to {_utc(end)}; now {_utc(now)}", NEW_CLIENT_CERTIFICATE
-    if now < start:
-        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not valid yet ({valid}), so the broker refuses it: check "
-                             f"this computer's clock, or {fix}")
-    if now > end:
-        raise MqttSetupError(f"mqtt.tls.cert_file: {cert} has expired ({valid}), so the broker refuses it: {fix}")
-    if (days := (end - now).days) < EXPIRY_WARNING_DAYS:
-        log.warning("mqtt.tls.cert_file: %s expires in %d day(s), on %s; then the broker refuses it: %s before then",
-                    cert, days, _utc(end), fix)  # fmt: skip
+    problem, warning = certificate_dates(leaf, f"mqtt.tls.cert_file: {cert}", NEW_CLIENT_CERTIFICATE,
+                                         refused="the broker refuses it")
+    if problem is not None:
+        raise MqttSetupError(problem)
+    if warning is not None:
+        log.warning("%s", warning)
 
 
 class MqttPublication:

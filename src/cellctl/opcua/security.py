@@ -28,7 +28,8 @@ from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
 
-from cellctl.config.api import certificate_dates, open_to_everyone
+from cellctl.config.api import open_to_everyone
+from cellctl.config.certificates import certificate_dates
 from cellctl.config.opcua import OpcUaConfig, OpcUaUser
 from cellctl.folders import folder_problem
 
