@@ -45,6 +45,7 @@ from cellctl.calibration.set_parts import (
     PartRecord,
     RecipeParts,
     WallRead,
+    WrittenBy,
 )
 from cellctl.compensate import TaughtPoses
 from cellctl.config.cell import AlignConfig
@@ -89,6 +90,7 @@ class CalibrationSet(StrictRecord):
     note: str = ""
     parts: Parts = Parts()
     recipes: dict[str, RecipeParts] = {}  # the own parts of each recipe but the cell's first (whose are in parts)
+    written_by: WrittenBy | None = None  # a version written outside the service (a job's: its job record names who)
 
     def part(self, name: str, recipe: str | None = None) -> PartRecord | None:
         """Part ``name``: a recipe's own (teaching, pixel_map) when ``recipe`` names one, else the set's."""
@@ -150,7 +152,8 @@ class CalibrationSet(StrictRecord):
         return {k: float("nan") if getattr(v, k) is None else float(getattr(v, k)) for k in keys}
 
     def with_part(
-        self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "", recipe: str | None = None
+        self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "", recipe: str | None = None,
+        written_by: WrittenBy | None = None,
     ) -> "CalibrationSet":
         """A new version with ``part`` as ``name`` (of ``recipe``'s own parts when it names one), all else kept."""
         if not isinstance(part, PART_MODELS[name]):
@@ -161,7 +164,8 @@ class CalibrationSet(StrictRecord):
         else:
             parts = parts.model_copy(update={name: part})
         return CalibrationSet(
-            version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts, recipes=recipes
+            version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts, recipes=recipes,
+            written_by=written_by,
         )
 
 
@@ -208,8 +212,8 @@ def load_calibration_set(path: str | Path) -> CalibrationSet:
 
 
 def dump_calibration_set(cal: CalibrationSet) -> str:
-    """The set as indented JSON (timestamps as UTC ISO 8601)."""
-    return cal.model_dump_json(indent=2, exclude_none=False)
+    """The set as indented JSON (timestamps as UTC ISO 8601); ``written_by`` only when it names someone."""
+    return cal.model_dump_json(indent=2, exclude_none=False, exclude=None if cal.written_by is not None else {"written_by"})
 
 
 def part_id(name: str, values: dict[str, Any], when: datetime) -> str:
@@ -333,6 +337,7 @@ class CalibrationStore:
     def __init__(self, root: str | Path, *, lock_timeout_s: float | None = None) -> None:
         self.root = Path(root)
         self.lock_timeout_s = lock_timeout_s
+        self.written: set[int] = set()  # the versions this object committed (the service tells its own from others')
 
     def _path(self, version: int) -> Path:
         return self.root / f"set-{version:06d}.json"
@@ -371,9 +376,11 @@ class CalibrationStore:
         return None if v is None else self.load(v)
 
     def commit(
-        self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None, recipe: str | None = None
+        self, name: str, part: PartRecord, *, note: str = "", now: datetime | None = None, recipe: str | None = None,
+        written_by: WrittenBy | None = None,
     ) -> CalibrationSet:
-        """Store a new version with ``part`` replacing ``name`` (``recipe``'s own, if it names one), make it current; locked."""
+        """Store a new version with ``part`` replacing ``name`` (``recipe``'s own, if it names one), make it current; locked.
+        ``written_by`` names who wrote it outside the service (kept in the file)."""
         when = now or datetime.now(timezone.utc)
         self.root.mkdir(parents=True, exist_ok=True)
         with store_lock(self.root, self.lock_timeout_s):
@@ -381,7 +388,7 @@ class CalibrationStore:
             base = self.current() or empty_set(when)
             existing = self.versions()
             version = (max(existing) if existing else 0) + 1
-            new = base.with_part(name, part, version=version, created_utc=when, note=note, recipe=recipe)
+            new = base.with_part(name, part, version=version, created_utc=when, note=note, recipe=recipe, written_by=written_by)
             if base.version == 0:
                 new = new.model_copy(update={"parent_version": None})
             path = self._path(version)
@@ -389,6 +396,7 @@ class CalibrationStore:
                 write_file(path, dump_calibration_set(new), exclusive=True)
             except FileExistsError:
                 raise CalibrationSetError(f"{path} exists already; a writer without the store's lock wrote it") from None
+            self.written.add(version)  # before the pointer: a reader that sees the pointer sees this too
             write_file(self.root / self.POINTER, path.name + "\n", exclusive=False)
         return new
 

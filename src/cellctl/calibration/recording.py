@@ -13,6 +13,7 @@ import cellctl
 from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationStore, make_part
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset
+from cellctl.calibration.set_parts import WrittenBy
 from cellctl.config.schema import CellConfig
 
 
@@ -36,12 +37,13 @@ def validity_days(config: CellConfig, part: str) -> float:
 
 def record(
     store: CalibrationStore, outcome: Outcome, ds: Dataset | None, config: CellConfig, when: datetime, note: str = "",
-    measured: datetime | None = None,
+    measured: datetime | None = None, written_by: WrittenBy | None = None,
 ) -> CalibrationSet:
     """Store a calibration that passed its gates as a new version of the set, at ``when``.
 
     The part counts as calibrated at ``measured`` (the dataset's capture, for a recompute of older data) or else at
-    ``when``: its validity runs from the measurement, not from the computing.
+    ``when``: its validity runs from the measurement, not from the computing. ``written_by``: who wrote it outside the
+    service (the offline CLI), kept in the set file.
     """
     part = make_part(
         outcome.part,
@@ -55,4 +57,5 @@ def record(
         dataset=None if ds is None else ds.ref({"kind": ds.kind}),
         software=software(),
     )
-    return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when, recipe=outcome.recipe)
+    return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when, recipe=outcome.recipe,
+                        written_by=written_by)

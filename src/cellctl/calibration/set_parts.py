@@ -193,6 +193,16 @@ class DatasetRef(StrictRecord):
     summary: dict[str, Any] = {}
 
 
+class WrittenBy(StrictRecord):
+    """Who wrote a version of the set outside the service, and from what (``cellctl calibrate ... --dataset``)."""
+
+    actor: str = Field(min_length=1)  # the OS account the command ran as
+    source: str = Field(min_length=1)  # "cli:offline"
+    host: str = ""
+    dataset: str | None = None  # the dataset folder computed from
+    dataset_manifest_sha256: str | None = Field(default=None, pattern=r"^[0-9a-f]{64}$")
+
+
 class PartRecord(StrictRecord):
     """What every part records beside its values: id, status, when, how, from what, how good."""
 

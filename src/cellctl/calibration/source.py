@@ -14,6 +14,13 @@ the file: one warning in the log naming the file and the field, one alarm
 called), and from then on :meth:`problems` names the damage (so a cycle fails with that alarm's
 code, 1305), :meth:`cycle_calibration` raises :class:`CalibrationRefused`, and the status,
 summary and history keep answering.
+
+A version the service did not write itself (``cellctl calibrate ... --dataset``, a pointer moved back
+by hand, a file edited in place; not a damaged one, which is refused) is logged and, once
+:meth:`attach_audit` was called, audited when it is adopted: ``calibration.version_changed`` (actor
+``system``, source ``calibration``) with the version before and after and whom the new set file
+names as its writer (``written_by``, None if no one); see :mod:`cellctl.calibration.provenance`.
+A job's version is audited with the job (``job.start``).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ from cellctl.calibration.calibration_set import (
     store_root,
 )
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.provenance import ADOPT_ACTION, ADOPT_ACTOR, ADOPT_SOURCE, adoption_params
 from cellctl.calibration.readiness import check_ready, expires_utc
 from cellctl.calibration.taught_shot import taught_profile_of
 from cellctl.cell.cycle import CycleCalibration
@@ -48,7 +56,10 @@ from cellctl.config.schema import CellConfig
 from cellctl.vision import AffineMap, CornerFeatures
 
 if TYPE_CHECKING:
+    from collections.abc import Callable, Coroutine
+
     from cellctl.cell.alarms import AlarmManager
+    from cellctl.store import AsyncCellStore
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +122,7 @@ class CalibrationSetSource:
         self._lock = threading.Lock()
         self._history_lock = threading.Lock()
         self._alarms: AlarmManager | None = None
+        self._audit: AsyncCellStore | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Future[Any]] = set()
         self.reads = 0  # how many times a set file was read and validated (tests, diagnostics)
@@ -127,6 +139,13 @@ class CalibrationSetSource:
         """
         self._alarms = alarms
         self._loop = asyncio.get_running_loop()
+
+    def attach_audit(self, store: AsyncCellStore) -> None:
+        """Append ``calibration.version_changed`` to ``store``'s audit log for each version adopted that this service
+        did not write (see the module docstring). Call it from the event loop the store is used on."""
+        self._loop = asyncio.get_running_loop()
+        self._audit = store
+        self._snapshot()  # the version in use now: what a later change is told against
 
     # -- reading on change --------------------------------------------------------------------
 
@@ -145,7 +164,32 @@ class CalibrationSetSource:
             self._refused(new)
         elif new.damage is None and snap is not None and snap.damage is not None:
             log.warning("calibration set: version %s is usable again (%s)", new.version, new.path)
+        if snap is not None and new.damage is None and self._written_elsewhere(snap, new):  # a damaged one is refused
+            self._adopted(snap, new)
         return new
+
+    def _written_elsewhere(self, old: _Snapshot, new: _Snapshot) -> bool:
+        """``new`` is another set than ``old`` and this service did not write it (a version it committed is its own)."""
+        if new.version != old.version:
+            return new.version not in self.store.written  # None: the pointer removed
+        return new.cal != old.cal  # the same version, edited in place (or damaged, or mended)
+
+    def _adopted(self, old: _Snapshot, new: _Snapshot) -> None:
+        """Log and audit the adoption of ``new``, which this service did not write."""
+        params = adoption_params(old.version, new.version, new.cal, new.damage, self.store.root)
+        log.warning("calibration set: version %s (was %s) adopted, not written by this service; written by %s", new.version,
+                    old.version, params.get("written_by") or "no one the set file names")  # fmt: skip
+        audit = self._audit
+        if audit is None:
+            return
+
+        async def _append() -> None:
+            try:
+                await audit.append_audit(actor=ADOPT_ACTOR, source=ADOPT_SOURCE, action=ADOPT_ACTION, params=params)
+            except Exception:  # noqa: BLE001 - the cell keeps running; the log says what was not audited
+                log.exception("calibration set: the adoption of version %s could not be audited", new.version)
+
+        self._on_loop(_append)
 
     def _read(self, pointer: FileSig) -> _Snapshot:
         path: Path | None = None
@@ -169,13 +213,21 @@ class CalibrationSetSource:
     def _refused(self, snap: _Snapshot) -> None:
         assert snap.damage is not None
         log.warning("calibration set refused: %s", snap.damage)
-        alarms, loop = self._alarms, self._loop
-        if alarms is None or loop is None or loop.is_closed():
+        alarms = self._alarms
+        if alarms is None:
             return
         from cellctl.domain import AlarmCode
 
-        def _raise() -> None:
-            task = loop.create_task(alarms.raise_alarm(AlarmCode.CALIBRATION_INVALID, source="calibration", detail=snap.damage or ""))
+        self._on_loop(lambda: alarms.raise_alarm(AlarmCode.CALIBRATION_INVALID, source="calibration", detail=snap.damage or ""))
+
+    def _on_loop(self, make: Callable[[], Coroutine[Any, Any, Any]]) -> None:
+        """Run ``make()`` as a task on the attached loop, from this thread or any other (nothing without a loop)."""
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+
+        def _start() -> None:
+            task = loop.create_task(make())
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
 
@@ -184,9 +236,9 @@ class CalibrationSetSource:
         except RuntimeError:
             running = None
         if running is loop:
-            _raise()
+            _start()
         else:
-            loop.call_soon_threadsafe(_raise)
+            loop.call_soon_threadsafe(_start)
 
     def _current(self) -> CalibrationSet | None:
         """The set in use (None before the first); raises CalibrationRefused when it is damaged."""

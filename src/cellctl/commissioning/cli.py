@@ -7,6 +7,8 @@ the calibration set when the result passes its gates). ``--dry-run`` prints the 
 nothing; Ctrl-C cancels the job (the robot stops at once). ``--dataset DIR`` instead computes
 offline, in this process, from a saved dataset and records the result in the store folder (not
 when it is the part in use again: the same dataset, the same values); it names the parts it builds on.
+The version it stores names its writer (the OS account, ``cli:offline``, the dataset), and so does a
+``calibration.store`` entry in the cell's audit log (:mod:`cellctl.calibration.provenance`).
 
 Exit status: 0 done, 1 refused, failed or cancelled (or a verification found drift), 2 usage or
 configuration problem, 130 cancelled with Ctrl-C.
@@ -26,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import ValidationError
 
 from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationSetError, CalibrationStore, store_root
+from cellctl.calibration.provenance import offline_writer
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.readiness import check_ready
@@ -37,6 +40,8 @@ from cellctl.config import load_config
 if TYPE_CHECKING:
     from cellctl.calibration.compute import Outcome
     from cellctl.calibration.set_parts import PartRecord
+    from cellctl.config.schema import CellConfig
+    from cellctl.store import CellStore
 
 JOB_HELP = (
     "Runs as a job of the running service (cellctl serve): a progress bar, each prompt answered at the keyboard "
@@ -180,18 +185,68 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
         label = outcome.part + (f" of recipe {outcome.recipe}" if outcome.recipe is not None else "")
         print(f"identical to the {label} in use ({in_use.id}); not stored: the calibration set in use is unchanged")
         return 0
+    audit = _audit_log(args, cell, store)
+    if isinstance(audit, str):
+        print(f"{procedure}: not stored: {audit}", file=sys.stderr)
+        return 1
     when = datetime.now(timezone.utc)
     try:
         saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}",
-                       measured=ds.measured_utc)  # its validity runs from the capture, not from today
+                       measured=ds.measured_utc, written_by=offline_writer(ds))  # validity from the capture, not today
     except CalibrationSetError as err:  # the store busy with another writer, or its set in use damaged
         print(f"{procedure}: not stored: {err}", file=sys.stderr)
+        if audit is not None:
+            audit.close()
         return 1
     print(f"stored as version {saved.version} in {store.root}")
+    rc = _audit_store(procedure, audit, saved, outcome, store, args)
     if ds.measured_utc is not None and when - ds.measured_utc > timedelta(hours=1):
         print(f"  calibrated as of the dataset's capture, {ds.measured_utc:%Y-%m-%d %H:%M} UTC: its validity runs from then")
     problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
+    return rc
+
+
+def _audit_log(args: argparse.Namespace, config: CellConfig, store: CalibrationStore) -> CellStore | str | None:
+    """The cell's store to audit a new version of ``store`` in: the cell's own calibration folder (calibration.directory
+    under --workdir) is audited in its [store] path (None: another folder, not the cell's); a str: why it cannot be."""
+    from cellctl.calibration.provenance import open_audit_log
+    from cellctl.store import StoreError
+
+    if os.path.realpath(store.root) != os.path.realpath(store_root(config.calibration.directory, args.workdir)):
+        return None
+    try:
+        return open_audit_log(config, args.workdir)
+    except (StoreError, OSError) as err:
+        return (f"a new version of the cell's calibration set is recorded in its audit log, which cannot be written: "
+                f"{err}; run as a user who may write it, or compute into a folder of your own with --store DIR")
+
+
+def _audit_store(
+    procedure: str, audit: CellStore | None, saved: CalibrationSet, outcome: Outcome, store: CalibrationStore,
+    args: argparse.Namespace,
+) -> int:
+    """Append ``calibration.store`` for ``saved`` to ``audit`` and close it; 1 when it could not be written."""
+    import sqlite3
+
+    from cellctl.calibration.provenance import STORE_ACTION, store_params
+    from cellctl.store import StoreError
+
+    who = saved.written_by
+    assert who is not None
+    if audit is None:
+        print(f"  not in an audit log: {store.root} is not the calibration.directory of --workdir {args.workdir}")
+        return 0
+    try:
+        audit.append_audit(actor=who.actor, source=who.source, action=STORE_ACTION, params=store_params(saved, outcome, store.root))
+    except (StoreError, sqlite3.Error) as err:
+        print(f"{procedure}: version {saved.version} is stored, but the cell's audit log ([store] path under --workdir "
+              f"{args.workdir}) could not be written ({err}); the service records the change when it adopts the version",
+              file=sys.stderr)  # fmt: skip
+        return 1
+    finally:
+        audit.close()
+    print(f"  audit log: {STORE_ACTION} by {who.actor} ({who.source})")
     return 0
 
 
@@ -200,10 +255,14 @@ def _job_command(procedure: str) -> Callable[[argparse.Namespace], int]:
         from cellctl.commissioning.terminal import follow, print_plan
 
         if args.dataset:
+            if args.dry_run or args.list_poses:
+                print(f"{'--dry-run' if args.dry_run else '--list-poses'} plans a job on the cell; --dataset computes "
+                      "offline (and stores the result): give one of them", file=sys.stderr)
+                return 2
             return _offline(args, procedure)
         client = _client(args)
         options = _options(args, procedure)
-        if args.dry_run:
+        if args.dry_run or args.list_poses:  # --list-poses is a dry run: it lists, nothing moves
             print_plan(client.plan_job(procedure, options, poses=args.list_poses), sys.stdout)
             return 0
         job = client.start_job(procedure, options)
@@ -266,7 +325,7 @@ def _store_options(p: argparse.ArgumentParser) -> None:
 def _common(p: argparse.ArgumentParser) -> None:
     add_remote_options(p)
     p.add_argument("--dry-run", action="store_true", help="print the plan (poses, reach, rotation spread, robot time); move nothing")
-    p.add_argument("--list-poses", action="store_true", help="with --dry-run: list every planned pose")
+    p.add_argument("--list-poses", action="store_true", help="print the plan with every planned pose; implies --dry-run (nothing moves)")
     p.add_argument("--no-store", action="store_true", help="compute and print only; the calibration set is not changed")
     p.add_argument("--dataset", help="compute offline, in this process, from this saved dataset folder")
     _store_options(p)

@@ -289,6 +289,7 @@ async def assemble_service(
     alarms.install()
     if isinstance(source, CalibrationSetSource):  # issue 15 item 6: a damaged set file raises its alarm once
         source.attach_alarms(alarms)
+        source.attach_audit(store)
     watchdog = DeviceWatchdog(alarms, defaults=WatchdogSettings(**config.alarms.watchdog.model_dump()))
     watchdog.add("laser", laser)
     watchdog.add("camera", camera)
