@@ -319,13 +319,13 @@ class CycleRun:
         Every shot re-anchors on the pose the robot reports and turns the measured offset into an
         estimate of the workpiece frame (T2 = T1 @ T'). Verification shots are averaged; the loop
         ends when the latest residual is under the threshold and enough shots were taken. If the
-        first shot finds the corner only roughly (too near the image border to measure), the
-        camera re-aims at it once and shoots again.
+        first shot finds the corner only roughly (too near the image border to measure, or too little
+        of an arc in view), the camera re-aims at it once and shoots again.
         """
         cal, verify = self.cal, self.process.verify
         T1 = workpiece_frame_after_alignment(cal.taught, C_Pos_1)
         m, offset = await self._measure(0, first=True)
-        coarse = getattr(m.measurement, "coarse_corner_px", None)  # the corner method's rough find
+        coarse = getattr(m.measurement, "coarse_corner_px", None)  # a rough find (corner or arc)
         if offset is None and coarse is not None:
             rough = CornerFeatures(
                 float(coarse[0]), float(coarse[1]), cal.template.theta_rad, cal.template.top_angle_rad, cal.template.right_angle_rad

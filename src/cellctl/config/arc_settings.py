@@ -62,7 +62,9 @@ class ArcTangentConfig(StrictModel):
     start_px: Finite = Field(5.0, ge=0)  # from the tangent point outwards: the arc left out
     min_length_px: Finite = Field(80.0, gt=0)  # straight run needed for an orientation
     min_points: int = Field(50, ge=10)
-    max_tilt_deg: Finite = Field(5.0, gt=0, le=30)  # an edge may lean this far from the image axes
+    # An edge may lean this far from the image axes; the arc is profiled only within as much of its quarter
+    # (up to right): past its tangent points the circle runs beside the straight edges, over the inner bands'.
+    max_tilt_deg: Finite = Field(5.0, gt=0, le=30)
     max_tangent_gap_px: Finite = Field(0.5, gt=0)  # |distance of the centre from the line - R|
     # The edge's angle from the arc and the edge fitted as one outline only where its own line stands
     # within this of the arc (else from its own line): a standoff turns the joint fit by about 0.13 deg

@@ -8,14 +8,18 @@ With a corner radius of 100-200 mm the straight edges lie outside the view. Pipe
    vote give a RANSAC circle within 20 % of the expected radius.
 2. Sub-pixel points: on every pixel column or row crossing that arc (the one closer to its normal),
    the edge crossing (cellctl.vision.subpixel); profiles on an uneven background (glare) are left
-   out; the rest are undistorted with the lens.
+   out; the rest are undistorted with the lens. Only the corner's quarter is profiled (normals
+   from up to right, give or take ``tangent.max_tilt_deg``): beyond the tangent points the outline
+   runs straight, and the circle continued there crosses the inner bands' straight edges.
 3. Fit: RANSAC, then geometric least squares within a robust band (cellctl.vision.arc); the centre
    and radius with their 1-sigma from the fit's covariance.
 4. Orientation (cellctl.vision.arc_tangent): from the straight edges beyond the arc's ends where
    they are in view, each checked tangent to the circle; else None with the reason.
 
 Every figure is checked against :class:`cellctl.config.arc_vision.ArcLimitsConfig`; the first
-failing check makes the answer a refusal (a value with the reason), not an exception.
+failing check makes the answer a refusal (a value with the reason), not an exception. A clean arc
+refused only for its coverage or its centre's sigma, where the arc runs out of the ROI, keeps its
+centre as ``coarse_corner_px``: enough to re-aim the camera (as the corner method's coarse find).
 """
 
 from __future__ import annotations
@@ -40,6 +44,9 @@ __all__ = ["ArcCornerMeasurement", "detect_arc_corner", "measure_circle"]
 
 _COARSE_RADIUS_TOLERANCE = 0.2  # seed circles within this share of the expected radius
 _SPAN_MARGIN_RAD = np.radians(2.0)  # profiles taken this far beyond the seed's ends
+# Refused for these alone (the image cuts the arc short), a clean arc still aims the camera.
+_SHORT_ARC_CHECKS = ("min arc coverage", "max predicted centre sigma")
+_END_REACH_RAD = 2.0 * _SPAN_MARGIN_RAD  # the arc leaves the ROI within this beyond its inliers' ends (the trims)
 
 
 @dataclass(frozen=True)
@@ -70,6 +77,9 @@ class ArcCornerMeasurement:
     points_ideal: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     inliers: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     edge_pixels: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # the image's Canny pixels (ideal px)
+    coarse_corner_px: F64 | None = None
+    """The centre (ideal px) of an arc refused only because the image cuts it short (coverage, centre
+    sigma): the arc runs out of the ROI, every other figure passed. Enough to re-aim the camera."""
 
     @property
     def ok(self) -> bool:
@@ -142,6 +152,13 @@ def _seed(img: NDArray[np.uint8], lens: Lens, config: ArcCornerConfig, rng: np.r
     return _Seed(centre, float(radius), mid, (float(ang.min()), float(ang.max())), pixels)
 
 
+def in_quarter(normals: F64, max_tilt_deg: float) -> NDArray[np.bool_]:
+    """Normals (unit, ideal image: u right, v down) within the upper-right corner's quarter: from up
+    (0, -1) to right (1, 0), each end widened by ``max_tilt_deg`` (the corner's turn in the image)."""
+    phi = np.degrees(np.arctan2(normals[:, 0], -normals[:, 1]))  # 0 up, 90 right
+    return (phi >= -max_tilt_deg) & (phi <= 90.0 + max_tilt_deg)
+
+
 def _inside_roi(lens: Lens, ideal: F64, config: ArcCornerConfig) -> NDArray[np.bool_]:
     """Ideal points whose raw image lies inside the ROI less its border margin."""
     roi, m = config.roi, float(config.search.border_margin_px)
@@ -149,6 +166,14 @@ def _inside_roi(lens: Lens, ideal: F64, config: ArcCornerConfig) -> NDArray[np.b
     lo = np.array([roi.x_px + m, roi.y_px + m])
     hi = np.array([roi.x_px + roi.width_px - 1 - m, roi.y_px + roi.height_px - 1 - m])
     return np.all((raw >= lo) & (raw <= hi), axis=1)
+
+
+def _runs_out(lens: Lens, config: ArcCornerConfig, c_sq: F64, R: float, mid: F64, ends: tuple[float, float]) -> bool:
+    """Whether the circle (square px) leaves the ROI just beyond an end of the inliers (angles about ``mid``, rad)."""
+    perp = np.array([-mid[1], mid[0]])
+    t = np.array([ends[0] - _END_REACH_RAD, ends[1] + _END_REACH_RAD])
+    beyond = lens.from_square(c_sq + R * (np.cos(t)[:, None] * mid + np.sin(t)[:, None] * perp))
+    return not bool(_inside_roi(lens, beyond, config).all())
 
 
 def _trim_ends(
@@ -200,6 +225,9 @@ def detect_arc_corner(image: NDArray[np.uint8], lens: Lens, config: ArcCornerCon
     t = np.linspace(a0, a1, max(int((a1 - a0) * seed.radius * 2.0), 8))
     perp = np.array([-seed.mid[1], seed.mid[0]])
     normals = np.cos(t)[:, None] * seed.mid + np.sin(t)[:, None] * perp
+    normals = normals[in_quarter(normals, config.tangent.max_tilt_deg)]
+    if len(normals) < 10:
+        return ArcCornerMeasurement(Refusal.ARC_NOT_SEEN, "the seed arc lies outside the corner's quarter (up to right)")
     ideal = seed.centre + seed.radius * normals
     keep = _inside_roi(lens, ideal, config)
     if keep.sum() < 10:
@@ -278,6 +306,8 @@ def measure_circle(
     centre = lens.from_square(c)[0]
     orientation = measure_orientation(img, lens, pixels, centre, R, pts[inl], config, search_px, rng)
     failed = next((ch for ch in checks if not ch.passed), None)
+    short = failed is not None and all(ch.passed or ch.name in _SHORT_ARC_CHECKS for ch in checks)
+    short = short and _runs_out(lens, config, c, R, mid, (float(ang[0]), float(ang[-1])))
     return ArcCornerMeasurement(
         failed.refusal if failed else None,
         f"refused: {failed.describe()}" if failed else "arc corner found",
@@ -293,6 +323,7 @@ def measure_circle(
         points_ideal=lens.from_square(pts),
         inliers=inl,
         edge_pixels=pixels,
+        coarse_corner_px=centre if short else None,
     )
 
 
