@@ -7,7 +7,7 @@ import os
 import socket
 import time
 from collections.abc import Awaitable, Callable
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 import pytest
@@ -80,3 +80,19 @@ async def eventually(what: str, check: Callable[[], Awaitable[bool]], timeout_s:
             return
         await asyncio.sleep(0.05)
     raise AssertionError(f"not within {timeout_s} s: {what}")
+
+
+def door_window_first(tweak: Callable[[dict[str, Any]], None] | None = None) -> Any:
+    """config/sim.toml as a CellConfig with the door-window recipe first (the benches' cycles take the first), after
+    ``tweak`` edited its parsed TOML (e.g. turned the closed loop off)."""
+    import tomllib
+    from pathlib import Path
+
+    from cellctl.config import parse_config
+
+    data = tomllib.loads((Path(__file__).resolve().parents[1] / "config" / "sim.toml").read_text())
+    recipes = data["process"]["recipes"]
+    data["process"]["recipes"] = [r for r in recipes if r["name"] == "door-window"] + [r for r in recipes if r["name"] != "door-window"]
+    if tweak is not None:
+        tweak(data)
+    return parse_config(data, "test: door window first")

@@ -17,47 +17,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_support import run_cli
+from config_check_support import check as _check
+from config_check_support import refused as _refused
+from config_check_support import shipped_copy as _copy
 
 from cellctl.bench.inspection_vision import WORKING_DISTANCE_MM, glass_at, taught_view
 from cellctl.bench.vision import one_core_camera
-from cellctl.config import load_config
-from cellctl.config.loader import ConfigError
 from cellctl.config.vision import GapVisionConfig
 from cellctl.sim.image_truth import camera_pose_seeing_corner, glass_truth
 from cellctl.sim.world import sample_world
 from cellctl.vision.gap import in_plane_from_gaps, measure_gaps
 
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = {"sim": ROOT / "config" / "sim.toml", "hardware": ROOT / "config" / "hardware.example.toml"}
 RADIUS_LINE = "corner_radius_mm = 30.0"  # [layout.opening]'s, once in each file
-
-
-def _copy(tmp_path: Path, which: str, edits: tuple[tuple[str, str], ...] = ()) -> Path:
-    """A copy of the shipped file with every host on 127.0.0.1 and each (old, new) replaced once."""
-    text = SHIPPED[which].read_text(encoding="utf-8")
-    text = re.sub(r'(?m)^host = "(0\.0\.0\.0|192\.168\.125\.1)"', 'host = "127.0.0.1"', text)
-    for old, new in edits:
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    path = tmp_path / f"{which}.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
-
-
-def _check(capsys: pytest.CaptureFixture[str], cfg: Path) -> tuple[int, str]:
-    rc, _out, err = run_cli(capsys, "config", "check", "--config", str(cfg))
-    assert "Traceback" not in err, err
-    return rc, err
-
-
-def _refused(capsys: pytest.CaptureFixture[str], cfg: Path) -> str:
-    """`config check` exits 2 and `load_config` raises the same message (what `serve` refuses to start with)."""
-    rc, err = _check(capsys, cfg)
-    with pytest.raises(ConfigError) as load:
-        load_config(cfg)
-    assert rc == 2 and str(load.value) in err, err
-    return str(load.value)
 
 
 @pytest.mark.parametrize("which", ["sim", "hardware"])

@@ -15,15 +15,16 @@ from typing import Any
 
 import numpy as np
 import pytest
+from config_check_support import ROOT
+from config_check_support import check as _check
+from config_check_support import refused as _refused
+from config_check_support import shipped_copy as _copy
 from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
-from shared_support import run_cli
 
-from cellctl.config import CellConfig, load_config
+from cellctl.config import CellConfig
 from cellctl.config.loader import ConfigError
 from cellctl.sim.world import nominal_world
 
-ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = {"sim": ROOT / "config" / "sim.toml", "hardware": ROOT / "config" / "hardware.example.toml"}
 
 # By hand, both files: the opening is x in [-2000, 0], y in [0, 1500] of T (corner radius 30 mm); the lens
 # fx = fy = 5250 px at 400 mm (0.07619 mm/px), the image 2048 x 2048 px, the corner at (cx, cy) = (1024, 1024) px.
@@ -31,33 +32,6 @@ SHIPPED = {"sim": ROOT / "config" / "sim.toml", "hardware": ROOT / "config" / "h
 # The glass's corner lies 65.6 px left of and below the opening's, the real lens's within 40 px of (1024, 1024):
 # its right edge's window keeps 150 px inside (v <= 2035) while 1024 + 40 + 65.6 + start + 149 <= 2035, start <= 756.4.
 LAST_START_PX = 756.0
-
-
-def _copy(tmp_path: Path, which: str, edits: tuple[tuple[str, str], ...] = (), extra: str = "") -> Path:
-    """A copy of the shipped file with every host on 127.0.0.1, each (old, new) replaced once, ``extra`` appended."""
-    text = SHIPPED[which].read_text(encoding="utf-8")
-    text = re.sub(r'(?m)^host = "(0\.0\.0\.0|192\.168\.125\.1)"', 'host = "127.0.0.1"', text)
-    for old, new in edits:
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    path = tmp_path / f"{which}.toml"
-    path.write_text(text + extra, encoding="utf-8")
-    return path
-
-
-def _check(capsys: pytest.CaptureFixture[str], cfg: Path) -> tuple[int, str]:
-    rc, out, err = run_cli(capsys, "config", "check", "--config", str(cfg))
-    assert "Traceback" not in err, err
-    return rc, err
-
-
-def _refused(capsys: pytest.CaptureFixture[str], cfg: Path) -> str:
-    """`config check` exits 2 and `load_config` raises the same message (what `serve` refuses to start with)."""
-    rc, err = _check(capsys, cfg)
-    with pytest.raises(ConfigError) as load:
-        load_config(cfg)
-    assert rc == 2 and str(load.value) in err, err
-    return str(load.value)
 
 
 @pytest.mark.parametrize("which", ["sim", "hardware"])

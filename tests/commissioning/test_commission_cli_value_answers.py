@@ -10,7 +10,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ from typing import Any
 
 import httpx
 import pytest
-from service_test_support import AUTH, TOKEN, serve_to_commission, wait_up
+from service_test_support import AUTH, TOKEN, stopped_cell_to_commission
 
 from cellctl.client import CellClient, ServiceError
 from cellctl.commissioning.terminal import follow
@@ -29,22 +28,8 @@ pytestmark = pytest.mark.timeout(180)
 
 @pytest.fixture()
 def cell(tmp_path: Path):  # type: ignore[no-untyped-def]
-    serve, url = serve_to_commission(tmp_path)
-    try:
-        wait_up(url, serve, tmp_path)
-        assert httpx.post(f"{url}/commands/clear", headers=AUTH).status_code == 200
-        while httpx.get(f"{url}/status").json()["state"] != "STOPPED":
-            time.sleep(0.05)
+    with stopped_cell_to_commission(tmp_path) as url:
         yield url, tmp_path
-    finally:
-        for job in httpx.get(f"{url}/jobs", headers=AUTH).json() if serve.poll() is None else []:
-            if job["state"] == "running":  # left running by the code under test: end it before the service goes
-                httpx.post(f"{url}/jobs/{job['id']}/cancel", headers=AUTH, timeout=30)
-        serve.send_signal(signal.SIGINT)
-        try:
-            serve.wait(30)
-        except subprocess.TimeoutExpired:
-            serve.kill()
 
 
 def _job(url: str, job_id: int) -> dict[str, Any]:

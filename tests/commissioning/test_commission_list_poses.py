@@ -8,38 +8,22 @@ without `--dry-run`; the judge is the service's job list over REST (no job start
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
-from service_test_support import AUTH, TOKEN, serve_to_commission, wait_up
+from service_test_support import AUTH, TOKEN, stopped_cell_to_commission
 
 pytestmark = pytest.mark.timeout(180)
 
 
 @pytest.fixture()
 def cell(tmp_path: Path) -> Iterator[tuple[str, Path]]:
-    serve, url = serve_to_commission(tmp_path)
-    try:
-        wait_up(url, serve, tmp_path)
-        assert httpx.post(f"{url}/commands/clear", headers=AUTH).status_code == 200
-        while httpx.get(f"{url}/status").json()["state"] != "STOPPED":
-            time.sleep(0.05)
+    with stopped_cell_to_commission(tmp_path) as url:
         yield url, tmp_path
-    finally:
-        for job in httpx.get(f"{url}/jobs", headers=AUTH).json() if serve.poll() is None else []:
-            if job["state"] == "running":  # started by the code under test: end it before the service goes
-                httpx.post(f"{url}/jobs/{job['id']}/cancel", headers=AUTH, timeout=30)
-        serve.send_signal(signal.SIGINT)
-        try:
-            serve.wait(30)
-        except subprocess.TimeoutExpired:
-            serve.kill()
 
 
 def _cli(workdir: Path, *args: str) -> subprocess.CompletedProcess[str]:

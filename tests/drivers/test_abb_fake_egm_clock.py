@@ -87,7 +87,9 @@ def check_epoch(rows: list[list[int]], walls: list[float], before: float) -> Non
         assert UPTIME_MS <= tm < UPTIME_MS + 60_000, f"seqno {seq}: header.tm {tm} is not on the uptime clock"
 
 
-def test_stream_datagrams_carry_unix_time(reference_decoder: Path) -> None:
+def exchange(start: tuple[str, str], count: int, stop: tuple[str, str]) -> tuple[list[tuple[bytes, float]], float]:
+    """On a fresh fake: HELLO, ``start`` (request, answer), ``count`` datagrams, ``stop``, BYE; the datagrams with
+    their read times and the wall clock just before ``start`` went out."""
     sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sensor.bind((LOOPBACK, 0))
     sensor.settimeout(2.0)
@@ -97,14 +99,19 @@ def test_stream_datagrams_carry_unix_time(reference_decoder: Path) -> None:
     try:
         assert line.ask("1 HELLO 1").startswith("1 OK 1 ")
         before = time.time()
-        assert line.ask("2 STREAM 1") == "2 OK 1"
-        got = collect(sensor, 25)
-        assert line.ask("3 STREAM 0") == "3 OK 0"
+        assert line.ask(start[0]) == start[1]
+        got = collect(sensor, count)
+        assert line.ask(stop[0]) == stop[1]
         assert line.ask("4 BYE") == "4 OK"
     finally:
         line.close()
         fake.stop_thread()
         sensor.close()
+    return got, before
+
+
+def test_stream_datagrams_carry_unix_time(reference_decoder: Path) -> None:
+    got, before = exchange(("2 STREAM 1", "2 OK 1"), 25, ("3 STREAM 0", "3 OK 0"))
     rows = decode(reference_decoder, [d for d, _ in got])
     assert [r[0] for r in rows] == list(range(25))
     check_epoch(rows, [w for _, w in got], before)
@@ -115,23 +122,7 @@ def test_stream_datagrams_carry_unix_time(reference_decoder: Path) -> None:
 
 
 def test_guidance_session_datagrams_carry_unix_time(reference_decoder: Path) -> None:
-    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sensor.bind((LOOPBACK, 0))
-    sensor.settimeout(2.0)
-    fake = start_fake(egm_sensor_port=sensor.getsockname()[1], time_scale=0.2, egm_uptime_ms=UPTIME_MS)
-    assert fake.rapid_port is not None
-    line = Line(fake.rapid_port)
-    try:
-        assert line.ask("1 HELLO 1").startswith("1 OK 1 ")
-        before = time.time()
-        assert line.ask("2 EGM 0.1 0.1 1") == "2 ACK"
-        got = collect(sensor, 10)
-        assert line.ask("3 STOP") == "3 OK 1"  # the session was running
-        assert line.ask("4 BYE") == "4 OK"
-    finally:
-        line.close()
-        fake.stop_thread()
-        sensor.close()
+    got, before = exchange(("2 EGM 0.1 0.1 1", "2 ACK"), 10, ("3 STOP", "3 OK 1"))  # STOP: the session was running
     rows = decode(reference_decoder, [d for d, _ in got])
     assert [r[0] for r in rows] == list(range(10))
     check_epoch(rows, [w for _, w in got], before)

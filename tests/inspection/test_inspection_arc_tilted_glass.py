@@ -11,16 +11,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_support import door_window_first
 
 from cellctl.bench.accuracy import RunHooks, RunSettings, run_accuracy
 from cellctl.config import CellConfig, load_config
 from cellctl.config.feature import arc_corner_config, shot_aim_mm
-from cellctl.config.loader import parse_config
 from cellctl.geometry.pose import apply_pose, invert_pose, make_pose
 from cellctl.geometry.rotation import xyz_fixed_to_matrix
 from cellctl.inspection.flush import fit_flush
@@ -95,11 +94,7 @@ def test_arc_inspection_of_a_tilted_glass_matches_the_twins_truth() -> None:
 
 
 def _door_window_first() -> CellConfig:
-    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
-    data["process"]["spc"]["enabled"] = False  # each install shows its own error
-    recipes = data["process"]["recipes"]
-    data["process"]["recipes"] = [r for r in recipes if r["name"] == "door-window"] + [r for r in recipes if r["name"] != "door-window"]
-    return parse_config(data, "test: door window first")
+    return door_window_first(lambda data: data["process"]["spc"].update(enabled=False))  # each install shows its own error
 
 
 class TiltedGlass(RunHooks):

@@ -7,7 +7,7 @@ import contextlib
 import dataclasses
 import time
 import tomllib
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -156,6 +156,31 @@ def serve_to_commission(workdir: Path) -> tuple[Any, str]:
     cfg = workdir / "cell.toml"
     cfg.write_text(sim_toml(port, oracle=False, auto_calibrate=False).replace('answers = "all"', 'answers = "none"', 1))
     return start_serve(cfg, workdir), f"http://127.0.0.1:{port}"
+
+
+@contextlib.contextmanager
+def stopped_cell_to_commission(workdir: Path) -> Iterator[str]:
+    """:func:`serve_to_commission`, up and cleared to Stopped: its URL. At the end a job the code under test left
+    running is cancelled before the service is stopped (SIGINT)."""
+    import signal
+    import subprocess
+
+    serve, url = serve_to_commission(workdir)
+    try:
+        wait_up(url, serve, workdir)
+        assert httpx.post(f"{url}/commands/clear", headers=AUTH).status_code == 200
+        while httpx.get(f"{url}/status").json()["state"] != "STOPPED":
+            time.sleep(0.05)
+        yield url
+    finally:
+        for job in httpx.get(f"{url}/jobs", headers=AUTH).json() if serve.poll() is None else []:
+            if job["state"] == "running":
+                httpx.post(f"{url}/jobs/{job['id']}/cancel", headers=AUTH, timeout=30)
+        serve.send_signal(signal.SIGINT)
+        try:
+            serve.wait(30)
+        except subprocess.TimeoutExpired:
+            serve.kill()
 
 
 def start_serve(config: Path, workdir: Path) -> Any:

@@ -11,27 +11,19 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import tomllib
 from pathlib import Path
 
 import numpy as np
+from shared_support import door_window_first
 
 from cellctl.bench.accuracy import RunHooks, RunSettings, run_accuracy
 from cellctl.config import CellConfig
-from cellctl.config.loader import parse_config
 from cellctl.domain import CycleStep
 from cellctl.geometry.pose import invert_pose
 from cellctl.geometry.rotation import matrix_to_xyz_fixed
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
 def _door_window_first(pivot: str) -> CellConfig:
-    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
-    data["sim"]["world"]["posture_pivot"] = pivot
-    recipes = data["process"]["recipes"]
-    data["process"]["recipes"] = [r for r in recipes if r["name"] == "door-window"] + [r for r in recipes if r["name"] != "door-window"]
-    return parse_config(data, "test: door window first")
+    return door_window_first(lambda data: data["sim"]["world"].update(posture_pivot=pivot))
 
 
 class TrueTurn(RunHooks):

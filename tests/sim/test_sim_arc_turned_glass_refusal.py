@@ -7,27 +7,19 @@ with sqlite3.
 from __future__ import annotations
 
 import sqlite3
-import tomllib
 from pathlib import Path
 
 import numpy as np
+from shared_support import door_window_first
 
 from cellctl.bench.accuracy import RunHooks, RunSettings, run_accuracy
 from cellctl.config import CellConfig
-from cellctl.config.loader import parse_config
 from cellctl.geometry.pose import make_pose
 from cellctl.geometry.rotation import rot_z
 from cellctl.sim.glass import glass_scene
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
 def _door_window_first() -> CellConfig:
-    data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
-    data["process"]["spc"]["enabled"] = False  # each install shows its own error
-    recipes = data["process"]["recipes"]
-    data["process"]["recipes"] = [r for r in recipes if r["name"] == "door-window"] + [r for r in recipes if r["name"] != "door-window"]
-    return parse_config(data, "test: door window first")
+    return door_window_first(lambda data: data["process"]["spc"].update(enabled=False))  # each install shows its own error
 
 
 class TurnedGlass(RunHooks):
