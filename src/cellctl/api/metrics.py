@@ -59,7 +59,9 @@ class CellMetrics:
         self.registry = CollectorRegistry()
         self.registry.register(self)
         self.cycle_time = Histogram(
-            "cellctl_cycle_time_seconds", "Duration of finished cycles (done or failed), request to result, since the service started",
+            "cellctl_cycle_time_seconds",
+            "Cycle time of the cycles finished (done or failed) since the service started, from their records: the robot "
+            "time on the cell's clock; a cycle that never began (dropped from the queue) is not counted",
             labelnames=["outcome"], buckets=CYCLE_TIME_BUCKETS_S, registry=self.registry,
         )  # fmt: skip
         for outcome in (CycleState.DONE, CycleState.FAILED):
@@ -85,7 +87,8 @@ class CellMetrics:
         while True:
             page = await self._orch.store.cycles(limit=CYCLE_PAGE, before_id=before)
             new = [r for r in page if r.id > seen]
-            fresh += [r for r in new if r.finished_at is not None and r.state in (CycleState.DONE, CycleState.FAILED)]
+            fresh += [r for r in new if r.finished_at is not None and r.state in (CycleState.DONE, CycleState.FAILED)
+                      and r.started_at is not None]  # one dropped from the queue (a Stop) never ran: no cycle time
             if len(new) < CYCLE_PAGE:  # reached what was seen (or the start): no older page has anything new
                 break
             before = page[-1].id
@@ -139,7 +142,7 @@ def _device_gauges(devices: dict[str, dict[str, Any]]) -> Iterator[Metric]:
 
 
 def _cycle_seconds(rec: CycleRecord) -> float:
-    """The cycle's recorded time (its result's ``cycle_time_s``), else start to finish."""
+    """The cycle's recorded time (its result's ``cycle_time_s``, the cell's clock), else its start to its finish."""
     recorded = (rec.result or {}).get("cycle_time_s")
     if isinstance(recorded, (int, float)):
         return float(recorded)
