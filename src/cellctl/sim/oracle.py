@@ -164,8 +164,9 @@ class OracleCalibrationSource:
         stop, nor draws from the cell's noise streams."""
         name = recipe or self._config.default_recipe
         with self._lock:
-            if name not in self._cals:
-                self._cals[name] = taught_once(self._config.for_recipe(name), self._rig.cell.seed)
+            if name not in self._cals:  # the twin's computing, not a real cell's (it reads its set): off the cell's clock
+                with self._rig.cell.timeline.unclocked():
+                    self._cals[name] = taught_once(self._config.for_recipe(name), self._rig.cell.seed)
             return self._cals[name]
 
     def summary(self) -> dict[str, Any]:
