@@ -42,9 +42,11 @@ class RetentionConfig(StrictModel):
     images together exceed ``images_max_gb`` (an image of a queued or running cycle is never
     deleted); the image's record stays and says when and why it was pruned. Cycle records
     (with their steps, image references and idempotency keys) go after ``cycles_days``, alarm
-    records after ``alarms_days``. The audit log is never pruned: it is append-only and
-    hash-chained (the database refuses deletes), it records who commanded what, and it is small
-    beside the images; the disk-space alarms guard it like everything else.
+    records after ``alarms_days`` once acknowledged (an alarm of a kept cycle record stays with it,
+    so ``alarms_days`` below ``cycles_days`` never empties a part record's alarms). The audit log
+    is never pruned: it is append-only and hash-chained (the database refuses deletes), it records
+    who commanded what, and it is small beside the images; the disk-space alarms guard it like
+    everything else.
     """
 
     enabled: bool = True  # false: nothing is pruned (the disk-space check and /status figures still run)

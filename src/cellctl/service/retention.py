@@ -12,10 +12,11 @@ What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]
   missing (never deleted for it; kept again when the file is back); a folder that is not there,
   unreadable, or holds none of the finished cycles' files looks unmounted: the images are left alone.
 - **cycle records** (steps, image references, idempotency keys; refused requests' keys too) after ``cycles_days``, and
-  **alarm records** after ``alarms_days`` (inactive ones); each deletion of records is written to
-  the audit log.
+  **alarm records** after ``alarms_days`` (inactive, acknowledged, of no kept cycle); each deletion of records is
+  written to the audit log.
 - pruning by **age** is held while the wall clock is in doubt (:mod:`cellctl.service.retention_clock`: stepped
-  since the last pass, or far ahead of the newest record), said in the log and ``last_error``; by size it goes on.
+  since the last pass, or far ahead of the newest record), said in the log and ``last_error``; by size it goes on;
+  after a hold that ended by confirming the clock, records from before it are aged without the gap for one period.
 - the **audit log** is never pruned. It is append-only and hash-chained from its first entry
   (the database refuses deletes, :meth:`cellctl.store.CellStore.verify_audit_chain` checks
   that no entry is missing), it is the record of who commanded what, and it is small beside the
@@ -198,7 +199,7 @@ class StorageRetention:
     def clock_hold(self) -> str | None:
         """Why pruning by age is held now (the wall clock is in doubt), with the fix; None while it is not."""
         held = self._guard.held
-        return held and f"retention: {held}: pruning by age held; correct the clock, pruning resumes by itself"
+        return held and f"retention: {held}: pruning by age held; {self._guard.advice}"
 
     def database_bytes(self) -> int:
         """The database's files on disk: the file, its write-ahead log and shared memory."""
@@ -289,14 +290,15 @@ class StorageRetention:
 
     async def _clock_trusted(self, now: datetime) -> bool:
         """Whether the wall clock may age records in this pass (:class:`ClockGuard`); a hold is logged as it starts and ends."""
-        self._newest = await self.store.newest_cycle(at_most_id=self._guard.trusted_id)
-        c, was = self.config, self._guard.held
+        g, c, was = self._guard, self.config, self._guard.held
+        self._newest = await self.store.newest_cycle()
+        trusted = self._newest if g.trusted_id is None else await self.store.newest_cycle(at_most_id=g.trusted_id)
         periods = [d for d in (c.images_days, days_or_none(c.cycles_days), days_or_none(c.alarms_days)) if d is not None]
-        held = self._guard.review(now, self._monotonic(), self._newest, min(periods, default=None))
+        held = g.review(now, self._monotonic(), self._newest, trusted, periods)
         if held and not was:
             log.warning("%s (images over their size bound still go)", self.clock_hold)
         elif was and not held:
-            log.info("retention: the wall clock agrees with the records again; pruning by age resumes")
+            log.info("retention: %s; pruning by age resumes", g.note)
         return held is None
 
     async def _images(
@@ -310,7 +312,8 @@ class StorageRetention:
             self._headroom = cycle_headroom(kept, files, int(c.images_max_gb * GB))
             target = int(c.images_max_gb * GB) - self._headroom
             plan = plan_images(
-                kept, files, now=now, images_days=c.images_days if by_age else None, max_bytes=target,
+                kept, files, now=self._guard.cutoff(now, c.images_days) + timedelta(days=c.images_days),
+                images_days=c.images_days if by_age else None, max_bytes=target,
                 stated_bound=int(c.images_max_gb * GB), orphan_grace_s=ORPHAN_GRACE_S if by_age else math.inf,
             )  # fmt: skip
             await self._apply(plan, sorted(leftovers), report, now)
@@ -378,7 +381,7 @@ class StorageRetention:
         days = days_or_none(self.config.cycles_days)
         if days is None:
             return 0
-        cutoff = now - timedelta(days=days)
+        cutoff = self._guard.cutoff(now, days)  # less an idle gap the clock was in doubt over (.retention_clock)
         deleted: list[int] = []
         hwm = None if self.mqtt_results else (await self.store.outbox_counts()).result_hwm
         while True:
@@ -416,7 +419,7 @@ class StorageRetention:
         days = days_or_none(self.config.alarms_days)
         if days is None:
             return 0
-        cutoff = now - timedelta(days=days)
+        cutoff = self._guard.cutoff(now, days)
         n = await self.store.prune_alarms(raised_before=cutoff)
         if n:
             await self.store.append_audit(

@@ -17,7 +17,8 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
   A cycle whose MQTT result was never queued (above the results' high-water mark, once MQTT
   publication was set up) is kept while publication is configured; otherwise its deletion is
   counted as a dropped result, which the next MQTT connection reports to the plant (``outbox/dropped``);
-- alarm records older than a cutoff (inactive ones only);
+- alarm records older than a cutoff: inactive and acknowledged ones only, and none of a cycle whose record is
+  kept (a part record keeps its alarms as long as it is kept; an alarm nobody acknowledged is kept);
 - the database's size (pages used, free pages, per-table bytes where SQLite has ``dbstat``).
 
 The audit log is never pruned: it is append-only (triggers refuse deletes) and hash-chained from
@@ -196,10 +197,13 @@ class RetentionRows(Database):
             ).rowcount
 
     def prune_alarms(self, *, raised_before: datetime) -> int:
-        """Delete the records of alarms raised before the cutoff that are no longer active."""
+        """Delete the records of alarms raised before the cutoff that are no longer active and were
+        acknowledged, unless their cycle's record is still kept (its part record lists them)."""
         with self._tx() as c:
             return c.execute(
-                "DELETE FROM alarms WHERE raised_at < ? AND active = 0", (ts(raised_before),)
+                "DELETE FROM alarms WHERE raised_at < ? AND active = 0 AND ack_at IS NOT NULL "
+                "AND NOT EXISTS (SELECT 1 FROM cycles WHERE cycles.id = alarms.cycle_id)",
+                (ts(raised_before),),
             ).rowcount
 
     def oldest_cycle(self) -> datetime | None:
