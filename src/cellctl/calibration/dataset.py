@@ -15,7 +15,7 @@ import json
 import os
 import shutil
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,9 @@ class Dataset:
 
     root: Path
     manifest: dict[str, Any]
+    # What the job that wrote it did beside it, for the job's result (not in the manifest; e.g. the check datasets
+    # pruned after a drift check, cellctl.calibration.dataset_retention). Empty when read back from disk.
+    notes: dict[str, Any] = field(default_factory=dict, compare=False)
 
     @property
     def kind(self) -> str:

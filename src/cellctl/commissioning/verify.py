@@ -14,6 +14,8 @@ limits they are held to, ``calibration.procedure.verify``).
 from __future__ import annotations
 
 import asyncio
+import logging
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -22,8 +24,10 @@ from cellctl.calibration.board import BoardSpec, find_board
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, DatasetError, pose_array, pose_list, read_dataset
+from cellctl.calibration.dataset_retention import prune_check_datasets
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import board_pose
+from cellctl.cell.cancel import to_the_end
 from cellctl.commissioning.camera_grab import grab
 from cellctl.commissioning.context import JobContext
 from cellctl.commissioning.plans import MotionPlan, board_place, make_plan, spread_subset
@@ -41,6 +45,8 @@ from cellctl.config.schema import CellConfig
 from cellctl.geometry.pose import Pose, invert_pose, make_pose
 from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, skew
 from cellctl.ports import LaserStatus
+
+log = logging.getLogger(__name__)
 
 # A subset solve needs at least this many views (the full calibration's gate is higher).
 MIN_VERIFY_VIEWS = 4
@@ -177,7 +183,23 @@ async def collect_verify(ctx: JobContext) -> Dataset:
         ctx.progress(k + 1, n, label)
     if n <= n_views:
         await remove_board(ctx, "checkerboard")
-    return await ctx.finish()
+    return await keep_fewer_checks(ctx, await ctx.finish())
+
+
+async def keep_fewer_checks(ctx: JobContext, ds: Dataset) -> Dataset:
+    """Remove the oldest check datasets beyond ``calibration.procedure.verify.keep_datasets`` from the store's
+    ``datasets`` folder (never ``ds``, never one a set version names); what was done goes to ``ds.notes``."""
+    if ds.root.parent.name != "datasets":  # not the store's folder (``<store>/datasets/<kind>-<time>``): leave it
+        return ds
+    keep = ctx.config.calibration.procedure.verify.keep_datasets
+    try:
+        report, cancelled = await to_the_end(asyncio.to_thread(prune_check_datasets, ds.root.parent.parent, keep, just_written=ds.root))
+    except OSError as err:  # the check itself is complete: it is computed and recorded all the same
+        log.warning("calibration datasets: the older check datasets could not be pruned: %s", err)
+        return ds
+    if cancelled:
+        raise asyncio.CancelledError
+    return replace(ds, notes={**ds.notes, "datasets": report.as_dict()})
 
 
 def _board_poses(ds: Dataset, names: list[str], spec: BoardSpec, K: np.ndarray, D: np.ndarray, refine: str) -> dict[str, tuple[Pose, Pose]]:
@@ -412,4 +434,6 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
     truth = ds.manifest.get("twin_truth")
     if truth:
         quality["twin_truth"] = truth
+    if "datasets" in ds.notes:  # the check datasets kept and pruned after this one was written, the folder's MiB
+        quality["datasets"] = ds.notes["datasets"]
     return Outcome("verify", "revisit and recompute against the stored calibration's own data", {}, quality, beyond, {}, None)

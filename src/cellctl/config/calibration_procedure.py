@@ -177,7 +177,10 @@ class VerifyCalibrationConfig(StrictModel):
     ``laser_poses_per_stand`` poses at ``laser_stands`` arm stands of the laser dataset's) and
     estimates how far camera and laser moved from the change between the stored and the new
     data at the same poses, free of the robot's accuracy errors there (the same in both). A drift beyond the limits raises the drift alarm. ``every_cycles`` /
-    ``every_hours`` (0: never) raise a reminder alarm when a check is due.
+    ``every_hours`` (0: never) raise a reminder alarm when a check is due. Each check writes a
+    dataset into ``<calibration directory>/datasets`` (about 47 MiB with a 2048 x 2048 px camera);
+    after it, the oldest check datasets beyond the newest ``keep_datasets`` are removed (never one
+    a calibration-set version names; the calibrations' own datasets are always kept).
     """
 
     views: int = Field(12, ge=4, le=100)
@@ -189,6 +192,16 @@ class VerifyCalibrationConfig(StrictModel):
     max_laser_l_deg: Finite = Field(0.15, gt=0)
     every_cycles: int = Field(0, ge=0)
     every_hours: Finite = Field(0.0, ge=0)
+    keep_datasets: int = 10  # the newest check datasets kept (the one just written among them)
+
+    @model_validator(mode="after")
+    def _keep(self) -> "VerifyCalibrationConfig":
+        if self.keep_datasets < 1:
+            raise ValueError(
+                f"keep_datasets {self.keep_datasets}: give at least 1 (the check just written is always kept); "
+                "each check's dataset takes about 47 MiB in <calibration directory>/datasets"
+            )
+        return self
 
 
 # ISO 10218-1 reduced speed: what a robot may do with people near it under supervision.
