@@ -99,3 +99,21 @@ def test_without_a_running_service_the_command_says_where_it_looked(tmp_path: Pa
     assert _run("calibrate", "laser", "--url", "http://127.0.0.1:9", "--dry-run") == 1
     err = capsys.readouterr().err
     assert "cannot reach the cell service at http://127.0.0.1:9" in err and "cellctl serve" in err
+
+
+def test_a_dataset_another_cell_recorded_is_refused_unless_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Its poses and readings are that cell's: stored here, the beam would be the other laser's. The manifest's source
+    names the cell (cell_id) and mode that recorded it; config/sim.toml is cell-1 in mode sim."""
+    store_dir, ds = tmp_path / "store", _laser_dataset()
+    manifest = {k: v for k, v in ds.manifest.items() if k not in ("format", "kind", "files", "written_utc")}
+    for name, source in (("cell2", {**manifest["source"], "cell": "cell-2"}), ("real", {**manifest["source"], "mode": "hardware"})):
+        write_dataset(tmp_path / name, "laser_plane", {**manifest, "source": source}, {})
+    capsys.readouterr()
+    assert _run("calibrate", "laser", "--store", str(store_dir), "--dataset", str(tmp_path / "cell2")) == 2
+    err = capsys.readouterr().err
+    assert "recorded on cell 'cell-2', this configuration is cell_id 'cell-1'" in err and "--accept-cell cell-2" in err, err
+    assert _run("calibrate", "laser", "--store", str(store_dir), "--dataset", str(tmp_path / "real")) == 2
+    assert "recorded in mode 'hardware'" in capsys.readouterr().err
+    assert CalibrationStore(store_dir).versions() == []  # nothing stored
+    assert _run("calibrate", "laser", "--store", str(store_dir), "--dataset", str(tmp_path / "cell2"), "--accept-cell", "cell-2") == 0
+    assert CalibrationStore(store_dir).versions() == [1]

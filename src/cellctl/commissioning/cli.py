@@ -156,6 +156,9 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     except (CalibrationSetError, DatasetError, KeyError) as err:
         print(f"{procedure}: {err}", file=sys.stderr)
         return 2
+    if (foreign := _other_cell(ds.manifest.get("source"), cell, args.accept_cell)) is not None:
+        print(f"{procedure}: {foreign}", file=sys.stderr)
+        return 2
     print(f"{procedure}: computing offline from {ds.root}")
     try:
         outcome = proc.compute(ds, current, config)
@@ -205,6 +208,22 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
     return rc
+
+
+def _other_cell(source: object, config: CellConfig, accepted: str | None) -> str | None:
+    """Why a dataset its manifest says another cell (or mode) recorded may not calibrate this one; None if it may. Its
+    poses and images are that cell's: a hand-eye from them is that camera's mounting. ``--accept-cell NAME`` takes
+    one recorded on cell NAME (e.g. this cell under its former cell_id)."""
+    src = source if isinstance(source, dict) else {}
+    cell, mode = src.get("cell"), src.get("mode")
+    if cell is not None and cell != config.cell_id and cell != accepted:
+        return (f"the dataset was recorded on cell {cell!r}, this configuration is cell_id {config.cell_id!r}: its poses "
+                f"and images calibrate that cell, not this one; record this cell's own (without --dataset), or if it is "
+                f"this cell under a former cell_id, give --accept-cell {cell}")
+    if mode is not None and mode != config.mode:
+        return (f"the dataset was recorded in mode {mode!r} (the simulated cell's or a real one's), this configuration is "
+                f"mode {config.mode!r}: record this cell's own (without --dataset)")
+    return None
 
 
 def _audit_log(args: argparse.Namespace, config: CellConfig, store: CalibrationStore) -> CellStore | str | None:
@@ -328,6 +347,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--list-poses", action="store_true", help="print the plan with every planned pose; implies --dry-run (nothing moves)")
     p.add_argument("--no-store", action="store_true", help="compute and print only; the calibration set is not changed")
     p.add_argument("--dataset", help="compute offline, in this process, from this saved dataset folder")
+    p.add_argument("--accept-cell", default=None, metavar="CELL_ID",
+                   help="with --dataset: take a dataset recorded on cell CELL_ID (this cell under a former cell_id)")
     _store_options(p)
     p.set_defaults(method_override=None, views=None, poses=None)
 
