@@ -96,3 +96,26 @@ def door_window_first(tweak: Callable[[dict[str, Any]], None] | None = None) -> 
     if tweak is not None:
         tweak(data)
     return parse_config(data, "test: door window first")
+
+
+def glass_moved_at_release(delta: Any) -> Any:
+    """A RunHooks for the benches' runs: at each release the twin's glass lands moved by ``delta`` (4x4, about its
+    corner frame G: T_B_G @ delta), its truth and scene with it."""
+    from cellctl.bench.accuracy import RunHooks
+    from cellctl.sim.glass import glass_scene
+
+    class GlassMovedAtRelease(RunHooks):
+        def attach(self, service: Any) -> None:
+            cell = service.extras["twin"].cell
+            release = cell.set_gripper
+
+            def set_gripper(hold: bool) -> None:
+                held = cell._glass_on_gripper
+                release(hold)
+                if not hold and held:
+                    cell._installed_T_B_G = cell._installed_T_B_G @ delta
+                    cell._installed_scene = glass_scene(cell.glass_config, cell._world, cell._installed_T_B_G)
+
+            cell.set_gripper = set_gripper
+
+    return GlassMovedAtRelease()

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_support import door_window_first
+from shared_support import door_window_first, glass_moved_at_release
 
-from cellctl.bench.accuracy import RunHooks, RunSettings, run_accuracy
+from cellctl.bench.accuracy import RunSettings, run_accuracy
 from cellctl.config import CellConfig, load_config
 from cellctl.config.feature import arc_corner_config, shot_aim_mm
 from cellctl.geometry.pose import apply_pose, invert_pose, make_pose
@@ -97,29 +97,14 @@ def _door_window_first() -> CellConfig:
     return door_window_first(lambda data: data["process"]["spc"].update(enabled=False))  # each install shows its own error
 
 
-class TiltedGlass(RunHooks):
-    """At release the glass lands tilted 0.8 deg about its corner frame's x and -0.8 deg about its y (the twin's truth
-    tilts with it)."""
-
-    def attach(self, service):  # type: ignore[no-untyped-def]
-        cell = service.extras["twin"].cell
-        release = cell.set_gripper
-        tilt = make_pose(xyz_fixed_to_matrix(0.0, math.radians(-0.8), math.radians(0.8)), [0.0, 0.0, 0.0])
-
-        def set_gripper(hold: bool) -> None:
-            held = cell._glass_on_gripper
-            release(hold)
-            if not hold and held:
-                cell._installed_T_B_G = cell._installed_T_B_G @ tilt
-                cell._installed_scene = glass_scene(cell.glass_config, cell._world, cell._installed_T_B_G)
-
-        cell.set_gripper = set_gripper
+# At release the glass lands tilted 0.8 deg about its corner frame's x and -0.8 deg about its y (the twin's truth tilts with it).
+TILT = make_pose(xyz_fixed_to_matrix(0.0, math.radians(-0.8), math.radians(0.8)), [0.0, 0.0, 0.0])
 
 
 @pytest.mark.timeout(300)
 def test_cycle_inspects_a_tilted_door_glass_in_plane_within_a_tenth_of_a_mm(tmp_path: Path) -> None:
     run = run_accuracy(_door_window_first(), RunSettings(trials=2, seed=1, calibration="oracle", time_scale=0.0),
-                       progress=False, workdir=tmp_path / "w", hooks=TiltedGlass())  # fmt: skip
+                       progress=False, workdir=tmp_path / "w", hooks=glass_moved_at_release(TILT))  # fmt: skip
     for trial in run.trials:
         assert trial.outcome == "done", trial.reason
         te, md = trial.true_error, trial.measured_deviation

@@ -10,39 +10,24 @@ import sqlite3
 from pathlib import Path
 
 import numpy as np
-from shared_support import door_window_first
+from shared_support import door_window_first, glass_moved_at_release
 
-from cellctl.bench.accuracy import RunHooks, RunSettings, run_accuracy
+from cellctl.bench.accuracy import RunSettings, run_accuracy
 from cellctl.config import CellConfig
 from cellctl.geometry.pose import make_pose
 from cellctl.geometry.rotation import rot_z
-from cellctl.sim.glass import glass_scene
 
 def _door_window_first() -> CellConfig:
     return door_window_first(lambda data: data["process"]["spc"].update(enabled=False))  # each install shows its own error
 
 
-class TurnedGlass(RunHooks):
-    """At release the glass lands turned 3 deg about its corner frame's z (the twin's truth turns with it)."""
-
-    def attach(self, service):  # type: ignore[no-untyped-def]
-        cell = service.extras["twin"].cell
-        release = cell.set_gripper
-        turn = make_pose(rot_z(np.radians(3.0)), [0.0, 0.0, 0.0])
-
-        def set_gripper(hold: bool) -> None:
-            held = cell._glass_on_gripper
-            release(hold)
-            if not hold and held:
-                cell._installed_T_B_G = cell._installed_T_B_G @ turn
-                cell._installed_scene = glass_scene(cell.glass_config, cell._world, cell._installed_T_B_G)
-
-        cell.set_gripper = set_gripper
+# At release the glass lands turned 3 deg about its corner frame's z (the twin's truth turns with it).
+TURN = make_pose(rot_z(np.radians(3.0)), [0.0, 0.0, 0.0])
 
 
 def test_a_glass_turned_3_deg_is_refused_by_the_arc_inspection_with_its_reason(tmp_path: Path) -> None:
     run = run_accuracy(_door_window_first(), RunSettings(trials=2, seed=1, calibration="oracle", time_scale=0.0),
-                       progress=False, workdir=tmp_path / "w", hooks=TurnedGlass())  # fmt: skip
+                       progress=False, workdir=tmp_path / "w", hooks=glass_moved_at_release(TURN))  # fmt: skip
     for trial in run.trials:  # the second's refused arc has its centre ~1e9 px off the image
         assert trial.true_error is not None and abs(trial.true_error["drz_deg"] - 3.0) < 0.05, trial.true_error
         assert trial.outcome == "failed", trial

@@ -13,27 +13,14 @@ from types import SimpleNamespace
 
 import pytest
 from test_store_retention import Clock
+from test_store_retention_clock import plc_cycle
 
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.packml import PackMLMachine
 from cellctl.config.store import RetentionConfig
-from cellctl.domain import CycleStep
 from cellctl.service.retention import StorageRetention
 from cellctl.service.retention_plan import GB, DiskUsage
-from cellctl.store import AsyncCellStore, CellStore, CycleRequest
-
-
-def plc_cycle(store: CellStore, images: Path, n: int) -> int:
-    """A finished cycle the PLC asked for with cycle_req_id ``n``, with one image."""
-    cid = store.submit_cycle(CycleRequest("side-window-A", f"P-{n}"), scope="plc", key=str(n), actor="plc").cycle.id
-    store.start_cycle(cid)
-    store.begin_step(cid, CycleStep.SHOOT)
-    images.mkdir(parents=True, exist_ok=True)
-    (images / f"cycle-{cid}-shot0.png").write_bytes(b"\x89PNG" + b"x" * 996)
-    store.add_image(cid, CycleStep.SHOOT, name="shot0", uri=f"cycle-{cid}-shot0.png")
-    store.finish_step(cid, CycleStep.SHOOT, ok=True, figures={})
-    store.complete_cycle(cid, result={"ok": True})
-    return cid
+from cellctl.store import AsyncCellStore, CellStore
 
 
 @pytest.fixture
