@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import random
 import socket
 import time
 from collections.abc import Awaitable, Callable
@@ -28,11 +29,36 @@ def skip_or_fail(reason: str, fix: str) -> NoReturn:
     pytest.skip(reason)
 
 
+_PORTS_PER_WORKER = 3000
+_next_port: list[int] = []
+
+
+def _first_port() -> int:
+    """Where this process's ports start: below the kernel's ephemeral range (32768 up), one stripe per xdist worker."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    return 20000 + (index % 4) * _PORTS_PER_WORKER + random.randrange(_PORTS_PER_WORKER)
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    """A loopback port nobody listens on now (TCP, or UDP with SOCK_DGRAM)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
+    """A loopback port nobody holds now (TCP, or UDP with SOCK_DGRAM), for a server the test starts next.
+
+    Chosen below the ephemeral range, in turn within this worker's stripe: a port the kernel handed out as "any free
+    one" (bind to 0) could be handed out again, to the sending socket of a fake, before the test's server binds it.
+    """
+    if not _next_port:
+        _next_port.append(_first_port())
+    base = 20000 + (_next_port[0] - 20000) // _PORTS_PER_WORKER * _PORTS_PER_WORKER
+    for _ in range(_PORTS_PER_WORKER):
+        port = _next_port[0]
+        _next_port[0] = base + (port + 1 - base) % _PORTS_PER_WORKER
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind((LOOPBACK, port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free loopback port in {base}-{base + _PORTS_PER_WORKER - 1}")
 
 
 def tlsimu_path() -> str:

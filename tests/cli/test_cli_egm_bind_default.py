@@ -10,17 +10,11 @@ from pathlib import Path
 import pytest
 from abb_robot import AbbRobotSettings
 from abb_robot.egm_session import egm_peer_for
-from shared_support import run_cli
+from shared_support import free_port, run_cli
 
 from cellctl.config import load_config
 
 HARDWARE = Path(__file__).resolve().parents[2] / "config" / "hardware.example.toml"
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _example(tmp_path: Path, host: str, extra: str = "") -> Path:
@@ -42,7 +36,7 @@ def _bound_udp_address(port: int) -> str:
 
 
 async def test_a_loopback_robot_gets_its_egm_port_bound_on_loopback_only(tmp_path: Path) -> None:
-    port = _free_udp_port()
+    port = free_port(socket.SOCK_DGRAM)
     config = load_config(_example(tmp_path, "127.0.0.1"))
     dev = config.devices.robot
     settings = AbbRobotSettings(**dev.model_dump(exclude={"kind"}) | {"egm_port": port, "egm_isolation": "thread"})

@@ -10,14 +10,13 @@ from collections.abc import AsyncIterator, Callable
 
 from abb_robot import AbbRobot, AbbRobotSettings
 from abb_robot.fake import EgmDynamics, FakeController, FakeControllerConfig
+from shared_support import free_port
 
 LOOPBACK = "127.0.0.1"
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
+    return free_port(socket.SOCK_DGRAM)
 
 
 def start_fake(**overrides: object) -> FakeController:

@@ -21,6 +21,7 @@ from _abb_testkit import LOOPBACK, settings_for, start_fake
 from abb_robot import AbbRobot, AbbRobotSettings
 from abb_robot.fake import FakeController
 from abb_robot.fake.controller import DEFAULT_HOME
+from shared_support import free_port
 from cellctl.ports import CartesianPose, DeviceDisconnected, DeviceTimeout, MotionRequest
 
 pytestmark = pytest.mark.timeout(60)
@@ -64,12 +65,6 @@ def freeze(fake: FakeController) -> None:
     fake.call(apply)
 
 
-def free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind((LOOPBACK, 0))
-        return int(s.getsockname()[1])
-
-
 async def test_the_first_request_starts_the_heartbeat() -> None:
     async with service_robot() as (fake, robot):
         await asyncio.sleep(2 * PERIOD_S)
@@ -83,7 +78,7 @@ async def test_the_first_request_starts_the_heartbeat() -> None:
 
 
 async def test_no_heartbeat_before_the_first_connection() -> None:
-    port = free_tcp_port()
+    port = free_port()
     robot = AbbRobot(AbbRobotSettings(host=LOOPBACK, rapid_port=port, egm_port=None, heartbeat_period_s=0.2,
                                       heartbeat_timeout_s=0.2, reconnect_delay_s=0.1))
     arrivals: list[float] = []
