@@ -272,12 +272,18 @@ class AlarmManager:
     def acknowledge_all(self, *, by: str) -> list[Alarm]:
         return [self.acknowledge(a.uid, by=by) for a in self.current() if not a.acknowledged]
 
-    def restore(self, alarms: Iterable[Alarm]) -> None:
-        """List latched alarms a previous run left unacknowledged (now inactive), as they were: no event, no reaction;
-        they are acknowledged like any other."""
+    def restore(self, alarms: Iterable[Alarm]) -> list[Alarm]:
+        """List the alarms a previous run left unacknowledged, inactive (this run raises its own for a condition that
+        persists): no event, no reaction; they are acknowledged like any other. Returns those stored as active (a
+        condition still present at the shutdown, its clearing unknown): the store should say they are not."""
+        ended: list[Alarm] = []
         for a in alarms:
-            if not a.condition and not a.acknowledged and a.uid not in self._alarms:
-                self._alarms[a.uid] = replace(a, active=False)
+            if a.acknowledged or a.uid in self._alarms:
+                continue
+            self._alarms[a.uid] = replace(a, active=False)
+            if a.active:
+                ended.append(self._alarms[a.uid])
+        return ended
 
     def reset_stop_reason(self) -> None:
         self._stop_reason, self._stop_reason_standing = None, False

@@ -48,6 +48,9 @@ def render_markdown() -> str:
         + ", ".join(sorted(c.name.title() for c in STOP_REASON_RESET_COMMANDS))
         + " is accepted.",
         "",
+        "An alarm nobody acknowledged stays listed across a restart of the service, inactive, until it is",
+        "acknowledged; a condition still present is raised again by the new run.",
+        "",
         "## Alarm catalogue",
         "",
         "| ID | Name | Fault class | Kind | Text |",

@@ -162,7 +162,8 @@ class CellOrchestrator:
         report = await self.store.recover()
         await self.quality.load()
         alarm_events = self.alarms.subscribe_queue()  # before the recovery alarms: their raise is stored as well
-        self.alarms.restore(await self.store.unacknowledged_events())  # a restart keeps them listed until acknowledged
+        for ended in self.alarms.restore(await self.store.unacknowledged_alarms()):  # listed until acknowledged
+            await self.store.save_alarm(ended)
         for ic in report.interrupted:
             detail = f"cycle {ic.cycle_id} was interrupted in {ic.step.name.lower()}"
             if ic.install_started:

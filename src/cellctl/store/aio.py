@@ -99,7 +99,7 @@ class AsyncCellStore:
 
     info = _on_store_thread(CellStore.info)
     recover = _on_store_thread(CellStore.recover)
-    unacknowledged_events = _on_store_thread(CellStore.unacknowledged_events)
+    unacknowledged_alarms = _on_store_thread(CellStore.unacknowledged_alarms)
 
     # cycles, steps, images (CycleRows)
     submit_cycle = _on_store_thread(CellStore.submit_cycle)

@@ -36,9 +36,9 @@ class AlarmRows(Database):
                 ),
             )  # fmt: skip
 
-    def unacknowledged_events(self, limit: int = 100) -> list[Alarm]:
-        """Latched alarms (events) nobody acknowledged, the newest ``limit``, oldest first: a restart lists them again."""
-        sql = f"SELECT {ALARM_COLUMNS} FROM alarms WHERE condition = 0 AND ack_at IS NULL ORDER BY raised_at DESC LIMIT ?"
+    def unacknowledged_alarms(self, limit: int = 100) -> list[Alarm]:
+        """Alarms nobody acknowledged, the newest ``limit``, oldest first: a restart lists them again."""
+        sql = f"SELECT {ALARM_COLUMNS} FROM alarms WHERE ack_at IS NULL ORDER BY raised_at DESC LIMIT ?"
         return [alarm_from_row(r) for r in reversed(self._conn.execute(sql, (limit,)).fetchall())]
 
     def alarms(self, *, active_only: bool = False, limit: int = 100) -> list[Alarm]:
