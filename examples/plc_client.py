@@ -32,7 +32,7 @@ CELL_START, CELL_SIZE = 100, 64  # cell block, 100-163: written by the cell, rea
 CELL_UINT16 = {
     "map_version_major": 100, "cell_heartbeat": 102, "state_current": 103, "cycle_step": 105, "stop_reason_id": 106,
     "cycle_flags": 107, "result_recipe_id": 114, "error_code": 115, "cmd_ack": 130, "cmd_ack_cmd": 131,
-    "cmd_result": 132, "inspection_status": 137,
+    "cmd_result": 132, "inspection_status": 137, "interlock_alarm_id": 152,
 }  # fmt: skip
 CELL_UINT32 = {"cycle_ack_id": 108, "result_req_id": 110, "result_part_id": 112, "cycle_time_ms": 128,
                "result_car_body_id": 150}
@@ -132,8 +132,9 @@ class Plc:
         for cmd in plan:
             result = await self.command(cmd)
             if result != 0:
-                raise HandshakeError(f"command {cmd} answered {result} ({CMD_RESULTS.get(result, '?')}); stop reason "
-                                     f"{(await self.read_cell())['stop_reason_id']}")  # fmt: skip
+                cell = await self.read_cell()
+                raise HandshakeError(f"command {cmd} answered {result} ({CMD_RESULTS.get(result, '?')}); interlock alarm "
+                                     f"{cell['interlock_alarm_id']}, stop reason {cell['stop_reason_id']}")  # fmt: skip
 
     async def cycle(self, req_id: int, recipe_id: int, part_id: int, timeout_s: float,
                     car_body_id: int = 0) -> dict[str, Any]:

@@ -176,9 +176,14 @@ class AlarmManager:
                 return a
         return None
 
+    def interlocking(self) -> list[Alarm]:
+        """Active alarms with a reaction, oldest first: they hold back the recovery commands (Reset, Start, Unhold,
+        Unsuspend)."""
+        return [a for a in self.active() if REACTIONS[a.category].when_still or REACTIONS[a.category].when_moving]
+
     def recovery_guard(self, state: PackMLState, command: PackMLCommand) -> str | None:
         """Machine guard: refuse a recovery command while an alarm with a reaction is active."""
-        blocking = [a for a in self.active() if REACTIONS[a.category].when_still or REACTIONS[a.category].when_moving]
+        blocking = self.interlocking()
         if not blocking:
             return None
         first = blocking[0]

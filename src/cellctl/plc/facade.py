@@ -46,6 +46,8 @@ class CellStatus:
     """First-out alarm / stop reason id, 0 when none."""
     ready_for_cycle: bool
     """The cell would accept start_cycle now."""
+    interlock_alarm_id: int = 0
+    """The first active alarm that holds back Reset, Start, Unhold and Unsuspend (cmd_result 5), 0 when none."""
     robot_clear: bool = False
     """No cycle runs and the robot's flange stands at least ``[plc] clear_distance_mm`` in front of the car
     body's wall (False when unknown): the line may move the car body."""
@@ -55,6 +57,7 @@ class CellStatus:
         object.__setattr__(self, "unit_mode", UnitMode(self.unit_mode))
         object.__setattr__(self, "cycle_step", CycleStep(self.cycle_step))
         _check_uint("stop_reason_id", self.stop_reason_id, UINT16_MAX)
+        _check_uint("interlock_alarm_id", self.interlock_alarm_id, UINT16_MAX)
 
 
 @dataclass(frozen=True)

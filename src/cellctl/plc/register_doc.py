@@ -90,7 +90,9 @@ stays. A PackML command the state model does not allow in the current state gets
 1 the same way ([PackML states](packml_states.md)). A command the state model allows but an
 interlock holds back gets `cmd_result` = {blocked} (blocked), and the cell's log names the interlock:
 {recovery} while an alarm with a reaction is active ([alarm reactions](alarm_reactions.md)),
-Complete while a cycle runs, Start while a commissioning job runs.
+Complete while a cycle runs, Start while a commissioning job runs. The first such alarm's id stands
+in `interlock_alarm_id` in any state (in Idle, say, where a lost laser stops nothing and
+`stop_reason_id` stays 0).
 
 ## Handshakes
 

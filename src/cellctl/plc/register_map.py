@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from cellctl.domain import CycleStep, PackMLCommand, PackMLState, UnitMode
 
-MAP_VERSION: tuple[int, int] = (1, 5)
+MAP_VERSION: tuple[int, int] = (1, 6)
 """(major, minor), published in the cell block so the PLC can check it talks to the map it expects.
 1.1: refusal codes 905-907 (an unknown recipe or a cell not in Execute no longer answer 1501), refusals
 stored under their cycle_req_id, exception 11 for another unit id; no register moved.
@@ -29,7 +29,8 @@ stored under their cycle_req_id, exception 11 for another unit id; no register m
 apart from 1 (not allowed in this state); no register moved.
 1.5: ``car_body_id`` (11-12) and its echo ``result_car_body_id`` (150-151); ``cycle_flags`` bits 8
 ``install_started`` and 9 ``robot_clear``; a new ``cycle_req_id`` written while ``cycle_request`` stays 1 is
-served after the running cycle (it was never answered); no register moved."""
+served after the running cycle (it was never answered); no register moved.
+1.6: ``interlock_alarm_id`` (152), the alarm behind ``cmd_result`` 5 (blocked); no register moved."""
 
 PLC_ERROR_CODE_RANGE = range(900, 1000)
 """Error codes raised by the PLC interface itself (see ``PlcErrorCode``), reserved in the cell's
@@ -347,6 +348,9 @@ CELL_BLOCK = Block(
         Register("meas_drz_deg", 148, _F32, _C, "deg", "Measured rotation about Z (the gaps' angle)."),
         Register("result_car_body_id", 150, _U32, _C, "id",
                  "car_body_id of that result (0: none given)."),
+        Register("interlock_alarm_id", 152, _U16, _C, "id",
+                 "The first active alarm holding back Reset, Start, Unhold and Unsuspend (cmd_result 5, blocked); "
+                 "0 when none. Unlike stop_reason_id it is set in any state, e.g. a laser lost while Idle."),
     ),
 )
 

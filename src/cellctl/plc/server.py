@@ -374,7 +374,8 @@ class PlcServer:
         flags = {"plc_heartbeat_ok": self._watch.alive, "ready": False, "robot_clear": False}
         if status is not None:
             update.update(state_current=int(status.state), unit_mode_current=int(status.unit_mode),
-                          cycle_step=int(status.cycle_step), stop_reason_id=status.stop_reason_id)
+                          cycle_step=int(status.cycle_step), stop_reason_id=status.stop_reason_id,
+                          interlock_alarm_id=status.interlock_alarm_id)
             flags["ready"] = status.ready_for_cycle and self._cycle.idle and inputs.cycle_request == 0
             # never while the PLC's own cycle is accepted and not yet done, whatever the cell's pose report says
             flags["robot_clear"] = status.robot_clear and not self._image.flag("cycle_flags", "busy")

@@ -63,11 +63,13 @@ class PlcCellLink:
     def status(self) -> CellStatus:
         st = self._orch.machine.status()
         stop = self._orch.alarms.stop_reason
+        interlock = self._orch.alarms.interlocking()
         return CellStatus(
             state=st.state,
             unit_mode=st.mode,
             cycle_step=st.cycle_step,
             stop_reason_id=0 if stop is None else int(stop.code),
+            interlock_alarm_id=int(interlock[0].code) if interlock else 0,
             ready_for_cycle=self._orch.ready_for_cycle(),
             robot_clear=self._robot_clear(),
         )
