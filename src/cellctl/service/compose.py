@@ -41,6 +41,7 @@ from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.service.store_lock import StoreInUse, StoreLock
 from cellctl.store import AsyncCellStore
 from cellctl.store.connection import StoreDamaged, StorePathError, check_store_path, make_store_folder
+from cellctl.store.records import SchemaTooNew
 
 log = logging.getLogger(__name__)
 
@@ -276,9 +277,14 @@ async def assemble_service(
         raise ServiceError(str(err)) from None
     except BaseException as err:
         lock.release()
-        if isinstance(err, StorePathError) and not isinstance(err, StoreDamaged):  # names [store] path and the fix
+        if isinstance(err, StorePathError | SchemaTooNew) and not isinstance(err, StoreDamaged):  # names the file, the fix
             raise ServiceConfigError(str(err)) from None  # a restart cannot help: exit 2
         raise
+    if store.upgrade is not None:
+        up = store.upgrade
+        log.warning("%s", up.summary())
+        await store.append_audit(actor="system", source="store", action="store.migrated", params={
+            "from_schema": up.from_version, "to_schema": up.to_version, "kept_copy": str(up.kept_copy)})
     pk = config.packml
     machine = PackMLMachine(
         initial_state=PackMLState[pk.initial_state.upper()],

@@ -29,6 +29,7 @@ from typing import Any, Concatenate, ParamSpec, TypeVar
 
 from cellctl.store.connection import Synchronous, utcnow
 from cellctl.store.db import CellStore
+from cellctl.store.upgrade import StoreUpgrade
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -82,6 +83,11 @@ class AsyncCellStore:
             executor.shutdown(wait=False)
             raise
         return cls(store, executor)
+
+    @property
+    def upgrade(self) -> StoreUpgrade | None:
+        """The migration opening did on a store of an earlier release, with the copy it kept (else None)."""
+        return self._store.upgrade
 
     async def close(self) -> None:
         """Close the connection on its thread, then end the thread. A second close does nothing."""

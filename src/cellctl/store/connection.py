@@ -30,7 +30,8 @@ import numpy as np
 
 from cellctl.folders import folder_problem
 from cellctl.store.records import SchemaTooNew, StoreError
-from cellctl.store.schema import migrate, schema_version
+from cellctl.store.schema import MIGRATIONS, schema_version
+from cellctl.store.upgrade import StoreUpgrade, copies_for_rollback, migrate_keeping_a_copy
 
 Synchronous = Literal["FULL", "NORMAL"]
 
@@ -160,7 +161,9 @@ def check_intact(conn: sqlite3.Connection, path: Path) -> None:
 def _naming_the_file(err: BaseException, path: Path) -> StoreError | None:
     """A newer schema, or a file that is not (intact) SQLite, said with the file and the fix; None for other faults."""
     if isinstance(err, SchemaTooNew):
-        return SchemaTooNew(f"[store] path {path}: {err}")
+        kept = copies_for_rollback(path, len(MIGRATIONS))
+        where = f"; the copy kept when it was upgraded from this release's schema is {kept[-1]}" if kept else ""
+        return SchemaTooNew(f"[store] path {path}: {err}{where} (README, Backup, upgrade and rollback)")
     if isinstance(err, sqlite3.DatabaseError) and not isinstance(err, sqlite3.OperationalError):
         return StoreDamaged(f"[store] path {path} is not a SQLite database, or a damaged one ({err}): {_DAMAGED_FIX}")
     return None
@@ -176,6 +179,8 @@ class Database:
         self._conn = conn
         self._path = path
         self._clock = clock
+        self.upgrade: StoreUpgrade | None = None
+        """The migration :meth:`open` did on a store of an earlier release (with the copy it kept), else None."""
 
     @classmethod
     def open(
@@ -190,6 +195,7 @@ class Database:
 
         ``busy_timeout_s`` (seconds) is how long a write waits for another connection's lock. A file that is not
         SQLite or is damaged raises :class:`StoreDamaged`, a newer schema :class:`SchemaTooNew`, both naming the file.
+        A store of an earlier release is copied before it is migrated (:mod:`cellctl.store.upgrade`).
         """
         p = Path(path)
         if str(path) == ":memory:" or not str(path):
@@ -209,13 +215,15 @@ class Database:
             conn.execute("PRAGMA foreign_keys = ON")
             conn.execute(f"PRAGMA busy_timeout = {int(busy_timeout_s * 1000)}")
             check_intact(conn, p)
-            migrate(conn)
+            upgrade = migrate_keeping_a_copy(conn, p, clock())
         except BaseException as err:
             conn.close()
             if (named := _naming_the_file(err, p)) is not None:
                 raise named from None
             raise
-        return cls(conn, p, clock)
+        db = cls(conn, p, clock)
+        db.upgrade = upgrade
+        return db
 
     def close(self) -> None:
         self._conn.close()

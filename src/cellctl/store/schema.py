@@ -332,7 +332,8 @@ def migrate(conn: sqlite3.Connection, migrations: Sequence[str] = MIGRATIONS) ->
     if before > latest:
         raise SchemaTooNew(
             f"the database is at schema version {before}, newer than this cellctl knows ({latest}): "
-            "upgrade cellctl or point [store] path at another file"
+            "it was written by a later release: install that release again, or put back the store as it was before "
+            "that upgrade"
         )
     for version in range(before + 1, latest + 1):
         try:

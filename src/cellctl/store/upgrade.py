@@ -1,0 +1,68 @@
+"""A store written by an earlier release: the copy kept before its migration, and where a rollback finds it.
+
+A migration is one way: the release before it refuses the migrated file (``SchemaTooNew``). So before the first
+pending migration of a store that holds data, the database is copied, whole and consistent (SQLite's online backup,
+the WAL's last commits included), to ``<file>.schema<N>-<UTC time>.bak`` beside it; without that copy nothing is
+migrated. To go back to the release that wrote schema N: stop the service, install that release and put the copy in
+place of the file (README, "Backup, upgrade and rollback"). The copies are never deleted by the cell.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from contextlib import closing
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+from cellctl.store.records import StoreError
+from cellctl.store.schema import MIGRATIONS, migrate, schema_version
+
+
+@dataclass(frozen=True)
+class StoreUpgrade:
+    """A migration done on opening: the schema versions before and after, and the copy kept of the file before it."""
+
+    path: Path
+    from_version: int
+    to_version: int
+    kept_copy: Path
+
+    def summary(self) -> str:
+        return (
+            f"store {self.path} migrated from schema {self.from_version} to {self.to_version}: a release that knows "
+            f"only schema {self.from_version} cannot open it any more; the store as it was is kept in {self.kept_copy} "
+            "for a rollback (README, Backup, upgrade and rollback)"
+        )
+
+
+def kept_copy_path(path: Path, version: int, now: datetime) -> Path:
+    """Where the copy of ``path`` at schema ``version`` is kept: beside it, named by the version and the UTC time."""
+    return path.with_name(f"{path.name}.schema{version}-{now.strftime('%Y%m%dT%H%M%SZ')}.bak")
+
+
+def copies_for_rollback(path: Path, version: int) -> list[Path]:
+    """The copies kept of ``path`` at schema ``version`` (the store before an upgrade from it), oldest first."""
+    return sorted(path.parent.glob(f"{path.name}.schema{version}-*.bak"))
+
+
+def migrate_keeping_a_copy(conn: sqlite3.Connection, path: Path, now: datetime) -> StoreUpgrade | None:
+    """Apply the pending migrations to the open database ``conn`` of file ``path``; a store at an earlier schema
+    (not a new, empty one) is first copied (:func:`kept_copy_path`). Returns what was done, None if nothing was."""
+    before = schema_version(conn)
+    if not 0 < before < len(MIGRATIONS):
+        migrate(conn)  # a new file, one already current, or one too new (SchemaTooNew)
+        return None
+    copy = kept_copy_path(path, before, now)
+    try:
+        with closing(sqlite3.connect(copy)) as target:
+            conn.backup(target)
+    except sqlite3.Error as err:
+        copy.unlink(missing_ok=True)
+        raise StoreError(
+            f"[store] path {path}: schema {before} needs migrating to {len(MIGRATIONS)}, and the copy kept for a "
+            f"rollback ({copy}) could not be written ({err}): free space in {path.parent} (the copy is as large as "
+            "the file), then start again; nothing was migrated"
+        ) from None
+    _, after = migrate(conn)
+    return StoreUpgrade(path, before, after, copy)
