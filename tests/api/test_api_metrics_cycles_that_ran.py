@@ -4,6 +4,7 @@ queue in host seconds). Read with prometheus_client's own parser; the records ar
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -47,5 +48,19 @@ async def test_a_cycle_dropped_from_the_queue_is_not_a_cycle_time(tmp_path: Path
         assert await _failed(metrics) == (2, 32.5)  # the two that ran, their recorded times
         await store.call(_dropped, store._store, 4)
         assert await _failed(metrics) == (2, 32.5)
+    finally:
+        await store.close()
+
+
+async def test_scrapes_at_once_count_each_cycle_once(tmp_path: Path) -> None:
+    """Two Prometheus servers of an HA pair (and a person's curl) scrape at the same time: each cycle is one count."""
+    store = await AsyncCellStore.open(tmp_path / "cell.db", synchronous="NORMAL")
+    try:
+        metrics = CellMetrics(_orchestrator(store))
+        assert await _failed(metrics) == (0, 0)
+        for n in range(5):
+            await store.call(_ran, store._store, n, 10.0)
+        scraped = await asyncio.gather(*(_failed(metrics) for _ in range(8)))
+        assert set(scraped) == {(5, 50.0)}, scraped
     finally:
         await store.close()

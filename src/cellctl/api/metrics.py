@@ -53,6 +53,7 @@ class CellMetrics:
         # the newest cycle now is the mark; the histogram counts the cycles after it.
         self._seen_id: int | None = None  # the newest cycle already in the histogram (or before the start)
         self._mark: asyncio.Task[int] | None = None
+        self._scraping = asyncio.Lock()  # scrapes at once (an HA pair of Prometheus servers) count each cycle once
         with contextlib.suppress(RuntimeError):  # no running loop: the first scrape takes the mark
             self._mark = asyncio.get_running_loop().create_task(self._newest_id())
             self._mark.add_done_callback(lambda t: t.cancelled() or t.exception())  # its error is the first scrape's
@@ -71,9 +72,10 @@ class CellMetrics:
 
     async def exposition(self) -> bytes:
         """The text a scrape gets (content type :data:`CONTENT_TYPE_LATEST`)."""
-        self._cycle_counts = await self._orch.store.cycle_counts()
-        await self._observe_finished_cycles()
-        return generate_latest(self.registry)  # no await in between: this scrape's counts are the ones rendered
+        async with self._scraping:
+            self._cycle_counts = await self._orch.store.cycle_counts()
+            await self._observe_finished_cycles()
+            return generate_latest(self.registry)  # no await in between: this scrape's counts are the ones rendered
 
     async def _observe_finished_cycles(self) -> None:
         """Put the cycles finished since the last scrape into the histogram (newest first, a page at a time).
