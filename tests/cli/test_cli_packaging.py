@@ -105,3 +105,16 @@ def test_installed_serve_runs_the_demo_on_the_simulated_cell(installed: Path, tm
     assert "Traceback" not in text
     assert rc == 130
     assert (tmp_path / "var").is_dir()  # the default --workdir is the current folder
+
+
+def test_the_installed_abb_driver_has_its_rapid_modules_and_their_instructions(installed: Path, tmp_path: Path) -> None:
+    """The integrator of an installed cell loads the RAPID modules as the driver's README (beside them) says."""
+    run = subprocess.run([str(installed / "python"), "-c", "import abb_robot, pathlib; print(pathlib.Path(abb_robot.__file__).parent)"],
+                         capture_output=True, text=True, cwd=tmp_path, env=_env(), timeout=60)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    folder = Path(run.stdout.strip())
+    assert folder.is_relative_to(installed.parent), folder
+    rapid = sorted(p.name for p in folder.rglob("*.mod"))
+    assert rapid and (folder / "README.md").is_file(), (rapid, sorted(p.name for p in folder.iterdir()))
+    readme = (folder / "README.md").read_text(encoding="utf-8")
+    assert all(name in readme for name in rapid), rapid

@@ -1,5 +1,5 @@
 """Issue 20, deploy: the systemd unit verifies and may bind the PLC's port 502, the container file has a
-HEALTHCHECK on /health that fails on 503 and a base pinned by digest, and the project is licensed."""
+HEALTHCHECK on /health/live (liveness) and a base pinned by digest, and the project is licensed."""
 
 from __future__ import annotations
 
@@ -75,10 +75,13 @@ def test_the_container_base_is_pinned_by_digest() -> None:
 
 
 class _Health(http.server.BaseHTTPRequestHandler):
-    code = 200
+    """A served cell as README's "Health and metrics" gives it: /health/live (liveness) and /health (readiness)."""
+
+    live = 200
+    ready = 200
 
     def do_GET(self) -> None:
-        self.send_response(self.code if self.path == "/health" else 404)
+        self.send_response({"/health/live": self.live, "/health": self.ready}.get(self.path, 404))
         self.end_headers()
         self.wfile.write(b'{"ok": true}')
 
@@ -96,7 +99,10 @@ def health_server() -> Iterator[http.server.HTTPServer]:
     server.server_close()
 
 
-def test_the_healthcheck_passes_on_200_and_fails_on_503(health_server: http.server.HTTPServer) -> None:
+def test_the_healthcheck_is_liveness_a_cell_waiting_for_its_plc_is_healthy(health_server: http.server.HTTPServer) -> None:
+    """An orchestrator restarts an unhealthy container (podman --health-on-failure=restart, Swarm): the check must
+    fail only when the process does not serve (README: restart only when /health/live fails), not while a device
+    or the PLC is down (/health answers 503 then)."""
     lines = _containerfile()
     check = next(line for line in lines if line.startswith("HEALTHCHECK "))
     options, _, command = check.partition(" CMD ")
@@ -104,13 +110,12 @@ def test_the_healthcheck_passes_on_200_and_fails_on_503(health_server: http.serv
     argv = json.loads(command)
     assert argv[:2] == ["python", "-c"]
     env_line = next(line for line in lines if line.startswith("ENV CELLCTL_HEALTH_URL="))
-    assert env_line.endswith(":8080/health")
-    url = f"http://127.0.0.1:{health_server.server_address[1]}/health"
-    for code, ok in ((200, True), (503, False)):
-        _Health.code = code
+    url = env_line.split("=", 1)[1].replace("127.0.0.1:8080", f"127.0.0.1:{health_server.server_address[1]}")
+    for live, ready, ok in ((200, 200, True), (200, 503, True), (503, 503, False)):
+        _Health.live, _Health.ready = live, ready
         r = subprocess.run([sys.executable, "-c", argv[2]], env={"CELLCTL_HEALTH_URL": url}, capture_output=True, timeout=30,
                            check=False)
-        assert (r.returncode == 0) is ok, (code, r.stderr)
+        assert (r.returncode == 0) is ok, (live, ready, r.stderr)
 
 
 def test_the_project_is_apache_2_licensed() -> None:

@@ -73,7 +73,7 @@ def check_tokens(config: CellConfig, source: str = "<config>") -> None:
 def load_config(path: str | Path, *, read_tokens: bool = False) -> CellConfig:
     """Load and validate a TOML configuration file; ``read_tokens``: also :func:`check_tokens` (for the service)."""
     p = Path(path)
-    hint = "give the path of a TOML file (the default is config/sim.toml)"
+    hint = "give the path of a TOML file (without --config: $CELLCTL_CONFIG, else the simulated cell's configuration)"
     try:
         if p.is_dir():
             raise IsADirectoryError
