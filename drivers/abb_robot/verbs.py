@@ -46,6 +46,7 @@ class RobotVerbs:
         self._tool = settings.tool
         self._wobj = settings.wobj
         self._zone = settings.zone_mm
+        self._stops = 0  # STOPs asked for so far: a move staged before one is never started
 
     async def resync(self, deadline: float) -> None:
         """Send tool, work object, speed and zone (after every connection)."""
@@ -99,6 +100,7 @@ class RobotVerbs:
         controller gone silent then fails the move within seconds, naming the request. Only DONE may take long.
         """
         deadline = deadline_in(timeout_s)
+        stops = self._stops
         await self.link.ensure_connected(deadline)
         target = request.target
         q = unit_quaternion.normalise(target.quaternion_wxyz)
@@ -109,6 +111,8 @@ class RobotVerbs:
         await self.link.request("POS", *target.position_mm, deadline=deadline, reconnect=False, quick=True)
         await self.link.request("ORI", *q, deadline=deadline, reconnect=False, quick=True)
         verb = "MOVEL" if request.kind == "linear" else "MOVEJ"
+        if self._stops != stops:  # a STOP went out while SPEED, POS and ORI were answered: the motion is not begun
+            raise DeviceRejected(self.name, f"{verb} to {_fmt_pose(target)} not started: a STOP came while it was staged")
         final = await self.link.start_motion(verb, deadline=deadline)
         await self.link.finish_motion(verb, final, deadline, f"{verb} to {_fmt_pose(target)}")
         return await self.read_pose_by(deadline, reconnect=False)
@@ -155,7 +159,8 @@ class RobotVerbs:
         return RobotState(motors_on=fields[0] == "1", program_running=True, moving=fields[1] == "1", joints_rad=joints)
 
     async def stop(self, *, timeout_s: float) -> None:
-        """Stop whatever motion runs (harmless when none does)."""
+        """Stop whatever motion runs (harmless when none does); a move staged meanwhile is not started."""
+        self._stops += 1
         await self.link.request("STOP", deadline=deadline_in(timeout_s), quick=True)
 
     async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:

@@ -19,7 +19,7 @@ from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cancel import cancel_until_done
+from cellctl.cell.cancel import cancel_until_done, cancel_until_ended
 from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.cycle_failure import CycleFailed
@@ -72,10 +72,8 @@ _KEEP_QUEUED = {PackMLState.EXECUTE, *_STOP_CYCLE, PackMLState.HELD, PackMLState
 
 def _commands_view(st: MachineStatus) -> dict[str, Any]:
     """The commands a status allows and those an interlock holds back (with why), JSON-ready."""
-    return {
-        "allowed_commands": sorted(c.name.lower() for c in st.allowed_commands),
-        "blocked_commands": {c.name.lower(): why for c, why in st.blocked_commands.items()},
-    }
+    return {"allowed_commands": sorted(c.name.lower() for c in st.allowed_commands),
+            "blocked_commands": {c.name.lower(): why for c, why in st.blocked_commands.items()}}
 
 
 class CycleRefused(Exception):
@@ -246,20 +244,22 @@ class CellOrchestrator:
         )
 
     async def _stop_running_cycle(self, reason: str) -> None:
-        """Leave Execute: end the running cycle as stopped (first the reason, then the robot's stop, then the task)."""
-        task = self._cycle_task
-        if task is None or task.done():
+        """Leave Execute: end the running cycle as stopped (its reason; no new motion; its task cancelled, then the
+        robot's stop, the cancel repeated until the task ends). One already recording its outcome is let finish."""
+        if (task := self._cycle_task) is None:
             return
-        if self._finishing:  # it is recording its outcome already: let it
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        if task.done() or self._finishing:
+            await cancel_until_ended(task, finishing=lambda: True)  # recording its outcome already: let it
             return
         self._stop_reason = reason
-        with contextlib.suppress(DeviceError):
-            await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+        self.robot.halt(reason)  # the cycle starts no motion and releases no glass from now on
+        try:
+            task.cancel()  # before the robot's stop ends the move it waits on (3.11's wait_for would drop it then)
+            with contextlib.suppress(DeviceError):
+                await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
+            await cancel_until_ended(task, finishing=lambda: self._finishing)
+        finally:
+            self.robot.resume()
 
     async def _drop_queued(self, why: str) -> None:
         """End every queued cycle as failed, saying why: a Stop or Abort ends production, and a queued

@@ -55,24 +55,46 @@ class RobotProxy:
         return dict(inner.identity()) if isinstance(inner, Identified) else {"kind": type(inner).__name__}
 
 
+class MotionHalted(DeviceRejected):
+    """A motion or gripper change asked for while the cell stops its running cycle (a Hold, Stop or Abort came)."""
+
+
 class TrackedRobot(RobotProxy):
-    """A Robot port that knows whether a motion is under way (for alarm reactions)."""
+    """A Robot port that knows whether a motion is under way (for alarm reactions), and that refuses every new
+    motion and gripper change while halted (:meth:`halt`: the cell is ending its running cycle)."""
 
     def __init__(self, robot: Robot) -> None:
         super().__init__(robot)
         self._moves = 0
+        self._halted: str | None = None
 
     @property
     def moving(self) -> bool:
         return self._moves > 0
 
+    def halt(self, why: str) -> None:
+        """From now until :meth:`resume`, :meth:`move`, :meth:`set_gripper` and :meth:`in_motion` raise MotionHalted."""
+        self._halted = why
+
+    def resume(self) -> None:
+        self._halted = None
+
+    def _refuse_if_halted(self, what: str) -> None:
+        if self._halted is not None:
+            raise MotionHalted("robot", f"{what} refused: the cell is stopping its cycle ({self._halted})")
+
     async def move(self, request: MotionRequest, *, timeout_s: float) -> CartesianPose:
         with self.in_motion():
             return await self._robot.move(request, timeout_s=timeout_s)
 
+    async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
+        self._refuse_if_halted("closing the gripper" if hold else "releasing the glass")
+        await self._robot.set_gripper(hold, timeout_s=timeout_s)
+
     @contextlib.contextmanager
     def in_motion(self) -> Iterator[None]:
         """Count the robot as moving meanwhile (a move, or an EGM correction, which is not a move() call)."""
+        self._refuse_if_halted("a motion")
         self._moves += 1
         try:
             yield
