@@ -123,6 +123,7 @@ class CellOrchestrator:
         self._busy: int | None = None  # the cycle the worker took, from then until its record is written
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
+        self._shutting_down = False  # end_for_shutdown() came: no queued cycle starts
         self._finishing = False
         self._links: dict[str, dict[str, Any]] = {}
         self._status_parts: dict[str, Callable[[], Any]] = {}
@@ -177,9 +178,8 @@ class CellOrchestrator:
             await self.watchdog.start()
 
     async def stop(self) -> None:
-        """Stop background work; a running cycle is left as it is (the next start marks it interrupted). The worker and
-        its cycle are cancelled once and waited for: the cycle's shielded clean-up (the sweep's stream and laser storage,
-        its record) runs to its end, its events pumped (a second cancel would cut it loose; the service bounds the wait)."""
+        """Stop background work (a cycle still running is left as it is: the next start marks it interrupted). The worker
+        and its cycle are cancelled once and waited for: the cycle's shielded clean-up runs to its end, its events pumped."""
         if self.watchdog is not None:
             await self.watchdog.stop()
         if self._cycle_task is not None:
@@ -261,6 +261,12 @@ class CellOrchestrator:
         finally:
             self.robot.resume()
 
+    async def end_for_shutdown(self, why: str) -> None:
+        """The service is stopping (SIGTERM, Ctrl-C): no queued cycle starts any more, and a running one ends as
+        stopped now (the robot stopped, its record and the PLC's answer written), not cut off half-way at the exit."""
+        self._shutting_down = True
+        await self._stop_running_cycle(why)
+
     async def _drop_queued(self, why: str) -> None:
         """End every queued cycle as failed, saying why: a Stop or Abort ends production, and a queued
         cycle must not start by itself once the cell is back in Execute, perhaps long after its requester gave up."""
@@ -313,7 +319,7 @@ class CellOrchestrator:
     async def _worker(self) -> None:
         while True:
             await self._queue.get()
-            while self._pending and self.ready_for_cycle():
+            while self._pending and self.ready_for_cycle() and not self._shutting_down:
                 nxt = self._pending.pop(0)
                 self._busy, self._finishing = nxt, False
                 self._cycle_task = asyncio.create_task(self._run(nxt))
@@ -485,14 +491,8 @@ class CellOrchestrator:
             "queued_cycles": len(self._pending),
             **_commands_view(st),
             "stop_reason": None if stop is None else {"code": int(stop.code), "message": stop.message},
-            "devices": {
-                name: {
-                    "link": h.link.value,
-                    "heartbeat_age_s": h.heartbeat_age_s,
-                    "round_trip_s": h.last_round_trip_s,
-                }
-                for name, h in (self.watchdog.health().items() if self.watchdog else [])
-            },
+            "devices": {name: {"link": h.link.value, "heartbeat_age_s": h.heartbeat_age_s, "round_trip_s": h.last_round_trip_s}
+                        for name, h in (self.watchdog.health().items() if self.watchdog else [])},
             "links": {name: dict(report) for name, report in self._links.items()},
             "calibration": calibration_status(self.calibration, (r.name for r in self.config.process.recipes)),
             "spc": self.quality.snapshot(),

@@ -50,6 +50,8 @@ STOP_STEP_TIMEOUT_S = 10.0
 JOB_END_BEFORE_STREAMS_S = 2.5
 """On SIGINT/SIGTERM a running job gets this long (s) to end before the event streams close (the HTTP server
 closes them itself 3 s after the signal, cellctl.service.http.GRACEFUL_SHUTDOWN_S)."""
+CYCLE_END_AT_EXIT_S = 2.5
+"""On SIGINT/SIGTERM a running cycle gets this long (s) to stop and be recorded (before a running job is cancelled)."""
 
 
 class ServiceError(RuntimeError):
@@ -213,18 +215,23 @@ class Service:
         return f"{'https' if api.tls_cert is not None else 'http'}://{api.host}:{api.port}/"
 
     def _on_exit_signal(self) -> None:
-        """SIGINT/SIGTERM (called in the signal handler): a running job is cancelled first, so that whoever follows it
-        reads its end on the event stream; then the streams end with ``shutdown``. A second signal ends them at once."""
-        if self._exit_signalled or self._loop is None or self.jobs.running() is None:
+        """SIGINT/SIGTERM (called in the signal handler): a running cycle is stopped and recorded (the robot stopped,
+        the waiting caller and the PLC answered) and a running job cancelled first, so that whoever follows them reads
+        their end on the event stream; then the streams end with ``shutdown``. A second signal ends them at once."""
+        if self._exit_signalled or self._loop is None:
             self.orchestrator.events.close()
             return
         self._exit_signalled = True
         self._loop.call_soon_threadsafe(self._begin_ending)
 
     def _begin_ending(self) -> None:
-        self._ending = asyncio.ensure_future(self._cancel_job_then_close_streams())
+        self._ending = asyncio.ensure_future(self._end_work_then_close_streams())
 
-    async def _cancel_job_then_close_streams(self) -> None:
+    async def _end_work_then_close_streams(self) -> None:
+        try:
+            await asyncio.wait_for(self.orchestrator.end_for_shutdown("the service is stopping"), CYCLE_END_AT_EXIT_S)
+        except Exception as err:  # noqa: BLE001 - stop() cancels it again; the next start marks it interrupted
+            log.warning("the running cycle did not end before the service stopped: %r", err)
         try:
             run = self.jobs.running()
             if run is not None:
