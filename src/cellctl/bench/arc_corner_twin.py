@@ -1,12 +1,14 @@
 """The arc detector on the twin's own renders (issue 21): a 150 mm corner of a real opening.
 
 ``cellctl bench arc-corner --renderer twin``: each render is a new car body of config/sim.toml's
-door window (1200 x 900 mm, 150 mm corners) with its own drawn surface (paint edge, wall's edge,
+door window (1200 x 900 mm, 150 mm corners; ``--radius-mm`` another radius, the shot measured by
+the method and aim that radius gives: cellctl.config.feature) with its own drawn surface (paint edge, wall's edge,
 flange, seal: concentric arcs), seen from the recipe's shooting pose shifted by up to 10 mm and
 turned by up to 1 deg, through the twin's camera (lens, blur, vignetting, shot and read noise). A
 share of the renders carries the twin's glare on the straight edge in view. The detector runs with
 the recipe's own settings (cellctl.config.feature.arc_corner_config). Truth: the arc's centre
-projected through the true camera pose; errors in square px (fx on both axes).
+projected through the true camera pose (the corner method's: the wall edge's virtual sharp corner);
+errors in square px (fx on both axes).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ import cv2
 import numpy as np
 
 from cellctl.config import load_config
-from cellctl.config.feature import arc_corner_config, shot_aim_mm
+from cellctl.config.feature import arc_corner_config, corner_radius, feature_kind, shot_aim_mm
+from cellctl.config.schema import CellConfig
 from cellctl.config.render import DisturbanceConfig, GlareConfig
 from cellctl.geometry.pose import apply_pose, invert_pose
 from cellctl.geometry.rotation import rot_z
@@ -28,6 +31,7 @@ from cellctl.sim.image_truth import camera_pose_seeing_corner
 from cellctl.sim.world import sample_world
 from cellctl.bench.stats import percentile
 from cellctl.vision.arc_corner import detect_arc_corner
+from cellctl.vision.corner import detect_corner
 from cellctl.vision.lens import Lens
 
 RECIPE = "door-window"
@@ -37,11 +41,24 @@ SHIFT_MM = 10.0
 TURN_DEG = 1.0
 
 
-def run_arc_corner_twin(n: int, seed: int, config_path: str = "config/sim.toml") -> dict[str, Any]:
-    """Render ``n`` seeded frames of the twin's 150 mm corner, detect each, and return the figures."""
+def with_radius(config: CellConfig, radius_mm: float) -> CellConfig:
+    """``config`` with ``layout.opening.corner_radius_mm`` replaced (the method, aim and settings follow it)."""
+    opening = config.layout.opening.model_copy(update={"corner_radius_mm": float(radius_mm)})
+    return config.model_copy(update={"layout": config.layout.model_copy(update={"opening": opening})})
+
+
+def run_arc_corner_twin(
+    n: int, seed: int, config_path: str = "config/sim.toml", radius_mm: float | None = None
+) -> dict[str, Any]:
+    """Render ``n`` seeded frames of the twin's corner (150 mm, or ``radius_mm``), detect each, return the figures."""
     cv2.setNumThreads(1)
     config = load_config(config_path).for_recipe(RECIPE)
-    sim, arc = config.sim, arc_corner_config(config)
+    if radius_mm is not None:
+        config = with_radius(config, radius_mm)
+    method = feature_kind(config)
+    sim = config.sim
+    arc = arc_corner_config(config) if method == "arc" else None
+    expected = corner_radius(config)
     lens = Lens.from_intrinsics(sim.camera.intrinsics)
     K = lens.camera_matrix
     clean = CameraRenderer(sim.camera.intrinsics, sim.camera.render)
@@ -66,26 +83,37 @@ def run_arc_corner_twin(n: int, seed: int, config_path: str = "config/sim.toml")
         T_B_C = camera_pose_seeing_corner(renderer.camera, world, tuple(lens.distort(aim_px[None])[0]), distance_mm=400.0,
                                           R_T_C=rot_z(turn))  # fmt: skip
         frame = renderer.render(T_B_C, world, rng=rng)
-        m = detect_arc_corner(frame.image, lens, arc)
-        if not m.ok or m.centre_px is None:
-            refusals[f"{m.refusal.value if m.refusal else '?'}: {m.failed.name if m.failed else m.message}"] += 1
+        if arc is not None:
+            a = detect_arc_corner(frame.image, lens, arc)
+            refusal, point, theta = a.refusal, a.centre_px, a.orientation.theta_rad if a.orientation else None
+            checks, message = a.checks, a.message
+        else:
+            c = detect_corner(frame.image, lens, config.vision, expected)
+            refusal, point, theta, checks, message = c.refusal, c.corner_px, c.theta_rad, c.checks, c.message
+        if refusal is not None or point is None:
+            failed = next((ch.name for ch in checks if not ch.passed), message)
+            refusals[f"{refusal.value if refusal else '?'}: {failed}"] += 1
             continue
-        # The arc's centre and two points of the top edge beyond the arc, through the true camera pose.
-        q = apply_pose(invert_pose(T_B_C), apply_pose(world.T_B_T, np.array([[-r_mm, r_mm, 0.0], [-r_mm - 300.0, 0.0, 0.0],
+        # The feature point (the arc's centre, or the virtual corner) and two points of the top edge beyond the
+        # arc, through the true camera pose.
+        feature = [-r_mm, r_mm, 0.0] if arc is not None else [0.0, 0.0, 0.0]
+        q = apply_pose(invert_pose(T_B_C), apply_pose(world.T_B_T, np.array([feature, [-r_mm - 300.0, 0.0, 0.0],
                                                                               [-r_mm - 100.0, 0.0, 0.0]])))  # fmt: skip
         px = np.column_stack([K[0, 0] * q[:, 0] / q[:, 2] + K[0, 2], K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]])
         truth, top = px[0], px[2] - px[1]
-        err = float(np.hypot(*(lens.to_square(m.centre_px)[0] - lens.to_square(truth)[0])))
+        err = float(np.hypot(*(lens.to_square(point)[0] - lens.to_square(truth)[0])))
         errors[kind].append(err)
         if err > WRONG_PX:
             wrong.append({"render": i, "kind": kind, "error_px": round(err, 3)})
-        if m.orientation is not None and m.orientation.theta_rad is not None:
-            theta_err.append(abs(float(np.degrees(m.orientation.theta_rad - np.arctan2(top[1], top[0])))))
+        if theta is not None:
+            theta_err.append(abs(float(np.degrees(theta - np.arctan2(top[1], top[0])))))
     every = errors["clean"] + errors["glare"]
     return {
         "renderer": "twin",
         "renders": n,
         "seed": seed,
+        "radius_mm": r_mm,
+        "method": method,
         "accepted": len(every),
         "accepted_by_kind": {k: len(v) for k, v in errors.items()},
         "centre_error_px": {"median": percentile(every, 50), "p95": percentile(every, 95), "p99": percentile(every, 99),
@@ -104,8 +132,9 @@ def format_arc_corner_twin(out: dict[str, Any], wall_s: float) -> str:
     e, c, o = out["centre_error_px"], out["clean_centre_error_px"], out["orientation_error_deg"]
     return "\n".join([
         f"arc corner bench on the twin's renders: {out['renders']} renders (seed {out['seed']}), {out['accepted']} accepted "
-        f"{out['accepted_by_kind']}; the door window's 150 mm corner with its drawn surface",
-        *(f"  centre error {name:6s} {e[name]:.4f} px" for name in ("median", "p95", "p99", "max")),
+        f"{out['accepted_by_kind']}; the door window's {out['radius_mm']:g} mm corner with its drawn surface, "
+        f"measured by the {out['method']} method",
+        *(f"  {'centre' if out['method'] == 'arc' else 'corner'} error {name:6s} {e[name]:.4f} px" for name in ("median", "p95", "p99", "max")),
         f"  without glare: median {c['median']:.4f} px, p99 {c['p99']:.4f} px",
         "  refusals by reason:",
         *(f"    {count:4d}  {reason}" for reason, count in out["refusals"].items()),

@@ -229,7 +229,7 @@ def _cmd_arc_corner(args: argparse.Namespace) -> int:
     def body(config: CellConfig) -> Outcome:
         t0 = time.perf_counter()
         if args.renderer == "twin":
-            twin = run_arc_corner_twin(args.renders, args.seed, args.config)
+            twin = run_arc_corner_twin(args.renders, args.seed, args.config, args.radius_mm)
             return format_arc_corner_twin(twin, time.perf_counter() - t0), twin, bool(twin["bar_met"])
         figures = run_arc_corner_bench(args.renders, args.seed)
         return format_arc_corner(figures, time.perf_counter() - t0), figures, bool(figures["bar_met"])
@@ -477,6 +477,9 @@ def register(subparsers: Any) -> None:
     _options(p, (("--renders", _positive_int, 200, "rendered frames (default 200)"),))
     p.add_argument("--renderer", choices=("own", "twin"), default="own",
                    help="own: the bench's clean arcs with glare, occluders, wrong radii; twin: the twin's door window (default own)")
+    p.add_argument("--radius-mm", type=float, default=None,
+                   help="with --renderer twin: the door window's corner radius (default the recipe's 150 mm), measured by the "
+                   "method that radius gives (the corner method up to about 58 mm, else the arc)")
     _seed_option(p, "the renders' seed (default 1)")
     _report_options(p)
 

@@ -4,7 +4,10 @@ The corner method (paper 4.2) needs a straight stretch of both edges beside the 
 view; where the recipe's corner radius leaves less than ``MIN_STRAIGHT_EDGE_MM`` of it, the arc is
 the feature (issue 21): its centre (u, v), the orientation from the top edge's straight run beyond
 it. At the shooting pose the camera's axes lie along T's (x along the image's u, y along v), its
-optical axis through the aim point ``vision.shot_aim_mm``.
+optical axis through the aim point ``vision.shot_aim_mm``. The corner method's edge points start past
+the arc (:meth:`CornerRadius.exclusion_px`); where that leaves too short a straight run with the corner
+at the image's centre (radii over about 31 mm), the default aim moves the corner towards the image's
+upper right (:func:`corner_shift_px`).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from cellctl.config.arc_vision import ArcCornerConfig
+from cellctl.config.vision import FitConfig, LimitsConfig
 
 if TYPE_CHECKING:
     from cellctl.config.schema import CellConfig
@@ -25,6 +29,11 @@ MIN_STRAIGHT_EDGE_MM = 20.0  # of each edge beside the arc, for the corner metho
 # height, so the arc runs from it down to the right and the straight top edge runs on to the left.
 _ARC_TANGENT_AT = (0.22, 0.15)
 _PLACEMENT_MARGIN_DEG = 8.0  # coverage kept beyond the limit for the car body's placement error
+# The corner method's straight run of each edge in view, per px of its exclusion (the arc and the margin left out): the
+# paper's cell with its 30 mm corner at the image's centre has 572 px beyond 440 px. The corner's sigma is the lines'
+# extrapolated from their runs' middles, so it holds where the run grows with the exclusion (the twin's 45 and 55 mm
+# corners at the centre: 23 and 39 of 40 shots refused for it; moved so: none of 100, p99 0.07 and 0.11 px).
+_STRAIGHT_PER_EXCLUSION = 1.3
 # How far from its nominal pixel (layout.camera's principal point) the shooting pose may put the corner: the
 # real lens's principal point and the hand-eye's error (the twin's lens: 9 px and 12 px off the data sheet's).
 _CORNER_MARGIN_PX = 40.0
@@ -61,12 +70,29 @@ def shot_aim_mm(config: CellConfig) -> tuple[float, float]:
     """The T point (x, y; mm) on the camera's axis at the shooting pose."""
     if config.vision.shot_aim_mm is not None:
         return (float(config.vision.shot_aim_mm[0]), float(config.vision.shot_aim_mm[1]))
-    if feature_kind(config) == "corner":
-        return (0.0, 0.0)
-    cam, r = config.layout.camera, float(config.layout.opening.corner_radius_mm)
     sx, sy = _mm_per_px(config)
+    if feature_kind(config) == "corner":
+        d = corner_shift_px(config)
+        return (-d * sx, d * sy) if d > 0 else (0.0, 0.0)
+    cam, r = config.layout.camera, float(config.layout.opening.corner_radius_mm)
     u, v = _ARC_TANGENT_AT[0] * cam.width_px, _ARC_TANGENT_AT[1] * cam.height_px
     return (-r - (u - cam.cx) * sx, -(v - cam.cy) * sy)
+
+
+def corner_shift_px(config: CellConfig) -> float:
+    """How far (px, whole) the corner method's default aim puts the virtual corner right of and above the image centre.
+
+    0 while each edge's straight run in view beyond the arc's exclusion is ``_STRAIGHT_PER_EXCLUSION`` times the
+    exclusion with the corner at the centre; else as far as that needs, but keeping the wall beside each edge in view
+    for the feature's profile (``vision.feature.profile_half_px``, the border margin and ``_CORNER_MARGIN_PX``).
+    """
+    cam, v = config.layout.camera, config.vision
+    exclusion = corner_radius(config).exclusion_px(v.fit, v.limits)
+    margin = float(v.fit.border_margin_px)
+    room = min(cam.cx, cam.height_px - cam.cy)  # px from the centre to the border along each edge's run, left and down
+    need = (1.0 + _STRAIGHT_PER_EXCLUSION) * exclusion + margin - room
+    wall = min(cam.cy, cam.width_px - cam.cx) - v.feature.profile_half_px - margin - _CORNER_MARGIN_PX
+    return float(max(0, round(min(need, wall))))
 
 
 def _to_px(config: CellConfig, xy: np.ndarray) -> np.ndarray:
@@ -217,6 +243,14 @@ class CornerRadius:
 
     radius_px: float
     source: str  # for the refusal: the setting and the scale it was converted with
+
+    def exclusion_px(self, fit: FitConfig, limits: LimitsConfig) -> float:
+        """From the virtual corner along each edge, where the corner method's edge points start (px).
+
+        ``fit.arc_exclusion_px``, or further where the arc ends beyond it: past an arc up to the radius check's
+        ``limits.arc_radius_tolerance`` larger than this radius (its points bend the straight edge's fit).
+        """
+        return max(float(fit.arc_exclusion_px), (1.0 + float(limits.arc_radius_tolerance)) * self.radius_px)
 
 
 def corner_radius(config: CellConfig) -> CornerRadius:

@@ -10,9 +10,10 @@ Pipeline, for one raw image:
    every edge parallel to it (paint edge, wall edge, flange, seal); the recipe's rule picks the
    feature among them by polarity and place, and the seed line moves onto it.
 3. Sub-pixel points: each seed line is sampled from ``arc_exclusion_px`` beyond the corner (the arc
-   is left out) to the edge of the ROI, mapped into the raw image, and on every pixel column (top
-   edge) or row (right edge) the edge crossing is measured to sub-pixel precision
-   (cellctl.vision.subpixel). Profiles that are saturated, too faint, of the wrong polarity or
+   is left out; given the recipe's radius, from past its arc where that ends further:
+   cellctl.config.feature.CornerRadius.exclusion_px) to the edge of the ROI, mapped into the raw
+   image, and on every pixel column (top edge) or row (right edge) the edge crossing is measured
+   to sub-pixel precision (cellctl.vision.subpixel). Profiles that are saturated, too faint, of the wrong polarity or
    on a disturbed background (a glare veil: see ``background_consistent``) are left out; the
    rest are undistorted.
 4. Fit: RANSAC on the sub-pixel points, then least squares on the inliers within a robust band
@@ -41,7 +42,9 @@ from cellctl.config.vision import FeatureConfig, LimitsConfig, RoiConfig, Vision
 from cellctl.vision.arc import ArcMeasurement, estimate_radius, measure_arc
 from cellctl.vision.coarse import CoarseFailure, find_coarse_corner
 from cellctl.vision.lens import Lens
-from cellctl.vision.edge import AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, measure_edge, too_near_border
+from cellctl.vision.edge import (
+    AWAY, MIN_SEED_POINTS, EdgeMeasurement, EdgeName, SettingNames, measure_edge, too_near_border,
+)
 from cellctl.vision.lines import Line2D, fit_line, intersect, ransac_line
 from cellctl.vision.profile import EdgeProfile, edge_profile, into_opening, pick_feature
 from cellctl.vision.quality import Check, Refusal, Refused, at_least, at_most
@@ -204,6 +207,30 @@ def _taught_feature(
     return (replace(prof, feature=k), None) if k is not None else (prof, f"refused: the {name} edge: {why}")
 
 
+def _past_the_arc(config: VisionConfig, expected: CornerRadius | None) -> tuple[VisionConfig, SettingNames]:
+    """``config`` with the edge points starting past the recipe's arc where it ends beyond ``fit.arc_exclusion_px``
+    (a point on the arc bends the edge's line: the corner off by up to 0.6 px at 45 mm), and the refusals' names."""
+    if expected is None:
+        return config, SettingNames()
+    exclusion = expected.exclusion_px(config.fit, config.limits)
+    if exclusion <= config.fit.arc_exclusion_px:
+        return config, SettingNames()
+    fit = config.fit.model_copy(update={"arc_exclusion_px": exclusion})
+    start = (f"the arc's end ({expected.source}, plus vision.limits.arc_radius_tolerance "
+             f"{config.limits.arc_radius_tolerance:g}; vision.fit.arc_exclusion_px {config.fit.arc_exclusion_px:g} px is less)")
+    return config.model_copy(update={"fit": fit}), SettingNames(start=start)
+
+
+def _short_run_words(check: Check, expected: CornerRadius, top: EdgeMeasurement, right: EdgeMeasurement) -> str:
+    """The corner sigma's refusal where the recipe's radius shortened the edges' straight runs (px)."""
+    return (
+        f"refused: {check.describe()}: the corner's arc ({expected.source}) leaves {top.quality.length_px:.0f} px of the top "
+        f"edge and {right.quality.length_px:.0f} px of the right edge straight in view, and the corner is extrapolated "
+        "from them; leave vision.shot_aim_mm out (the default aim moves the corner towards the image's upper right for a "
+        "radius over about 31 mm at the paper's scale) or move it so both edges run on further, or check the shooting pose"
+    )
+
+
 def detect_corner(
     image: NDArray[np.uint8],
     lens: Lens,
@@ -224,6 +251,7 @@ def detect_corner(
     """
     img = lens.check_image(image)
     config.roi.check_inside(lens.width_px, lens.height_px)
+    config, names = _past_the_arc(config, expected_radius)
     roi = config.roi
     exclusion = float(config.fit.arc_exclusion_px)
     coarse = find_coarse_corner(img, roi, config.coarse, config.opening_polarity, lens)
@@ -257,7 +285,7 @@ def detect_corner(
         prof = _feature_profile(img, lens, name, seeds[name], corner, config, coarse.opening_darker)
         if prof is None:
             return CornerMeasurement(
-                Refusal.EDGE_MISSING, too_near_border(lens, name, seeds[name], corner, config),  # type: ignore[arg-type]
+                Refusal.EDGE_MISSING, too_near_border(lens, name, seeds[name], corner, config, names),  # type: ignore[arg-type]
                 roi, exclusion, segments=coarse.segments, coarse_corner_px=corner,
             )
         prof, differs = _taught_feature(prof, name, taught, config.feature, coarse.opening_darker)
@@ -285,7 +313,7 @@ def detect_corner(
     try:
         for name in ("top", "right"):
             edge, edge_checks = measure_edge(
-                img, lens, name, seeds[name], corner, config, 2.0 * k + 1.0, coarse.opening_darker, rng  # type: ignore[arg-type]
+                img, lens, name, seeds[name], corner, config, 2.0 * k + 1.0, coarse.opening_darker, rng, names  # type: ignore[arg-type]
             )
             edges[name] = replace(edge, profile=profiles[name])
             checks += edge_checks
@@ -311,10 +339,13 @@ def detect_corner(
             Refusal.NOT_PERPENDICULAR,
             " deg",
         ),
-        at_most("predicted corner sigma", sigma, lim.max_corner_sigma_px, Refusal.UNCERTAIN, " px"),
     ]
+    sigma_check = at_most("predicted corner sigma", sigma, lim.max_corner_sigma_px, Refusal.UNCERTAIN, " px")
+    checks.append(sigma_check)
     arc = None
     notes: dict[str, str] = {}  # a check's name: the refusal's words, where they say more than describe()
+    if expected_radius is not None and names != SettingNames():  # the radius moved the edges' start past its arc
+        notes[sigma_check.name] = _short_run_words(sigma_check, expected_radius, top, right)
     if config.fit.check_arc:
         arc = _check_arc(img, lens, corner, top, right, coarse.edge_pixels, coarse.opening_darker, config, 2.0 * k + 1.0)
         if arc is None:
