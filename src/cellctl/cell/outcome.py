@@ -139,6 +139,7 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
         "source": req.source,
         "state": record.state.value,
         "ok": s.ok,
+        "install_started": record.install_started_at is not None,  # the glass went into the opening: it counts as used
         "error_code": s.error_code,
         "reason": s.error or "",
         "measured_deviation": None if s.measured is None else asdict(s.measured),

@@ -128,8 +128,10 @@ VARIABLES: tuple[Var, ...] = (
     Var("Status/StateCurrent", "cellctl", "Int32", "PackTags state integer (1 Clearing .. 17 Complete), as the Modbus register"),
     Var("Status/CycleStep", "cellctl", "Int32", "sub-step of Execute: 0 none, 1 calibrate, 2 align, 3 shoot, 4 compensate, 5 install, 6 inspect"),
     Var("Status/ReadyForCycle", "cellctl", "Boolean", "StartCycle would be accepted now"),
-    Var("Admin/ProcessedCount", "cellctl", "Int32", "parts installed since the service started (ProdProcessedCount's Count)"),
-    Var("Admin/DefectiveCount", "cellctl", "Int32", "of those, measured outside the tolerance (ProdDefectiveCount's Count)"),
+    Var("Admin/ProcessedCount", "cellctl", "Int32", "glasses whose install began since the service started, done or "
+        "stopped after it began (ProdProcessedCount's Count)"),
+    Var("Admin/DefectiveCount", "cellctl", "Int32", "of those, not ok: measured outside the tolerance, or stopped after the "
+        "install began (ProdDefectiveCount's Count)"),
     Var("Admin/StopReason/ID", "cellctl", "Int32", "first-out alarm id, 0 when none (PackMLAlarmDataType.ID)"),
     Var("Admin/StopReason/Value", "cellctl", "Int32", "its sub-code (Value)"),
     Var("Admin/StopReason/Message", "cellctl", "String", "its text (Message)"),

@@ -199,9 +199,10 @@ class CellOpcUaServer:
         elif kind == "cycle":
             if data.get("state") in ("done", "failed"):
                 result = await self._cell.result_of_cycle(int(data["cycle_id"]))
-                if result is not None and result["state"] == "done":
+                if result is not None and result["install_started"]:  # a glass used: done, or stopped after its install began
                     self._processed += 1
                     self._defective += 0 if result["ok"] else 1
+                if result is not None and result["state"] == "done":
                     self._times.append(float(result["cycle_time_s"]))
                 await self._write_last_result(result)
             await self._write_status()
