@@ -64,7 +64,7 @@ async def test_three_checks_leave_the_two_newest_and_every_dataset_the_set_names
     refs = _set_datasets(store)
     assert {r["kind"] for r in refs} == {"board_views", "laser_plane"}
     for r in refs:
-        assert hashlib.sha256((Path(r["path"]) / "manifest.json").read_bytes()).hexdigest() == r["manifest_sha256"], r
+        assert hashlib.sha256((store / r["path"] / "manifest.json").read_bytes()).hexdigest() == r["manifest_sha256"], r
     # The jobs say what they removed, and the folder's size as the file system counts it.
     first, second, third = (j["result"]["quality"]["datasets"] for j in checks)
     assert first["pruned"] == [] and second["pruned"] == [] and second["kept"] == 2

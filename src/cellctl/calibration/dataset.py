@@ -74,10 +74,43 @@ class Dataset:
             raise DatasetError(f"{path}: not an 8-bit mono PNG")
         return img
 
-    def ref(self, summary: dict[str, Any] | None = None) -> DatasetRef:
-        """The reference a calibration part keeps to this dataset."""
+    def ref(self, summary: dict[str, Any] | None = None, *, store_root: str | Path | None = None) -> DatasetRef:
+        """The reference a calibration part keeps to this dataset; its path as :func:`stored_path` writes it."""
         digest = hashlib.sha256((self.root / "manifest.json").read_bytes()).hexdigest()
-        return DatasetRef(kind=self.kind, path=str(self.root), manifest_sha256=digest, summary=_jsonable(summary or {}))
+        return DatasetRef(kind=self.kind, path=stored_path(self.root, store_root), manifest_sha256=digest,
+                          summary=_jsonable(summary or {}))  # fmt: skip
+
+
+def stored_path(folder: str | Path, store_root: str | Path | None) -> str:
+    """How a set file (or a check's manifest) names dataset ``folder``: relative to the calibration store folder
+    ``store_root`` when it lies in it (``datasets/<name>``: it moves with the store), else absolute."""
+    here = Path(os.path.abspath(folder))
+    if store_root is not None:
+        for to_path in (os.path.abspath, os.path.realpath):  # as given, then with symbolic links resolved
+            try:
+                return Path(to_path(folder)).relative_to(to_path(store_root)).as_posix()
+            except ValueError:
+                continue
+    return str(here)
+
+
+def dataset_folder(stored: str, store_root: str | Path | None) -> Path:
+    """The folder a dataset path stored by :func:`stored_path` names now, in the store at ``store_root``.
+
+    A relative path is taken from ``store_root``. An absolute one (written so by releases before relative paths, or a
+    dataset outside the store) is used as stored where it exists, else ``<store_root>/datasets/<its name>``: the store
+    was moved (a new PC, a backup restored elsewhere) and its datasets with it. The manifest SHA-256 a part records
+    still tells a wrong folder. ``store_root`` None: the path as stored.
+    """
+    p = Path(stored)
+    if store_root is None:
+        return p
+    if not p.is_absolute():
+        return Path(store_root) / p
+    if p.is_dir():
+        return p
+    moved = Path(store_root) / "datasets" / p.name
+    return moved if moved.is_dir() else p
 
 
 def pose_list(T: NDArray[np.float64]) -> list[list[float]]:

@@ -47,9 +47,10 @@ def os_user() -> str:
         return f"uid {uid}"
 
 
-def offline_writer(ds: Dataset) -> WrittenBy:
-    """The ``written_by`` of a version computed offline from ``ds`` by this process."""
-    ref = ds.ref()
+def offline_writer(ds: Dataset, store_root: Path | None = None) -> WrittenBy:
+    """The ``written_by`` of a version computed offline from ``ds`` by this process into the store at ``store_root``
+    (its dataset named as the part names it: relative to that store when it lies in it)."""
+    ref = ds.ref(store_root=store_root)
     return WrittenBy(actor=os_user(), source=OFFLINE_SOURCE, host=socket.gethostname(), dataset=ref.path,
                      dataset_manifest_sha256=ref.manifest_sha256)  # fmt: skip
 

@@ -7,8 +7,10 @@ A part is in date until :func:`expires_utc`: its calibration time plus the short
 
 from __future__ import annotations
 
+import os
 import shlex
 from datetime import datetime, timedelta
+from pathlib import Path
 
 from cellctl.calibration.calibration_set import (
     COMMANDS,
@@ -20,6 +22,7 @@ from cellctl.calibration.calibration_set import (
     parts_of,
     wall_read_problem,
 )
+from cellctl.calibration.dataset import dataset_folder
 from cellctl.calibration.set_parts import PartRecord, TeachingPart
 from cellctl.calibration.taught_shot import shot_problem
 from cellctl.config import CellConfig
@@ -46,6 +49,7 @@ def check_ready(
     first_recipe: str | None = None,
     config: CellConfig | None = None,
     parts: tuple[str, ...] = PART_NAMES,
+    store_root: Path | None = None,
 ) -> list[str]:
     """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
@@ -54,6 +58,8 @@ def check_ready(
     computed from a part that has since been replaced (stale); a teaching is one when it was
     taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
     or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
+    ``store_root``: the calibration store folder ``cal`` was read from (the datasets a stale part's hint names are
+    found in it: :func:`cellctl.calibration.dataset.dataset_folder`).
     """
     if now.tzinfo is None:
         raise ValueError("now must carry a time zone (use datetime.now(timezone.utc))")
@@ -101,13 +107,15 @@ def check_ready(
                 problems.append(f"{label}: does not record which {dep} it was computed with; run `{cmd}` again")
             elif have is not None and have.status == "ok" and have.id != used:
                 problems.append(f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
-                                + _offline_way(name, p))
+                                + _offline_way(name, p, store_root))
     return problems
 
 
-def _offline_way(name: str, p: PartRecord) -> str:
+def _offline_way(name: str, p: PartRecord, store_root: Path | None) -> str:
     """The other way to redo a stale part: recompute the dataset it was computed from ("": it records none)."""
-    return "" if p.dataset is None else (", or, if nothing was touched since its dataset was recorded, recompute that dataset "
-                                         f"offline once the parts it is computed with are current: `{COMMANDS[name]} --dataset "
-                                         f"{shlex.quote(p.dataset.path)}`")
+    if p.dataset is None:
+        return ""
+    folder = p.dataset.path if store_root is None else os.path.abspath(dataset_folder(p.dataset.path, store_root))
+    return (", or, if nothing was touched since its dataset was recorded, recompute that dataset offline once the parts it "
+            f"is computed with are current: `{COMMANDS[name]} --dataset {shlex.quote(folder)}`")
 

@@ -54,7 +54,7 @@ def record(
         quality=outcome.quality,
         warnings=outcome.warnings,
         inputs=outcome.inputs,
-        dataset=None if ds is None else ds.ref({"kind": ds.kind}),
+        dataset=None if ds is None else ds.ref({"kind": ds.kind}, store_root=store.root),  # datasets/<name>: moves with the store
         software=software(),
     )
     return store.commit(outcome.part, part, note=note or f"{outcome.part} calibrated", now=when, recipe=outcome.recipe,

@@ -258,7 +258,8 @@ class CalibrationSetSource:
         if snap.damage is not None:
             return [snap.damage]
         return check_ready(
-            snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config
+            snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config,
+            store_root=self.store.root,
         )
 
     def recipe_problems(self, recipe: str) -> list[str]:
@@ -268,7 +269,7 @@ class CalibrationSetSource:
         if snap.cal is None:
             return []
         return check_ready(snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe,
-                           config=self.config, parts=RECIPE_PART_NAMES)  # fmt: skip
+                           config=self.config, parts=RECIPE_PART_NAMES, store_root=self.store.root)  # fmt: skip
 
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         snap = self._snapshot()
@@ -305,7 +306,7 @@ class CalibrationSetSource:
         first = self.config.default_recipe
         recipes = {}
         for r in self.config.process.recipes:
-            lines = check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config)
+            lines = check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config, store_root=self.store.root)
             recipes[r.name] = {"ready": not lines, "taught": cal.usable("teaching", self._slot(cal, r.name)), "problems": lines}
         return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes}
 

@@ -151,7 +151,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     store = _store(args)
     try:
         current = store.current()
-        ds = read_dataset(Path(os.path.abspath(args.dataset)), proc.kind)  # recorded as a path that works from anywhere
+        ds = read_dataset(Path(os.path.abspath(args.dataset)), proc.kind)  # the set names it relative to the store if in it
         cell, config = config, config.for_recipe(ds.manifest.get("recipe") or config.default_recipe)  # a recipe's dataset: its settings
     except (CalibrationSetError, DatasetError, KeyError) as err:
         print(f"{procedure}: {err}", file=sys.stderr)
@@ -161,7 +161,12 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
         return 2
     print(f"{procedure}: computing offline from {ds.root}")
     try:
-        outcome = proc.compute(ds, current, config)
+        if procedure == "verify":  # its reference datasets: beside it, else in the store it is computed against
+            from cellctl.commissioning.verify import compute_verify
+
+            outcome = compute_verify(ds, current, config, store_root=store.root)
+        else:
+            outcome = proc.compute(ds, current, config)
     except CalibrationRefused as err:
         print(f"{procedure}: REFUSED ({err.reason}): {err.detail}")
         print("nothing stored: the calibration set in use is unchanged")
@@ -195,7 +200,7 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     when = datetime.now(timezone.utc)
     try:
         saved = record(store, outcome, ds, config, when, note=f"{outcome.part}: computed offline from {ds.root}",
-                       measured=ds.measured_utc, written_by=offline_writer(ds))  # validity from the capture, not today
+                       measured=ds.measured_utc, written_by=offline_writer(ds, store.root))  # validity from the capture, not today
     except CalibrationSetError as err:  # the store busy with another writer, or its set in use damaged
         print(f"{procedure}: not stored: {err}", file=sys.stderr)
         if audit is not None:
@@ -205,7 +210,8 @@ def _offline(args: argparse.Namespace, procedure: str) -> int:
     rc = _audit_store(procedure, audit, saved, outcome, store, args)
     if ds.measured_utc is not None and when - ds.measured_utc > timedelta(hours=1):
         print(f"  calibrated as of the dataset's capture, {ds.measured_utc:%Y-%m-%d %H:%M} UTC: its validity runs from then")
-    problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell)
+    problems = check_ready(saved, when, recipe=ds.manifest.get("recipe"), first_recipe=cell.default_recipe, config=cell,
+                           store_root=store.root)
     print("ready for production" if not problems else "still needed before production:\n  - " + "\n  - ".join(problems))
     return rc
 
@@ -305,7 +311,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
         return 2
     root = store.root.resolve()
     config = load_config(args.config) if getattr(args, "config", None) else None
-    problems = check_ready(cal, datetime.now(timezone.utc), config=config)
+    problems = check_ready(cal, datetime.now(timezone.utc), config=config, store_root=store.root)
     if cal is None:
         print(f"no calibration set in {root}")
         if not args.store:
@@ -327,7 +333,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     print("ready for production" if not problems else "not ready:\n  - " + "\n  - ".join(problems))
     recipes = config.process.recipes if config is not None and cal is not None else ()
     for recipe in recipes[1:]:
-        own = check_ready(cal, datetime.now(timezone.utc), recipe=recipe.name, first_recipe=recipes[0].name, config=config)
+        own = check_ready(cal, datetime.now(timezone.utc), recipe=recipe.name, first_recipe=recipes[0].name, config=config,
+                          store_root=store.root)
         print(f"recipe {recipe.name}: " + ("ready" if not own else "not ready: " + "; ".join(own)))
     return 0 if not problems else 1
 

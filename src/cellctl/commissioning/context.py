@@ -131,6 +131,12 @@ class JobContext:
     written: Dataset | None = None
     robot_left: str | None = None
 
+    @property
+    def store_root(self) -> Path | None:
+        """The calibration store folder the dataset goes into (``dest`` is ``<store>/datasets/<name>``, as a job's
+        is); None when ``dest`` lies elsewhere."""
+        return self.dest.parent.parent if self.dest.parent.name == "datasets" else None
+
     def show_plan(self, plan: MotionPlan) -> None:
         """The plan the robot is about to follow (shown before the first move)."""
         self.plan = plan

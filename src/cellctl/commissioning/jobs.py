@@ -251,7 +251,8 @@ class JobManager:
         start = await self._robot_pose()
         cal = await asyncio.to_thread(self.current_calibration)
         try:
-            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, config_for(self.config, opts), cal, opts, start)
+            return await asyncio.to_thread(ALL_PROCEDURES[procedure].plan, config_for(self.config, opts), cal, opts, start,
+                                         self.calibration_store.root)
         except (PlanError, CalibrationRefused) as err:
             raise JobRefused(str(err)) from None
 
@@ -455,7 +456,7 @@ class JobManager:
             result["stored_version"] = saved.version
             result["ready_problems"] = check_ready(
                 saved, datetime.now(timezone.utc), recipe=opts.get("recipe"), first_recipe=self.config.default_recipe,
-                config=self.config,
+                config=self.config, store_root=self.calibration_store.root,
             )
         else:
             result["stored_version"] = None

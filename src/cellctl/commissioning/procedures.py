@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -391,7 +392,8 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
 
 # -- the table ------------------------------------------------------------------------------------
 
-Plan = Callable[[CellConfig, "CalibrationSet | None", dict[str, Any], "Pose | None"], MotionPlan]
+# (config, the set in use, the job's options, the robot's pose, the calibration store folder) -> the plan
+Plan = Callable[[CellConfig, "CalibrationSet | None", dict[str, Any], "Pose | None", "Path | None"], MotionPlan]
 Collect = Callable[..., Awaitable[Dataset]]
 Compute = Callable[[Dataset, "CalibrationSet | None", CellConfig], Outcome]
 
@@ -457,26 +459,26 @@ def _laser(ds: Dataset, cal: CalibrationSet | None, cfg: CellConfig) -> Outcome:
 PROCEDURES: dict[str, Procedure] = {
     "camera": Procedure(
         "camera", "board_views", "zhang", (),
-        lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
+        lambda cfg, cal, o, start, root: plan_board(cfg, views=o.get("views"), start=start, procedure="camera"),
         _board_camera, _camera, ("views",),
     ),
     "hand_eye": Procedure(
         "hand_eye", "board_views", "tsai", ("camera",),
-        lambda cfg, cal, o, start: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
+        lambda cfg, cal, o, start, root: plan_board(cfg, views=o.get("views"), start=start, procedure="hand_eye"),
         _board_hand_eye, _hand_eye, ("views",),
     ),
     "laser": Procedure(
         "laser", "laser_plane", "plane constraint", (),
-        lambda cfg, cal, o, start: plan_laser(cfg, poses=o.get("poses"), start=start),
+        lambda cfg, cal, o, start, root: plan_laser(cfg, poses=o.get("poses"), start=start),
         collect_laser_plane, _laser, ("poses",),
     ),
     "teaching": Procedure(
         "teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"),
-        lambda cfg, cal, o, start: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching, ("recipe",),
+        lambda cfg, cal, o, start, root: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching, ("recipe",),
     ),
     "pixel_map": Procedure(
         "pixel_map", "nine_point", "nine-point", ("camera", "teaching"),
-        lambda cfg, cal, o, start: plan_nine_point(cfg, cal, start=start, recipe=o.get("recipe")), collect_nine_point,
+        lambda cfg, cal, o, start, root: plan_nine_point(cfg, cal, start=start, recipe=o.get("recipe")), collect_nine_point,
         compute_nine_point, ("recipe",),
     ),
 }  # fmt: skip

@@ -16,7 +16,8 @@ from cellctl.store import JobRecord
 ALL_PROCEDURES: dict[str, Procedure] = {
     **PROCEDURES,
     "verify": Procedure(
-        "verify", "verify", "revisit", ("camera", "hand_eye"), lambda cfg, cal, o, start: plan_verify(cfg, cal, start=start),
+        "verify", "verify", "revisit", ("camera", "hand_eye"),
+        lambda cfg, cal, o, start, root: plan_verify(cfg, cal, start=start, store_root=root),
         collect_verify, compute_verify, records_part=False,
     ),
 }

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -23,7 +24,15 @@ import numpy as np
 from cellctl.calibration.board import BoardSpec, find_board
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.compute import Outcome
-from cellctl.calibration.dataset import Dataset, DatasetError, pose_array, pose_list, read_dataset
+from cellctl.calibration.dataset import (
+    Dataset,
+    DatasetError,
+    dataset_folder,
+    pose_array,
+    pose_list,
+    read_dataset,
+    stored_path,
+)
 from cellctl.calibration.dataset_retention import prune_check_datasets
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import board_pose
@@ -53,7 +62,8 @@ MIN_VERIFY_VIEWS = 4
 GAUSS_NEWTON_STEPS = 3
 
 
-def _reference(cal: CalibrationSet, part: str, kind: str) -> Dataset:
+def _reference(cal: CalibrationSet, part: str, kind: str, store_root: Path | None) -> Dataset:
+    """The dataset the stored ``part`` was computed from, found in the store at ``store_root`` (:func:`dataset_folder`)."""
     p = cal.part(part)
     if p is None or p.status != "ok":
         raise CalibrationRefused("verify", "missing_input", f"{part} must be calibrated before it can be verified")
@@ -63,13 +73,26 @@ def _reference(cal: CalibrationSet, part: str, kind: str) -> Dataset:
             f"the stored {part} calibration names no dataset (it was computed without one); recalibrate it once with "
             f"`cellctl calibrate {part.replace('_', '-')}` so that later checks can go back to its poses",
         )  # fmt: skip
+    folder = dataset_folder(p.dataset.path, store_root)
     try:
-        ds = read_dataset(p.dataset.path, kind)
+        ds = read_dataset(folder, kind)
     except DatasetError as err:
-        raise CalibrationRefused("verify", "missing_input", f"the {part} calibration's dataset cannot be read: {err}") from None
+        raise CalibrationRefused("verify", "missing_input", f"the {part} calibration's dataset cannot be read: {err}"
+                                 + _where_looked(p.dataset.path, folder, store_root)) from None
     if ds.ref().manifest_sha256 != p.dataset.manifest_sha256:
         raise CalibrationRefused("verify", "bad_dataset", f"{ds.root}: the dataset changed since {part} was computed from it")
     return ds
+
+
+def _where_looked(stored: str, folder: Path, store_root: Path | None) -> str:
+    """What a missing dataset's message adds: where it was looked for, and how to get it back ("" when it is there)."""
+    if folder.is_dir() or store_root is None:
+        return ""
+    moved = Path(store_root) / "datasets" / Path(stored).name
+    where = str(folder) if folder == moved else f"{folder} nor {moved}"
+    return (f" (the set names {stored}: neither {where} exists). A store moved to another folder takes its datasets "
+            "along: copy the whole calibration.directory, its datasets folder included; a dataset lost for good is "
+            "made again by that part's calibration")
 
 
 def _laser_subset(rows: list[dict[str, Any]], stands: int, per_stand: int) -> list[int]:
@@ -88,8 +111,11 @@ def _laser_subset(rows: list[dict[str, Any]], stands: int, per_stand: int) -> li
 BOARD_REFERENCES = ("hand_eye", "camera")
 
 
-def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
-    """Board views, then laser poses, each a subset of the poses of the stored calibrations' datasets."""
+def plan_verify(
+    config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None, store_root: Path | None = None
+) -> MotionPlan:
+    """Board views, then laser poses, each a subset of the poses of the stored calibrations' datasets (found in the
+    calibration store at ``store_root``; the plan names them relative to it, as the check's manifest does)."""
     if cal is None:
         raise CalibrationRefused("verify", "missing_input", "there is no calibration set to verify; commission the cell first")
     vc = config.calibration.procedure.verify
@@ -100,10 +126,11 @@ def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose |
     board: dict[str, Any] | None = None
     for part in BOARD_REFERENCES:
         p = cal.part(part)
-        if part != "hand_eye" and (p is None or p.dataset is None or p.dataset.path in references.values()):
+        if part != "hand_eye" and (p is None or p.dataset is None
+                                   or stored_path(dataset_folder(p.dataset.path, store_root), store_root) in references.values()):
             continue  # the hand-eye's views are needed; the camera's add precision when they are there
-        ds = _reference(cal, part, "board_views")
-        references[part] = str(ds.root)
+        ds = _reference(cal, part, "board_views", store_root)
+        references[part] = stored_path(ds.root, store_root)
         board = board or ds.manifest["board"]
         rows = ds.manifest["views"]
         for i in spread_subset(len(rows), vc.views):
@@ -113,12 +140,12 @@ def plan_verify(config: CellConfig, cal: CalibrationSet | None, *, start: Pose |
     laser_idx: list[int] = []
     laser_ref: str | None = None
     if vc.laser_stands:
-        laser_ds = _reference(cal, "laser", "laser_plane")
+        laser_ds = _reference(cal, "laser", "laser_plane", store_root)
         rows = laser_ds.manifest["readings"]
         laser_idx = _laser_subset(rows, vc.laser_stands, vc.laser_poses_per_stand)
         poses += [pose_array(rows[i].get("T_B_H_target", rows[i]["T_B_H"]), f"reading {i}") for i in laser_idx]
         labels += [f"laser reading {i} (stand {rows[i].get('group', 0)})" for i in laser_idx]
-        laser_ref = str(laser_ds.root)
+        laser_ref = stored_path(laser_ds.root, store_root)
     assert board is not None
     board_cfg = config.calibration.procedure.camera.board
     details = {
@@ -137,7 +164,8 @@ SAME_BOARD = 0.0005  # a measured square size this near the calibration's (0.05 
 
 async def collect_verify(ctx: JobContext) -> Dataset:
     """Revisit the planned subset with the board on the wall, then the laser poses; save the dataset."""
-    plan = await asyncio.to_thread(plan_verify, ctx.config, ctx.calibration, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_verify, ctx.config, ctx.calibration, start=await current_pose(ctx),
+                                   store_root=ctx.store_root)  # fmt: skip
     n_views = plan.details["views"]
     recipe = board_recipe(ctx.config)  # the board goes beside its opening, as when the cell was calibrated
     await car_body_in_place(ctx, "A car body stands clamped in the cell at its nominal place (as when the cell was calibrated); "
@@ -189,11 +217,11 @@ async def collect_verify(ctx: JobContext) -> Dataset:
 async def keep_fewer_checks(ctx: JobContext, ds: Dataset) -> Dataset:
     """Remove the oldest check datasets beyond ``calibration.procedure.verify.keep_datasets`` from the store's
     ``datasets`` folder (never ``ds``, never one a set version names); what was done goes to ``ds.notes``."""
-    if ds.root.parent.name != "datasets":  # not the store's folder (``<store>/datasets/<kind>-<time>``): leave it
+    if ctx.store_root is None or ds.root.parent != ctx.store_root / "datasets":  # not the store's folder: leave it
         return ds
     keep = ctx.config.calibration.procedure.verify.keep_datasets
     try:
-        report, cancelled = await to_the_end(asyncio.to_thread(prune_check_datasets, ds.root.parent.parent, keep, just_written=ds.root))
+        report, cancelled = await to_the_end(asyncio.to_thread(prune_check_datasets, ctx.store_root, keep, just_written=ds.root))
     except OSError as err:  # the check itself is complete: it is computed and recorded all the same
         log.warning("calibration datasets: the older check datasets could not be pruned: %s", err)
         return ds
@@ -277,8 +305,9 @@ def camera_drift(
     return delta, cov, float(np.sqrt(sigma2))
 
 
-def hand_eye_drift(new: Dataset, cal: CalibrationSet, refine: str) -> dict[str, Any]:
-    """How far the camera moved on the flange, from the new views and the same views of the stored datasets."""
+def hand_eye_drift(new: Dataset, cal: CalibrationSet, refine: str, store_root: Path | None = None) -> dict[str, Any]:
+    """How far the camera moved on the flange, from the new views and the same views of the stored datasets (the
+    check's references, found in the store at ``store_root``: :func:`check_store`)."""
     K, D = cal.camera_matrix(), cal.dist_coeffs()
     X = cal.T_H_C()
     b_new = new.manifest["board"]
@@ -287,7 +316,7 @@ def hand_eye_drift(new: Dataset, cal: CalibrationSet, refine: str) -> dict[str, 
     got_new = _board_poses(new, [v["name"] for v in views], spec_new, K, D, refine)
     then, now, cameras, groups = [], [], [], []
     for k, (part, path) in enumerate(new.manifest["reference"]["board_datasets"].items()):
-        ref = read_dataset(path, "board_views")
+        ref = read_dataset(dataset_folder(path, store_root), "board_views")
         b_ref = ref.manifest["board"]
         spec_ref = BoardSpec(tuple(b_ref["inner_corners"]), float(b_ref["square_mm"]))  # type: ignore[arg-type]
         mine = [v for v in views if v["reference"] == part]
@@ -399,14 +428,22 @@ def laser_drift(new: Dataset, reference: Dataset, cal: CalibrationSet) -> dict[s
     }
 
 
-def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) -> Outcome:
-    """The drift of hand-eye and laser, and whether it is within ``calibration.procedure.verify``'s limits."""
+def check_store(ds: Dataset, store_root: Path | None) -> Path | None:
+    """The calibration store a check's reference datasets are found in: the one check dataset ``ds`` lies in
+    (``<store>/datasets/<name>``: they moved with it), else ``store_root`` (the store the check is computed against)."""
+    return ds.root.parent.parent if ds.root.parent.name == "datasets" else store_root
+
+
+def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig, *, store_root: Path | None = None) -> Outcome:
+    """The drift of hand-eye and laser, and whether it is within ``calibration.procedure.verify``'s limits; the check's
+    reference datasets are found as :func:`check_store` says."""
     if cal is None:
         raise CalibrationRefused("verify", "missing_input", "there is no calibration set to verify")
     vc = config.calibration.procedure.verify
     ref = ds.manifest["reference"]
+    root = check_store(ds, store_root)
     try:
-        he = hand_eye_drift(ds, cal, config.calibration.procedure.camera.refine)
+        he = hand_eye_drift(ds, cal, config.calibration.procedure.camera.refine, root)
     except CalibrationRefused as err:
         raise board_hint(err, config) from None
     beyond = []
@@ -424,7 +461,7 @@ def compute_verify(ds: Dataset, cal: CalibrationSet | None, config: CellConfig) 
             "and run the check again",
         )  # fmt: skip
     if ref.get("laser_dataset"):
-        la = laser_drift(ds, read_dataset(ref["laser_dataset"], "laser_plane"), cal)
+        la = laser_drift(ds, read_dataset(dataset_folder(ref["laser_dataset"], root), "laser_plane"), cal)
         quality["laser"] = la
         if la["r_mm"] > vc.max_laser_r_mm or la["l_deg"] > vc.max_laser_l_deg:
             beyond.append(f"laser moved r {la['r_mm']:.3f} mm / l {la['l_deg']:.4f} deg (limits {vc.max_laser_r_mm:g} mm, "
