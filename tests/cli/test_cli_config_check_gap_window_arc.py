@@ -7,7 +7,9 @@ along each edge from the corner. The window must start 1 mm past the arc (featur
 440 x 0.07619 - 1 = 32.52 mm passes. For 45 mm: the first start is 46 / 0.07619 = 603.75, so 604 px. A glass within
 process.tolerance (1 deg, 0.5 mm) then shows its edge (603.75 + 560 / 2) x tan(1 deg) + 0.5 / 0.07619 = 15.43 + 6.56
 = 22.0 px from the nominal gap at the window's middle: glass_search_px at least 23. The window keeps its 150 px in the
-image up to a start of 756 px (tests/cli/test_cli_config_check_geometry.py).
+image up to a start of 756 px with the corner at the image's centre (tests/cli/test_cli_config_check_geometry.py); a
+45 mm corner's default aim moves it 482 px up and right (feature.corner_shift_px, README "Large corner radii"), so up
+to 756 + 482 = 1238 px.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def test_a_window_starting_on_a_45_mm_corners_arc_is_refused_with_the_fix(
     assert ("vision.gap.start_px = 440 (33.5 mm at layout.camera's 0.07619 mm/px) starts the inspection's window along "
             "each edge on the corner's arc: layout.opening.corner_radius_mm = 45") in text  # fmt: skip
     assert "raise vision.gap.start_px" in text and "to at least 604 and vision.gap.glass_search_px to at least 23" in text
-    assert "a start up to 756 px keeps the window in the image" in text and "recipes[" not in text
+    assert "a start up to 1238 px keeps the window in the image" in text and "recipes[" not in text
 
 
 def test_the_largest_radius_the_default_window_passes_is_the_one_worked_by_hand(

@@ -76,6 +76,19 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="before")
     @classmethod
+    def _roi_is_the_camera_frame(cls, data: Any) -> Any:
+        """``vision.roi`` left out: the whole frame of ``layout.camera`` (a 1920 x 1200 camera was refused over a
+        2048 x 2048 default nobody wrote, and a 2448 x 2048 one never searched its right 400 px)."""
+        if not isinstance(data, dict) or not isinstance(vision := data.get("vision", {}), dict) or "roi" in vision:
+            return data
+        cam = data.get("layout", {}).get("camera") if isinstance(data.get("layout"), dict) else None
+        if not isinstance(cam, dict) or type(w := cam.get("width_px", 2048)) is not int \
+                or type(h := cam.get("height_px", 2048)) is not int or min(w, h) < 64:
+            return data  # an invalid size: layout.camera's own error names it
+        return {**data, "vision": {**vision, "roi": {"width_px": w, "height_px": h}}}
+
+    @model_validator(mode="before")
+    @classmethod
     def _twin_stands_in_the_layout(cls, data: Any) -> Any:
         """Fill the twin's opening and reach from ``[layout]``; refuse them where they used to be."""
         if not isinstance(data, dict):

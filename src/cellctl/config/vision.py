@@ -18,8 +18,8 @@ from cellctl.config.types import Finite, StrictModel
 class RoiConfig(StrictModel):
     """The region of interest (raw image pixels) in which the corner and its two edges are sought.
 
-    It must contain the corner and a straight stretch of both edges beside the arc. The default is
-    the whole 2048 x 2048 frame.
+    It must contain the corner and a straight stretch of both edges beside the arc. Left out of the
+    configuration, it is the whole frame of ``layout.camera`` (:class:`cellctl.config.schema.CellConfig`).
     """
 
     x_px: int = Field(0, ge=0)
