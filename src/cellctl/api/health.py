@@ -3,7 +3,9 @@
 Not healthy (503), each with a line in ``problems``:
 
 - the service is stopping (SIGTERM or Ctrl-C arrived: a load balancer should stop sending now);
-- the store does not answer (closed, or the database fails);
+- the store does not answer within :data:`STORE_ANSWER_S` (closed, the database fails, or busy: another process holds
+  its lock and the cell's writes wait for it);
+- alarm 1703 is active: the store refused a write, kept in memory until it takes it (production is held meanwhile);
 - a device link is ``lost`` (the watchdog missed it ``miss_threshold`` times in a row; ``unknown``
   before its first ping and ``degraded`` after a single miss do not count);
 - the PLC link ``lost``, when ``[plc] enabled`` and ``[plc] heartbeat_alarm`` are on (a line cell; a
@@ -15,11 +17,16 @@ Not healthy (503), each with a line in ``problems``:
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from cellctl.cell.orchestrator import CellOrchestrator
+from cellctl.domain import AlarmCode
+
+STORE_ANSWER_S = 1.0
+"""Seconds /health waits for the store to answer (a probe's timeout is often 1-5 s: it gets the reason, not a hang)."""
 
 
 @dataclass
@@ -57,8 +64,12 @@ async def judge(orch: CellOrchestrator) -> HealthVerdict:
         problems.append(why)
     journal_mode = None
     try:
-        journal_mode = (await orch.store.info()).journal_mode
+        journal_mode = (await asyncio.wait_for(orch.store.info(), STORE_ANSWER_S)).journal_mode
+    except TimeoutError:  # queued behind writes that wait for another process's lock (busy_timeout_s each)
+        problems.append(f"the store does not answer (busy for over {STORE_ANSWER_S:g} s: another process may hold its lock)")
     except Exception as err:  # noqa: BLE001 - any failure of the store is the answer here
         problems.append(f"the store does not answer ({type(err).__name__})")  # not its message: it may name the path
+    if any(a.code == AlarmCode.RECORD_WRITE_FAILED and a.active for a in orch.alarms.current()):
+        problems.append("the store refuses writes: records kept in memory until it takes them (alarm 1703)")
     return HealthVerdict(ok=not problems, devices_lost=lost, plc=plc_state, problems=problems, journal_mode=journal_mode)
 

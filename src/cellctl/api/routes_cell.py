@@ -115,7 +115,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
             alarm = orch.alarms.acknowledge(uid, by=caller.actor)
         except UnknownAlarm:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no current alarm with uid '{uid}'") from None
-        await orch.store.append_audit(
+        await orch.records.writes.audit(  # it took effect: its entry is kept while the store refuses it, never a 500
             actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge",
             params={"uid": uid, "code": int(alarm.code)},
         )  # fmt: skip
@@ -124,7 +124,7 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @router.post("/alarms/acknowledge-all", response_model=list[AlarmView])
     async def acknowledge_all(caller: Caller = Depends(guard.require)) -> list[AlarmView]:
         done = orch.alarms.acknowledge_all(by=caller.actor)
-        await orch.store.append_audit(
+        await orch.records.writes.audit(  # as for one alarm: kept while the store refuses it
             actor=caller.actor, source=f"rest:{caller.source}", action="alarm.acknowledge_all",
             params={"uids": [a.uid for a in done]},
         )  # fmt: skip
@@ -178,7 +178,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     )
     async def health(request: Request, response: Response) -> HealthView:
         """Readiness: 200 when the cell can work, 503 when a device link or the PLC link is down, the store
-        does not answer or the service is stopping (the rules: ``cellctl.api.health``).
+        does not answer (within a second) or refuses writes (alarm 1703), or the service is stopping (the rules:
+        ``cellctl.api.health``).
 
         With ``[api] open_reads = false`` an anonymous caller (a plant's up/down monitor) gets ``ok``
         alone (and the status code); the details need the token. The database's path is never shown.

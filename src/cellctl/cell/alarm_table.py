@@ -231,8 +231,9 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         # production held meanwhile, so no glass is installed without its record. Cleared once it is written.
         AlarmCode.RECORD_WRITE_FAILED: AlarmSpec(
             FaultClass.OPERATOR_INTERVENTION,
-            "A finished cycle's record could not be written to the store: production held until it is; check the "
-            "disk and the service log, Unhold once it is written",
+            "A record (a cycle's, an audit entry, an alarm) could not be written to the store, kept in memory: production "
+            "held until it is; check the disk, another process holding the database's lock and the service log; Unhold "
+            "once it is written",
             True,
         ),
     }

@@ -208,7 +208,7 @@ class CellOrchestrator:
 
     async def _on_machine_event(self, ev: MachineEvent) -> None:
         if ev.kind is not EventKind.CYCLE_STEP:  # the steps are in the cycle's record; the audit log keeps what people and faults did
-            await despite_store_fault(self.store.append_machine_event(ev, cycle_id=self._current), "a machine event")
+            await self.records.writes.machine_event(ev, cycle_id=self._current)  # kept while the store refuses it
         state_event: dict[str, Any] = {
             "state": ev.state_after.name,
             "mode": ev.mode_after.name,
@@ -236,7 +236,7 @@ class CellOrchestrator:
             self._kick()
 
     async def _on_alarm_event(self, ev: Any) -> None:
-        await self.store.save_alarm(ev.alarm)
+        await self.records.writes.alarm(ev.alarm)  # kept while the store refuses it
         a = ev.alarm
         self.events.publish(
             "alarm",
@@ -341,7 +341,7 @@ class CellOrchestrator:
         self._current = cycle_id
         self._finishing = False
         clock = self.devices.clock  # the cycle is timed on one clock, even if the devices are swapped meanwhile
-        rec = StoreRecorder(self.store, self.machine, self.events, cycle_id, self.image_dir, clock=clock)
+        rec = StoreRecorder(self.records.writes, self.machine, self.events, cycle_id, self.image_dir, clock=clock)
         started = (clock, clock(), time.monotonic())
         self._calibration_read, self._applied_offset, self._loop_recipe = {}, self.quality.no_offset(), None
         self._stop_reason = None
@@ -362,9 +362,8 @@ class CellOrchestrator:
             if self._stop_reason is None:
                 raise  # shutdown: leave it running; the next start marks it interrupted
             failure = self._stopped()
-        except Exception as err:  # noqa: BLE001 - any bug still ends the cycle with a record and an alarm
-            log.exception("cycle %d failed", cycle_id)
-            failure = (f"software fault: {type(err).__name__}: {err}", int(AlarmCode.TASK_FAILED), AlarmCode.TASK_FAILED)
+        except Exception as err:  # noqa: BLE001 - any bug still ends the cycle with a record and an alarm (1703 a store fault)
+            failure = self.records.writes.cycle_fault(cycle_id, err)  # logged there
         finally:
             self._finishing = True
         if failure is not None:  # a device may have been restarted or swapped: the next sweep times the laser anew

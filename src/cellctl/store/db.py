@@ -30,6 +30,8 @@ robot; a cycle with that marker never gets its install step again, whatever happ
 
 from __future__ import annotations
 
+import sqlite3
+
 from cellctl.domain import CycleStep
 from cellctl.store.alarms import AlarmRows
 from cellctl.store.audit import AuditRows
@@ -38,16 +40,50 @@ from cellctl.store.cycles import CycleRows
 from cellctl.store.jobs import JobRows
 from cellctl.store.outbox import OutboxRows
 from cellctl.store.parts import PartRows
-from cellctl.store.records import INTERRUPTED_REASONS, CycleState, InterruptedCycle, RecoveryReport
+from cellctl.store.records import INTERRUPTED_REASONS, CycleState, InterruptedCycle, RecoveryReport, StoreError
 from cellctl.store.retention import RetentionRows
 from cellctl.store.schema import cut_off_at
 from cellctl.store.spc import SpcRows
+
+
+RECOVER_TRIES = 3
+"""How often startup's recovery asks for the write lock another process holds (each waits ``busy_timeout_s``)."""
+
+
+class StoreLocked(StoreError):
+    """Another process holds the database's write lock (a backup, an sqlite3 shell) past the start's retries; the
+    message names ``[store] path`` and what to do. A restart may find it free (``serve`` exits 1)."""
+
+
+def is_locked(err: sqlite3.OperationalError) -> bool:
+    """SQLite's "database is locked" or "busy": another connection holds the lock."""
+    return getattr(err, "sqlite_errorcode", None) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED) or "locked" in str(err)
 
 
 class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows, PartRows, OutboxRows):
     """Open with :meth:`open`; close with :meth:`close` (or use as a context manager)."""
 
     def recover(self) -> RecoveryReport:
+        """:meth:`recover_once`, asked again while another process holds the write lock (:data:`RECOVER_TRIES` times,
+        each waiting ``busy_timeout_s``), then :class:`StoreLocked` naming the file."""
+        for _ in range(RECOVER_TRIES - 1):
+            try:
+                return self.recover_once()
+            except sqlite3.OperationalError as err:
+                if not is_locked(err):
+                    raise
+        try:
+            return self.recover_once()
+        except sqlite3.OperationalError as err:
+            if not is_locked(err):
+                raise
+            waited = RECOVER_TRIES * self._conn.execute("PRAGMA busy_timeout").fetchone()[0] / 1000
+            raise StoreLocked(
+                f"[store] path {self._path}: another process holds the database's lock (waited {waited:g} s): a backup or "
+                f"an sqlite3 shell? `fuser {self._path}` names it; end it, then start the service again"
+            ) from None
+
+    def recover_once(self) -> RecoveryReport:
         """Run once at startup, before anything else writes.
 
         Every cycle left queued or running by a process that died becomes ``interrupted`` with
@@ -86,4 +122,4 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
         return RecoveryReport(found, alarms, keys)
 
 
-__all__ = ["CellStore", "StoreInfo"]
+__all__ = ["CellStore", "StoreInfo", "StoreLocked"]
