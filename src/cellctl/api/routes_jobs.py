@@ -78,7 +78,8 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
     planning: set[str] = set()  # the plan being worked out (one at a time)
 
     @reads.post("/jobs/plan", response_model=PlanView,
-                responses={422: {"description": "no plan: the reason names the setting"},
+                responses={409: {"description": "a device the procedure uses is lost (the watchdog's alarm is active)"},
+                           422: {"description": "no plan: the reason names the setting"},
                            429: {"description": "another plan is being worked out: retry when it is answered"}})  # fmt: skip
     async def plan_job(body: JobRequestBody, poses: bool = Query(False, description="list every pose")) -> PlanView:
         # Open to readers: one plan at a time, all of it off the event loop (thousands of poses take seconds).
@@ -110,7 +111,7 @@ def build_router(jobs: JobManager, guard: TokenGuard) -> APIRouter:
             raise refused(err) from None
 
     @router.post("/jobs", response_model=JobView, status_code=status.HTTP_201_CREATED,
-                 responses={409: {"description": "another job runs, or the cell is not in Stopped or Idle"}, 422: {"description": "bad options"}})  # fmt: skip
+                 responses={409: {"description": "another job runs, the cell is not in Stopped or Idle, or a device the procedure uses is lost"}, 422: {"description": "bad options"}})  # fmt: skip
     async def start_job(body: JobRequestBody, caller: Caller = Depends(guard.require)) -> JobView:
         try:
             rec = await jobs.submit(body.procedure, body.options.model_dump(exclude_none=True), actor=caller.actor, source=f"rest:{caller.source}")

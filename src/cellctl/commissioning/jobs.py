@@ -7,7 +7,8 @@ job, as the engineer's cancel does: the robot is told to stop at once, the job e
 ``cancelled`` with the samples it collected written as a partial dataset, and the calibration
 set in use stays as it was. In Stopped, where the state table has no Stop, a Stop is taken while a
 job runs or starts (a taker on the machine): it cancels the job and the cell stays Stopped. Every
-move of a job runs at the procedure's reduced speed.
+move of a job runs at the procedure's reduced speed. While the watchdog has a device the procedure
+uses lost (``registry.DEVICES_USED``), its job and its plan are refused before anything is asked or moved.
 
 A job that collected its dataset computes it off the event loop; a result that passes its gates
 becomes a new version of the calibration set, a refused one leaves the set unchanged and says
@@ -43,7 +44,7 @@ from cellctl.commissioning.plans import MotionPlan, PlanError
 from cellctl.commissioning.procedures import Procedure
 from cellctl.commissioning.prompts import Answer, Prompt, PromptDesk
 from cellctl.commissioning.recovery import recover_jobs
-from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_options, motion_settings
+from cellctl.commissioning.registry import ALL_PROCEDURES, JobRefused, check_links, check_options, motion_settings
 from cellctl.commissioning.schedule import VerifySchedule
 from cellctl.config.schema import CellConfig
 from cellctl.domain import AlarmCode, MachineEvent, PackMLCommand, PackMLState
@@ -248,6 +249,7 @@ class JobManager:
     async def plan(self, procedure: str, options: Mapping[str, Any]) -> MotionPlan:
         """The plan a job would follow now (nothing moves): poses, reach, rotation spread, robot time."""
         opts = check_options(procedure, options, self.config)
+        check_links(procedure, self.alarms)  # a plan for a device known lost would be followed by a refused job
         start = await self._robot_pose()
         cal = await asyncio.to_thread(self.current_calibration)
         try:
@@ -265,7 +267,7 @@ class JobManager:
     # -- start, cancel, answer ------------------------------------------------------------------
 
     async def submit(self, procedure: str, options: Mapping[str, Any], *, actor: str, source: str) -> JobRecord:
-        """Start a job now; refused when another job runs or the cell is not in Stopped or Idle."""
+        """Start a job now; refused when another job runs, the cell is not in Stopped or Idle, or a device it uses is lost."""
         opts = check_options(procedure, options, self.config)
         async with self._lock:
             if self._running is not None:
@@ -278,6 +280,7 @@ class JobManager:
                     + way_to_a_job(state),
                     conflict=True,
                 )
+            check_links(procedure, self.alarms)  # before any prompt or move: a device it uses is known lost
             self._starting = procedure  # from here a Start waits: no cycle may begin beside the job
             try:
                 run = await self._create(procedure, opts, actor=actor, source=source)

@@ -128,6 +128,11 @@ def _opening(config: CellConfig, recipe: str) -> str:
     return f"recipe {recipe}'s {o.width_mm:g} x {o.height_mm:g} mm opening"
 
 
+def wall_offset(x_mm: float, y_mm: float) -> str:
+    """A place on the wall in T0 (x right, y down, mm) as a person measures it: distances, the direction by the sign."""
+    return f"{abs(x_mm):g} mm {'right' if x_mm >= 0 else 'left'} and {abs(y_mm):g} mm {'down' if y_mm >= 0 else 'up'}"
+
+
 def board_hint(err: CalibrationRefused, config: CellConfig) -> CalibrationRefused:
     """A board_not_found refusal with the check of the car body the board is placed beside (others unchanged)."""
     if err.reason != "board_not_found":
@@ -146,7 +151,7 @@ async def place_board(ctx: JobContext, place: dict[str, Any], name: str, recipe:
     answer = await ctx.ask(
         PromptKind.PLACE_BOARD,
         f"Fix the {name} ({cols} x {rows} inner corners, {b['square_mm']:g} mm squares) flat on the car-body wall with "
-        f"its first inner corner {x:g} mm right and {y:g} mm down of the upper-right corner of "
+        f"its first inner corner {wall_offset(x, y)} of the upper-right corner of "
         f"{_opening(ctx.config, recipe)}, rows along the top edge. Measure the square size across the whole board and "
         "give it in mm (confirm keeps the nominal size).",
         details=place | {"recipe": recipe},
@@ -205,7 +210,7 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
     aim = ctx.config.calibration.procedure.laser.aim_mm
     await car_body_in_place(
         ctx,
-        f"A car body stands clamped in the cell; the laser reads its plain wall around ({aim[0]:g}, {aim[1]:g}) mm from the "
+        f"A car body stands clamped in the cell; the laser reads its plain wall around {wall_offset(*aim)} of the "
         "opening's upper-right corner (no seal, label or edge within 300 mm of it). Confirm.",
         recipe=board_recipe(ctx.config),
     )

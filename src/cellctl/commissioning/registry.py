@@ -6,11 +6,14 @@ from collections.abc import Mapping
 from typing import Any
 
 from cellctl.calibration.hand_eye import METHODS as HAND_EYE_METHODS
+from cellctl.cell.alarm_table import ALARM_CATALOGUE
+from cellctl.cell.alarms import AlarmManager
 from cellctl.commissioning.plans import laser_floor_why, laser_poses_floor
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
 from cellctl.config.calibration_procedure import MotionSettings
 from cellctl.config.schema import CellConfig
+from cellctl.domain import AlarmCode
 from cellctl.store import JobRecord
 
 ALL_PROCEDURES: dict[str, Procedure] = {
@@ -21,6 +24,20 @@ ALL_PROCEDURES: dict[str, Procedure] = {
         collect_verify, compute_verify, records_part=False,
     ),
 }
+
+
+DEVICES_USED: dict[str, tuple[str, ...]] = {
+    "camera": ("robot", "camera"), "hand_eye": ("robot", "camera"), "laser": ("robot", "laser"),
+    "teaching": ("robot", "laser", "camera"), "pixel_map": ("robot", "camera"), "verify": ("robot", "camera", "laser"),
+}
+"""The devices each procedure moves or reads (:mod:`.procedures`, :mod:`.verify`): its job is refused while one is lost."""
+LINK_LOST: dict[str, tuple[AlarmCode, str]] = {
+    "robot": (AlarmCode.ROBOT_LOST, "the controller, its CellctlServer RAPID task and the network (devices.robot)"),
+    "camera": (AlarmCode.CAMERA_LOST, "its power, cable and network, or its settings (devices.camera; its frame size "
+               "against layout.camera)"),
+    "laser": (AlarmCode.LASER_LOST, "its power, cable and USB serial adapter (devices.laser.port)"),
+}
+"""Per device: the watchdog's lost-link alarm (raised while the link is lost, cleared when it answers) and what to check."""
 
 
 class JobRefused(Exception):
@@ -60,6 +77,24 @@ def check_options(procedure: str, options: Mapping[str, Any], config: CellConfig
             raise JobRefused(f"options.recipe: one of the configured recipes ({known}; [[process.recipes]]), got {value!r}")
         out[key] = value
     return out
+
+
+def check_links(procedure: str, alarms: AlarmManager) -> None:
+    """Refused (409) while a device ``procedure`` uses is lost by the watchdog: named with the watchdog's last error."""
+    lost = []
+    for device in DEVICES_USED[procedure]:
+        code, check = LINK_LOST[device]
+        alarm = alarms.find_active(code, device)
+        if alarm is not None:
+            why = alarm.message.removeprefix(ALARM_CATALOGUE[code].text).removeprefix(": ") or "no answer"
+            lost.append(f"the watchdog has lost the {device} since {alarm.raised_at:%H:%M:%S} UTC (alarm {int(code)}; "
+                        f"{why}): check {check}")  # fmt: skip
+    if lost:
+        used = DEVICES_USED[procedure]
+        uses = ", the ".join(used[:-1]) + f" and the {used[-1]}"
+        raise JobRefused(f"the {procedure} job cannot start: it uses the {uses}, and " + "; ".join(lost) + ". Start it "
+                         "again once `cellctl status` shows the link up (the alarm clears by itself); nothing was asked "
+                         "or moved", conflict=True)  # fmt: skip
 
 
 def motion_settings(config: CellConfig) -> MotionSettings:
