@@ -82,6 +82,7 @@ class SerialLine:
         self._lost: str | None = None
         self.bytes_written = 0
         self.bytes_read = 0
+        self.write_started_s = math.nan  # time.monotonic() just before the last write's first byte went to the port
         self.max_line = MAX_REPLY_CHARS  # a longer run without CR is handed on as one (garbled) line
 
     @property
@@ -144,6 +145,7 @@ class SerialLine:
         """Send ``data`` completely before ``deadline`` (loop time); LinkLost / LinkTimeout otherwise."""
         self._check_usable()
         view = memoryview(data)
+        self.write_started_s = time.monotonic()  # nothing of it can have reached the device before this
         while view:
             try:
                 n = os.write(self._fd, view)

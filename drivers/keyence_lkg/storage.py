@@ -110,13 +110,14 @@ class LkgStorage:
     _storage_cycle_s: float = 0.0
     _storage_started_s: float = 0.0
     _storage_asked: int = 0  # the count this sweep asked for (the setup may hold more)
+    _storage_window: tuple[float, float] | None = None  # (earliest, latest) start on the driver's clock (s)
 
     async def start_storage(self: KeyenceLkgSensor, *, cycle_s: float, count: int, timeout_s: float) -> float:
         """Clear the storage and store the configured OUT every ``cycle_s`` (at most ``count``).
 
         Returns the instant of the first reading on the driver's ``clock``: the controller starts when it
-        has ``AS``, so its echo's arrival less the echo's own time on the wire (the host's delay in
-        noticing the echo is part of the latency the cell estimates).
+        has ``AS``, so its echo's arrival less the echo's own time on the wire. The host's delay in
+        noticing the echo is in it too, anew in every storage: :meth:`storage_start_window` bounds it.
         """
         deadline = time.monotonic() + timeout_s
         left = functools.partial(_left_until, deadline)
@@ -139,10 +140,23 @@ class LkgStorage:
                 raise
             await self._run(self._measure, storage_command("AP"), timeout_s=left())  # (or R0 first, if in communication mode)
             await self._run(self._measure, storage_command("AQ"), timeout_s=left())
+        called, exchanges = time.monotonic(), self.stats.exchanges
         answer = await self._run(self._measure, storage_command("AS"), timeout_s=left())
+        # The controller started between the AS's first byte leaving the PC and its echo's arrival as noticed here;
+        # an exchange sent again (no echo in time, a mode recovery) may have started it with the first: from the call.
+        written = self._line.write_started_s if self.stats.exchanges == exchanges + 1 else called
         started_mono = answer.arrived_s - 10.0 * len(b"AS\r") / self._line.baud  # 8N1, on time.monotonic()
-        self._storage_started_s = self.clock() - (time.monotonic() - started_mono)
+        to_clock = self.clock() - time.monotonic()
+        self._storage_started_s = to_clock + started_mono
+        self._storage_window = (to_clock + min(written, started_mono), to_clock + answer.arrived_s)
         return self._storage_started_s
+
+    def storage_start_window(self) -> tuple[float, float] | None:
+        """The earliest and latest instant (s, the driver's clock) the last storage can have started at: the
+        ``AS`` command's write and its echo's arrival as the host noticed it. The start returned lies within;
+        how late the host noticed the echo (its event loop busy) widens the window, so a sweep can tell
+        how well its start is known. None before a storage started."""
+        return self._storage_window
 
     async def stop_storage(self: KeyenceLkgSensor, *, timeout_s: float) -> StoredReadings:
         """Stop storing and read out what was stored, as distances along the laser (None: no value)."""

@@ -2,7 +2,8 @@
 
 Timing the laser against the robot's feedback takes three moves along the beam (in, out and in:
 what depends on where the flange is cancels between them). The latency belongs to the devices,
-not to the car body, so the cell times it in its first sweep, every ``retime_every`` sweeps, after a
+not to the car body (but for how late the host noticed the storage's start, anew in each sweep:
+:mod:`cellctl.cell.sweep_start` bounds it), so the cell times it in its first sweep, every ``retime_every`` sweeps, after a
 failed cycle and after a check that disagreed; each sweep between moves in once along the beam and
 checks the kept latency against that move. A check that disagrees by more than the tolerance gives
 its own estimate to that sweep and asks the next one to time anew.
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from cellctl.align.onthefly import LatencyEstimate
+from cellctl.cell.sweep_start import SweepLatency
 
 BeamMoves = Literal[1, 3]
 
@@ -28,6 +30,8 @@ class LaserTiming:
         sweeps_since: sweeps since that timing.
         devices: the laser and robot it was timed with (another pair is timed anew).
         retime_reason: why the next sweep times anew (None: it checks, unless due or never timed).
+        last_sweep: the last alignment sweep's own latency and its storage's start window (the flush sweep
+            takes its latency from it, :mod:`cellctl.cell.sweep_start`).
     """
 
     latency_s: float | None = None
@@ -35,6 +39,7 @@ class LaserTiming:
     sweeps_since: int = 0
     devices: tuple[object, object] | None = None  # the objects, not id()s: a replaced driver may reuse a freed id
     retime_reason: str | None = None
+    last_sweep: SweepLatency | None = None
 
     def why_time(self, laser: object, robot: object, retime_every: int) -> str | None:
         """Why the coming sweep times the laser (three moves along the beam); None: it checks the kept latency."""

@@ -16,7 +16,7 @@ import contextlib
 import logging
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -36,7 +36,9 @@ from cellctl.align.onthefly import (
     stored_instants,
 )
 from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.feedback_gap import gap_side, stream_figures, stream_stats
 from cellctl.cell.robots import pose_stream_of
+from cellctl.cell.sweep_start import StartWindow, SweepLatency, start_known
 from cellctl.compensate import shooting_pose_in
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose
@@ -80,6 +82,7 @@ class Swept:
     rest_stops: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (M,) the corner each was read at
     legs: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))  # (K,) leg j runs corners[j] -> corners[j + 1]
     moving: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (K,) the flange moved (not settling at a corner)
+    start: StartWindow | None = None  # the laser storage's start window (None: its driver gives none)
 
 
 async def sweep_readings(
@@ -95,14 +98,16 @@ async def sweep_readings(
         cal.taught.T0, cfg.path_mm, cal.taught.C_Pos_0[:3, :3], cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm
     )
     laser, robot = run.dev.laser, run.dev.robot
+    how: Literal["timed", "checked", "fixed"] = "checked"
     if cfg.fixed_latency_s is not None:
         swept = await sweep_path(run, STEP, corners, latency_s=cfg.fixed_latency_s, stops=True)
         timing: dict[str, Any] = {"latency": "fixed (process.align.sweep.fixed_latency_s)"}
+        how = "fixed"
     elif (why := kept.why_time(laser, robot, cfg.retime_every)) is not None:
         swept = await sweep_path(run, STEP, corners, latency_s=None, stops=True)
         assert swept.estimate is not None
         kept.timed(swept.estimate, laser, robot)
-        timing = {"latency": "timed", "timed_because": why}
+        timing, how = {"latency": "timed", "timed_because": why}, "timed"
     else:
         assert kept.latency_s is not None
         timing = {"latency": "checked"}
@@ -113,13 +118,18 @@ async def sweep_readings(
 
         swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check, stops=True)
     run.sweep_latency_s = swept.latency_s
+    own = swept.estimate  # the flush sweep takes this sweep's own latency, not the kept one it may have paired with
+    kept.last_sweep = SweepLatency(
+        swept.latency_s if own is None else own.latency_s, None if own is None else own.sigma_s, how, swept.start, swept.latency_s
+    )  # fmt: skip
     keep = even_along_path(swept.poses, cfg.max_points)
     figures = swept.figures | timing | {"readings_fitted": int(len(keep))}
     return swept.poses[keep], swept.distances[keep], figures, (swept.rest_poses, swept.rest_distances, swept.rest_stops)
 
 
 async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, Any]]:
-    """The flush on the move: sweep the inspection's path past the installed glass, with this cycle's latency.
+    """The flush on the move: sweep the inspection's path past the installed glass, with the alignment sweep's own
+    latency moved to this sweep's storage start (:mod:`cellctl.cell.sweep_start`; refused beyond the tolerance).
 
     Each reading's laser point is taken into T2 and sorted by where it falls: on the glass (inside
     the glass's edge) or on the wall (outside the opening's), none within the margin of an edge. The
@@ -127,10 +137,12 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     from that leg's readings alone (:mod:`cellctl.inspection.flush_crossing`).
     """
     cal, insp = run.cal, run.process.inspect
-    assert run.sweep_latency_s is not None, "the alignment's sweep times the laser first"
+    reference = run.laser_timing.last_sweep
+    assert run.sweep_latency_s is not None and reference is not None, "the alignment's sweep times the laser first"
+    assert reference.paired_s == run.sweep_latency_s, "the latency kept is this cycle's alignment sweep's"
     R_flange = shooting_pose_in(cal.taught, T2)[:3, :3]  # the camera parallel to the wall, as when shooting
     corners = plan_spot_poses(T2, insp.sweep_path_mm, R_flange, cal.laser_r, cal.laser_l, run.process.align.laser_standoff_mm)
-    swept = await sweep_path(run, CycleStep.INSPECT, corners, latency_s=run.sweep_latency_s)
+    swept = await sweep_path(run, CycleStep.INSPECT, corners, latency_s=None, moved_from=reference)
     lo, hi = cal.laser_range_mm
     inside = (swept.distances >= lo) & (swept.distances <= hi)  # beyond the range (through the gap, say): left out, counted
     try:
@@ -158,7 +170,7 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
 
 async def sweep_path(
     run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None, check_s: float | None = None,
-    choose: Callable[[LatencyEstimate], float] | None = None, stops: bool = False,
+    choose: Callable[[LatencyEstimate], float] | None = None, stops: bool = False, moved_from: SweepLatency | None = None,
 ) -> Swept:
     """Sweep the flange through ``corners`` while the laser stores and the robot streams; pair the legs' readings.
 
@@ -167,11 +179,14 @@ async def sweep_path(
     with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate
     into the latency the readings are paired with (default: the estimate's). With ``stops`` the
     readings taken with the flange standing are kept too (the alignment's distance comes from them).
+    With ``moved_from`` (an earlier sweep's own latency) the sweep follows the corners and pairs with that
+    latency moved to this storage's start; refused (before the robot moves) when it cannot be known within
+    the latency check's tolerance. Each sweep starts its storage again while its start is not known within that.
     """
     cfg, cal = run.process.align.sweep, run.cal
     laser, stream = run.dev.laser, pose_stream_of(run.dev.robot)
     assert isinstance(laser, StoringSensor) and stream is not None, "sweep_unavailable() first"
-    beam_moves = 0 if latency_s is not None else 1 if check_s is not None else 3
+    beam_moves = 0 if latency_s is not None or moved_from is not None else 1 if check_s is not None else 3
     route = sweep_route(corners, cal.laser_l, cfg.approach_mm, beam_moves=beam_moves)
     timing = route[1 : 1 + beam_moves]
     await run.move(step, route[0], kind="joint")
@@ -195,7 +210,10 @@ async def sweep_path(
 
     try:
         await stream.start_stream(timeout_s=timeout)
-        await laser.start_storage(cycle_s=cfg.storage_cycle_s, count=count, timeout_s=timeout)
+        tolerance = cfg.latency_check_tolerance_s
+        start = await start_known(laser, cycle_s=cfg.storage_cycle_s, count=count, timeout_s=timeout, within_s=tolerance)
+        if moved_from is not None:
+            latency_s, moved = _moved_latency(step, moved_from, start, tolerance)
         await _supervised(run, step, path(), stream)
         stored = await laser.stop_storage(timeout_s=timeout + path_s)  # the read-out is on the serial line: up to as long as the path
         samples = await stream.stop_stream(timeout_s=timeout)
@@ -220,10 +238,13 @@ async def sweep_path(
     on_path = np.flatnonzero(paired.instants > window[1])  # the moves along the beam only time the laser
     wanted = int(np.count_nonzero((instants > window[1]) & np.isfinite(distances)))
     if len(on_path) < cfg.min_paired_share * wanted:
+        stats = stream_stats(stream)
+        await _step_figures(run, step, stream_figures(stats))
         raise CycleFailed(
             step, AlarmCode.POSITION_FEEDBACK_LOST,
             f"only {len(on_path)} of the {wanted} readings along the path had a robot pose within "
-            f"{1e3 * cfg.max_feedback_gap_s:g} ms (the position feedback had gaps): nothing is fitted to guesses",
+            f"{1e3 * cfg.max_feedback_gap_s:g} ms (the position feedback had gaps): nothing is fitted to guesses; "
+            f"{gap_side(stats, cfg.max_feedback_gap_s, came_after=1)}",
         )  # fmt: skip
     figures: dict[str, Any] = {
         "mode": "on_the_fly",
@@ -233,7 +254,10 @@ async def sweep_path(
         "readings_on_the_legs": int(len(on_path)),
         "feedback_samples": len(samples),
         "latency_ms": 1e3 * lat_s,
+        "storage_start": None if start is None else start.figures(),
     }
+    if moved_from is not None:
+        figures |= moved
     if latency is not None:
         figures |= {"latency_sigma_ms": 1e3 * latency.sigma_s, "approach_rms_mm": latency.rms_mm}
     # Each reading's leg: the moves end at fine points (the next starts after this one's settle), so a reading
@@ -241,7 +265,9 @@ async def sweep_path(
     stop_of = np.searchsorted(leg_starts, paired.instants - lat_s, side="right")
     at_rest = await asyncio.to_thread(standing, t, T, paired.instants - lat_s)  # once for every paired reading
     legs = np.maximum(stop_of[on_path] - 1, 0)
-    swept = Swept(paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=legs, moving=~at_rest[on_path])
+    swept = Swept(
+        paired.poses[on_path], paired.distances[on_path], lat_s, figures, latency, legs=legs, moving=~at_rest[on_path], start=start
+    )  # fmt: skip
     if not stops:
         return swept
     rest, corner_of = at_corners(paired.poses, at_rest, corners, AT_CORNER_MM, stop_of=stop_of)
@@ -264,6 +290,7 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
             latest = stream.latest()
             age = now - (since if latest is None else latest.t_s)
             if age > cfg.feedback_stale_s:
+                at_trip = stream_stats(stream)  # what came before the gap was found (samples after it tell its side)
                 break
     finally:
         if not task.done():
@@ -274,10 +301,13 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
     except DeviceError as err:
         raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"the position feedback stopped and the robot did not stop: {err}") from err
     why = await _stream_fault(stream, run.motion.read_timeout_s)
+    stats = stream_stats(stream)
+    came_after = 1 if at_trip is None or stats is None else stats.received - at_trip.received
+    await _step_figures(run, step, stream_figures(stats))
     raise CycleFailed(
         step, AlarmCode.POSITION_FEEDBACK_LOST,
         f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s{why}): "
-        "the robot was stopped and no wall plane was fitted",
+        f"the robot was stopped and nothing was fitted; {gap_side(stats, age, came_after=came_after)}",
     )  # fmt: skip
 
 
@@ -288,6 +318,13 @@ async def _stream_fault(stream: PoseStream, timeout_s: float) -> str:
     except DeviceError as err:
         return f"; {err}"
     return ""
+
+
+async def _step_figures(run: CycleRun, step: CycleStep, figures: dict[str, Any]) -> None:
+    """Add ``figures`` to the failing step's record (best effort: the failure is what the cycle reports)."""
+    if figures:
+        with contextlib.suppress(RuntimeError):
+            await run.rec.step_figures(step, figures)
 
 
 async def _leave_nothing_running(stream: PoseStream, laser: StoringSensor, timeout_s: float, path_s: float) -> None:
@@ -301,6 +338,30 @@ async def _leave_nothing_running(stream: PoseStream, laser: StoringSensor, timeo
             await stop()
         except DeviceError as err:
             log.info("after the sweep: %s", err)
+
+
+def _moved_latency(step: CycleStep, ref: SweepLatency, start: StartWindow | None, tolerance_s: float) -> tuple[float, dict[str, Any]]:
+    """The latency (s) this sweep pairs with, moved from ``ref``'s storage start to ``start``, and the record's figures
+    of where it came from; CycleFailed when it may be off by more than ``tolerance_s`` (s)."""
+    latency_s, bound_s = ref.moved_to(start)
+    if bound_s > tolerance_s:
+        here = "not given" if start is None else f"{1e3 * start.width_s:.2f} ms (after {start.restarts} restarts)"
+        there = "not given" if ref.start is None else f"{1e3 * ref.start.width_s:.2f} ms"
+        raise CycleFailed(
+            step, _failed_code(step),
+            f"this sweep's readings cannot be paired within {1e3 * tolerance_s:g} ms of the robot's poses: the laser's "
+            f"storage start is known within {here} here and {there} in the alignment's sweep (the cell PC noticed the "
+            f"laser's AS echo late: a loaded PC), so the alignment's latency may be {1e3 * bound_s:.2f} ms off; nothing "
+            "was measured on the move (process.align.sweep.latency_check_tolerance_s)",
+        )  # fmt: skip
+    figures = {
+        "latency": f"the alignment sweep's ({ref.how}), moved to this sweep's storage start; not checked by this sweep",
+        "latency_source": {"sweep": "align", "how": ref.how, "latency_ms": 1e3 * ref.latency_s,
+                           "sigma_ms": None if ref.sigma_s is None else 1e3 * ref.sigma_s, "paired_ms": 1e3 * ref.paired_s,
+                           "storage_start": None if ref.start is None else ref.start.figures()},
+        "latency_moved_ms": 1e3 * (latency_s - ref.latency_s), "latency_bound_ms": 1e3 * bound_s, "latency_checked": False,
+    }  # fmt: skip
+    return latency_s, figures
 
 
 def _failed_code(step: CycleStep) -> AlarmCode:
