@@ -203,9 +203,9 @@ ALARM_CATALOGUE: Mapping[AlarmCode, AlarmSpec] = MappingProxyType(
         ),
         AlarmCode.POSITION_FEEDBACK_LOST: AlarmSpec(
             FaultClass.ROBOT_FAULT,
-            "Robot position feedback (EGM) lost while reading the wall on the move, robot stopped: the reason says which "
-            "side the gap was on (the controller, the EGM link: UdpUc device, network, firewall; or a loaded cell PC); "
-            "check that side, where the robot stands and the glass; acknowledge, then Clear, Reset, Start",
+            "Robot position feedback (EGM) lost on the move, robot stopped: check the side the reason names (the "
+            "controller, the EGM link, a loaded cell PC), where the robot stands and the glass; acknowledge, then "
+            "Clear, Reset, Start",
             False,
         ),
         AlarmCode.TASK_FAILED: AlarmSpec(

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Sequence
 from typing import Any, TypeVar
 
 _T = TypeVar("_T")
@@ -24,17 +23,6 @@ async def cancel_until_done(tasks: Sequence[asyncio.Task[Any]], *, retry_s: floa
             t.cancel()
         await asyncio.wait(pending, timeout=retry_s)
     await asyncio.gather(*tasks, return_exceptions=True)
-
-
-async def cancel_until_ended(task: asyncio.Task[Any], *, finishing: Callable[[], bool], retry_s: float = RETRY_S) -> None:
-    """Cancel ``task`` each ``retry_s`` (s) until it has ended (a cancel dropped as a call completed is sent again),
-    except while ``finishing()`` says it records its outcome; its cancellation is not raised here."""
-    while not task.done():
-        if not finishing():
-            task.cancel()
-        await asyncio.wait([task], timeout=retry_s)
-    with contextlib.suppress(asyncio.CancelledError):
-        await task
 
 
 async def to_the_end(work: Awaitable[_T]) -> tuple[_T, bool]:

@@ -19,7 +19,7 @@ from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cancel import cancel_until_done, cancel_until_ended
+from cellctl.cell.cancel import cancel_until_done
 from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.cycle_failure import CycleFailed
@@ -245,21 +245,22 @@ class CellOrchestrator:
 
     async def _stop_running_cycle(self, reason: str) -> None:
         """Leave Execute: end the running cycle as stopped (its reason; no new motion; its task cancelled, then the
-        robot's stop, the cancel repeated until the task ends). One already recording its outcome is let finish."""
+        robot's stop) and wait for its end, clean-up included. One already recording its outcome is let finish."""
         if (task := self._cycle_task) is None:
             return
-        if task.done() or self._finishing:
-            await cancel_until_ended(task, finishing=lambda: True)  # recording its outcome already: let it
-            return
-        self._stop_reason = reason
-        self.robot.halt(reason)  # the cycle starts no motion and releases no glass from now on
-        try:
-            task.cancel()  # before the robot's stop ends the move it waits on (3.11's wait_for would drop it then)
-            with contextlib.suppress(DeviceError):
+        halted = not (task.done() or self._finishing)  # else it is recording its outcome already: let it
+        if halted:
+            self._stop_reason = reason
+            self.robot.halt(reason)  # the cycle starts no motion and releases no glass from now on
+            task.cancel()  # once, before the robot's stop ends the move it waits on: a second would cut its shielded
+            with contextlib.suppress(DeviceError):  # clean-up loose; one 3.11's wait_for drops is met by the halt
                 await self.robot.stop(timeout_s=self.config.process.motion.read_timeout_s)
-            await cancel_until_ended(task, finishing=lambda: self._finishing)
+        try:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         finally:
-            self.robot.resume()
+            if halted:
+                self.robot.resume()
 
     async def end_for_shutdown(self, why: str) -> None:
         """The service is stopping (SIGTERM, Ctrl-C): no queued cycle starts any more, and a running one ends as

@@ -76,7 +76,7 @@ class WriteBehind:
         self._fault: BaseException | None = None  # the store's latest refusal
         self._alarmed = False
         self._retry: asyncio.Task[None] | None = None
-        self._flush_lock = asyncio.Lock()
+        self._order = asyncio.Lock()  # one write (or flush) at a time, in the order they came
         self._tasks: set[asyncio.Task[None]] = set()
 
     @property
@@ -86,23 +86,24 @@ class WriteBehind:
 
     async def write(self, item: KeptWrite) -> bool:
         """Write ``item`` (after any kept before it); on a store fault keep it, alarm and retry. True if written now."""
-        behind = bool(self._kept)
-        if not behind:
-            try:
-                await item.call()
-            except STORE_FAULTS as err:
-                self._fault = err
-                log.warning("%s: the store refused it: %s: %s", item.what, type(err).__name__, err)
-            else:
-                if item.written is not None:
-                    item.written(False)
-                if self._alarmed:  # a refusal that kept nothing (the install marker): the store takes writes again
-                    self._clear()
-                return True
-        self._kept.append(item)
+        async with self._order:  # the check, the attempt and the keeping as one: no write overtakes one before it
+            behind = bool(self._kept)
+            if not behind:
+                try:
+                    await item.call()
+                except STORE_FAULTS as err:
+                    self._fault = err
+                    log.warning("%s: the store refused it: %s: %s", item.what, type(err).__name__, err)
+                else:
+                    if item.written is not None:
+                        item.written(False)
+                    if self._alarmed:  # nothing kept (the install marker's refusal): the store takes writes again
+                        self._clear()
+                    return True
+            self._kept.append(item)
         how = "behind what the store refused before it" if behind else "until the store takes it"
         log.error("%s is kept in memory %s: %s", item.what, how, item.body)
-        await self._alarm(item.what, item.cycle_id)
+        await self._alarm(item.what, item.cycle_id)  # outside the lock: its reaction's audit entry comes through here
         if self._retry is None or self._retry.done():
             self._retry = asyncio.create_task(self._retry_loop())
         return False
@@ -149,7 +150,7 @@ class WriteBehind:
 
     async def flush(self) -> bool:
         """Write the kept writes in order; the alarm clears once all are written. True if none is left."""
-        async with self._flush_lock:
+        async with self._order:
             while self._kept:
                 item = self._kept[0]
                 try:
