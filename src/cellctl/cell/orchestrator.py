@@ -105,14 +105,8 @@ class CellOrchestrator:
         self.config = config
         self.robot = devices.robot if isinstance(devices.robot, TrackedRobot) else TrackedRobot(devices.robot)
         self.devices = replace(devices, robot=self.robot)
-        self.calibration = calibration
-        self.store = store
-        self.machine = machine
-        self.alarms = alarms
-        self.watchdog = watchdog
-        self.events = events
-        self.image_dir = image_dir
-        self.truth = truth
+        self.calibration, self.store, self.machine, self.alarms = calibration, store, machine, alarms
+        self.watchdog, self.events, self.image_dir, self.truth = watchdog, events, image_dir, truth
         self._queue: asyncio.Queue[None] = asyncio.Queue()  # nudges for the worker
         self._pending: list[int] = []  # cycles queued, in the order they came
         self._tasks: list[asyncio.Task[None]] = []  # the pumps of machine and alarm events
@@ -123,7 +117,7 @@ class CellOrchestrator:
         self._busy: int | None = None  # the cycle the worker took, from then until its record is written
         self._finished: dict[int, asyncio.Event] = {}
         self._stop_reason: str | None = None
-        self._shutting_down = False  # end_for_shutdown() came: no queued cycle starts
+        self._shutting_down = False  # end_for_shutdown() came: no cycle is taken or started
         self._finishing = False
         self._links: dict[str, dict[str, Any]] = {}
         self._status_parts: dict[str, Callable[[], Any]] = {}
@@ -282,7 +276,11 @@ class CellOrchestrator:
 
     def ready_for_cycle(self) -> bool:
         """The cell takes a cycle now: Execute (production or maintenance); it queues behind a running one."""
-        return not_ready_for_cycle(self.machine.state, self.machine.mode) is None
+        return self._why_not_ready() is None
+
+    def _why_not_ready(self) -> str | None:
+        return "the service is stopping: request it again once it runs" if self._shutting_down else \
+            not_ready_for_cycle(self.machine.state, self.machine.mode)
 
     async def submit_cycle(self, request: CycleRequest, *, scope: str, key: str, actor: str) -> SubmitResult:
         """Queue a cycle under an idempotency key; the same key returns the same cycle, never a second one.
@@ -290,7 +288,7 @@ class CellOrchestrator:
         Raises CycleRefused, for a key it has not seen, when the cell is not in Execute or the recipe is not taught or
         not ready (its teaching or nine-point map stale, expired...: :func:`cycle_refusal`)."""
         existing = await self.store.cycle_for_key(scope, key)
-        if existing is None and (why := not_ready_for_cycle(self.machine.state, self.machine.mode)) is not None:
+        if existing is None and (why := self._why_not_ready()) is not None:
             raise CycleRefused(AlarmCode.NOT_IN_EXECUTE, why)
         refused = None if existing is not None else cycle_refusal(self.calibration, request.recipe)
         if refused is not None:
@@ -320,7 +318,7 @@ class CellOrchestrator:
     async def _worker(self) -> None:
         while True:
             await self._queue.get()
-            while self._pending and self.ready_for_cycle() and not self._shutting_down:
+            while self._pending and self.ready_for_cycle():
                 nxt = self._pending.pop(0)
                 self._busy, self._finishing = nxt, False
                 self._cycle_task = asyncio.create_task(self._run(nxt))
