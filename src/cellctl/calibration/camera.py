@@ -6,7 +6,8 @@ reprojection RMS exceeds both ``reject_factor`` times the median of the views an
 ``reject_floor_px`` (a view with a mis-ordered, blurred or partly hidden board); views whose
 board was not found are listed with the detector's reason. The result carries the RMS, every
 view's RMS, the standard deviations of the parameters (OpenCV's ``stdDeviationsIntrinsics``),
-how much of the image the corners covered, and the board pose in each view.
+how much of the image the corners covered, and the board pose in each view. OpenCV's solver runs on one
+thread (:mod:`cellctl.calibration.reproducible`): the same views give the same bits.
 
 Refused (CalibrationRefused, with the reason) when fewer than ``min_views`` views are left, when
 no view showed the board, when the RMS stays above ``max_rms_px``, when the board's tilt hardly
@@ -26,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.reproducible import opencv_one_thread
 from cellctl.config.calibration_procedure import CameraCalibrationConfig
 from cellctl.geometry.pose import Pose, make_pose
 from cellctl.vision.lens import Lens
@@ -84,6 +86,20 @@ class CameraCalibration:
     view_focal_sigma: float = float("nan")
 
 
+def lens_shift_px(K_a: ArrayLike, dist_a: ArrayLike, K_b: ArrayLike, dist_b: ArrayLike, image_size: tuple[int, int]) -> float:
+    """The largest distance (px) between the pixels two lenses give the same ray, over 17 x 17 rays spanning the
+    (width, height) image of lens a (nan when either lens is not a finite one)."""
+    A = np.asarray(K_a, dtype=np.float64)
+    u, v = np.meshgrid(np.linspace(0.0, image_size[0] - 1.0, 17), np.linspace(0.0, image_size[1] - 1.0, 17))
+    rays = np.column_stack([(u.ravel() - A[0, 2]) / A[0, 0], (v.ravel() - A[1, 2]) / A[1, 1], np.ones(u.size)])
+    try:
+        pa, pb = (cv2.projectPoints(rays, np.zeros(3), np.zeros(3), np.asarray(K, dtype=np.float64), np.asarray(D, dtype=np.float64))[0]
+                  for K, D in ((K_a, dist_a), (K_b, dist_b)))  # fmt: skip
+    except cv2.error:
+        return float("nan")
+    return float(np.max(np.linalg.norm((pa - pb).reshape(-1, 2), axis=1)))
+
+
 _STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
@@ -140,10 +156,11 @@ def view_focal_lengths(op: F64, ip: Sequence[F64], size: tuple[int, int], K: F64
     """Each view's own fx (the other intrinsics held at K, D) and its standard deviation (px)."""
     f, s = [], []
     for pts in ip:
-        _, Kv, _, _, _, std, _, _ = cv2.calibrateCameraExtended(
-            [op], [pts], size, K.copy(), D.copy(), flags=_SINGLE_VIEW_FLAGS,
-            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
-        )
+        with opencv_one_thread():
+            _, Kv, _, _, _, std, _, _ = cv2.calibrateCameraExtended(
+                [op], [pts], size, K.copy(), D.copy(), flags=_SINGLE_VIEW_FLAGS,
+                criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+            )
         f.append(float(Kv[0, 0]))
         s.append(float(np.asarray(std, dtype=float).reshape(-1)[1]) * float(K[0, 0] / K[1, 1]))  # fy is the free one
     return np.asarray(f), np.asarray(s)
@@ -226,10 +243,11 @@ def calibrate_camera(
             )
         op = [obj.astype(np.float32).reshape(-1, 1, 3)] * len(used)
         ip = [np.asarray(v.corners_px, dtype=np.float32).reshape(-1, 1, 2) for v in used]
-        rms, K, D, rvecs, tvecs, std_in, _, per_view = cv2.calibrateCameraExtended(
-            op, ip, (w, h), None, None, flags=flags,
-            criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12),
-        )
+        with opencv_one_thread():  # on the pool, the same views gave other bits from run to run
+            rms, K, D, rvecs, tvecs, std_in, _, per_view = cv2.calibrateCameraExtended(
+                op, ip, (w, h), None, None, flags=flags,
+                criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12),
+            )
         per = np.asarray(per_view, dtype=float).reshape(-1)
         worst = int(np.argmax(per))
         median = float(np.median(per))

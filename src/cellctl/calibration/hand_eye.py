@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
+from cellctl.calibration.reproducible import opencv_one_thread
 from cellctl.config.calibration_procedure import HandEyeCalibrationConfig, HandEyeMethod
 from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose, mean_pose
 from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
@@ -295,7 +296,8 @@ def opencv_hand_eye(T_B_H: Sequence[ArrayLike], T_C_P: Sequence[ArrayLike], meth
     Rc = [np.asarray(c, dtype=float)[:3, :3] for c in T_C_P]
     tc = [np.asarray(c, dtype=float)[:3, 3].reshape(3, 1) for c in T_C_P]
     try:
-        R, t = cv2.calibrateHandEye(Rg, tg, Rc, tc, method=_OPENCV_METHOD[method])
+        with opencv_one_thread():
+            R, t = cv2.calibrateHandEye(Rg, tg, Rc, tc, method=_OPENCV_METHOD[method])
     except cv2.error as err:  # e.g. Andreff's "Rotation normalization issue" on an orbit around the board
         why = (err.err or str(err)).strip().splitlines()[-1]
         raise CalibrationRefused("hand_eye", "solver_failed", f"OpenCV's {method} failed on this data ({why})") from None
@@ -449,10 +451,11 @@ def board_pose(object_points: ArrayLike, corners_px: ArrayLike, K: ArrayLike, di
     img = np.asarray(corners_px, dtype=np.float64).reshape(-1, 1, 2)
     Km = np.asarray(K, dtype=np.float64)
     Dm = np.asarray(dist, dtype=np.float64).reshape(-1, 1)
-    ok, rvec, tvec = cv2.solvePnP(obj, img, Km, Dm, flags=cv2.SOLVEPNP_IPPE)
-    if not ok:
-        raise CalibrationRefused("hand_eye", "pose_not_found", "the board pose could not be computed from its corners")
-    rvec, tvec = cv2.solvePnPRefineLM(obj, img, Km, Dm, rvec, tvec)
+    with opencv_one_thread():  # the same corners give the same bits (cellctl.calibration.reproducible)
+        ok, rvec, tvec = cv2.solvePnP(obj, img, Km, Dm, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            raise CalibrationRefused("hand_eye", "pose_not_found", "the board pose could not be computed from its corners")
+        rvec, tvec = cv2.solvePnPRefineLM(obj, img, Km, Dm, rvec, tvec)
     proj, _ = cv2.projectPoints(obj, rvec, tvec, Km, Dm)
     rms = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=2))))
     R, _ = cv2.Rodrigues(rvec)

@@ -78,6 +78,11 @@ def _store(args: argparse.Namespace) -> CalibrationStore:
 
 
 SAME_TOL = 1e-9  # relative, and absolute in the part's units (px, mm, rad): a recompute within it is the same part
+# A camera's K and dist: the same lens when no ray of the image lands further than SAME_LENS_PX from where it did. The
+# last bits of an LM fit are not the same everywhere (OpenCV on a thread pool, as an earlier release ran it, put the
+# same views' rays up to 3.5e-6 px apart; another PC's CPU may too); the twin camera's std of fx and cx is 0.4 px and
+# its corners' RMS 0.03 px: 1e-4 px lies 4000 and 300 times below them, and any change of views or settings moves more.
+SAME_LENS_PX = 1e-4
 
 
 def _close(a: Any, b: Any) -> bool:
@@ -93,7 +98,8 @@ def _close(a: Any, b: Any) -> bool:
 
 def _same_part(p: PartRecord | None, outcome: Outcome, sha: str) -> bool:
     """``p`` (the part in use) was computed from the dataset with manifest SHA-256 ``sha``, by the same method from
-    the same parts, and ``outcome`` recomputed its values within SAME_TOL: storing it would change nothing but its id."""
+    the same parts, and ``outcome`` recomputed its values within SAME_TOL (a camera: SAME_LENS_PX): storing it would
+    change nothing but its id."""
     values = getattr(p, "values", None)
     if p is None or p.status != "ok" or values is None or p.dataset is None or p.dataset.manifest_sha256 != sha:
         return False
@@ -103,7 +109,13 @@ def _same_part(p: PartRecord | None, outcome: Outcome, sha: str) -> bool:
         fresh = type(values).model_validate(outcome.values)
     except ValidationError:
         return False  # not a valid part: recording it says why
-    return _close(values.model_dump(), fresh.model_dump())
+    a, b = values.model_dump(), fresh.model_dump()
+    if outcome.part == "camera":
+        from cellctl.calibration.camera import lens_shift_px
+
+        shift = lens_shift_px(a.pop("K"), a.pop("dist"), b.pop("K"), b.pop("dist"), a["image_size"])
+        return shift <= SAME_LENS_PX and _close(a, b)  # nan (not a lens) is not the same
+    return _close(a, b)
 
 
 def _sets(store: CalibrationStore, cal: CalibrationSet | None) -> Iterator[CalibrationSet]:
