@@ -98,12 +98,13 @@ def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, s
     return rc, out, err
 
 
-async def eventually(what: str, check: Callable[[], Awaitable[bool]], timeout_s: float = 20.0) -> None:
-    """Wait until ``check()`` is true (polled every 50 ms); fail naming ``what`` after ``timeout_s``."""
+async def eventually(what: str, check: Callable[[], Awaitable[Any]], timeout_s: float = 20.0) -> Any:
+    """Wait until ``check()`` gives something true, and return it (polled every 50 ms); fail naming ``what`` after
+    ``timeout_s``."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if await check():
-            return
+        if value := await check():
+            return value
         await asyncio.sleep(0.05)
     raise AssertionError(f"not within {timeout_s} s: {what}")
 

@@ -8,12 +8,12 @@ import asyncio
 import json
 import logging
 import sqlite3
-import time
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
+from shared_support import eventually
 from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
 
 from cellctl.domain import CycleStep
@@ -21,16 +21,6 @@ from cellctl.domain import CycleStep
 pytestmark = pytest.mark.timeout(180)
 
 RECORD_WRITE_FAILED = 1703  # docs/alarm_reactions.md
-
-
-async def _until(probe: Any, what: str, timeout_s: float = 90.0) -> Any:
-    """Poll ``await probe()`` until it returns something true."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if value := await probe():
-            return value
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 async def _active_alarm(client: httpx.AsyncClient, code: int) -> dict[str, Any] | None:
@@ -70,10 +60,10 @@ async def test_a_refused_final_record_holds_the_cell_and_is_written_when_the_sto
         assert r.status_code == 202, r.text
         cid = r.json()["cycle_id"]
 
-        alarm = await _until(lambda: _active_alarm(client, RECORD_WRITE_FAILED), "alarm 1703")
+        alarm = await eventually("alarm 1703", lambda: _active_alarm(client, RECORD_WRITE_FAILED), 90.0)
         assert alarm["cycle_id"] == cid and f"cycle {cid}" in alarm["message"], alarm
         assert "database or disk is full" in alarm["message"], alarm
-        st = await _until(lambda: _settled(client), "the cell to settle")
+        st = await eventually("the cell to settle", lambda: _settled(client), 90.0)
         assert st["state"] == "HELD", st
         assert st["stop_reason"]["code"] == RECORD_WRITE_FAILED, st
         rec = (await client.get(f"/cycles/{cid}")).json()
@@ -88,7 +78,7 @@ async def test_a_refused_final_record_holds_the_cell_and_is_written_when_the_sto
         kept = _kept_json(caplog, cid)
 
         del sync.complete_cycle  # the store takes writes again
-        await _until(lambda: _cleared(client), "alarm 1703 to clear once the record is written", 10.0)
+        await eventually("alarm 1703 to clear once the record is written", lambda: _cleared(client), 10.0)
         rec = (await client.get(f"/cycles/{cid}")).json()
         assert rec["state"] == "done", rec
         assert rec["result"]["measured_deviation"] == kept["result"]["measured_deviation"], (rec, kept)
@@ -130,9 +120,9 @@ async def test_a_database_locked_by_another_process_after_the_install_loses_no_o
             r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "P-LOCK"},
                                   headers={**AUTH, "Idempotency-Key": "lock-1"})  # fmt: skip
             cid = r.json()["cycle_id"]
-            alarm = await _until(lambda: _active_alarm(client, RECORD_WRITE_FAILED), "alarm 1703")
+            alarm = await eventually("alarm 1703", lambda: _active_alarm(client, RECORD_WRITE_FAILED), 90.0)
             assert alarm["cycle_id"] == cid and "database is locked" in alarm["message"], alarm
-            st = await _until(lambda: _settled(client), "the cell to settle")
+            st = await eventually("the cell to settle", lambda: _settled(client), 90.0)
             assert st["state"] not in ("EXECUTE", "IDLE"), st
             assert (await client.get(f"/cycles/{cid}")).json()["state"] == "running"
         finally:
@@ -140,7 +130,7 @@ async def test_a_database_locked_by_another_process_after_the_install_loses_no_o
             if holder.in_transaction:
                 holder.execute("ROLLBACK")
             holder.close()
-        await _until(lambda: _cleared(client), "alarm 1703 to clear once the record is written", 10.0)
+        await eventually("alarm 1703 to clear once the record is written", lambda: _cleared(client), 10.0)
         rec = (await client.get(f"/cycles/{cid}")).json()
         assert rec["state"] in ("done", "failed") and rec["install_started_at"], rec
         st = (await client.get("/status")).json()

@@ -16,20 +16,12 @@ from typing import Any
 
 import httpx
 import pytest
+from shared_support import eventually
 from service_test_support import AUTH, api_client, running_service, served, sim_config, to_execute
 
 pytestmark = pytest.mark.timeout(120)
 
 RECORD_WRITE_FAILED = 1703
-
-
-async def _until(probe: Any, what: str, timeout_s: float = 30.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if value := await probe():
-            return value
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 def _read(db_path: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:
@@ -61,7 +53,7 @@ async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_a
                 assert took < 2.0, f"/health took {took:.1f} s while the store was locked"
                 assert h.status_code == 503 and any("store" in p for p in h.json()["problems"]), h.text
 
-                await _until(lambda: _active(client), "alarm 1703 (the audit entry kept)")
+                await eventually("alarm 1703 (the audit entry kept)", lambda: _active(client), 30.0)
                 h = await client.get("/health", headers=AUTH)
                 assert h.status_code == 503 and any("1703" in p for p in h.json()["problems"]), h.text
                 ack = await client.post("/alarms/acknowledge-all", headers=AUTH)
@@ -72,7 +64,7 @@ async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_a
                 released_at = datetime.now(timezone.utc)
                 holder.execute("ROLLBACK")  # the other process lets go
                 holder.close()
-            await _until(lambda: _cleared(client), "alarm 1703 to clear once everything kept is written")
+            await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
             assert (await client.get("/health", headers=AUTH)).status_code == 200
 
     rows = _read(db_path, "SELECT seq, at, action, state_before, state_after FROM audit_log WHERE seq > ? ORDER BY seq", last_seq)

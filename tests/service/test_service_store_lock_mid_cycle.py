@@ -7,10 +7,8 @@ software fault (1501), and no step is left open."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import sqlite3
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,6 +16,7 @@ from typing import Any
 
 import httpx
 import pytest
+from shared_support import eventually
 from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
 
 from cellctl.domain import CycleStep
@@ -25,15 +24,6 @@ from cellctl.domain import CycleStep
 pytestmark = pytest.mark.timeout(120)
 
 RECORD_WRITE_FAILED, TASK_FAILED = 1703, 1501  # docs/alarm_reactions.md
-
-
-async def _until(probe: Any, what: str, timeout_s: float = 30.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if value := await probe():
-            return value
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
 
 
 async def _alarm_active(client: httpx.AsyncClient, code: int) -> bool:
@@ -85,11 +75,11 @@ async def test_a_lock_during_the_inspection_keeps_the_installed_glass_done_with_
             r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "P-LOCK-INSPECT"},
                                   headers={**AUTH, "Idempotency-Key": "lock-inspect"})  # fmt: skip
             cid = r.json()["cycle_id"]
-            await _until(lambda: _alarm_active(client, RECORD_WRITE_FAILED), "alarm 1703 (the cycle's end is kept)")
+            await eventually("alarm 1703 (the cycle's end is kept)", lambda: _alarm_active(client, RECORD_WRITE_FAILED), 30.0)
             assert (await client.get("/status")).json()["current_cycle"] is None
             assert holder.in_transaction
             holder.execute("COMMIT")  # the other process lets go
-        await _until(lambda: _cleared(client), "alarm 1703 to clear once everything kept is written")
+        await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
 
         (state, error, install, result, true_error), = _read(
             db_path, "SELECT state, error, install_started_at, result_json, true_error_json FROM cycles WHERE id = ?", cid)
@@ -117,11 +107,11 @@ async def test_a_lock_before_the_install_fails_the_cycle_as_a_store_fault_not_a_
             r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "P-LOCK-ALIGN"},
                                   headers={**AUTH, "Idempotency-Key": "lock-align"})  # fmt: skip
             cid = r.json()["cycle_id"]
-            await _until(lambda: _alarm_active(client, RECORD_WRITE_FAILED), "alarm 1703")
-            st = await _until(lambda: _settled(client), "the cycle to end")
+            await eventually("alarm 1703", lambda: _alarm_active(client, RECORD_WRITE_FAILED), 30.0)
+            st = await eventually("the cycle to end", lambda: _settled(client), 30.0)
             assert st["state"] == "HELD" and st["stop_reason"]["code"] == RECORD_WRITE_FAILED, st
             holder.execute("COMMIT")
-        await _until(lambda: _cleared(client), "alarm 1703 to clear once everything kept is written")
+        await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
 
         (state, error, install, result), = _read(
             db_path, "SELECT state, error, install_started_at, result_json FROM cycles WHERE id = ?", cid)
