@@ -109,6 +109,17 @@ async def eventually(what: str, check: Callable[[], Awaitable[Any]], timeout_s: 
     raise AssertionError(f"not within {timeout_s} s: {what}")
 
 
+def read_store(db_path: Any, sql: str, *args: object) -> list[tuple[Any, ...]]:
+    """Rows of ``sql`` read from the cell's store file by a read-only sqlite3 connection of the test's own."""
+    import sqlite3
+
+    db = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True)
+    try:
+        return db.execute(sql, args).fetchall()
+    finally:
+        db.close()
+
+
 def door_window_first(tweak: Callable[[dict[str, Any]], None] | None = None) -> Any:
     """config/sim.toml as a CellConfig with the door-window recipe first (the benches' cycles take the first), after
     ``tweak`` edited its parsed TOML (e.g. turned the closed loop off)."""

@@ -12,24 +12,15 @@ import sqlite3
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
-from shared_support import eventually
+from shared_support import eventually, read_store
 from service_test_support import AUTH, api_client, running_service, served, sim_config, to_execute
 
 pytestmark = pytest.mark.timeout(120)
 
 RECORD_WRITE_FAILED = 1703
-
-
-def _read(db_path: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:
-    db = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True)
-    try:
-        return db.execute(sql, args).fetchall()
-    finally:
-        db.close()
 
 
 async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_and_health_answers_at_once(
@@ -39,7 +30,7 @@ async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_a
     async with running_service(tmp_path, cfg) as service, api_client(service) as setup:
         await to_execute(setup)
         db_path = (await service.store.info()).path
-        (last_seq,), = _read(db_path, "SELECT COALESCE(MAX(seq), 0) FROM audit_log")
+        (last_seq,), = read_store(db_path, "SELECT COALESCE(MAX(seq), 0) FROM audit_log")
         holder = sqlite3.connect(db_path, isolation_level=None)
         async with served(service) as url, httpx.AsyncClient(base_url=url, timeout=30) as client:
             holder.execute("BEGIN EXCLUSIVE")  # a backup, an engineer's query
@@ -67,7 +58,7 @@ async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_a
             await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
             assert (await client.get("/health", headers=AUTH)).status_code == 200
 
-    rows = _read(db_path, "SELECT seq, at, action, state_before, state_after FROM audit_log WHERE seq > ? ORDER BY seq", last_seq)
+    rows = read_store(db_path, "SELECT seq, at, action, state_before, state_after FROM audit_log WHERE seq > ? ORDER BY seq", last_seq)
     actions = [r[2] for r in rows]
     assert "command:hold" in actions and "alarm.acknowledge_all" in actions, rows
     hold = rows[actions.index("command:hold")]
@@ -78,7 +69,7 @@ async def test_commands_and_acknowledgements_during_a_lock_reach_the_audit_log_a
     assert [(a[4], b[3]) for a, b in zip(states, states[1:]) if a[4] != b[3]] == [], states  # no state change missing
     assert any(r[2] == "state_complete" and (r[3], r[4]) == ("HOLDING", "HELD") for r in rows), rows
     assert actions.index("command:hold") < actions.index("alarm.acknowledge_all"), actions  # in the order they happened
-    acked = _read(db_path, "SELECT ack_by FROM alarms WHERE code = ?", RECORD_WRITE_FAILED)
+    acked = read_store(db_path, "SELECT ack_by FROM alarms WHERE code = ?", RECORD_WRITE_FAILED)
     assert acked and all(by is not None for (by,) in acked), acked  # the acknowledgement is in the alarm history
 
 

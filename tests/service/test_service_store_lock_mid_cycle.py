@@ -16,7 +16,7 @@ from typing import Any
 
 import httpx
 import pytest
-from shared_support import eventually
+from shared_support import eventually, read_store
 from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
 
 from cellctl.domain import CycleStep
@@ -54,16 +54,8 @@ def _lock_from(service: Any, db_path: Path, step: CycleStep) -> Iterator[sqlite3
         holder.close()
 
 
-def _read(db_path: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:
-    db = sqlite3.connect(f"file:{db_path}?mode=ro", uri=True)
-    try:
-        return db.execute(sql, args).fetchall()
-    finally:
-        db.close()
-
-
 def _open_steps(db_path: Path, cid: int) -> list[tuple[Any, ...]]:
-    return _read(db_path, "SELECT step, attempt FROM cycle_steps WHERE cycle_id = ? AND finished_at IS NULL", cid)
+    return read_store(db_path, "SELECT step, attempt FROM cycle_steps WHERE cycle_id = ? AND finished_at IS NULL", cid)
 
 
 async def test_a_lock_during_the_inspection_keeps_the_installed_glass_done_with_its_measurement(tmp_path: Path) -> None:
@@ -81,15 +73,15 @@ async def test_a_lock_during_the_inspection_keeps_the_installed_glass_done_with_
             holder.execute("COMMIT")  # the other process lets go
         await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
 
-        (state, error, install, result, true_error), = _read(
+        (state, error, install, result, true_error), = read_store(
             db_path, "SELECT state, error, install_started_at, result_json, true_error_json FROM cycles WHERE id = ?", cid)
         truth = json.loads(true_error)
         assert all(abs(truth[k]) < 0.5 for k in ("dx_mm", "dy_mm", "dz_mm")), truth  # the twin: a good glass
         assert state == "done" and error is None and install is not None, (state, error)
         assert json.loads(result)["measured_deviation"] is not None, result
         assert _open_steps(db_path, cid) == []  # the inspect step is closed too
-        assert _read(db_path, "SELECT name FROM cycle_images WHERE cycle_id = ? AND name = 'inspect'", cid)
-        codes = {c for (c,) in _read(db_path, "SELECT code FROM alarms")}
+        assert read_store(db_path, "SELECT name FROM cycle_images WHERE cycle_id = ? AND name = 'inspect'", cid)
+        codes = {c for (c,) in read_store(db_path, "SELECT code FROM alarms")}
         assert TASK_FAILED not in codes and RECORD_WRITE_FAILED in codes, codes
 
         await back_to_execute(client)  # no restart: the cell takes the next cycle
@@ -113,13 +105,13 @@ async def test_a_lock_before_the_install_fails_the_cycle_as_a_store_fault_not_a_
             holder.execute("COMMIT")
         await eventually("alarm 1703 to clear once everything kept is written", lambda: _cleared(client), 30.0)
 
-        (state, error, install, result), = _read(
+        (state, error, install, result), = read_store(
             db_path, "SELECT state, error, install_started_at, result_json FROM cycles WHERE id = ?", cid)
         assert state == "failed" and install is None, (state, install)
         assert json.loads(result)["error_code"] == RECORD_WRITE_FAILED, (error, result)
         assert "software fault" not in error and ("1703" in error or "store" in error), error
         assert _open_steps(db_path, cid) == []
-        codes = {c for (c,) in _read(db_path, "SELECT code FROM alarms")}
+        codes = {c for (c,) in read_store(db_path, "SELECT code FROM alarms")}
         assert TASK_FAILED not in codes and RECORD_WRITE_FAILED in codes, codes  # the code the record gives is in the history
 
 
