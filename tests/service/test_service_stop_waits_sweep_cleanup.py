@@ -15,7 +15,8 @@ from service_test_support import AUTH, api_client, build_service, sim_config, to
 pytestmark = pytest.mark.timeout(120)
 
 
-async def test_stop_command_waits_for_the_sweeps_clean_up(tmp_path: Path, monkeypatch: Any) -> None:
+@pytest.mark.parametrize("commands", [("stop",), ("hold", "abort")], ids=["stop", "hold-then-abort"])
+async def test_a_stop_waits_for_the_sweeps_clean_up(tmp_path: Path, monkeypatch: Any, commands: tuple[str, ...]) -> None:
     from cellctl.cell import sweep
 
     moving, cleaned = asyncio.Event(), asyncio.Event()
@@ -51,8 +52,8 @@ async def test_stop_command_waits_for_the_sweeps_clean_up(tmp_path: Path, monkey
             cid = r.json().get("cycle_id") or r.json().get("id")
             await asyncio.wait_for(moving.wait(), timeout=30.0)
             t0 = time.monotonic()
-            r = await client.post("/commands/stop", headers=AUTH)
-            assert r.status_code == 200, r.text
+            answers = await asyncio.gather(*(client.post(f"/commands/{c}", headers=AUTH) for c in commands))  # at once
+            assert all(r.status_code == 200 for r in answers), [r.text for r in answers]
             # poll the REST record until the cycle has ended
             for _ in range(400):
                 rec = (await client.get(f"/cycles/{cid}")).json()

@@ -242,7 +242,7 @@ class CellOrchestrator:
         robot's stop) and wait for its end, clean-up included. One already recording its outcome is let finish."""
         if (task := self._cycle_task) is None:
             return
-        halted = not (task.done() or self._finishing)  # else it is recording its outcome already: let it
+        halted = not (task.done() or self._finishing or self.robot.halted)  # else recording its outcome, or stopped already
         if halted:
             self._stop_reason = reason
             self.robot.halt(reason)  # the cycle starts no motion and releases no glass from now on

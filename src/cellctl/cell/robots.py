@@ -72,6 +72,10 @@ class TrackedRobot(RobotProxy):
     def moving(self) -> bool:
         return self._moves > 0
 
+    @property
+    def halted(self) -> bool:
+        return self._halted is not None
+
     def halt(self, why: str) -> None:
         """From now until :meth:`resume`, :meth:`move`, :meth:`set_gripper` and :meth:`in_motion` raise MotionHalted."""
         self._halted = why
