@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import AsyncIterator, Iterator
+from contextlib import asynccontextmanager, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,19 @@ def _lock_from(service: Any, db_path: Path, step: CycleStep) -> Iterator[sqlite3
         holder.close()
 
 
+@asynccontextmanager
+async def _cycle_under_lock(service: Any, client: httpx.AsyncClient, step: CycleStep,
+                            key: str) -> AsyncIterator[tuple[sqlite3.Connection, Path, int]]:
+    """The cell in Execute, the store locked from the cycle's ``step`` on (:func:`_lock_from`), and that cycle asked
+    for: (the lock's holder, the store file, the cycle's id)."""
+    await to_execute(client)
+    db_path = (await service.store.info()).path
+    with _lock_from(service, db_path, step) as holder:
+        r = await client.post("/cycle", json={"recipe": "side-window", "part_id": f"P-{key}"},
+                              headers={**AUTH, "Idempotency-Key": key})  # fmt: skip
+        yield holder, db_path, r.json()["cycle_id"]
+
+
 def _open_steps(db_path: Path, cid: int) -> list[tuple[Any, ...]]:
     return read_store(db_path, "SELECT step, attempt FROM cycle_steps WHERE cycle_id = ? AND finished_at IS NULL", cid)
 
@@ -61,12 +74,7 @@ def _open_steps(db_path: Path, cid: int) -> list[tuple[Any, ...]]:
 async def test_a_lock_during_the_inspection_keeps_the_installed_glass_done_with_its_measurement(tmp_path: Path) -> None:
     cfg = sim_config(plc={"enabled": False}, store={"busy_timeout_s": 0.3})
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
-        await to_execute(client)
-        db_path = (await service.store.info()).path
-        with _lock_from(service, db_path, CycleStep.INSPECT) as holder:
-            r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "P-LOCK-INSPECT"},
-                                  headers={**AUTH, "Idempotency-Key": "lock-inspect"})  # fmt: skip
-            cid = r.json()["cycle_id"]
+        async with _cycle_under_lock(service, client, CycleStep.INSPECT, "lock-inspect") as (holder, db_path, cid):
             await eventually("alarm 1703 (the cycle's end is kept)", lambda: _alarm_active(client, RECORD_WRITE_FAILED), 30.0)
             assert (await client.get("/status")).json()["current_cycle"] is None
             assert holder.in_transaction
@@ -93,12 +101,7 @@ async def test_a_lock_during_the_inspection_keeps_the_installed_glass_done_with_
 async def test_a_lock_before_the_install_fails_the_cycle_as_a_store_fault_not_a_software_fault(tmp_path: Path) -> None:
     cfg = sim_config(plc={"enabled": False}, store={"busy_timeout_s": 0.3})
     async with running_service(tmp_path, cfg) as service, api_client(service) as client:
-        await to_execute(client)
-        db_path = (await service.store.info()).path
-        with _lock_from(service, db_path, CycleStep.ALIGN) as holder:
-            r = await client.post("/cycle", json={"recipe": "side-window", "part_id": "P-LOCK-ALIGN"},
-                                  headers={**AUTH, "Idempotency-Key": "lock-align"})  # fmt: skip
-            cid = r.json()["cycle_id"]
+        async with _cycle_under_lock(service, client, CycleStep.ALIGN, "lock-align") as (holder, db_path, cid):
             await eventually("alarm 1703", lambda: _alarm_active(client, RECORD_WRITE_FAILED), 30.0)
             st = await eventually("the cycle to end", lambda: _settled(client), 30.0)
             assert st["state"] == "HELD" and st["stop_reason"]["code"] == RECORD_WRITE_FAILED, st

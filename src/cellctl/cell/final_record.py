@@ -62,16 +62,9 @@ class FinalRecords:
 
     def __init__(self, store: AsyncCellStore, alarms: AlarmManager, events: EventHub, *, retry_s: float = RETRY_S) -> None:
         self.store = store
-        self.alarms = alarms
         self.events = events
-        self.retry_s = retry_s
         self.writes = WriteBehind(store, alarms, retry_s=retry_s)
         """Every store write of the cell that must not be lost: steps, audit entries, alarms, final records."""
-
-    @property
-    def unwritten(self) -> list[int]:
-        """The cycles whose final record the store has not taken yet, oldest first."""
-        return [w.cycle_id for w in self.writes.kept if w.what.endswith(_FINAL) and w.cycle_id is not None]
 
     async def write(self, record: FinalRecord) -> bool:
         """Write ``record`` (after anything kept before it, e.g. its steps); on a store fault keep it, alarm, and retry.
@@ -84,21 +77,14 @@ class FinalRecords:
             if kept:
                 log.warning("cycle %d: its final record (%s) is written now", record.cycle_id, record.state)
 
-        what = f"cycle {record.cycle_id} ({record.state}): {_FINAL}"
+        what = f"cycle {record.cycle_id} ({record.state}): its final record"
         call = partial(write, record.cycle_id, **record.fields)
         return await self.writes.write(KeptWrite(what, call, record.as_json(), record.cycle_id, written))
-
-    async def flush(self) -> bool:
-        """Write what is kept, in order; the alarm clears once all is written. True if nothing is left."""
-        return await self.writes.flush()
 
     async def stop(self) -> None:
         """Stop retrying after one last attempt; what is still unwritten is in the log (the next start marks the
         cycles it leaves running interrupted)."""
         await self.writes.stop()
-
-
-_FINAL = "its final record"
 
 
 async def despite_store_fault(write: Awaitable[object], what: str) -> None:
