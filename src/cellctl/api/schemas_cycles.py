@@ -83,7 +83,9 @@ class CycleBrief(BaseModel):
     current_step: str
     result: dict[str, Any] | None = Field(description="ok, error_code, correction_mm, correction_deg, shots, cycle_time_s")
     error: str | None = Field(description="why it failed")
-    true_error: dict[str, Any] | None = Field(description="the simulated cell's known install error (None on hardware)")
+    true_error: dict[str, Any] | None = Field(
+        description="the simulated cell's known install error (None on hardware, and for a cycle whose install never began)"
+    )
     measured_deviation: InstallDeviation | None = Field(
         description="the install deviation the cell measured after the install: gaps in the image (dx, dy, drz) and "
         "the laser's flush (dz, drx, dry), against the opening; None when not measured"

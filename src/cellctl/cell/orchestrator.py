@@ -454,7 +454,8 @@ class CellOrchestrator:
                 )  # fmt: skip
                 figures = {"error_code": code, "cycle_time_s": elapsed, **times, "step_time_s": rec.step_times_s(),
                            "spc": spc, "calibration_version": self._calibration_read.get("version")}
-                await self.records.write(FinalRecord.failed(cycle_id, reason, figures, self._true_error()))
+                true_error = self._true_error() if rec.installing else None  # no glass went in: nothing to score
+                await self.records.write(FinalRecord.failed(cycle_id, reason, figures, true_error))
         finally:
             self._current = self._busy = None
             with contextlib.suppress(Exception):

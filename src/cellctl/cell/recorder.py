@@ -57,6 +57,11 @@ class StoreRecorder:
         self._step_s: dict[str, float] = {}
 
     @property
+    def installing(self) -> bool:
+        """The install marker is written: the glass may be in the opening (its error means something)."""
+        return self._installing
+
+    @property
     def open_step(self) -> CycleStep | None:
         """The step running now (None before the first and after the last)."""
         return self._open
