@@ -41,7 +41,7 @@ from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.loader import check_tokens, format_validation_errors
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
-from cellctl.service.compose import ServiceConfigError
+from cellctl.service.compose import ServiceClockBehind, ServiceConfigError
 from cellctl.service.compose import ServiceError as BuildError
 from cellctl.store.records import StoreError
 
@@ -222,12 +222,18 @@ def write_json_lines_atomically(path: Path, items: Iterable[dict[str, Any]]) -> 
     return n
 
 
+OPEN_END = datetime(9999, 12, 31, tzinfo=timezone.utc)
+"""The ``until`` sent without ``--until``: the cell applies its own bound (its latest install's end), whatever this
+host's clock says, and answers it (the next export's ``--since``)."""
+
+
 def _cmd_parts_export(args: argparse.Namespace) -> int:
     since = _moment("--since", args.since)
-    until = _moment("--until", args.until) or datetime.now(timezone.utc)
-    if since is not None and until <= since:
+    until = _moment("--until", args.until)
+    if since is not None and until is not None and until <= since:
         raise UsageError(f"--until ({until.isoformat()}) must be later than --since ({since.isoformat()})")
-    bound = [until.isoformat()]  # the cell's clock may stand behind this host's: it answers the bound it applied
+    until = until or OPEN_END
+    bound = [until.isoformat()]  # the cell may apply an earlier bound: it answers the bound it applied
     installs = _client(args).parts(car_id=args.car_id, since=since, until=until, applied=lambda b: bound.__setitem__(0, b))
     if args.output == "-":
         try:
@@ -256,8 +262,8 @@ def _cmd_parts_show(args: argparse.Namespace) -> int:
     for i in installs:
         verdict = "running" if i["ok"] is None else "OK" if i["ok"] else f"NOT OK ({i['error_code']}: {i['reason']})"
         took = "" if i["cycle_time_s"] is None or i["state"] == "interrupted" else f" in {i['cycle_time_s']:.1f} s"
-        print(f"cycle {i['cycle_id']}: {i['state']} {verdict}{took}; car {i['car_id'] or '-'}, recipe {i['recipe']}, "
-              f"calibration set {i['calibration_version'] or '-'}, ended {i['finished_at'] or i['interrupted_at'] or '-'}")  # fmt: skip
+        print(f"cycle {i['cycle_id']}: {i['state']} {verdict}{took}; car {i['car_id'] or '-'}, recipe {i['recipe']} "
+              f"({i.get('recipe_settings') or '-'}), calibration set {i['calibration_version'] or '-'}, ended {i['finished_at'] or i['interrupted_at'] or '-'}")  # fmt: skip
         print(f"    measured (gaps, flush): {_fmt_six(i['measured_deviation'])}")
         steps = ", ".join(
             f"{s['step']} {'ok' if s['ok'] else 'open' if s['ok'] is None else 'FAILED'}"
@@ -371,7 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = parts.add_parser("export", help="write the installs that ended in a window as JSON lines (GET /parts documents)")
     add_remote_options(p)
     p.add_argument("--since", required=True, metavar="ISO", help=f"installs that ended at or after this time ({TIME_HELP})")
-    p.add_argument("--until", default=None, metavar="ISO", help="installs that ended before this time (default: now; the next export's --since)")
+    p.add_argument("--until", default=None, metavar="ISO", help="installs that ended before this time (default: the cell's latest install end; "
+                   "the bound applied is in the count line: the next export's --since)")
     p.add_argument("--car-id", default=None, metavar="CAR_ID", help="only this car body's installs")
     p.add_argument("--output", default="-", metavar="FILE", help="file to write (replaced atomically), or - for standard output (default)")
     p.set_defaults(func=_cmd_parts_export)
@@ -398,6 +405,12 @@ def build_parser() -> argparse.ArgumentParser:
         _global_options(leaf, top=False)
     return parser
 
+
+CLOCK_BEHIND = ("This computer's clock stands behind the certificate's start (started before NTP set the clock, or a "
+                "flat RTC battery): exit 1, so systemd starts the service again (deploy/cellctl.service: "
+                "Restart=on-failure, within its start limit) and it comes up once the clock is right; enable "
+                "systemd-time-wait-sync.service or chrony-wait.service so that it waits for the clock (README, Deployment)")
+"""What `serve` adds when a certificate it presents is not valid yet (:class:`ServiceClockBehind`)."""
 
 SIGPIPE_EXIT = 128 + signal.SIGPIPE
 """The exit status when the reader of standard output stopped (`cellctl config check | head -1`): quiet, as a
@@ -440,6 +453,9 @@ def main(argv: list[str] | None = None) -> int:
     except ServiceConfigError as err:  # a file the configuration names, found unusable at start: a restart cannot help
         refuse(f"error: {err}")
         return 2
+    except ServiceClockBehind as err:  # a certificate not valid yet: the clock stands behind, a restart once it is right cures it
+        refuse(f"error: {err}. {CLOCK_BEHIND}")
+        return 1
     except (ServiceError, BuildError, StoreError) as err:  # StoreError: a database file serve cannot use, named
         refuse(f"error: {err}")
         return 1

@@ -61,7 +61,8 @@ def test_a_certificate_outside_its_dates_is_refused_with_them(
     cfg = _config(tmp_path, pki, api_port=free_port())  # serve refuses before it binds anything
     done = subprocess.run([sys.executable, "-m", "cellctl.cli", "--config", str(cfg), "serve",
                            "--workdir", str(tmp_path)], capture_output=True, text=True, timeout=90, cwd=ROOT)  # fmt: skip
-    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    # not valid yet: the clock stands behind, a restart once it is synced helps (exit 1, restarted); expired: exit 2
+    assert done.returncode == (1 if case == "not yet valid" else 2) and "Traceback" not in done.stderr, done.stderr
     assert f"error: the REST API cannot serve HTTPS: {line}" in done.stderr and "cellctl serving" not in done.stdout
 
 

@@ -63,8 +63,8 @@ def test_missing_failed_expired_stale_and_future_parts_stop_production(tmp_path:
     store.commit("laser", failed, now=NOW)
     problems = check_ready(store.current(), NOW + timedelta(days=1))
     assert any(p.startswith("laser: the last calibration failed (plane seen from too few directions)") for p in problems)
-    # A part dated in the future points at a wrong clock.
-    assert any("in the future" in p for p in check_ready(store.current(), NOW - timedelta(days=1)))
+    # A part dated further in the future than its validity points at a wrong clock.
+    assert any("in the future" in p for p in check_ready(store.current(), NOW - timedelta(days=91)))
     # Nothing at all.
     assert "no calibration set" in check_ready(None, NOW)[0]
     with pytest.raises(CalibrationSetError, match="laser is failed"):

@@ -30,7 +30,7 @@ from cellctl.api.routes_cycles import cycle_view
 from cellctl.api.schemas import SQLITE_INT_MAX, ErrorBody
 from cellctl.api.schemas_parts import ImageStatus, PartAction, PartHistory, PartImage, PartInstall, PartsPage
 from cellctl.cell.orchestrator import CellOrchestrator
-from cellctl.cell.outcome import calibration_version_of, result_message
+from cellctl.cell.outcome import calibration_version_of, recipe_settings_of, result_message
 from cellctl.store.parts import MAX_PAGE
 from cellctl.store.parts import PartInstall as StoredInstall
 from cellctl.store.records import MAX_TEXT_LEN, ImageRef
@@ -129,7 +129,8 @@ def part_install(image_dir: Path, install: StoredInstall) -> PartInstall:
         cycle_id=record.id, recipe=view.recipe, part_id=view.part_id, car_id=view.car_id, source=view.source,
         actor=view.actor, state=view.state, created_at=view.created_at, started_at=view.started_at,
         finished_at=view.finished_at, install_started_at=view.install_started_at, interrupted_at=iso(record.interrupted_at),
-        interrupted_step=view.interrupted_step, calibration_version=calibration_version_of(record),
+        ended_at=iso(install.ended_at), interrupted_step=view.interrupted_step, calibration_version=calibration_version_of(record),
+        recipe_settings=recipe_settings_of(record),
         ok=outcome.get("ok"), error_code=outcome.get("error_code"), reason=outcome.get("reason"),
         measured_deviation=view.measured_deviation, correction_mm=outcome.get("correction_mm") if corrected else None,
         correction_deg=outcome.get("correction_deg") if corrected else None, cycle_time_s=outcome.get("cycle_time_s"),
@@ -151,8 +152,8 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     async def list_parts(
         car_id: Annotated[str | None, Query(min_length=1, max_length=MAX_TEXT_LEN, description="the car body")] = None,
         part_id: Annotated[str | None, Query(min_length=1, max_length=MAX_TEXT_LEN, description="the glass")] = None,
-        since: Annotated[Moment | None, Query(description=f"installs that ended at or after this time ({TIME_FORMAT})")] = None,
-        until: Annotated[Moment | None, Query(description="installs that ended before this time (same format)")] = None,
+        since: Annotated[Moment | None, Query(description=f"installs that ended (`ended_at`) at or after this time ({TIME_FORMAT})")] = None,
+        until: Annotated[Moment | None, Query(description="installs that ended before this time (same format; see the answer's `until`)")] = None,
         limit: int = Query(50, ge=1, le=PAGE_MAX, description="installs per page"),
         after: int | None = Query(None, ge=0, le=SQLITE_INT_MAX, description="the previous page's `next`"),
     ) -> PartsPage:

@@ -204,6 +204,7 @@ class CalibrationSummary(BaseModel):
     damaged: str | None = Field(None, description="why the set's file cannot be used, and what to do")
     template_px: list[float] | None = Field(None, description="oracle: the template corner (u, v) once computed")
     recipes: dict[str, RecipeReadiness] = Field({}, description="each recipe of [[process.recipes]], by name")
+    warnings: list[str] = Field([], description="parts used although dated ahead of the cell's clock (check its NTP)")
 
 
 class CalibrationVersion(BaseModel):

@@ -71,8 +71,16 @@ class PartInstall(BaseModel):
     interrupted_at: str | None = Field(description=(
         "when the service's stop cut the cycle off, as far as its record shows: its last step start or end or image "
         "(else its start); its record was closed, and a since/until window lists it, when the service next started"))
+    ended_at: str | None = Field(None, description=(
+        "when the cell closed the record (done, failed, or interrupted when the service next started), the time a "
+        "since/until window is on: the cell's clock, but never before an earlier record's, so a clock stepped back "
+        "puts no install into a window already exported (null while the cycle runs)"))
     interrupted_step: str | None
     calibration_version: str | None = Field(description="the calibration set version the cycle ran with")
+    recipe_settings: str | None = Field(None, description=(
+        "the id of the recipe's settings the cycle ran with (`settings-` and 12 hex digits of their SHA-256: the tables "
+        "a recipe may set and the tolerance, as that recipe's view holds them); another id under the same recipe name "
+        "is an edited definition (null: recorded before the cell kept it)"))
     ok: bool | None = Field(description="installed and measured inside the tolerance; null while the cycle runs")
     error_code: int | None = Field(description="0 when ok, else the alarm code that says why (null while it runs)")
     reason: str | None = Field(description="why it is not ok (empty when ok)")
@@ -93,8 +101,9 @@ class PartsPage(BaseModel):
 
     installs: list[PartInstall]
     next: int | None = Field(description="pass as ?after= (same filters) for the next page; null on the last page")
-    until: str | None = Field(None, description="the window's end as applied (ISO 8601, UTC): `until`, or the cell's "
-                              "clock when `until` lies ahead of it; pass it as `until` for the next pages and as the "
+    until: str | None = Field(None, description="the window's end as applied (ISO 8601, UTC): `until`, but no later "
+                              "than the latest install's `ended_at` + 1 us (every later install ends at or after it) and "
+                              "never before `since` (an empty window); pass it as `until` for the next pages and as the "
                               "next window's `since`")
 
 

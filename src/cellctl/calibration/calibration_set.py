@@ -17,8 +17,8 @@ refuses production until it is redone. Loading validates every field and names t
 wrong. :class:`CalibrationStore` keeps the history: ``set-000001.json``, ``set-000002.json``...
 in one folder and a ``current`` file naming the version in use; every change writes a new
 version (never edits an old one) and moves the pointer atomically. :func:`cellctl.calibration.readiness.check_ready` lists
-everything that stops production: a part missing, failed, expired, dated in the future, or
-computed from a part that has since been replaced.
+everything that stops production: a part missing, failed, expired, dated further in the future than its
+validity, or computed from a part that has since been replaced.
 """
 
 from __future__ import annotations

@@ -3,13 +3,18 @@ computed from the parts the set holds now; one line per problem, each naming the
 
 A part is in date until :func:`expires_utc`: its calibration time plus the shorter of the validity recorded with it
 (``valid_days``, the ``calibration.max_age_days`` in force when it was calibrated) and the running configuration's
-``calibration.max_age_days`` (lowering the limit applies at once; raising it, to parts calibrated after)."""
+``calibration.max_age_days`` (lowering the limit applies at once; raising it, to parts calibrated after).
+
+A part dated ahead of the cell's clock (calibrated while the clock was ahead; NTP has stepped it back since) counts its
+age from the earlier of its date and now, so it is used, with a warning, and still expires on :func:`expires_utc`; one
+dated more than its validity ahead is refused as calibrated in the future."""
 
 from __future__ import annotations
 
+import logging
 import os
 import shlex
-from datetime import datetime, timedelta
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from cellctl.calibration.calibration_set import (
@@ -27,6 +32,12 @@ from cellctl.calibration.set_parts import PartRecord, TeachingPart
 from cellctl.calibration.taught_shot import shot_problem
 from cellctl.config import CellConfig
 
+log = logging.getLogger(__name__)
+
+AHEAD_UNSAID = timedelta(minutes=5)
+"""A part dated less than this ahead of the cell's clock is not warned about (two hosts' clocks, a slewing NTP)."""
+_warned: set[tuple[str, str]] = set()  # (part id, label): each logged once per process, not at every status poll
+
 
 def valid_days(part: PartRecord, config: CellConfig | None = None) -> float:
     """How many days ``part`` counts from its calibration: its recorded ``valid_days``, capped by ``config``'s
@@ -35,7 +46,8 @@ def valid_days(part: PartRecord, config: CellConfig | None = None) -> float:
 
 
 def expires_utc(part: PartRecord, config: CellConfig | None = None) -> datetime | None:
-    """When ``part`` stops counting for production (UTC): ``calibrated_utc`` + :func:`valid_days`; None for a failed part."""
+    """When ``part`` stops counting for production (UTC): ``calibrated_utc`` + :func:`valid_days`; None for a failed part.
+    (Its age counts from the earlier of ``calibrated_utc`` and now: a part dated ahead of the clock ends there too.)"""
     if part.status == "failed":
         return None
     return part.calibrated_utc + timedelta(days=valid_days(part, config))
@@ -50,11 +62,13 @@ def check_ready(
     config: CellConfig | None = None,
     parts: tuple[str, ...] = PART_NAMES,
     store_root: Path | None = None,
+    warnings: list[str] | None = None,
 ) -> list[str]:
     """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
     ``parts`` limits the check to those parts (e.g. ``RECIPE_PART_NAMES``: the recipe's own). A part is a problem
-    when it is missing, failed, expired (:func:`expires_utc`, given the cell's ``config``), dated in the future, or was
+    when it is missing, failed, expired (:func:`expires_utc`, given the cell's ``config``), dated more than its validity
+    in the future (less: a warning, logged once and added to ``warnings`` if given, not a problem), or was
     computed from a part that has since been replaced (stale); a teaching is one when it was
     taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
     or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
@@ -85,8 +99,15 @@ def check_ready(
                 f"{label}: expired on {expires:%Y-%m-%d %H:%M} UTC (calibrated {p.calibrated_utc:%Y-%m-%d}, "
                 f"valid {days:g} days{by}); run `{cmd}`"
             )
-        if p.calibrated_utc > now + timedelta(minutes=5):
-            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC); check the clock")
+        ahead = p.calibrated_utc - now
+        if ahead >= timedelta(days=valid_days(p, config)):
+            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC), over its validity of "
+                            f"{valid_days(p, config):g} days ahead of this cell's clock ({_utc(now)}); check the clock, "
+                            f"or run `{cmd}` again")  # fmt: skip
+        elif ahead > AHEAD_UNSAID and expires is not None:
+            _warn((p.id, label), f"{label}: calibrated {p.calibrated_utc:%Y-%m-%d %H:%M} UTC, ahead of this cell's clock "
+                        f"({_utc(now)}); used, its age counted from now, and it expires as dated, on "
+                        f"{expires:%Y-%m-%d %H:%M} UTC; check the clock (NTP)", warnings)  # fmt: skip
         taught_for = getattr(getattr(p, "values", None), "recipe", None)
         wanted = recipe or first_recipe
         if taught_for is not None and wanted is not None and taught_for != wanted:
@@ -109,6 +130,35 @@ def check_ready(
                 problems.append(f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
                                 + _offline_way(name, p, store_root))
     return problems
+
+
+def dated_ahead(
+    cal: CalibrationSet | None,
+    now: datetime,
+    *,
+    recipe: str | None = None,
+    first_recipe: str | None = None,
+    config: CellConfig | None = None,
+    parts: tuple[str, ...] = PART_NAMES,
+) -> list[str]:
+    """The warnings of :func:`check_ready` (same arguments): parts dated ahead of the cell's clock ``now`` (UTC) by more
+    than AHEAD_UNSAID and less than their validity, used for production; one line each, naming the part and its date."""
+    warnings: list[str] = []
+    check_ready(cal, now, recipe=recipe, first_recipe=first_recipe, config=config, parts=parts, warnings=warnings)
+    return warnings
+
+
+def _utc(when: datetime) -> str:
+    return f"{when.astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC"
+
+
+def _warn(key: tuple[str, str], text: str, into: list[str] | None) -> None:
+    """``text`` into ``into`` (if given), and into the log once per ``key`` (part id, label)."""
+    if into is not None:
+        into.append(text)
+    if key not in _warned:
+        _warned.add(key)
+        log.warning("calibration: %s", text)
 
 
 def _offline_way(name: str, p: PartRecord, store_root: Path | None) -> str:

@@ -7,6 +7,7 @@ import logging
 import os
 import ssl
 import stat
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -345,9 +346,16 @@ def _key_mismatch(cert_path: Path, key_path: Path) -> str:
     return f"api.tls_key: {key_path} is not the private key of api.tls_cert {cert_path}; give the certificate's own key"
 
 
+class NotValidYet(str):
+    """A problem line of :meth:`ApiConfig.tls_problems` saying api.tls_cert is not valid yet by this computer's clock:
+    the clock stands behind (at boot, before NTP), so a start once it is right succeeds (``serve`` exits 1, not 2)."""
+
+    __slots__ = ()
+
+
 def _leaf_dates_problems(cert_path: Path) -> list[str]:
-    """The served (first) certificate of ``cert_path`` outside its validity, as [problem]; a warning logged when it
-    expires within EXPIRY_WARNING_DAYS; [] otherwise."""
+    """The served (first) certificate of ``cert_path`` outside its validity, as [problem] (a :class:`NotValidYet` when it
+    starts after this computer's clock); a warning logged when it expires within EXPIRY_WARNING_DAYS; [] otherwise."""
     from cryptography import x509
 
     try:
@@ -355,10 +363,13 @@ def _leaf_dates_problems(cert_path: Path) -> list[str]:
     except (OSError, ValueError, IndexError):  # OpenSSL has just loaded it: nothing more to say
         return []
     fix = "have the plant's CA issue a new one, and restart the service"
-    problem, warning = certificate_dates(leaf, f"api.tls_cert: {cert_path}", fix)
+    now = datetime.now(timezone.utc)
+    problem, warning = certificate_dates(leaf, f"api.tls_cert: {cert_path}", fix, now=now)
     if warning is not None:
         log.warning("%s", warning)
-    return [problem] if problem is not None else []
+    if problem is None:
+        return []
+    return [NotValidYet(problem) if now < leaf.not_valid_before_utc else problem]
 
 
 class _PassphraseAsked(Exception):

@@ -12,6 +12,7 @@ import logging
 import os
 import re
 import ssl
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,6 +38,11 @@ NEW_CLIENT_CERTIFICATE = "have the plant's CA issue a new client certificate, an
 
 class MqttSetupError(ValueError):
     """A credential or TLS file named in [mqtt] cannot be used; the message names the field and the fix."""
+
+
+class MqttCertificateNotValidYet(MqttSetupError):
+    """mqtt.tls.cert_file starts after this computer's clock: the clock stands behind (at boot, before NTP), so a start
+    once it is right succeeds (``serve`` exits 1, not 2)."""
 
 
 def _resolve(path: Path, workdir: Path) -> Path:
@@ -155,10 +161,11 @@ def _check_validity(cert: str) -> None:
     except ValueError as err:
         raise MqttSetupError(f"mqtt.tls.cert_file: {cert} is not a PEM certificate ({err}); give the client "
                              "certificate the plant's CA issued, PEM") from None
+    now = datetime.now(timezone.utc)
     problem, warning = certificate_dates(leaf, f"mqtt.tls.cert_file: {cert}", NEW_CLIENT_CERTIFICATE,
-                                         refused="the broker refuses it")
+                                         refused="the broker refuses it", now=now)
     if problem is not None:
-        raise MqttSetupError(problem)
+        raise (MqttCertificateNotValidYet if now < leaf.not_valid_before_utc else MqttSetupError)(problem)
     if warning is not None:
         log.warning("%s", warning)
 

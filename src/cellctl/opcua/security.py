@@ -15,6 +15,7 @@ import logging
 import os
 import socket
 from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +24,10 @@ from asyncua.crypto import cert_gen, uacrypto
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.ua.ua_binary import struct_from_binary
 from cryptography import x509
-from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import rsa
 from cryptography.hazmat.primitives.serialization import Encoding
-from cryptography.x509.oid import ExtendedKeyUsageOID
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from cellctl.config.api import open_to_everyone
 from cellctl.config.certificates import certificate_dates
@@ -36,6 +37,9 @@ from cellctl.folders import folder_problem
 log = logging.getLogger(__name__)
 
 CERT_VALID_DAYS = 3650
+CERT_BACKDATE = timedelta(days=1)
+"""A certificate the server makes is valid from this long before it was made: a clock stepped back after the first start
+(NTP, chrony's makestep, a flat RTC battery's day) does not make it "not valid yet"."""
 
 
 @dataclass
@@ -209,6 +213,11 @@ class ServerCertificateError(ValueError):
     """The server's certificate (opcua.certificate) or key (opcua.private_key) cannot be read or made; names the fix."""
 
 
+class CertificateNotValidYet(ServerCertificateError):
+    """opcua.certificate starts after this computer's clock: the clock stands behind (at boot, before NTP), so a start
+    once it is right succeeds (``serve`` exits 1, not 2)."""
+
+
 def _folder_message(field: str, path: Path, why: str) -> str:
     return (f"{field} {path}: its folder {path.parent} cannot be created or written ({why}); set opcua.certificate and "
             "opcua.private_key to files in a folder the service can write (e.g. /var/lib/cellctl/opcua/server-cert.der"
@@ -272,9 +281,10 @@ def check_server_certificate_dates(cert_path: Path, cert: x509.Certificate) -> N
     warning logged when it expires within EXPIRY_WARNING_DAYS."""
     fix = (f"give a renewed certificate (the same application URI and key), or delete {cert_path} and its key to have "
            "new ones made (and give the new certificate to the plant's clients)")
-    problem, warning = certificate_dates(cert, f"opcua.certificate {cert_path}", fix)
+    now = datetime.now(timezone.utc)
+    problem, warning = certificate_dates(cert, f"opcua.certificate {cert_path}", fix, now=now)
     if problem is not None:
-        raise ServerCertificateError(problem)
+        raise (CertificateNotValidYet if now < cert.not_valid_before_utc else ServerCertificateError)(problem)
     if warning is not None:
         log.warning("%s", warning)
 
@@ -308,7 +318,8 @@ def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) ->
     dates) or the key cannot be loaded.
 
     RSA 2048 / SHA-256, SubjectAltName the application URI, this host's name, localhost and
-    127.0.0.1, valid ten years; the key is written readable by the service's user only.
+    127.0.0.1, valid from a day before now (:data:`CERT_BACKDATE`) for ten years; the key is written readable by the
+    service's user only.
     """
     if cert_path.is_file() and key_path.is_file():
         check_server_certificate_dates(cert_path, load_server_certificate(cert_path))
@@ -318,10 +329,7 @@ def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) ->
     host = socket.gethostname()
     names: list[x509.GeneralName] = [x509.UniformResourceIdentifier(application_uri), x509.DNSName(host),
                                      x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]  # fmt: skip
-    cert = cert_gen.generate_self_signed_app_certificate(
-        key, f"cellctl {host}", {"organizationName": "cellctl"}, names,
-        extended=[ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH], days=CERT_VALID_DAYS,
-    )  # fmt: skip
+    cert = self_signed_certificate(key, f"cellctl {host}", names, datetime.now(timezone.utc))
     for field, path in (("opcua.private_key", key_path), ("opcua.certificate", cert_path)):
         try:
             if path is key_path:
@@ -332,6 +340,35 @@ def ensure_certificate(cert_path: Path, key_path: Path, application_uri: str) ->
             why = _writable_folder_problem(path.parent) or err.strerror or str(err)
             raise ServerCertificateError(_folder_message(field, path, why)) from None
     return True
+
+
+def self_signed_certificate(
+    key: rsa.RSAPrivateKey, common_name: str, names: list[x509.GeneralName], now: datetime
+) -> x509.Certificate:
+    """The server's self-signed application certificate (OPC 10000-6 6.2.2), as asyncua's
+    ``cert_gen.generate_self_signed_app_certificate`` makes it (subject CN and O=cellctl, the same extensions and key
+    usage, server and client authentication) but valid from ``now`` (UTC) - CERT_BACKDATE to ``now`` + CERT_VALID_DAYS
+    (asyncua's starts at the instant it is made and takes no start)."""
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+                         x509.NameAttribute(NameOID.ORGANIZATION_NAME, "cellctl")])  # fmt: skip
+    serial = x509.random_serial_number()
+    key_id = x509.SubjectKeyIdentifier.from_public_key(key.public_key())
+    usage = x509.KeyUsage(digital_signature=True, content_commitment=True, key_encipherment=True, data_encipherment=True,
+                          key_agreement=False, key_cert_sign=True, crl_sign=False, encipher_only=False,
+                          decipher_only=False)  # fmt: skip
+    builder = (
+        x509.CertificateBuilder().subject_name(subject).issuer_name(subject).serial_number(serial)
+        .not_valid_before(now - CERT_BACKDATE).not_valid_after(now + timedelta(days=CERT_VALID_DAYS))
+        .public_key(key.public_key())
+        .add_extension(key_id, critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier(key_id.digest, [x509.DirectoryName(subject)], serial), critical=False)
+        .add_extension(x509.SubjectAlternativeName(names), critical=False)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=False)
+        .add_extension(usage, critical=False)
+        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                       critical=False)
+    )  # fmt: skip
+    return builder.sign(private_key=key, algorithm=hashes.SHA256())
 
 
 def _write_new(path: Path, data: bytes, mode: int) -> None:

@@ -64,6 +64,13 @@ class ServiceConfigError(ServiceError):
     ``serve`` exits 2, not 1 (a port another program holds can clear; that stays a ServiceError)."""
 
 
+class ServiceClockBehind(ServiceError):
+    """A certificate the service presents (opcua.certificate, api.tls_cert, mqtt.tls.cert_file) is not valid yet by this
+    computer's clock: the clock stands behind (at boot before NTP has set it, a flat RTC battery). A start once the clock
+    is right succeeds, so ``serve`` exits 1 and systemd starts it again (deploy/cellctl.service: Restart=on-failure);
+    an expired or unusable certificate stays a ServiceConfigError (exit 2)."""
+
+
 @dataclass
 class Service:
     """Everything the running cell is made of."""
@@ -102,7 +109,7 @@ class Service:
             self.orchestrator.note_link("plc", "waiting")  # until the PLC's first heartbeat
             log.info("PLC Modbus TCP server on %s:%d", self.config.plc.host, server.port)
         if self.config.opcua.enabled:
-            from cellctl.opcua.security import ServerCertificateError
+            from cellctl.opcua.security import CertificateNotValidYet, ServerCertificateError
             from cellctl.opcua.server import CellOpcUaServer, OpcUaPortInUse, OpcUaStartError
             from cellctl.service.opcua_link import OpcUaCellLink
 
@@ -115,7 +122,9 @@ class Service:
                 await opcua.stop()
                 await self.stop()
                 can_clear = isinstance(err, (OSError, OpcUaPortInUse))  # a port in use; the rest is the configuration
-                raise (ServiceError if can_clear else ServiceConfigError)(f"the OPC UA server cannot start: {err}") from None
+                kind = ServiceError if can_clear else ServiceConfigError
+                kind = ServiceClockBehind if isinstance(err, CertificateNotValidYet) else kind  # a restart cures it
+                raise kind(f"the OPC UA server cannot start: {err}") from None
             self.opcua_server = opcua
             log.info("OPC UA server on %s", opcua.endpoint)
         for hook in self.after_start:
@@ -162,6 +171,7 @@ class Service:
         stopped either way (devices, a running job cancelled, the store closed).
         """
         from cellctl.api.app import create_app
+        from cellctl.config.api import NotValidYet
         from cellctl.service.http import make_server
 
         api = self.config.api.rooted(self.workdir)  # token files and TLS files taken from the workdir
@@ -172,7 +182,9 @@ class Service:
         demo: asyncio.Task[None] | None = None
         try:
             if problems := api.tls_problems(self.workdir):  # before anything starts: uvicorn would fail only once up
-                raise ServiceConfigError("the REST API cannot serve HTTPS: " + "; ".join(problems))
+                behind = all(isinstance(p, NotValidYet) for p in problems)  # the clock stands behind: a restart cures it
+                kind = ServiceClockBehind if behind else ServiceConfigError
+                raise kind("the REST API cannot serve HTTPS: " + "; ".join(problems))
             if self.config.mode == "hardware" and (warning := api.plain_http_warning()) is not None:
                 log.warning("%s", warning)
             await self.start()
@@ -341,6 +353,7 @@ async def assemble_service(
     # -- issue 18 item 3: MQTT publication to the plant's broker (cellctl.mqtt; docs/mqtt.md)
     if config.mqtt.enabled:
         from cellctl.mqtt import MqttPublication, MqttSetupError
+        from cellctl.mqtt.publication import MqttCertificateNotValidYet
 
         mqtt = MqttPublication(config.mqtt, orch, workdir=root)
         orch.add_status("mqtt", mqtt.status)
@@ -350,7 +363,8 @@ async def assemble_service(
             try:
                 await mqtt.start()
             except MqttSetupError as err:
-                raise ServiceConfigError(f"MQTT publication cannot start: {err}") from None
+                kind = ServiceClockBehind if isinstance(err, MqttCertificateNotValidYet) else ServiceConfigError
+                raise kind(f"MQTT publication cannot start: {err}") from None
 
         service.after_start.append(start_mqtt)
         service.closers.append(mqtt.stop)  # after the orchestrator, before the store closes

@@ -8,6 +8,10 @@ over REST, say) use the same keys table through :meth:`CycleRows.claim_key`.
 The install-started marker: :meth:`CycleRows.begin_step` for :attr:`CycleStep.INSTALL` writes it
 and commits *before* the caller commands the robot; a cycle with that marker never gets its install
 step again, whatever happens (a trigger in the schema keeps it from being unset).
+
+A cycle that ends (done, failed, or interrupted at recovery) gets ``ended_at``, its end stamp (:func:`end_stamp`): the
+store's clock, but never before the latest end stamp, so a wall clock stepped back does not stamp it into a time window
+an MES already exported (:mod:`cellctl.store.parts`).
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import hashlib
 import json
 import sqlite3
 from collections.abc import Mapping
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from cellctl.domain import CycleStep
@@ -193,12 +197,14 @@ class CycleRows(Database):
         self, cycle_id: int, *, result: Mapping[str, Any], true_error: Mapping[str, Any] | None = None
     ) -> CycleRecord:
         """running -> done, with the result (and, in simulation, the true error)."""
+        now = self._clock()
         self._transition(
             cycle_id,
             "running",
             "state = 'done', finished_at = ?, current_step = 0, result_json = ?, true_error_json = ?",
-            (ts(self._clock()), to_json("result", dict(result)), _opt_json("true_error", true_error)),
+            (ts(now), to_json("result", dict(result)), _opt_json("true_error", true_error)),
             "complete",
+            ends=now,
         )
         return self.cycle(cycle_id)
 
@@ -212,12 +218,14 @@ class CycleRows(Database):
     ) -> CycleRecord:
         """queued or running -> failed, saying why."""
         need("error", error)
+        now = self._clock()
         self._transition(
             cycle_id,
             ("queued", "running"),
             "state = 'failed', finished_at = ?, error = ?, result_json = ?, true_error_json = ?",
-            (ts(self._clock()), error, _opt_json("result", result), _opt_json("true_error", true_error)),
+            (ts(now), error, _opt_json("result", result), _opt_json("true_error", true_error)),
             "fail",
+            ends=now,
         )
         return self.cycle(cycle_id)
 
@@ -225,7 +233,8 @@ class CycleRows(Database):
         """interrupted -> running, only if its install never started (else InstallAlreadyStarted).
 
         The interrupted step stays recorded; the orchestrator decides where to pick up (typically
-        re-measuring from align, since the car or the robot may have moved).
+        re-measuring from align, since the car or the robot may have moved). It has not ended any more: its end
+        stamp is cleared until it ends again.
         """
         with self._tx() as c:
             state, install_started = self._cycle_state(c, cycle_id)
@@ -233,7 +242,10 @@ class CycleRows(Database):
                 raise CycleStateError(cycle_id, f"is {state.value}; only an interrupted cycle can be resumed")
             if install_started is not None:
                 raise InstallAlreadyStarted(cycle_id, install_started)
-            c.execute("UPDATE cycles SET state = 'running', current_step = 0, error = NULL WHERE id = ?", (cycle_id,))
+            c.execute(
+                "UPDATE cycles SET state = 'running', current_step = 0, error = NULL, ended_at = NULL WHERE id = ?",
+                (cycle_id,),
+            )
         return self.cycle(cycle_id)
 
     def cycle(self, cycle_id: int) -> CycleRecord:
@@ -356,8 +368,17 @@ class CycleRows(Database):
         return CycleState(row[0]), dt(row[1])
 
     def _transition(
-        self, cycle_id: int, from_states: str | tuple[str, ...], set_sql: str, args: tuple[Any, ...], verb: str
+        self,
+        cycle_id: int,
+        from_states: str | tuple[str, ...],
+        set_sql: str,
+        args: tuple[Any, ...],
+        verb: str,
+        *,
+        ends: datetime | None = None,
     ) -> None:
+        """``ends``: the cycle ends at this time of the store's clock, and gets its :func:`end_stamp` in the same
+        transaction."""
         allowed = (from_states,) if isinstance(from_states, str) else from_states
         with self._tx() as c:
             state, _ = self._cycle_state(c, cycle_id)
@@ -365,7 +386,34 @@ class CycleRows(Database):
                 raise CycleStateError(
                     cycle_id, f"is {state.value}; it can {verb} only when {' or '.join(allowed)}"
                 )
+            if ends is not None:
+                set_sql, args = f"{set_sql}, ended_at = ?", (*args, end_stamp(c, ends))
             c.execute(f"UPDATE cycles SET {set_sql} WHERE id = ?", (*args, cycle_id))
+
+
+END_STEP = timedelta(microseconds=1)
+"""The least step between end stamps (the stored resolution)."""
+
+
+def latest_end(c: sqlite3.Connection) -> datetime | None:
+    """The latest end stamp the store gave (UTC; before any cycle ended, the floor an export's bound set less 1 us), None
+    before either: one row read, however many cycles."""
+    row = c.execute("SELECT ended_at FROM cycle_end_mark WHERE id = 1").fetchone()
+    return None if row is None else dt(row[0])
+
+
+def end_stamp(c: sqlite3.Connection, now: datetime) -> str:
+    """The end stamp (stored text) of cycles ending ``now`` in the open write transaction ``c``, kept as the latest.
+
+    It is ``now`` (the store's wall clock), but never earlier than the latest end stamp + :data:`END_STEP`: a clock
+    stepped back (NTP) does not stamp an end before one already given, so an export bound no later than the latest
+    end stamp + :data:`END_STEP` has every later end at or after it.
+    """
+    latest = latest_end(c)
+    stamp = ts(now if latest is None else max(now, latest + END_STEP))
+    c.execute("INSERT INTO cycle_end_mark (id, ended_at) VALUES (1, :t) ON CONFLICT (id) DO UPDATE SET ended_at = :t",
+              {"t": stamp})  # fmt: skip
+    return stamp
 
 
 def _hash_request(identity: Mapping[str, Any]) -> str:

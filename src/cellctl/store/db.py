@@ -36,7 +36,7 @@ from cellctl.domain import CycleStep
 from cellctl.store.alarms import AlarmRows
 from cellctl.store.audit import AuditRows
 from cellctl.store.connection import StoreInfo, ts
-from cellctl.store.cycles import CycleRows
+from cellctl.store.cycles import CycleRows, end_stamp
 from cellctl.store.jobs import JobRows
 from cellctl.store.outbox import OutboxRows
 from cellctl.store.parts import PartRows
@@ -88,13 +88,15 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
 
         Every cycle left queued or running by a process that died becomes ``interrupted`` with
         the step it was in, ``interrupted_at`` when it was cut off as far as its record shows (its
-        newest step start or end or image, else its start, else its submission; UTC) and
-        ``interrupted_found_at`` now; steps left open get an error; alarms left active are closed
-        (the watchdog re-raises what is still wrong); in-flight idempotency keys of non-cycle
-        requests are released (their effect is unknown; the cell restarts in Aborted anyway).
+        newest step start or end or image, else its start, else its submission; UTC),
+        ``interrupted_found_at`` now and its end stamp (:func:`~cellctl.store.cycles.end_stamp`); steps
+        left open get an error; alarms left active are closed (the watchdog re-raises what is still
+        wrong); in-flight idempotency keys of non-cycle requests are released (their effect is unknown;
+        the cell restarts in Aborted anyway).
         Calling it again finds nothing.
         """
-        now = ts(self._clock())
+        clock = self._clock()
+        now = ts(clock)
         with self._tx() as c:
             rows = c.execute(
                 "SELECT id, state, current_step, install_started_at FROM cycles "
@@ -103,12 +105,13 @@ class CellStore(CycleRows, AlarmRows, AuditRows, JobRows, SpcRows, RetentionRows
             found = tuple(
                 InterruptedCycle(int(r[0]), CycleState(r[1]), CycleStep(r[2]), r[3] is not None) for r in rows
             )
+            ended = end_stamp(c, clock) if found else None  # the latest end stamp moves only when a cycle ends
             c.execute(  # with its reason, as a failed cycle has one (REST, the PLC, OPC UA and MQTT show it)
                 "UPDATE cycles SET state = 'interrupted', interrupted_step = current_step, "
-                f"interrupted_at = {cut_off_at(':found')}, interrupted_found_at = :found, "
+                f"interrupted_at = {cut_off_at(':found')}, interrupted_found_at = :found, ended_at = :ended, "
                 "error = COALESCE(error, CASE WHEN state = 'queued' THEN :queued WHEN install_started_at IS NULL "
                 "THEN :before ELSE :after END) WHERE state IN ('queued', 'running')",
-                dict(zip(("found", "queued", "before", "after"), (now, *INTERRUPTED_REASONS), strict=True)),
+                dict(zip(("found", "ended", "queued", "before", "after"), (now, ended, *INTERRUPTED_REASONS), strict=True)),
             )
             c.execute(
                 "UPDATE cycle_steps SET error = 'interrupted: the cell process stopped during this step' "

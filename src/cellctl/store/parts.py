@@ -7,13 +7,19 @@ acknowledged by whom, cleared). ``GET /parts`` and ``cellctl parts export`` are 
 :meth:`PartRows.part_installs`.
 
 Filters combine (AND): the car body (``car_id``), the glass (``part_id``) and a time window.
-The window is on when the cycle's record *ended*: ``finished_at``, or for a cycle the service
-died in ``interrupted_found_at``, when the next start closed its record (its ``interrupted_at``,
-when it was cut off, may lie in a window an MES already exported while the cycle still ran).
+The window is on the cycle's end stamp ``ended_at``, when the store closed its record: done or
+failed, or for a cycle the service died in when the next start closed it (its ``interrupted_at``,
+when it was cut off, may lie in a window an MES already exported while the cycle still ran). The
+end stamp is the store's clock but never earlier than the latest one before it
+(:func:`~cellctl.store.cycles.end_stamp`), so a wall clock stepped back (NTP) stamps no end into a
+window already exported; ``finished_at`` keeps the wall clock's time.
 ``since`` is inclusive and ``until`` exclusive, so back-to-back windows ``[a, b)``, ``[b, c)``
-list every ended install exactly once (what an MES export polls for); a window lists ended
-cycles only (a queued or running one has no end yet, and its record is not final). Without a
-window, queued and running cycles are listed too.
+list every ended install exactly once (what an MES export polls for) when ``b`` is the bound the
+first one applied (:attr:`PartPage.until`): never later than the latest end stamp + 1 us (before
+any end, than the store's clock, which the first end stamp then keeps as its floor), so every
+later end falls at or after it, and never earlier than ``since`` (an empty window, the cell's
+stamps standing behind ``since``). A window lists ended cycles only (a queued or running one has
+no end yet, and its record is not final). Without a window, queued and running cycles are listed too.
 
 Paging: ascending cycle id (the order the cell ran them). ``after_id`` is the previous page's
 :attr:`PartPage.next_after`; a page that is not full is the last (``next_after`` None).
@@ -28,15 +34,15 @@ from typing import Any
 from cellctl.domain import Alarm
 from cellctl.store.alarms import ALARM_COLUMNS, alarm_from_row
 from cellctl.store.audit import AUDIT_COLUMNS, audit_entry
-from cellctl.store.connection import Database, ts
-from cellctl.store.cycles import CYCLE_COLUMNS, full_cycle
+from cellctl.store.connection import Database, dt, ts
+from cellctl.store.cycles import CYCLE_COLUMNS, END_STEP, full_cycle, latest_end
 from cellctl.store.records import AuditEntry, CycleRecord
 
 MAX_PAGE = 1000
 """The most installs one :meth:`PartRows.part_installs` call returns."""
 
-ENDED_AT = "COALESCE(finished_at, interrupted_found_at)"
-"""When a cycle's record ended, the time the window filters on (recovery sets ``interrupted_found_at``)."""
+ENDED_AT = "ended_at"
+"""The column the window filters on: the cycle's end stamp (NULL while it has not ended)."""
 
 
 @dataclass(frozen=True)
@@ -49,10 +55,12 @@ class CycleActions:
 
 @dataclass(frozen=True)
 class PartInstall:
-    """One install: the cycle record with its steps and images, and the actions filed under it."""
+    """One install: the cycle record with its steps and images, the actions filed under it, and its end stamp (UTC;
+    None while it has not ended), the time the window is on."""
 
     record: CycleRecord
     actions: CycleActions
+    ended_at: datetime | None = None
 
 
 @dataclass(frozen=True)
@@ -61,7 +69,7 @@ class PartPage:
 
     installs: tuple[PartInstall, ...]
     next_after: int | None
-    until: datetime | None = None  # the window's end as applied: never past the store's clock at the query
+    until: datetime | None = None  # the window's end as applied: see the module's doc
 
 
 class PartRows(Database):
@@ -91,8 +99,8 @@ class PartRows(Database):
                 args.append(value)
         if since is not None and until is not None and until <= since:
             raise ValueError(f"until ({until.isoformat()}) must be later than since ({since.isoformat()})")
-        if until is not None:  # an install ending later than now would miss this window and the next one
-            until = min(until, self._clock())
+        if until is not None:  # an install ending later would otherwise miss this window and the next one
+            until = self._applied_until(since, until)
         if since is not None:
             where.append(f"{ENDED_AT} >= ?")
             args.append(ts(since))
@@ -102,12 +110,30 @@ class PartRows(Database):
         if after_id is not None:
             where.append("id > ?")
             args.append(int(after_id))
-        sql = f"SELECT {CYCLE_COLUMNS} FROM cycles"
+        sql = f"SELECT {CYCLE_COLUMNS}, {ENDED_AT} FROM cycles"
         if where:
             sql += " WHERE " + " AND ".join(where)
         rows = self._conn.execute(f"{sql} ORDER BY id LIMIT ?", (*args, limit + 1)).fetchall()
-        page = tuple(PartInstall(record, self.cycle_actions(record.id)) for record in (full_cycle(self._conn, r) for r in rows[:limit]))
+        page = tuple(
+            PartInstall(record, self.cycle_actions(record.id), dt(r[-1]))
+            for r, record in ((r, full_cycle(self._conn, r[:-1])) for r in rows[:limit])
+        )
         return PartPage(page, page[-1].record.id if len(rows) > limit else None, until)
+
+    def _applied_until(self, since: datetime | None, until: datetime) -> datetime:
+        """The window's end as applied: ``until``, but no later than the latest end stamp + 1 us (every later end falls
+        at or after it, whatever the wall clock does), and no earlier than ``since`` (an empty window). Before any
+        cycle ended, no later than the store's clock, kept as the floor of the first end stamp (written once)."""
+        latest = latest_end(self._conn)
+        if latest is not None:
+            bound = min(until, latest + END_STEP)
+        else:
+            bound = min(until, self._clock())
+            with self._tx() as c:  # an end already stamped meanwhile keeps its stamp (and was or will be listed)
+                c.execute(
+                    "UPDATE cycle_end_mark SET ended_at = ? WHERE id = 1 AND ended_at IS NULL", (ts(bound - END_STEP),)
+                )
+        return bound if since is None else max(since, bound)
 
     def cycle_actions(self, cycle_id: int) -> CycleActions:
         """The audit entries and alarms filed under ``cycle_id`` (both empty for an unknown cycle)."""

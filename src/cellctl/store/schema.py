@@ -298,8 +298,24 @@ WHERE interrupted_at IS NOT NULL;
 ``interrupted_found_at``, when the next start found it (what ``interrupted_at`` held before). Cycles interrupted
 before this version get both from what they recorded; a cycle resumed after it counts only what came before."""
 
+V10_END_STAMP = """
+ALTER TABLE cycles ADD COLUMN ended_at TEXT;
+UPDATE cycles SET ended_at = COALESCE(finished_at, interrupted_found_at) WHERE state IN ('done', 'failed', 'interrupted');
+CREATE INDEX cycles_by_ended ON cycles (ended_at);
+CREATE TABLE cycle_end_mark (
+    id        INTEGER PRIMARY KEY CHECK (id = 1),
+    ended_at  TEXT
+);
+INSERT INTO cycle_end_mark (id, ended_at) SELECT 1, MAX(ended_at) FROM cycles;
+"""
+"""The time window of ``GET /parts`` runs on ``ended_at``, when the store closed a cycle's record, which never goes back
+when the wall clock steps back (:func:`cellctl.store.cycles.end_stamp`); ``finished_at`` and ``interrupted_found_at``
+keep the wall clock's time. ``cycle_end_mark`` (one row) keeps the latest end stamp, retention's deletions aside (before
+any cycle ended, the bound an export applied less 1 us: the floor of the first end stamp).
+Cycles ended before this version get the time the window ran on before."""
+
 MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE,
-                             V8_INTERRUPTED_REASONS, V9_INTERRUPTED_CUT_OFF)
+                             V8_INTERRUPTED_REASONS, V9_INTERRUPTED_CUT_OFF, V10_END_STAMP)
 """``MIGRATIONS[i]`` brings the database from version i to i + 1."""
 
 NAME_THE_FIRST_RECIPES_LOOP = (
