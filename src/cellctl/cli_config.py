@@ -11,6 +11,7 @@ from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.devices import AbbRobotDevice, SimAbbDevice
 from cellctl.config.loader import check_tokens
+from cellctl.config.settings_id import recipe_settings_id
 from cellctl.cli_args import default_workdir
 from cellctl.commissioning.wall_plan import wall_plan
 from cellctl.folders import calibration_folder_problem
@@ -54,26 +55,37 @@ def _speeds(config: CellConfig) -> str:
 
 
 def _recipe(config: CellConfig, name: str) -> str:
-    """A recipe as the summary shows it: its PLC number, its opening, and the sections it sets."""
-    recipe = next(r for r in config.process.recipes if r.name == name)
-    o = config.for_recipe(name).layout.opening
+    """A recipe as the summary shows it: its PLC number, its opening, the sections it sets, and its settings' id (the
+    records' ``recipe_settings``)."""
+    recipe, view = next(r for r in config.process.recipes if r.name == name), config.for_recipe(name)
+    o = view.layout.opening
     own = ", ".join(recipe.overrides())
     return (f"{recipe.id} {name}: opening {o.width_mm:g} x {o.height_mm:g} mm, corner radius {o.corner_radius_mm:g} mm"
-            f" at {tuple(round(v, 1) for v in o.corner_position_mm)}; " + (f"its own {own}" if own else "the cell's settings"))
+            f" at {tuple(round(v, 1) for v in o.corner_position_mm)}; " + (f"its own {own}" if own else "the cell's settings")
+            + f"; {recipe_settings_id(view)}")
 
 
-def wall_reading_in_use(config: CellConfig) -> str:
-    """Which of the wall plan's choices this configuration's cycle makes, as far as the file tells."""
+def wall_reading_in_use(config: CellConfig, who: str = "this cell") -> str:
+    """Which of the wall plan's choices this configuration's cycle makes (``who``'s: the cell's, a recipe's view), as far
+    as the file tells."""
     if config.process.align.mode == "stop_and_go":
-        return "this cell: stop and go (process.align.mode)"
+        return f"{who}: stop and go (process.align.mode)"
     robot, no_egm = config.devices.robot, None
     if isinstance(robot, AbbRobotDevice) and robot.egm_port is None:
         no_egm = "devices.robot.egm_port = 0"
     elif isinstance(robot, SimAbbDevice) and not robot.egm:
         no_egm = "devices.robot.egm = false"
     if no_egm is not None:
-        return f"this cell: standing along the path (process.align.mode = 'on_the_fly', but {no_egm}: the robot streams no pose)"
-    return "this cell: on the move (process.align.mode), standing along the path in a cycle whose devices cannot"
+        return f"{who}: standing along the path (process.align.mode = 'on_the_fly', but {no_egm}: the robot streams no pose)"
+    return f"{who}: on the move (process.align.mode), standing along the path in a cycle whose devices cannot"
+
+
+def wall_readings(config: CellConfig, who: str = "this cell") -> list[str]:
+    """The wall plan's lines for ``config`` (a recipe's view: its own align on its opening) and the choice in use."""
+    try:
+        return wall_plan(config).lines() + [wall_reading_in_use(config, who)]
+    except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
+        return [f"cannot be predicted from process.align on [layout]: {err}"]
 
 
 def _check_files(config: CellConfig, workdir: Path) -> bool:
@@ -177,11 +189,12 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print(f"OK: {args.config}")
     for line in summary(config):
         print(f"  {line}")
-    try:
-        plan = wall_plan(config).lines() + [wall_reading_in_use(config)]
-    except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)
-        plan = [f"cannot be predicted from process.align on [layout]: {err}"]
-    print("  wall readings           " + "\n                          ".join(plan))
+    print("  wall readings           " + "\n                          ".join(wall_readings(config)))
+    for recipe in (r for r in config.process.recipes if r.align):  # a recipe's own spots or sweep: its own prediction
+        lines = wall_readings(config.for_recipe(recipe.name), "this recipe")
+        label = f"wall readings ({recipe.name})"
+        head = f"{label:<23} " if len(label) < 24 else f"{label}\n                          "  # too long: a line of its own
+        print(f"  {head}" + "\n                          ".join(lines))
     read = SECRETS_READ + (PORTS_FREE if ports_checked else PORTS_NOT_CHECKED)
     print("  secrets                 " + (read if args.secrets else
                                           "not read (--secrets reads the API tokens, OPC UA passwords and certificates)"))  # fmt: skip

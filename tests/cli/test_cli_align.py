@@ -30,14 +30,17 @@ def test_a_refused_alignment_is_one_line_naming_the_spot_to_move(tmp_path: Path,
     assert "run 1:" not in out  # nothing ran
 
 
-def test_a_spot_out_of_the_robots_reach_is_refused_on_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_spot_out_of_the_robots_reach_is_refused_at_load(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     text = SIM.read_text(encoding="utf-8")
     cfg = tmp_path / "cell.toml"  # 9 m along the car body from the opening: beyond the IRB 7600's 3.1 m reach
     cfg.write_text(text.replace(SPOT_ON_THE_WALL, "[-9000.0, 1560.0]"), encoding="utf-8")
-    load_config(cfg)
-    rc, _, err = run_cli(capsys, "--config", str(cfg), "align", "--runs", "1")
-    assert rc == 1 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    assert err.startswith("cellctl align: run 1 refused: target out of reach"), err
+    k = [list(map(float, s)) for s in load_config(SIM).process.align.spots_mm].index([-1000.0, 1560.0])
+    said = rf"process\.align\.spots_mm\[{k}\] \[-9000, 1560\]: the laser's pose that reads it .* out of reach"
+    with pytest.raises(ConfigError, match=said):
+        load_config(cfg)  # refused at load (config.reach), before the robot could refuse it
+    rc, out, err = run_cli(capsys, "--config", str(cfg), "align", "--runs", "1")
+    assert rc == 2 and "Traceback" not in err and f"process.align.spots_mm[{k}] [-9000, 1560]" in err, err
+    assert "run 1:" not in out  # nothing ran
 
 
 @pytest.mark.parametrize(("seed", "said"), [("-1", "--seed must be ≥ 0 (got -1)"), ("one", "--seed expected a whole number")])

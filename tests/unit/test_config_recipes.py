@@ -26,6 +26,7 @@ def _data(*recipes: dict[str, Any]) -> dict[str, Any]:
     data = tomllib.loads((ROOT / "config" / "sim.toml").read_text())
     # the cell's flush spots: ones on both windows' glass (sim.toml's door window's), as DOOR sets no inspect
     data["process"]["inspect"]["flush_spots"] = data["process"]["recipes"][1]["inspect"]["flush_spots"]
+    data["process"]["inspect"]["sweep_path_mm"] = data["process"]["recipes"][1]["inspect"]["sweep_path_mm"]
     data.setdefault("process", {})["recipes"] = [{"id": 1, "name": "side-window"}, *recipes]
     return data
 

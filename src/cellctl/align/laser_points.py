@@ -8,7 +8,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.align.errors import AlignmentError
-from cellctl.geometry.pose import Pose, apply_pose, make_pose
+from cellctl.geometry.aiming import flange_pose_at_spot
+from cellctl.geometry.pose import Pose, apply_pose
 
 UNIT_TOLERANCE = 1e-6
 
@@ -87,8 +88,7 @@ def flange_pose_for_spot(
     Solves eq. 1 backwards: p_H = spot - R (r + standoff * l).
     """
     rv, lv = check_laser_ray(r, l)
-    R = np.asarray(R_X_H, dtype=float)
-    return make_pose(R, np.asarray(spot_X, dtype=float) - R @ (rv + standoff_mm * lv))
+    return flange_pose_at_spot(spot_X, R_X_H, rv, lv, standoff_mm)
 
 
 def plan_spot_poses(

@@ -75,12 +75,3 @@ def workpiece_frame_from_corner(
     x /= np.linalg.norm(x)
     y = np.cross(n, x)
     return make_pose(np.column_stack([x, y, n]), p0)
-
-
-def nominal_shooting_pose(
-    T_B_T0: ArrayLike, T_H_C: ArrayLike, working_distance_mm: float, aim_mm: tuple[float, float] = (0.0, 0.0)
-) -> Pose:
-    """The flange pose that puts the camera square to the wall at the working distance, its axes
-    along T0's and its optical axis through T0's point ``aim_mm`` (the corner by default)."""
-    T_T0_C = make_pose(np.eye(3), [float(aim_mm[0]), float(aim_mm[1]), -float(working_distance_mm)])
-    return check_pose(T_B_T0, "T_B_T0") @ T_T0_C @ np.linalg.inv(check_pose(T_H_C, "T_H_C"))

@@ -42,6 +42,7 @@ from cellctl.cell.tags import not_ready_for_cycle
 from cellctl.cell.watchdog import DeviceWatchdog
 from cellctl.config.feature import shot_feature
 from cellctl.config.schema import CellConfig
+from cellctl.config.settings_id import recipe_settings_id
 from cellctl.domain import AlarmCode, CycleStep, PackMLCommand, PackMLState
 from cellctl.memory import release_free_memory
 from cellctl.ports import DeviceError
@@ -397,16 +398,16 @@ class CellOrchestrator:
         reference = self._calibration_read = self.calibration.reference(recipe)
         self._loop_recipe = recipe  # each recipe's installs feed its own closed loop
         self._applied_offset = self.quality.offset_for_next(recipe, reference)
-        await rec.step_figures(CycleStep.CALIBRATE, {"calibration": reference, "install_offset": self._applied_offset})
+        view = self.config.for_recipe(recipe)
+        figures = {"calibration": reference, "install_offset": self._applied_offset, "recipe_settings": recipe_settings_id(view)}
+        await rec.step_figures(CycleStep.CALIBRATE, figures)
         if self.truth is not None:
             self.truth.new_car_body(recipe)
         try:
-            # file reads (and the oracle's teaching) off the loop
-            cal = await asyncio.to_thread(self.calibration.cycle_calibration, recipe)
+            cal = await asyncio.to_thread(self.calibration.cycle_calibration, recipe)  # off the loop: file reads, the oracle
         except CalibrationRefused as err:  # the set changed (or was damaged) since problems() was asked
             raise CycleFailed(CycleStep.CALIBRATE, AlarmCode.CALIBRATION_INVALID, str(err)) from err
         offset = self.quality.offset_as_pose(self._applied_offset)
-        view = self.config.for_recipe(recipe)
         return await run_cycle(
             self.devices, cal, view.process, view.vision, rec, install_offset=offset, laser_timing=self.laser_timing,
             feature=shot_feature(view),

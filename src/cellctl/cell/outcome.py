@@ -118,6 +118,15 @@ def calibration_version_of(record: CycleRecord) -> str | None:
     return None if v is None else str(v)
 
 
+def recipe_settings_of(record: CycleRecord) -> str | None:
+    """The id of the recipe's settings the cycle ran with (:mod:`cellctl.config.settings_id`), from its calibrate step."""
+    v = (record.result or {}).get("recipe_settings")
+    for step in record.steps if v is None else ():
+        if step.step is CycleStep.CALIBRATE and step.figures.get("recipe_settings") is not None:
+            return str(step.figures["recipe_settings"])
+    return None if v is None else str(v)
+
+
 def result_message(record: CycleRecord) -> dict[str, Any] | None:
     """A finished cycle's result as the plant reads it (OPC UA, MQTT, the MES export); None while it runs.
 
@@ -148,6 +157,7 @@ def result_message(record: CycleRecord) -> dict[str, Any] | None:
         "correction_deg": [float(v) for v in res.get("correction_deg") or (0.0, 0.0, 0.0)] if corrected else None,
         "cycle_time_s": s.cycle_time_s,
         "calibration_version": s.calibration_version,
+        "recipe_settings": recipe_settings_of(record),
         "started_at": None if record.started_at is None else record.started_at.isoformat(),
         "finished_at": None if record.finished_at is None else record.finished_at.isoformat(),
     }

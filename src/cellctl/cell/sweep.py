@@ -132,7 +132,8 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     latency moved to this sweep's storage start (:mod:`cellctl.cell.sweep_start`; refused beyond the tolerance).
 
     Each reading's laser point is taken into T2 and sorted by where it falls: on the glass (inside
-    the glass's edge) or on the wall (outside the opening's), none within the margin of an edge. The
+    the glass's edge) or on the wall (outside the opening's, past its far sides too: the outline of the
+    recipe's own opening, ``run.process.opening``), none within the margin of an edge. The
     legs whose planned ends lie on different surfaces cross an edge; the step at each crossing comes
     from that leg's readings alone (:mod:`cellctl.inspection.flush_crossing`).
     """
@@ -154,12 +155,12 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
     legs = np.where(swept.moving[inside], swept.legs[inside], -1)
     try:
         flush, crossings, missing = await asyncio.to_thread(  # the settle at a leg's end is not mirrored at its start: left out
-            flush_from_sweep, pts, legs, insp.sweep_path_mm,
+            flush_from_sweep, pts, legs, insp.sweep_path_mm, opening=run.process.opening,
             gap_mm=insp.nominal_gap_mm, margin_mm=insp.sweep_margin_mm, max_rms_mm=insp.max_flush_rms_mm,
         )  # fmt: skip
     except FlushError as err:
         raise CycleFailed(CycleStep.INSPECT, AlarmCode.INSPECTION_FAILED, str(err)) from err
-    surface = surface_at(pts[:, :2], insp.nominal_gap_mm, insp.sweep_margin_mm)
+    surface = surface_at(pts[:, :2], insp.nominal_gap_mm, insp.sweep_margin_mm, run.process.opening)
     rows = [{"at_mm": [round(c.x_mm, 1), round(c.y_mm, 1)], "step_mm": c.step_mm, "glass_readings": c.glass_readings,
              "wall_readings": c.wall_readings} for c in crossings]  # fmt: skip
     figures = swept.figures | {"readings_out_of_range": int(np.count_nonzero(~inside)),

@@ -26,7 +26,7 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
 from cellctl.calibration.poses import PosePlan, plan_board_views, plan_laser_poses
-from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.geometry.aiming import nominal_shooting_pose
 from cellctl.config.feature import shot_aim_mm
 from cellctl.config.calibration_procedure import BoardConfig
 from cellctl.config.schema import CellConfig
@@ -323,8 +323,10 @@ def _need(cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str |
     return cal
 
 
-def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None) -> MotionPlan:
-    """Laser spots around the opening from the nominal shooting pose (teaching's alignment)."""
+def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None,
+                  recipe: str | None = None) -> MotionPlan:  # fmt: skip
+    """Laser spots around the opening from the nominal shooting pose (teaching's alignment) of ``config``, the view
+    of ``recipe`` when the job names one (its out-of-reach refusal then names the recipe's settings)."""
     cal = _need(cal, "teaching", "camera", "hand_eye", "laser")
     T_H_C = cal.T_H_C()
     r, l = cal.laser_ray()  # noqa: E741
@@ -343,10 +345,21 @@ def plan_teaching(config: CellConfig, cal: CalibrationSet | None, *, start: Pose
         poses.append(X)
         labels.append(f"spot {k}")
     if dropped:
-        raise PlanError("teaching: " + "; ".join(dropped) + f"; move {ac.wall_setting()} or the layout's opening")
+        raise PlanError("teaching: " + "; ".join(dropped) + f"; move {_wall_and_opening(config, recipe)}")
     details = {"shooting_start": np.asarray(shoot, dtype=float).tolist(), "spots_mm": [list(s) for s in ac.wall_spots_mm()],
                "stops": list(ac.wall_stops()), "hand_guided_installs": config.calibration.procedure.teach.hand_guided_installs}  # fmt: skip
     return make_plan(config, "teaching", poses, labels, dropped, start, details)
+
+
+def _wall_and_opening(config: CellConfig, recipe: str | None) -> str:
+    """The settings that place teaching's wall readings and the opening: a recipe's own when the job names one."""
+    setting = config.process.align.wall_setting()
+    index = next((k for k, r in enumerate(config.process.recipes) if r.name == recipe), None)
+    if index is None:
+        return f"{setting} or the layout's opening"
+    own = f"process.recipes[{index}] ({recipe}): {setting.removeprefix('process.')}"
+    return (f"{own} or opening.corner_position_mm (the recipe's [process.recipes.align] and [process.recipes.opening]; "
+            f"where it sets none, the cell's {setting} and [layout.opening])")
 
 
 def plan_nine_point(

@@ -255,7 +255,7 @@ async def collect_teaching(ctx: JobContext, *, recipe: str | None = None) -> Dat
     """Align at the reference car body (of ``recipe``; None: the first), take the template image, record the hand-guided installs."""
     cal = _need(ctx.calibration, "teaching", "camera", "hand_eye", "laser")
     config = ctx.config
-    plan = await asyncio.to_thread(plan_teaching, config, cal, start=await current_pose(ctx))
+    plan = await asyncio.to_thread(plan_teaching, config, cal, start=await current_pose(ctx), recipe=recipe)
     head = config.layout.laser_mount
     tc = config.calibration.procedure.teach
     shoot = plan.details["shooting_start"]
@@ -479,7 +479,8 @@ PROCEDURES: dict[str, Procedure] = {
     ),
     "teaching": Procedure(
         "teaching", "teaching", "teaching", ("camera", "hand_eye", "laser"),
-        lambda cfg, cal, o, start, root: plan_teaching(cfg, cal, start=start), collect_teaching, compute_teaching, ("recipe",),
+        lambda cfg, cal, o, start, root: plan_teaching(cfg, cal, start=start, recipe=o.get("recipe")),
+        collect_teaching, compute_teaching, ("recipe",),
     ),
     "pixel_map": Procedure(
         "pixel_map", "nine_point", "nine-point", ("camera", "teaching"),

@@ -16,7 +16,7 @@ import numpy as np
 from cellctl.align import plan_spot_poses
 from cellctl.align.laser_points import sweep_route
 from cellctl.align.reading_plan import fastest_order, predicted_plane_error, standing_readings, sweep_readings
-from cellctl.calibration.teach import nominal_shooting_pose
+from cellctl.geometry.aiming import nominal_shooting_pose
 from cellctl.config.feature import shot_aim_mm
 from cellctl.config.devices import KeyenceLkgDevice
 from cellctl.config.schema import CellConfig

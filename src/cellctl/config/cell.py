@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, PrivateAttr, ValidationError, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from cellctl.config.inspection import InspectionConfig
@@ -13,7 +13,7 @@ from cellctl.config.recipe import Recipe
 from cellctl.config.spc import SpcConfig, drift_limit_problems
 from cellctl.config.types import Finite, StrictModel, Vec2, check_unique
 from cellctl.geometry.plane import PlaneFitError, fit_plane
-from cellctl.inspection.flush_crossing import crossing_path_problem
+from cellctl.inspection.flush_crossing import Opening, crossing_path_problem
 
 
 class ToleranceConfig(StrictModel):
@@ -268,15 +268,32 @@ class ProcessConfig(StrictModel):
     spc: SpcConfig = SpcConfig()
     recipes: tuple[Recipe, ...] = (Recipe(id=1, name="side-window", description="2000 x 1500 mm side-window glass"),)
 
-    @model_validator(mode="after")
-    def _flush_sweep_crosses_the_edges(self) -> "ProcessConfig":
-        """Where the cell reads on the move and inspects, its flush sweep must cross both edges (checked only then)."""
-        insp = self.inspect
-        if self.align.mode == "on_the_fly" and insp.enabled:
-            problem = crossing_path_problem(insp.sweep_path_mm, insp.nominal_gap_mm, insp.sweep_margin_mm)
-            if problem is not None:
-                raise ValueError(f"inspect.sweep_path_mm: {problem}")
+    # The outline of the opening this process works on (T, mm): the configuration's layout sets it (a recipe's view,
+    # the recipe's), since the flush sweep tells glass from wall by it. None: a process outside a configuration.
+    _opening: Opening | None = PrivateAttr(default=None)
+
+    @property
+    def opening(self) -> Opening | None:
+        """The outline of the opening this process works on (``[layout.opening]``, a recipe's own in its view)."""
+        return self._opening
+
+    def on_opening(self, opening: Opening) -> "ProcessConfig":
+        """This process, working on ``opening`` (CellConfig sets it); a copy where another configuration's opening holds it."""
+        if self._opening is not None and self._opening != opening:
+            other = self.model_copy()
+            other._opening = opening
+            return other
+        self._opening = opening
         return self
+
+    def flush_sweep_problem(self, opening: Opening) -> str | None:
+        """Why, where the cell reads on the move and inspects, its flush sweep cannot cross the edges of ``opening``
+        (checked only then), or None; the message starts with the field."""
+        insp = self.inspect
+        if self.align.mode != "on_the_fly" or not insp.enabled:
+            return None
+        problem = crossing_path_problem(insp.sweep_path_mm, insp.nominal_gap_mm, insp.sweep_margin_mm, opening)
+        return None if problem is None else f"process.inspect.sweep_path_mm: {problem}"
 
     @model_validator(mode="after")
     def _drift_limits_inside_the_tolerance(self) -> "ProcessConfig":

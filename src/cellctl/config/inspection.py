@@ -92,12 +92,14 @@ class InspectionConfig(StrictModel):
     back_off_mm: Finite = Field(100.0, ge=0)
     # On the move (process.align.mode = "on_the_fly", where the devices can): the laser sweeps these
     # corners in T instead of standing at the flush spots. A leg from the glass (inside its edge) to
-    # the wall (outside the opening's top or right edge), or back, is a crossing: its readings either
-    # side of the edge give the flush there (cellctl.inspection.flush_crossing); readings within
-    # sweep_margin_mm of an edge (the gap) are left out. At least three crossings, on both edges, each with
-    # its middle in the gap (checked where the cell reads on the move). Default: crossings 200 mm along and
-    # 45 mm across an edge, centred on the default 5 mm gap (y = 2.5, x = -2.5), near and far, in the order
-    # that starts beside the corner the camera has just seen (the shooting pose).
+    # the wall (outside the opening, past its far sides too: its outline, [layout.opening] or a recipe's own),
+    # or back, is a crossing: its readings either side of the edge give the flush there
+    # (cellctl.inspection.flush_crossing); readings within sweep_margin_mm of an edge (the gap) are left out.
+    # At least three crossings, spread in x and y, each with its middle in the gap (checked against the
+    # opening where the cell reads on the move; a recipe with its own opening gives its own path). Default:
+    # crossings 200 mm along and 45 mm across an edge of the default 2000 x 1500 mm opening, centred on the
+    # default 5 mm gap (y = 2.5, x = -2.5), near and far, in the order that starts beside the corner the camera
+    # has just seen (the shooting pose).
     sweep_path_mm: tuple[Vec2, ...] = (
         (-350.0, -20.0), (-150.0, 25.0), (-25.0, 150.0), (20.0, 350.0),
         (20.0, 1100.0), (-25.0, 1300.0), (-1800.0, 25.0), (-1600.0, -20.0),

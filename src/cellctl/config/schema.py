@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import weakref
 from typing import Any, Literal
 
@@ -16,12 +17,14 @@ from cellctl.config.layout import TWIN_FIELDS_FROM_LAYOUT, LayoutConfig, opening
 from cellctl.config.mqtt import MqttConfig
 from cellctl.config.opcua import OpcUaConfig
 from cellctl.config.plc import PlcConfig
+from cellctl.config.reach import reach_problem
 from cellctl.config.recipe import RECIPE_SECTIONS, Recipe, merge_into
-from cellctl.config.sim import SimConfig
+from cellctl.config.sim import SimConfig, glass_size_problem
 from cellctl.config.store import AlarmsConfig, PackMLConfig, StoreConfig
 from cellctl.config.feature import arc_view_problem, feature_kind, gap_window_problem
 from cellctl.config.types import StrictModel
 from cellctl.config.vision import VisionConfig
+from cellctl.inspection.flush_crossing import Opening, in_rounded_rect
 
 
 
@@ -153,8 +156,9 @@ class CellConfig(StrictModel):
 
     @model_validator(mode="after")
     def _opening_before_the_robot(self) -> "CellConfig":
-        """The opening's wall faces the robot, and the robot reaches the whole opening (every recipe's view too)."""
-        problem = opening_placement_problem(self.layout)
+        """The opening's wall faces the robot, and the robot reaches the whole opening and the poses it needs: the
+        shooting pose, the laser's wall readings, the install (every recipe's view too, named by its recipe)."""
+        problem = opening_placement_problem(self.layout) or reach_problem(self)
         if problem is not None:
             raise ValueError(problem)
         return self
@@ -215,10 +219,30 @@ class CellConfig(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _process_on_its_opening(self) -> "CellConfig":
+        """The process knows the opening's outline (its flush sweep tells glass from wall by it)."""
+        o = self.layout.opening
+        process = self.process.on_opening(Opening(o.width_mm, o.height_mm, o.corner_radius_mm))
+        if process is not self.process:  # a process another configuration holds: this one's own copy (frozen: set in place)
+            self.__dict__["process"] = process
+        return self
+
+    @model_validator(mode="after")
     def _spots_fit_the_opening(self) -> "CellConfig":
         """The alignment's wall spots (or sweep) on the wall; each flush spot's glass reading on the glass, its
-        wall reading on the wall (every recipe's view runs it too, with its own opening and spots)."""
-        problem = align_spots_problem(self) or spots_problem(self)
+        wall reading on the wall; the flush sweep across this opening's edges (every recipe's view runs it too, with
+        its own opening, spots and path)."""
+        o = self.layout.opening
+        problem = (align_spots_problem(self) or spots_problem(self)
+                   or self.process.flush_sweep_problem(Opening(o.width_mm, o.height_mm, o.corner_radius_mm)))  # fmt: skip
+        if problem is not None:
+            raise ValueError(problem)
+        return self
+
+    @model_validator(mode="after")
+    def _twin_glass_fits_the_opening(self) -> "CellConfig":
+        """The simulated cell's glass fits its opening (a recipe's view: the recipe's glass and opening)."""
+        problem = glass_size_problem(self.sim.glass, self.sim.world) if self.mode == "sim" else None
         if problem is not None:
             raise ValueError(problem)
         return self
@@ -289,8 +313,10 @@ def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
     for name, path in RECIPE_SECTIONS.items():  # a rule across tables whose message starts with its field
         table = ".".join(path)
         if not loc and msg.startswith(table + "."):
-            whose = "" if getattr(recipe, name) else (
-                f" (the cell's [{table}]: this recipe sets no [process.recipes.{name}] of its own; give it one)")
+            own, field = getattr(recipe, name), re.match(r"\w*", msg[len(table) + 1:]).group()  # type: ignore[union-attr]
+            whose = "" if field in own else (
+                f" (the cell's [{table}]: this recipe sets no [process.recipes.{name}] of its own; give it one)" if not own
+                else f" (the cell's {table}.{field}: this recipe's [process.recipes.{name}] sets no {field}; give it its own)")
             return f"process.recipes[{index}] ({recipe.name}): {name}{msg[len(table):]}{whose}"
     if error["type"] == "extra_forbidden":
         msg = "unknown field; check its spelling against the table it replaces"
@@ -304,12 +330,7 @@ def _recipe_problem(index: int, recipe: Recipe, error: Any) -> str:
 
 def _in_rounded_rect(x: float, y: float, left: float, right: float, top: float, bottom: float, radius: float) -> bool:
     """Whether (x, y) (T, mm; y down) lies strictly inside the rectangle with corners rounded by ``radius`` (mm)."""
-    if not (left < x < right and top < y < bottom):
-        return False
-    r = max(min(radius, (right - left) / 2.0, (bottom - top) / 2.0), 0.0)
-    cx = min(max(x, left + r), right - r)  # the nearest corner arc's centre, or the point itself off the corners
-    cy = min(max(y, top + r), bottom - r)
-    return bool(np.hypot(x - cx, y - cy) < r) if (cx, cy) != (x, y) else True
+    return bool(in_rounded_rect((x, y), left, right, top, bottom, radius)[0])
 
 
 def align_spots_problem(config: CellConfig) -> str | None:

@@ -143,7 +143,8 @@ class GlassConfig(StrictModel):
     glass is bonded to (the first band inside the opening's edge of the drawn surface) runs on
     under the glass. The laser reads the outer surface's front reflection: a weaker signal than the
     painted wall's, so ``laser_noise_mm`` (one sigma) replaces the wall's noise there, and a reading
-    comes back without a value with ``laser_dropout_probability``.
+    comes back without a value with ``laser_dropout_probability``. The simulated cell refuses a glass larger
+    than the opening it goes into (:func:`glass_size_problem`): one made for another recipe's opening.
     """
 
     width_mm: Finite = Field(2000.0, gt=0)
@@ -235,3 +236,26 @@ class SimConfig(StrictModel):
                 f"({radius:g} mm): the glass's corners are the opening's, inset by the gap (radius {radius:g} - gap)"
             )
         return self
+
+
+# How much larger than its opening the twin's glass may be, in gaps (sim.glass.edge_gap_mm): its outline is drawn at
+# the corner, so a glass larger by d leaves the far gaps gap - d. Half a gap (2.5 mm at 5 mm) takes a pane's size
+# tolerance (about a millimetre) and refuses a glass made for another opening (hundreds of mm off).
+GLASS_OVERSIZE_GAPS = 0.5
+
+
+def glass_size_problem(glass: GlassConfig, opening: OpeningLayout) -> str | None:
+    """Why the twin's glass cannot go into ``opening`` (``sim.world``: the layout's, a recipe's in its view), or None:
+    its outline (width_mm x height_mm inset by edge_gap_mm) must fit the opening inset by the gap, within
+    :data:`GLASS_OVERSIZE_GAPS`. The simulated cell asks (a real cell has no twin's glass); the message starts
+    with the field."""
+    gap = glass.edge_gap_mm
+    for field, size, room in (("width_mm", glass.width_mm, opening.width_mm), ("height_mm", glass.height_mm, opening.height_mm)):
+        if size - room > GLASS_OVERSIZE_GAPS * gap:
+            far = room - size + gap  # the far gap: the glass's far edge inside the opening's
+            where = f"{-far:g} mm over the opening's, on the wall" if far <= 0 else f"only {far:g} mm inside the opening's"
+            return (f"sim.glass.{field} = {size:g} is larger than the opening's {field} = {room:g} ([layout.opening], or a "
+                    f"recipe's own): inset by edge_gap_mm = {gap:g}, the glass's far edge lies {where} (at least "
+                    f"{(1 - GLASS_OVERSIZE_GAPS) * gap:g} mm inside it): give the twin the glass made for this opening, its "
+                    "width_mm, height_mm and corner_in_flange_mm (a recipe's in [process.recipes.sim_glass])")  # fmt: skip
+    return None

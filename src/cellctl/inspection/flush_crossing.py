@@ -12,6 +12,10 @@ symmetric about the middle: the deflection of a short leg's speed profile, the c
 accuracy field, the surfaces' slopes differing by their tilt. The step is the flush there. The steps at three or
 more crossings then give the glass's plane against the wall's as in :mod:`cellctl.inspection.flush`:
 ``step = dZ - dRy x + dRx y`` at the crossing point (x, y).
+
+Glass and wall are told apart by the outline of the recipe's own opening (:class:`Opening`: its far sides
+and rounded corners): past a far side lies the wall the alignment fits too, and a leg across a far edge is
+a crossing like one beside the corner.
 """
 
 from __future__ import annotations
@@ -52,43 +56,93 @@ class EdgeCrossing:
     wall_rms_mm: float
 
 
-def surface_at(xy: ArrayLike, gap_mm: float, margin_mm: float) -> NDArray[np.int_]:
-    """(N,) +1 where a point (x, y in T, mm) lies on the glass (inside its edge), -1 on the wall (outside the
-    opening's top or right edge), 0 in the gap or within ``margin_mm`` of an edge."""
+@dataclass(frozen=True)
+class Opening:
+    """The window opening's outline in T (mm): x in [-width, 0], y in [0, height], its corners rounded by the radius."""
+
+    width_mm: float
+    height_mm: float
+    corner_radius_mm: float
+
+
+UNBOUNDED = Opening(np.inf, np.inf, 0.0)  # no far sides, square corners: only the top and the right edge
+
+
+def in_rounded_rect(xy: ArrayLike, left: float, right: float, top: float, bottom: float, radius: float) -> NDArray[np.bool_]:
+    """(N,) whether points (x, y; T, mm, y down) lie strictly inside the rectangle with corners rounded by ``radius`` (mm)."""
     p = np.atleast_2d(np.asarray(xy, dtype=float))
     x, y = p[:, 0], p[:, 1]
-    glass = (x < -(gap_mm + margin_mm)) & (y > gap_mm + margin_mm)
-    wall = (x > margin_mm) | (y < -margin_mm)
+    inside = (left < x) & (x < right) & (top < y) & (y < bottom)
+    r = max(min(radius, (right - left) / 2.0, (bottom - top) / 2.0), 0.0)
+    cx = np.minimum(np.maximum(x, left + r), right - r)  # the nearest corner arc's centre, or the point itself off the corners
+    cy = np.minimum(np.maximum(y, top + r), bottom - r)
+    return inside & (((cx == x) & (cy == y)) | (np.hypot(x - cx, y - cy) < r))
+
+
+def surface_at(xy: ArrayLike, gap_mm: float, margin_mm: float, opening: Opening | None = None) -> NDArray[np.int_]:
+    """(N,) +1 where a point (x, y in T, mm) lies on the glass (the opening inset by ``gap_mm``, its corners rounded
+    by the opening's radius less the gap), -1 on the wall (outside the opening: beyond its far sides too), 0 in the
+    gap or within ``margin_mm`` of an edge. ``opening`` None: :data:`UNBOUNDED` (x < 0 and y > 0 of T)."""
+    o = UNBOUNDED if opening is None else opening
+    w, h, r, d, m = o.width_mm, o.height_mm, o.corner_radius_mm, gap_mm + margin_mm, margin_mm
+    glass = in_rounded_rect(xy, -w + d, -d, d, h - d, r - d)  # an inward offset by d rounds the corners r - d
+    wall = ~in_rounded_rect(xy, -w - m, m, -m, h + m, r + m)  # an outward offset by m rounds them r + m
     return glass.astype(int) - wall.astype(int)
 
 
 Leg = tuple[int, NDArray[np.float64], NDArray[np.float64]]  # (j, start, end): corners j -> j + 1 of a path, mm in T
 
 
-def crossing_legs(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float) -> list[Leg]:
-    """The legs of a sweep path (corners in T, mm) that run from one surface to the other: (j, start, end), leg j
-    being corners j -> j + 1."""
+def crossing_legs(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float, opening: Opening | None = None) -> list[Leg]:
+    """The legs of a sweep path (corners in T, mm) that run from one surface to the other of ``opening`` (see
+    :func:`surface_at`): (j, start, end), leg j being corners j -> j + 1."""
     corners = np.asarray(path_mm, dtype=float)
-    surface = surface_at(corners, gap_mm, margin_mm)
+    surface = surface_at(corners, gap_mm, margin_mm, opening)
     return [(j, corners[j], corners[j + 1]) for j in range(len(corners) - 1) if surface[j] * surface[j + 1] < 0]
 
 
-def crossing_path_problem(path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float) -> str | None:
-    """What keeps a sweep path from giving the flush on the move, or None: at least three crossing legs,
-    each running from ``MIN_BEYOND_MM`` past the gap's margin on one side to as far on the other with its
-    middle in the gap, spread over both edges."""
-    legs = crossing_legs(path_mm, gap_mm, margin_mm)
+def crossing_path_problem(
+    path_mm: Sequence[ArrayLike], gap_mm: float, margin_mm: float, opening: Opening | None = None
+) -> str | None:
+    """What keeps a sweep path from giving the flush on the move across the edges of ``opening``, or None: at least
+    three crossing legs, each running from ``MIN_BEYOND_MM`` past the gap's margin on one side to as far on the
+    other with its middle in the gap (the glass and the opening are convex: such a leg crosses one edge, once),
+    spread over both directions."""
+    legs = crossing_legs(path_mm, gap_mm, margin_mm, opening)
     if len(legs) < 3:
         return (f"it crosses an edge on {len(legs)} legs (a leg from a point on the glass, inside its edge by more "
-                "than sweep_margin_mm, to one on the wall, or back); the flush needs at least three, on both edges")  # fmt: skip
-    short = [[a.tolist(), b.tolist()] for _, a, b in legs if np.any(surface_at(np.stack([a, b]), gap_mm, margin_mm + MIN_BEYOND_MM) == 0)]
+                "than sweep_margin_mm, to one on the wall, or back); the flush needs at least three, on both edges"
+                + _beyond_the_far_sides(path_mm, opening))  # fmt: skip
+    short = [[a.tolist(), b.tolist()] for _, a, b in legs
+             if np.any(surface_at(np.stack([a, b]), gap_mm, margin_mm + MIN_BEYOND_MM, opening) == 0)]  # fmt: skip
     if short:
         return f"the crossing legs {short} end less than {MIN_BEYOND_MM:g} mm past the gap's margin: lengthen them across the edge"
     middles = np.array([(a + b) / 2 for _, a, b in legs])
-    off_gap = [m.tolist() for m in middles if surface_at(m, gap_mm, margin_mm)[0] != 0]
+    off_gap = [m.tolist() for m in middles if surface_at(m, gap_mm, margin_mm, opening)[0] != 0]
     if off_gap:
         return f"the crossing legs' middles {off_gap} lie outside the gap (and its margins): centre each crossing leg on the gap"
     return spread_problem(middles)
+
+
+def _size(opening: Opening | None) -> str:
+    """The opening's size and place in T, for a message ("" without one)."""
+    if opening is None:
+        return ""
+    o = opening
+    return (f" ({o.width_mm:g} x {o.height_mm:g} mm, corner radius {o.corner_radius_mm:g}: x in [{-o.width_mm:g}, 0], "
+            f"y in [0, {o.height_mm:g}] of T)")  # fmt: skip
+
+
+def _beyond_the_far_sides(path_mm: Sequence[ArrayLike], opening: Opening | None) -> str:
+    """The path's corners beyond the opening's far sides (on the wall), said with what to do; "" if none."""
+    if opening is None:
+        return ""
+    corners = np.asarray(path_mm, dtype=float)
+    far = [c.tolist() for c in corners if c[0] < -opening.width_mm or c[1] > opening.height_mm]
+    if not far:
+        return ""
+    return (f"; its corners {far} lie beyond the far sides of this opening{_size(opening)}, on the wall: "
+            "lay the legs across this opening's edges")
 
 
 def spread_problem(xy: NDArray[np.float64]) -> str | None:
@@ -207,18 +261,20 @@ def fit_flush_across_edges(crossings: Sequence[EdgeCrossing], *, max_rms_mm: flo
 
 
 def flush_from_sweep(
-    points_T: ArrayLike, legs: ArrayLike, path_mm: Sequence[ArrayLike], *, gap_mm: float, margin_mm: float, max_rms_mm: float
+    points_T: ArrayLike, legs: ArrayLike, path_mm: Sequence[ArrayLike], *, gap_mm: float, margin_mm: float, max_rms_mm: float,
+    opening: Opening | None = None,
 ) -> tuple[FlushResult, list[EdgeCrossing], list[str]]:
     """The flush from a sweep's readings (K, 3) in T, each with its leg j (``path_mm[j]`` -> ``path_mm[j + 1]``;
-    -1: none): the step at each leg that crosses an edge, then the glass's plane against the wall's from
-    them. A crossing that cannot give its step is left out with its reason (the third list) while the
-    others still span both edges; else FlushError names them all."""
+    -1: none): the step at each leg that crosses an edge of ``opening`` (glass and wall told apart by its
+    outline: :func:`surface_at`), then the glass's plane against the wall's from them. A crossing that cannot
+    give its step is left out with its reason (the third list) while the others still span both edges; else
+    FlushError names them all."""
     p = np.asarray(points_T, dtype=float)
     leg = np.asarray(legs)
-    surface = surface_at(p[:, :2], gap_mm, margin_mm)
+    surface = surface_at(p[:, :2], gap_mm, margin_mm, opening)
     crossings: list[EdgeCrossing] = []
     missing: list[str] = []
-    for j, start, end in crossing_legs(path_mm, gap_mm, margin_mm):
+    for j, start, end in crossing_legs(path_mm, gap_mm, margin_mm, opening):
         on_leg = (leg == j) & (surface != 0)
         try:
             crossings.append(step_across_edge(p[on_leg], surface[on_leg] > 0, start, end, max_rms_mm=max_rms_mm))

@@ -37,6 +37,7 @@ def _env(n: int) -> dict[str, Any]:
 def _example_record() -> CycleRecord:
     result = {
         "ok": True, "error_code": 0, "part_ok": True, "cycle_time_s": 102.26, "calibration_version": 7,
+        "recipe_settings": "settings-bb70040e6f1f",
         "correction_mm": [1.204, -0.377, 0.052], "correction_deg": [0.031, -0.012, 0.208],
         "measured_deviation": {"dx_mm": 0.18, "dy_mm": -0.22, "dz_mm": 0.05, "drx_deg": 0.12, "dry_deg": -0.09, "drz_deg": 0.21},
     }  # fmt: skip
