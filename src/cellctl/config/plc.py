@@ -33,6 +33,9 @@ class PlcConfig(StrictModel):
     # Modbus TCP has no authentication: only these client addresses or networks may connect ("10.1.2.3",
     # "10.1.2.0/24"); others are closed at once. Empty: any host that reaches the port (README, "Security").
     allowed_clients: tuple[str, ...] = ()
+    # A Modbus TCP connection without a request this long is closed (a PLC polls every scan; one that lost power
+    # or its cable, or an HMI that never closes its connections, would hold a file descriptor for good).
+    idle_timeout_s: Finite = Field(60.0, gt=0, le=86400.0)
 
     @field_validator("allowed_clients")
     @classmethod
@@ -67,6 +70,11 @@ class PlcConfig(StrictModel):
                 f"plc.cell_heartbeat_period_s = {self.cell_heartbeat_period_s:g} s is shorter than one scan "
                 f"(plc.scan_period_s = {self.scan_period_s:g} s): the cell heartbeat changes once per "
                 "scan at most; raise it")
+        if self.idle_timeout_s <= self.heartbeat_timeout_s:
+            raise ValueError(
+                f"plc.idle_timeout_s = {self.idle_timeout_s:g} s is not longer than plc.heartbeat_timeout_s = "
+                f"{self.heartbeat_timeout_s:g} s: the cell would close the connection of a PLC that changes its "
+                "heartbeat just in time; raise it (default 60 s)")
         if self.cycle_result_timeout_s < self.facade_timeout_s:
             raise ValueError(
                 f"plc.cycle_result_timeout_s = {self.cycle_result_timeout_s:g} s is shorter than "

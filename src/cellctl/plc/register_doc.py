@@ -7,6 +7,7 @@ from cellctl.config.cell import ProcessConfig
 from cellctl.config.plc import PlcConfig
 from cellctl.config.store import PackMLConfig
 from cellctl.domain import AlarmCode, PackMLState
+from cellctl.plc.connections import MAX_CONNECTIONS
 from cellctl.plc.register_map import (
     BLOCKS,
     CELL_BLOCK,
@@ -33,8 +34,10 @@ docs/plc_register_map.md`; do not edit by hand (a test compares this file with t
 
 Map version {major}.{minor}. The cell is the Modbus TCP server (host, port and unit id from `[plc]` in
 the config). All values are holding registers at 0-based protocol addresses (address 0 is 40001
-in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other function codes
-(coils, input registers) get exception code 1 (illegal function).
+in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Every other function code
+(coils, input registers, diagnostics FC8, FC7, FC11, FC17, FC43) gets exception code 1 (illegal
+function); one of these five whose quantity or length is out of range (FC3 reads 1-125 registers) gets
+exception code 3 (illegal data value). An exception answer carries the request's function code + 0x80.
 
 - The **PLC block** ({p_start}-{p_last}) is written only by the PLC; the cell only reads it. One client
   writes it: the line PLC. A second client (an HMI, a diagnostics tool) must only read (FC3): the cell
@@ -56,6 +59,14 @@ in Modicon notation): read with FC3, write with FC16 (or FC6, FC22, FC23). Other
   unit id reads and writes nothing and gets exception code {unit_exc} (gateway target device failed
   to respond); the cell logs a warning naming the unit id (the first time, then every 1000th).
   With `unit_id = 0` the cell answers every unit id.
+- **Connections.** Requests may be pipelined: the cell answers every complete frame a connection
+  sends, in order, each with its transaction id. A frame with a protocol id other than 0 or an MBAP
+  length outside 2-254 closes the connection, after the frames before it are answered. A connection
+  without a request for `[plc] idle_timeout_s` (default {idle_s:g} s) is closed, and TCP keepalive drops
+  one whose peer vanished: poll on the connection the PLC keeps (every scan), or let its Modbus client
+  reconnect. The cell holds at most {max_conn} connections (fewer with a low open files limit: an
+  eighth of it), a quarter of them from one address; beyond that it closes the connection that has
+  gone longest without a request, or refuses the new one.
 
 ## Start-up and states
 
@@ -237,6 +248,7 @@ def render_markdown() -> str:
         recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
         hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST), blocked=int(CommandReply.BLOCKED),
         clear_mm=PlcConfig().clear_distance_mm, end_mm=SIM_END_POSE_WALL_MM,
+        idle_s=PlcConfig().idle_timeout_s, max_conn=MAX_CONNECTIONS,
         recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
     )
     parts = [text]

@@ -11,7 +11,10 @@ block, supervises the PLC heartbeat, publishes the cell's status words and heart
 the handshakes; its first round runs before the listener opens, so the PLC never reads an
 unfilled cell block. ``start`` raises OSError, naming the ``[plc]`` setting, when it cannot
 listen (pymodbus itself only logs that and raises a RuntimeError without the cause). A client whose
-address is outside ``[plc] allowed_clients`` is closed when it connects (``cellctl.plc.client_guard``).
+address is outside ``[plc] allowed_clients`` is closed when it connects, and one without a request for
+``[plc] idle_timeout_s`` too; connections are capped by the open files limit, every MBAP frame of a
+receive is served in order, and function codes other than the map's get exception 1
+(``cellctl.plc.client_guard``).
 
 Use::
 
@@ -41,6 +44,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from cellctl.config.plc import PlcConfig
 from cellctl.domain import PackMLCommand, UnitMode
 from cellctl.plc.client_guard import GuardedTcpServer
+from cellctl.plc.connections import policy_for
 from cellctl.plc.codec import decode_block
 from cellctl.plc.facade import CellFacade, CellStatus
 from cellctl.plc.handshake import CycleHandshake, HandshakeTiming, LatchedRequest
@@ -195,7 +199,8 @@ class PlcServer:
             ],
             action=self._on_access,
         )
-        server = GuardedTcpServer(device, address=(cfg.host, cfg.port), networks=cfg.client_networks())
+        server = GuardedTcpServer(device, address=(cfg.host, cfg.port), networks=cfg.client_networks(),
+                                  policy=policy_for(cfg.idle_timeout_s), function_codes=_HOLDING_REGISTER_FCS)
         self._gate = _UnitGate(server.context, cfg.unit_id, self._refused_cell_write)
         server.context = self._gate  # type: ignore[assignment]
         self._server = server
