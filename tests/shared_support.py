@@ -61,6 +61,16 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     raise RuntimeError(f"no free loopback port in {base}-{base + _PORTS_PER_WORKER - 1}")
 
 
+def held_open(sock: socket.socket) -> bool:
+    """Whether the server still holds ``sock``'s connection (nothing to read, no end of stream, no reset)."""
+    try:
+        return sock.recv(1, socket.MSG_DONTWAIT) != b""
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+
+
 def tlsimu_path() -> str:
     """TLSimu.cti, the simulated GenTL producer of the genicam wheel (1.3.0-1.5.0)."""
     fix = "pip install -e '.[camera]' (genicam>=1.3,<1.5.1)"

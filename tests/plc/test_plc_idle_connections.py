@@ -19,21 +19,12 @@ from pathlib import Path
 import pytest
 from modbus_wire import fc3, read_answers
 from plc_test_support import MemoryCell, plc_config, running_cell
+from shared_support import held_open
 
 from cellctl.plc.register_map import MAP_VERSION
 
 DEADLINE_S = 20.0  # the idle timeouts below are 1.5 s; the margin is for a loaded machine
 MAP_READ = (3).to_bytes(1, "big") + (4).to_bytes(1, "big") + b"".join(v.to_bytes(2, "big") for v in MAP_VERSION)
-
-
-def held_open(sock: socket.socket) -> bool:
-    """Whether the server still holds ``sock``'s connection (nothing to read, no end of stream, no reset)."""
-    try:
-        return sock.recv(1, socket.MSG_DONTWAIT) != b""
-    except BlockingIOError:
-        return True
-    except OSError:
-        return False
 
 
 async def connect(port: int, source: str = "127.0.0.1") -> socket.socket:

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from service_test_support import free_port, sim_toml, wait_up
+from shared_support import held_open
 
 OPEN_FILES = 512  # asyncio accepts up to 100 connections at once before any is judged: room for such a burst
 SILENT = 600
@@ -41,16 +42,6 @@ def _live(port: int, source: str) -> str:
         return f"failed: {err!r}"
 
 
-def _open(sock: socket.socket) -> bool:
-    """Whether the server still holds ``sock`` open (nothing to read, no end of stream)."""
-    try:
-        return sock.recv(1, socket.MSG_DONTWAIT) != b""
-    except BlockingIOError:
-        return True
-    except OSError:
-        return False
-
-
 def test_silent_connections_neither_starve_the_api_nor_stay_open(tmp_path: Path) -> None:
     port = free_port()
     cfg = tmp_path / "cell.toml"
@@ -64,9 +55,9 @@ def test_silent_connections_neither_starve_the_api_nor_stay_open(tmp_path: Path)
         time.sleep(0.5)  # the server has accepted what it will
         assert _live(port, "127.0.0.2").startswith("HTTP/1.1 200"), (tmp_path / "service.log").read_text()[-2000:]
         end = time.monotonic() + CLOSED_WITHIN_S
-        while any(_open(s) for s in held) and time.monotonic() < end:
+        while any(held_open(s) for s in held) and time.monotonic() < end:
             time.sleep(0.2)
-        still = sum(_open(s) for s in held)
+        still = sum(held_open(s) for s in held)
         assert still == 0, f"{still} of {SILENT} silent connections still open after {CLOSED_WITHIN_S:g} s"
         assert _live(port, "127.0.0.1").startswith("HTTP/1.1 200")  # the crowding host is served again
         assert proc.poll() is None

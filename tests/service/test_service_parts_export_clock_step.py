@@ -16,7 +16,6 @@ import os
 import re
 import sqlite3
 import sys
-import time
 from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -26,62 +25,19 @@ import httpx
 import pytest
 from service_test_support import AUTH, TOKEN, api_client, running_service, served, sim_config, to_execute
 
+import clock_step_support as clock_steps
+
 ROOT = Path(__file__).resolve().parents[2]
-REAL_DATETIME = datetime
-
-CLI_ON_A_STEPPED_CLOCK = """
-import sys, datetime as d
-offset = d.timedelta(seconds=float(sys.argv[1]))
-class Stepped(d.datetime):
-    @classmethod
-    def now(cls, tz=None):
-        return d.datetime.now(tz) + offset
-import cellctl.cli as cli
-cli.datetime = Stepped
-sys.exit(cli.main(sys.argv[2:]))
-"""
-"""``cellctl ARGS`` with this host's wall clock stepped by ``argv[1]`` seconds."""
-
-
-class WallClock:
-    """The wall clock this process's cellctl modules read, stepped by :meth:`step` (seconds; negative: back)."""
-
-    def __init__(self) -> None:
-        self.offset = timedelta(0)
-
-    def step(self, seconds: float) -> None:
-        self.offset += timedelta(seconds=seconds)
 
 
 @pytest.fixture
-def wall(monkeypatch: pytest.MonkeyPatch) -> Iterator[WallClock]:
-    import cellctl.api.app  # noqa: F401  (every module the service loads, loaded before the patch)
-    from cellctl.service import build_service  # noqa: F401
-
-    clock = WallClock()
-
-    class Meta(type):
-        def __instancecheck__(cls, obj: object) -> bool:
-            return isinstance(obj, REAL_DATETIME)
-
-        def __subclasscheck__(cls, sub: type) -> bool:
-            return issubclass(sub, REAL_DATETIME)
-
-    class Stepped(REAL_DATETIME, metaclass=Meta):
-        @classmethod
-        def now(cls, tz: Any = None) -> datetime:  # type: ignore[override]
-            return REAL_DATETIME.now(tz) + clock.offset
-
-        @classmethod
-        def utcnow(cls) -> datetime:  # type: ignore[override]
-            return REAL_DATETIME.utcnow() + clock.offset
-
-    real_time = time.time
-    monkeypatch.setattr(time, "time", lambda: real_time() + clock.offset.total_seconds())
-    for name, module in list(sys.modules.items()):
-        if name.startswith("cellctl") and module is not None and getattr(module, "datetime", None) is REAL_DATETIME:
-            monkeypatch.setattr(module, "datetime", Stepped)
-    yield clock
+def wall() -> Iterator[Any]:
+    """The wall clock this process's cellctl modules read (clock_step_support), stepped by ``wall.step(seconds)``."""
+    clock_steps.install()
+    try:
+        yield clock_steps
+    finally:
+        clock_steps.uninstall()
 
 
 async def install(client: httpx.AsyncClient, key: str) -> int:
@@ -91,19 +47,18 @@ async def install(client: httpx.AsyncClient, key: str) -> int:
     return int(r.json()["id"])
 
 
-async def cli_parts_export(url: str, wall: WallClock, *args: str) -> tuple[int, str]:
+async def cli_parts_export(url: str, wall: Any, *args: str) -> tuple[int, str]:
     """``cellctl parts export --url URL ARGS`` on this host's stepped clock: its exit status and standard error."""
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", CLI_ON_A_STEPPED_CLOCK, str(wall.offset.total_seconds()),
-        "--config", str(ROOT / "config" / "sim.toml"), "parts", "export", "--url", url, *args,
-        stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
-        env={**os.environ, "CELLCTL_TOKEN": TOKEN},
+        sys.executable, clock_steps.__file__, "--config", str(ROOT / "config" / "sim.toml"), "parts", "export", "--url", url,
+        *args, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        env={**os.environ, "CELLCTL_TOKEN": TOKEN, clock_steps.OFFSET_ENV: str(wall.OFFSET[0].total_seconds())},
     )  # fmt: skip
     _, err = await asyncio.wait_for(proc.communicate(), 60)
     return int(proc.returncode or 0), err.decode()
 
 
-async def cli_export(url: str, wall: WallClock, since: str, out: Path, faults: list[str]) -> tuple[list[int], str]:
+async def cli_export(url: str, wall: Any, since: str, out: Path, faults: list[str]) -> tuple[list[int], str]:
     """``cellctl parts export --since SINCE`` (no --until) on this host's stepped clock: the ids and the bound applied.
     A refusal is noted in ``faults``, and the MES tries the same ``since`` at its next period."""
     code, err = await cli_parts_export(url, wall, "--since", since, "--output", str(out))
@@ -146,7 +101,7 @@ def ended_in_store(workdir: Path) -> list[int]:
 
 @pytest.mark.parametrize("step_s", [-30.0, -3600.0, 3600.0])
 async def test_periodic_exports_list_every_install_once_across_clock_steps_and_a_restart(
-    tmp_path: Path, wall: WallClock, step_s: float
+    tmp_path: Path, wall: Any, step_s: float
 ) -> None:
     cfg = sim_config(plc={"enabled": False}, opcua={"enabled": False})
     exported: list[int] = []

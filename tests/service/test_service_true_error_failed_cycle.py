@@ -11,8 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from service_test_support import AUTH, api_client, running_service, sim_config
-from shared_support import eventually
+from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -27,24 +26,11 @@ def _config() -> Any:
 
 async def _failed_cycle(service: Any, key: str) -> dict[str, Any]:
     async with api_client(service) as client:
-        async def settled() -> bool:
-            return not str((await client.get("/status")).json()["state"]).endswith("ING")
-
-        for cmd in ("clear", "reset", "start"):
-            assert (await client.post(f"/commands/{cmd}", headers=AUTH)).status_code == 200
-            await eventually("the cell leaves its acting state", settled)
-        r = await client.post("/cycle", json={"recipe": "side-window", "part_id": key}, headers={**AUTH, "Idempotency-Key": key})
-        assert r.status_code == 202, r.text
-        cid = int(r.json()["cycle_id"])
-        rec: dict[str, Any] = {}
-
-        async def ended() -> bool:
-            nonlocal rec
-            rec = (await client.get(f"/cycles/{cid}")).json()
-            return rec["state"] in ("done", "failed", "interrupted")
-
-        await eventually(f"cycle {cid} ends", ended, 60.0)
-        return rec
+        await to_execute(client)
+        r = await client.post("/cycle?wait=true&timeout_s=60", json={"recipe": "side-window", "part_id": key},
+                              headers={**AUTH, "Idempotency-Key": key})  # fmt: skip
+        assert r.status_code in (200, 201), r.text
+        return dict((await client.get(f"/cycles/{r.json()['id']}")).json())
 
 
 async def test_a_cycle_failed_before_its_install_has_no_install_error(tmp_path: Path) -> None:

@@ -132,19 +132,12 @@ def check_ready(
     return problems
 
 
-def dated_ahead(
-    cal: CalibrationSet | None,
-    now: datetime,
-    *,
-    recipe: str | None = None,
-    first_recipe: str | None = None,
-    config: CellConfig | None = None,
-    parts: tuple[str, ...] = PART_NAMES,
-) -> list[str]:
-    """The warnings of :func:`check_ready` (same arguments): parts dated ahead of the cell's clock ``now`` (UTC) by more
-    than AHEAD_UNSAID and less than their validity, used for production; one line each, naming the part and its date."""
+def dated_ahead(cal: CalibrationSet | None, now: datetime, *, first_recipe: str | None = None,
+                config: CellConfig | None = None) -> list[str]:
+    """The warnings of :func:`check_ready` for the cell's parts: those dated ahead of the cell's clock ``now`` (UTC) by
+    more than AHEAD_UNSAID and less than their validity, used for production; one line each, naming the part and its date."""
     warnings: list[str] = []
-    check_ready(cal, now, recipe=recipe, first_recipe=first_recipe, config=config, parts=parts, warnings=warnings)
+    check_ready(cal, now, first_recipe=first_recipe, config=config, warnings=warnings)
     return warnings
 
 
