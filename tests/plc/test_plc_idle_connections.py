@@ -21,7 +21,10 @@ from modbus_wire import fc3, read_answers
 from plc_test_support import MemoryCell, plc_config, running_cell
 from shared_support import held_open
 
+from cellctl.config import load_config
 from cellctl.plc.register_map import MAP_VERSION
+
+ROOT = Path(__file__).resolve().parents[2]
 
 DEADLINE_S = 20.0  # the idle timeouts below are 1.5 s; the margin is for a loaded machine
 MAP_READ = (3).to_bytes(1, "big") + (4).to_bytes(1, "big") + b"".join(v.to_bytes(2, "big") for v in MAP_VERSION)
@@ -191,4 +194,15 @@ def test_idle_timeout_must_be_longer_than_the_heartbeat_timeout() -> None:
         plc_config(heartbeat_timeout_s=3.0, idle_timeout_s=3.0)
     with pytest.raises(ValueError, match="idle_timeout_s"):
         plc_config(idle_timeout_s=0)
-    assert plc_config().idle_timeout_s == 60.0
+    assert plc_config().idle_after_s == 60.0  # left out: 60 s, or twice a longer heartbeat timeout
+    assert plc_config(heartbeat_timeout_s=60.0).idle_after_s == 120.0
+
+
+def test_a_config_with_a_long_heartbeat_timeout_still_loads(tmp_path: Path) -> None:
+    """A site's config from before idle_timeout_s (a PLC heartbeat timeout of 60 s or more) loads as it did."""
+    text = (ROOT / "config" / "sim.toml").read_text(encoding="utf-8")
+    assert "\nheartbeat_timeout_s = 3.0\n" in text
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text(text.replace("\nheartbeat_timeout_s = 3.0\n", "\nheartbeat_timeout_s = 90.0\n", 1), encoding="utf-8")
+    plc = load_config(cfg).plc
+    assert plc.heartbeat_timeout_s == 90.0 and plc.idle_timeout_s is None and plc.idle_after_s == 180.0

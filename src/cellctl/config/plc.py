@@ -34,8 +34,14 @@ class PlcConfig(StrictModel):
     # "10.1.2.0/24"); others are closed at once. Empty: any host that reaches the port (README, "Security").
     allowed_clients: tuple[str, ...] = ()
     # A Modbus TCP connection without a request this long is closed (a PLC polls every scan; one that lost power
-    # or its cable, or an HMI that never closes its connections, would hold a file descriptor for good).
-    idle_timeout_s: Finite = Field(60.0, gt=0, le=86400.0)
+    # or its cable, or an HMI that never closes its connections, would hold a file descriptor for good). Not set:
+    # :attr:`idle_after_s`, 60 s or twice heartbeat_timeout_s, whichever is longer.
+    idle_timeout_s: Finite | None = Field(None, gt=0, le=86400.0)
+
+    @property
+    def idle_after_s(self) -> float:
+        """Seconds without a request after which a connection is closed: ``idle_timeout_s``, else its default."""
+        return self.idle_timeout_s if self.idle_timeout_s is not None else max(60.0, 2.0 * self.heartbeat_timeout_s)
 
     @field_validator("allowed_clients")
     @classmethod
@@ -70,11 +76,11 @@ class PlcConfig(StrictModel):
                 f"plc.cell_heartbeat_period_s = {self.cell_heartbeat_period_s:g} s is shorter than one scan "
                 f"(plc.scan_period_s = {self.scan_period_s:g} s): the cell heartbeat changes once per "
                 "scan at most; raise it")
-        if self.idle_timeout_s <= self.heartbeat_timeout_s:
+        if self.idle_timeout_s is not None and self.idle_timeout_s <= self.heartbeat_timeout_s:
             raise ValueError(
                 f"plc.idle_timeout_s = {self.idle_timeout_s:g} s is not longer than plc.heartbeat_timeout_s = "
                 f"{self.heartbeat_timeout_s:g} s: the cell would close the connection of a PLC that changes its "
-                "heartbeat just in time; raise it (default 60 s)")
+                "heartbeat just in time; raise it, or leave it out (60 s, or twice heartbeat_timeout_s if longer)")
         if self.cycle_result_timeout_s < self.facade_timeout_s:
             raise ValueError(
                 f"plc.cycle_result_timeout_s = {self.cycle_result_timeout_s:g} s is shorter than "

@@ -62,7 +62,8 @@ exception code 3 (illegal data value). An exception answer carries the request's
 - **Connections.** Requests may be pipelined: the cell answers every complete frame a connection
   sends, in order, each with its transaction id. A frame with a protocol id other than 0 or an MBAP
   length outside 2-254 closes the connection, after the frames before it are answered. A connection
-  without a request for `[plc] idle_timeout_s` (default {idle_s:g} s) is closed, and TCP keepalive drops
+  without a request for `[plc] idle_timeout_s` (default {idle_s:g} s, or twice
+  `heartbeat_timeout_s` if that is longer) is closed, and TCP keepalive drops
   one whose peer vanished: poll on the connection the PLC keeps (every scan), or let its Modbus client
   reconnect. The cell holds at most {max_conn} connections (fewer with a low open files limit: an
   eighth of it), a quarter of them from one address; beyond that it closes the connection that has
@@ -248,7 +249,7 @@ def render_markdown() -> str:
         recovery="the recovery commands " + ", ".join(f"{c.name.title()} ({int(c)})" for c in sorted(RECOVERY_COMMANDS)),
         hb_alarm=int(AlarmCode.PLC_HEARTBEAT_LOST), blocked=int(CommandReply.BLOCKED),
         clear_mm=PlcConfig().clear_distance_mm, end_mm=SIM_END_POSE_WALL_MM,
-        idle_s=PlcConfig().idle_timeout_s, max_conn=MAX_CONNECTIONS,
+        idle_s=PlcConfig().idle_after_s, max_conn=MAX_CONNECTIONS,
         recipes="\n".join(f"| {r.id} | `{r.name}` | {r.description or '-'} |" for r in ProcessConfig().recipes),
     )
     parts = [text]

@@ -200,7 +200,7 @@ class PlcServer:
             action=self._on_access,
         )
         server = GuardedTcpServer(device, address=(cfg.host, cfg.port), networks=cfg.client_networks(),
-                                  policy=policy_for(cfg.idle_timeout_s), function_codes=_HOLDING_REGISTER_FCS)
+                                  policy=policy_for(cfg.idle_after_s), function_codes=_HOLDING_REGISTER_FCS)
         self._gate = _UnitGate(server.context, cfg.unit_id, self._refused_cell_write)
         server.context = self._gate  # type: ignore[assignment]
         self._server = server
