@@ -302,7 +302,10 @@ CELL_BLOCK = Block(
                  "cycle_req_id the result registers belong to (they keep the last result after done "
                  "drops)."),
         Register("result_part_id", 112, _U32, _C, "id", "part_id of that result."),
-        Register("result_recipe_id", 114, _U16, _C, "id", "recipe_id of that result."),
+        Register("result_recipe_id", 114, _U16, _C, "id",
+                 "recipe_id of that result: the one the PLC requested its cycle with, kept with the cycle (a "
+                 "later change of [[process.recipes]] ids or names does not change it; a cycle stored before the "
+                 "cell kept it answers its recipe's id in the current configuration, 0 if none)."),
         Register("error_code", 115, _U16, _C, "id",
                  "0 when ok; else why the cycle failed or was refused: the cell's alarm / stop reason "
                  "id, or 900-999 for the PLC interface's own codes."),

@@ -1,8 +1,9 @@
 """The PLC interface's view of the cell (:class:`cellctl.plc.CellFacade`) over the orchestrator.
 
 A PLC ``cycle_req_id`` is an idempotency key in the store's ``plc`` scope: an accepted request is
-the cycle made under that key; a refused one is stored under it as a finished request whose
-response is the refusal (the store's ``claim_key`` / ``complete_key``), so a repeated id
+the cycle made under that key, its request keeping the PLC's ``recipe_id`` (the result's ``result_recipe_id``, and
+what a repeat is matched against, whatever ids the recipes have since); a refused one is stored under it as a
+finished request whose response is the refusal (the store's ``claim_key`` / ``complete_key``), so a repeated id
 republishes the refusal, across restarts too, and can never start a cycle later.
 
 ``robot_clear`` comes from a poller: while no cycle runs or waits and the last cycle ended done, it reads the
@@ -146,7 +147,8 @@ class PlcCellLink:
                                       "[[process.recipes]] in the config)")
         try:
             await self._orch.submit_cycle(
-                CycleRequest(recipe, str(part_id), str(car_body_id) if car_body_id else None, source="plc"),
+                CycleRequest(recipe, str(part_id), str(car_body_id) if car_body_id else None, source="plc",
+                             plc_recipe_id=recipe_id),
                 scope=PLC_SCOPE, key=key, actor=PLC_ACTOR,
             )
         except CycleRefused as err:  # the cell does not take a cycle now (not in Execute), or not of this recipe
@@ -195,10 +197,9 @@ class PlcCellLink:
         s = summarize(record)
         if s is None:
             return None
-        recipe_id = next((k for k, v in self._recipes.items() if v == record.request.recipe), 0)
         return CycleOutcome(
             req_id=req_id,
-            recipe_id=recipe_id,
+            recipe_id=self._recipe_id_of(record.request),
             part_id=_uint32_of(record.request.part_id),
             car_body_id=_uint32_of(record.request.car_id),
             install_started=record.install_started,
@@ -214,6 +215,13 @@ class PlcCellLink:
             measured=None if s.measured is None else tuple(astuple(s.measured)),  # type: ignore[arg-type]
             measured_ok=None if s.measured is None else s.ok,
         )
+
+    def _recipe_id_of(self, request: CycleRequest) -> int:
+        """The recipe_id the PLC requested the cycle with, kept with it; for a record from before it was kept, the
+        recipe name's id in today's ``[[process.recipes]]`` (0: no recipe of that name)."""
+        if request.plc_recipe_id is not None:
+            return request.plc_recipe_id
+        return next((k for k, v in self._recipes.items() if v == request.recipe), 0)
 
     async def command(self, command: PackMLCommand) -> CommandReply:
         """1 (invalid in state) when the state model has no such edge, 5 (blocked) when an interlock holds it back."""

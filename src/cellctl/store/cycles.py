@@ -439,9 +439,11 @@ def _check_digest(sha256: str | None, size_bytes: int | None) -> str | None:
 CYCLE_COLUMNS = (
     "id, idempotency_scope, idempotency_key, recipe, part_id, car_id, source, actor, state, current_step, "
     "result_json, error, true_error_json, created_at, started_at, finished_at, install_started_at, "
-    "interrupted_step, interrupted_at"
+    "interrupted_step, interrupted_at, (SELECT k.request_json FROM idempotency_keys k WHERE k.scope = "
+    "cycles.idempotency_scope AND k.key = cycles.idempotency_key AND k.cycle_id = cycles.id)"
 )
-"""The columns of ``cycles`` that :func:`full_cycle` reads, in its order."""
+"""The columns of ``cycles`` that :func:`full_cycle` reads, in its order; last, its key's stored request (the PLC's
+recipe_id: :attr:`CycleRequest.plc_recipe_id`)."""
 
 
 def full_cycle(conn: sqlite3.Connection, row: tuple[Any, ...]) -> CycleRecord:
@@ -472,7 +474,7 @@ def _cycle_from_row(r: tuple[Any, ...], steps: tuple[StepRecord, ...], images: t
         id=int(r[0]),
         idempotency_scope=r[1],
         idempotency_key=r[2],
-        request=CycleRequest(recipe=r[3], part_id=r[4], car_id=r[5], source=r[6]),
+        request=CycleRequest(recipe=r[3], part_id=r[4], car_id=r[5], source=r[6]).with_stored(r[19]),
         actor=r[7],
         state=CycleState(r[8]),
         current_step=CycleStep(r[9]),

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import enum
+import json
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from typing import Any
 
@@ -73,15 +74,31 @@ class CycleRequest:
     part_id: str
     car_id: str | None = None
     source: str = "api"
+    plc_recipe_id: int | None = None
+    """The line PLC's recipe_id of a PLC-started cycle, kept in its idempotency key's request (so a later change of
+    ``[[process.recipes]]`` ids or names does not change it); None for other cycles, older records, or once the key is
+    forgotten."""
 
     def __post_init__(self) -> None:
         _check_text("recipe", self.recipe, required=True)
         _check_text("part_id", self.part_id, required=True)
         _check_text("car_id", self.car_id, required=False)
         _check_text("source", self.source, required=True)
+        n = self.plc_recipe_id
+        if n is not None and (isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= 0xFFFF):
+            raise ValueError(f"plc_recipe_id must be a PLC recipe_id (0..65535) or None, got {n!r}")
 
-    def identity(self) -> dict[str, str | None]:
-        return {"recipe": self.recipe, "part_id": self.part_id, "car_id": self.car_id}
+    def identity(self) -> dict[str, str | int | None]:
+        """What the idempotency check compares; ``plc_recipe_id`` only when there is one (other keys hash as before)."""
+        ident: dict[str, str | int | None] = {"recipe": self.recipe, "part_id": self.part_id, "car_id": self.car_id}
+        if self.plc_recipe_id is not None:
+            ident["plc_recipe_id"] = self.plc_recipe_id
+        return ident
+
+    def with_stored(self, request_json: str | None) -> CycleRequest:
+        """This request with the ``plc_recipe_id`` its idempotency key's stored request holds (if any)."""
+        n = None if request_json is None else json.loads(request_json).get("plc_recipe_id")
+        return self if not isinstance(n, int) or isinstance(n, bool) else replace(self, plc_recipe_id=n)
 
 
 @dataclass(frozen=True)
