@@ -29,9 +29,12 @@ from cellctl.domain import AlarmCode, InstallDeviation
 from cellctl.geometry.pose import Pose
 from cellctl.quality import (
     AXES,
+    Drift,
+    DriftKind,
     SpcLoop,
     SpcState,
     SpcUpdate,
+    axis_unit,
     offset_pose,
     state_from_dict,
     state_to_dict,
@@ -176,11 +179,11 @@ class InstallQualityLoop:
             return {"error": f"{type(err).__name__}: {err}"}, None
 
     async def raise_drift(self, cycle_id: int, up: SpcUpdate, recipe: str) -> None:
-        """Alarm 1313 for a drift of ``recipe``'s loop that started with this cycle (the loop holds its
-        offset at the bound)."""
+        """Alarm 1313 for a drift of ``recipe``'s loop that started with this cycle (the loop holds that axis's
+        estimate and offset until a reset: :class:`cellctl.quality.SpcLoop`)."""
         if not up.drift_started:
             return
-        what = ", ".join(f"{d.axis} {d.kind.value} {d.value:+.3f} (limit {d.limit:g})" for d in up.drift_started)
+        what = ", ".join(_drift_text(d, up.state.offset[d.axis]) for d in up.drift_started)
         await self.alarms.raise_alarm(
             AlarmCode.SPC_DRIFT, source="spc", cycle_id=cycle_id,
             detail=f"{recipe}'s install offset drifts: {what}; the loop stops following it. Run `cellctl calibrate "
@@ -245,3 +248,14 @@ def calibration_key(reference: Mapping[str, Any]) -> str:
 
 def _figure(v: float | None) -> float | None:
     return None if v is None else float(v)
+
+
+def _drift_text(d: Drift, held: float) -> str:
+    """One drift for alarm 1313: a trend against the drift limit, a step against the gate its results failed, and
+    the offset the axis holds from now on (axis unit)."""
+    unit = axis_unit(d.axis)
+    if d.kind is DriftKind.STEP and d.gate is not None:
+        seen = f"step of {d.value:+.3f} {unit} (gate +-{d.gate:.3g} {unit})"
+    else:
+        seen = f"{d.kind.value} {d.value:+.3f} (limit {d.limit:g})"
+    return f"{d.axis} {seen}, offset held at {held:+.3f} {unit}"

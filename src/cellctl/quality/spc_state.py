@@ -65,13 +65,15 @@ class Drift:
     """An axis that drifts: recalibrate (``cellctl calibrate verify``, then the procedure it names).
 
     ``value`` is the estimate (trend) or the last uncompensated deviation (step), ``limit`` the
-    axis's drift limit, both in the axis's unit.
+    axis's drift limit, ``gate`` (a step) how far from the estimate the results were admitted (the
+    outlier gate, or the install tolerance), all in the axis's unit.
     """
 
     axis: str
     kind: DriftKind
     value: float
     limit: float
+    gate: float | None = None
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,10 @@ def state_to_dict(state: SpcState) -> dict[str, Any]:
         },
         "n_samples": state.n_samples,
         "excluded": dict(state.excluded),
-        "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit} for d in state.drifting],
+        "drifting": [
+            {"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit, "gate": d.gate}
+            for d in state.drifting
+        ],
         "last_cycle_id": state.last_cycle_id,
         "updated_at": None if state.updated_at is None else state.updated_at.isoformat(),
         "reset_at": None if state.reset_at is None else state.reset_at.isoformat(),
@@ -244,7 +249,11 @@ def state_from_dict(d: Mapping[str, Any]) -> SpcState:
             n_samples=int(d["n_samples"]),
             excluded={Exclusion(k).value: int(v) for k, v in d["excluded"].items()},
             drifting=tuple(
-                Drift(x["axis"], DriftKind(x["kind"]), float(x["value"]), float(x["limit"])) for x in d["drifting"]
+                Drift(
+                    x["axis"], DriftKind(x["kind"]), float(x["value"]), float(x["limit"]),
+                    _num("a step's gate", x.get("gate"), optional=True),
+                )  # fmt: skip
+                for x in d["drifting"]
             ),
             last_cycle_id=None if d["last_cycle_id"] is None else int(d["last_cycle_id"]),
             updated_at=None if d["updated_at"] is None else datetime.fromisoformat(d["updated_at"]),
