@@ -1,7 +1,8 @@
 """The versioned calibration set: what the cycle needs, how it was obtained, and whether it is usable.
 
 One JSON document per version holds five parts (``parts``; a recipe other than the cell's first
-has its own ``teaching`` and ``pixel_map`` under ``recipes``), each with its values, when and how it was
+has its own ``teaching`` and ``pixel_map`` under ``recipes``, and a teaching records the recipe it was taught
+for: teaching the first moves another's out of ``parts`` under its name), each with its values, when and how it was
 made (method, software, the dataset it came from), its quality figures and warnings, the ids of
 the parts it was computed with, and how long it stays valid:
 
@@ -155,18 +156,37 @@ class CalibrationSet(StrictRecord):
         self, name: str, part: PartRecord, *, version: int, created_utc: datetime, note: str = "", recipe: str | None = None,
         written_by: WrittenBy | None = None,
     ) -> "CalibrationSet":
-        """A new version with ``part`` as ``name`` (of ``recipe``'s own parts when it names one), all else kept."""
+        """A new version with ``part`` as ``name`` (of ``recipe``'s own parts when it names one), all else kept: a
+        teaching written in ``parts`` first moves the one there, with its map, under the recipe it records
+        (:func:`_make_room`), so teaching the first recipe never takes another's parts, whatever their order."""
         if not isinstance(part, PART_MODELS[name]):
             raise TypeError(f"part {name} must be a {PART_MODELS[name].__name__}, got {type(part).__name__}")
         parts, recipes = self.parts, dict(self.recipes)
         if recipe is not None and name in RECIPE_PART_NAMES:
             recipes[recipe] = recipes.get(recipe, RecipeParts()).model_copy(update={name: part})
         else:
+            if name == "teaching":
+                parts, recipes = _make_room(parts, recipes, getattr(getattr(part, "values", None), "recipe", None))
             parts = parts.model_copy(update={name: part})
         return CalibrationSet(
             version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts, recipes=recipes,
             written_by=written_by,
         )
+
+
+def _make_room(parts: Parts, recipes: dict[str, RecipeParts], taught_for: str | None) -> tuple[Parts, dict[str, RecipeParts]]:
+    """``parts`` and ``recipes`` before a teaching for ``taught_for`` is written in ``parts``: the teaching there and
+    its map moved under the recipe that teaching records when that is another, and they are what that recipe reads
+    (:func:`parts_of`: its own under its name older, or none), else left out. A teaching recording no recipe (taught
+    before teachings recorded it: the first's then) is replaced in place, as before."""
+    old = parts.teaching
+    owner = getattr(getattr(old, "values", None), "recipe", None)
+    if old is None or owner is None or owner == taught_for:
+        return parts, recipes
+    own = recipes.get(owner, RecipeParts()).teaching
+    if own is None or old.calibrated_utc > own.calibrated_utc:
+        recipes[owner] = RecipeParts(teaching=old, pixel_map=parts.pixel_map)
+    return parts.model_copy(update={"teaching": None, "pixel_map": None}), recipes
 
 
 def empty_set(created_utc: datetime) -> CalibrationSet:
@@ -270,7 +290,8 @@ def _jsonable(x: Any) -> Any:
 
 
 def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
-    """Where a recipe's own parts are written: None (``parts``) for the cell's first recipe, else its name."""
+    """Where a recipe's own parts are written: None (``parts``) for the cell's first recipe, else its name (a teaching
+    in ``parts`` taught for another recipe is moved under that one's name first: :meth:`CalibrationSet.with_part`)."""
     return None if recipe is None or recipe == first_recipe else recipe
 
 

@@ -71,7 +71,8 @@ def check_ready(
     in the future (less: a warning, logged once and added to ``warnings`` if given, not a problem), or was
     computed from a part that has since been replaced (stale); a teaching is one when it was
     taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
-    or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does.
+    or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does, or was taught
+    with other shot settings or for another size of its opening (:func:`cellctl.calibration.taught_shot.shot_problem`).
     ``store_root``: the calibration store folder ``cal`` was read from (the datasets a stale part's hint names are
     found in it: :func:`cellctl.calibration.dataset.dataset_folder`).
     """
@@ -80,11 +81,14 @@ def check_ready(
     if cal is None:
         return [f"no calibration set: calibrate and teach the cell first ({', '.join(COMMANDS.values())})"]
     slot = parts_of(cal, recipe, first_recipe)
+    wanted = recipe or first_recipe
+    # the recipe the fix names: the slot's, or one no longer first read in the first's place (`cellctl teach` is the first's)
+    named = slot if slot is not None or wanted == first_recipe else wanted
     problems: list[str] = []
     for name in (n for n in PART_NAMES if n in parts):
         p = cal.part(name, slot)
-        cmd = command(name, slot)
-        label = f"{name} of recipe {slot}" if name in RECIPE_PART_NAMES and slot is not None else name
+        cmd = command(name, named)
+        label = f"{name} of recipe {named}" if name in RECIPE_PART_NAMES and named is not None else name
         if p is None:
             problems.append(f"{label}: missing; run `{cmd}`")
             continue
@@ -109,7 +113,6 @@ def check_ready(
                         f"({_utc(now)}); used, its age counted from now, and it expires as dated, on "
                         f"{expires:%Y-%m-%d %H:%M} UTC; check the clock (NTP)", warnings)  # fmt: skip
         taught_for = getattr(getattr(p, "values", None), "recipe", None)
-        wanted = recipe or first_recipe
         if taught_for is not None and wanted is not None and taught_for != wanted:
             problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
         elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:

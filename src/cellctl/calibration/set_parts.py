@@ -118,12 +118,15 @@ class WallRead(StrictRecord):
 
 
 class TaughtShot(StrictRecord):
-    """The settings the taught shot stood on: T0, the template and the pixel map hold only with them."""
+    """The settings the taught shot stood on: T0, the template and the pixel map hold only with them; g_Pos_0 only
+    for the opening's size (the glass is made to it)."""
 
     working_distance_mm: float  # process.working_distance_mm
     feature: Literal["corner", "arc"]  # what the shot measured
     corner_radius_mm: float  # the opening's ([layout.opening] or the recipe's)
     aim_mm: tuple[float, float]  # in T: the point on the camera's axis (vision.shot_aim_mm or its default)
+    width_mm: float | None = None  # the opening's, as corner_radius_mm (None: taught before the size was recorded)
+    height_mm: float | None = None
 
 
 class TaughtStepValues(StrictRecord):

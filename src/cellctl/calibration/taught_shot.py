@@ -2,7 +2,10 @@
 
 T0 comes from the feature seen at the shooting pose: its kind and place in T (the corner, or the arc's
 centre at the corner radius), the camera's working distance and its aim. A change to any of them
-after teaching leaves T0, the template and the pixel map describing another shot. The template's
+after teaching leaves T0, the template and the pixel map describing another shot. g_Pos_0 holds the
+glass made for the opening's width and height: another size moves the glass's corner in the gripper.
+The opening's nominal place (corner_position_mm) is not recorded: T0 is measured, and the cycle measures
+where each car body stands, so a re-measured nominal place needs no new teaching. The template's
 edge profiles are recorded too: each shot's feature is found again by them (cellctl.vision.taught_profile).
 """
 
@@ -30,6 +33,8 @@ def _shot(config: CellConfig) -> TaughtShot:
         feature=feature_kind(config),
         corner_radius_mm=float(config.layout.opening.corner_radius_mm),
         aim_mm=shot_aim_mm(config),
+        width_mm=float(config.layout.opening.width_mm),
+        height_mm=float(config.layout.opening.height_mm),
     )
 
 
@@ -46,11 +51,11 @@ def shot_problem(taught: TaughtShot | None, config: CellConfig, recipe: str) -> 
     changed = []
     if abs(now.working_distance_mm - taught.working_distance_mm) > SAME_MM:
         changed.append(f"process.working_distance_mm was {taught.working_distance_mm:g} mm, now {now.working_distance_mm:g}")
-    if abs(now.corner_radius_mm - taught.corner_radius_mm) > SAME_MM:
-        changed.append(
-            f"the opening's corner_radius_mm ([layout.opening], or recipe {recipe}'s [process.recipes.opening]) was "
-            f"{taught.corner_radius_mm:g} mm, now {now.corner_radius_mm:g}"
-        )
+    where = f"([layout.opening], or recipe {recipe}'s [process.recipes.opening])"
+    for field in ("corner_radius_mm", "width_mm", "height_mm"):
+        was, new = getattr(taught, field), getattr(now, field)
+        if was is not None and abs(new - was) > SAME_MM:  # None: taught before it was recorded (not checked)
+            changed.append(f"the opening's {field} {where} was {was:g} mm, now {new:g}")
     if now.feature != taught.feature:
         changed.append(f"the shot measured the {taught.feature}, now the {now.feature}")
     if max(abs(a - b) for a, b in zip(now.aim_mm, taught.aim_mm)) > SAME_MM:
