@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cellctl.calibration.board import BoardDetection
-from cellctl.calibration.calibration_set import CalibrationStore
+from cellctl.calibration.calibration_set import CalibrationStore, make_part
 from cellctl.calibration.compute import Outcome, compute_camera, detect_views
 from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.recording import record
@@ -82,3 +82,33 @@ VALUES = {
     "pixel_map": {"affine": [[0.0762, 0.0, -77.3], [0.0, 0.0762, -77.1]], "scale_mm_per_px": 0.0762},
 }
 INPUTS = {"camera": [], "hand_eye": ["camera"], "laser": [], "teaching": ["camera", "hand_eye", "laser"], "pixel_map": ["camera", "teaching"]}
+
+
+def store_with_common_parts(root: Path) -> CalibrationStore:
+    """A store holding camera, hand_eye and laser (the test values, valid 90 days from NOW)."""
+    store = CalibrationStore(root)
+    for name in ("camera", "hand_eye", "laser"):
+        cur = store.current()
+        inputs = {dep: cur.part(dep).id for dep in INPUTS[name]} if cur else {}  # type: ignore[union-attr]
+        store.commit(name, make_part(name, values=VALUES[name], method="test", when=NOW, valid_days=90.0, inputs=inputs), now=NOW)
+    return store
+
+
+def commit_teaching(store: CalibrationStore, slot: str | None, taught_for: str | None, shift_mm: float, *,
+                    when: datetime = NOW, nine_point: bool = True) -> None:
+    """A teaching recording ``taught_for`` (T0 and C_Pos_0 moved ``shift_mm`` in y) and its nine-point map, at ``slot``."""
+    cal = store.current()
+    assert cal is not None
+    moved = {}
+    for pose in ("T0", "C_Pos_0"):
+        T = np.array(VALUES["teaching"][pose], dtype=float)
+        T[1, 3] += shift_mm
+        moved[pose] = T.tolist()
+    values = dict(VALUES["teaching"], **moved, recipe=taught_for)
+    inputs = {dep: cal.part(dep).id for dep in INPUTS["teaching"]}  # type: ignore[union-attr]
+    store.commit("teaching", make_part("teaching", values=values, method="test", when=when, valid_days=90.0, inputs=inputs),
+                 now=when, recipe=slot)  # fmt: skip
+    if nine_point:
+        inputs = {"camera": cal.part("camera").id, "teaching": store.current().part("teaching", slot).id}  # type: ignore[union-attr]
+        store.commit("pixel_map", make_part("pixel_map", values=VALUES["pixel_map"], method="test", when=when, valid_days=90.0,
+                                            inputs=inputs), now=when, recipe=slot)  # fmt: skip

@@ -6,43 +6,18 @@ the first's) read and are replaced as before. The set is read back from its JSON
 from __future__ import annotations
 
 import json
-from datetime import datetime, timedelta
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from calib_test_support import INPUTS, NOW, VALUES
+from calib_test_support import NOW
+from calib_test_support import commit_teaching as teach
+from calib_test_support import store_with_common_parts as cell
 
-from cellctl.calibration.calibration_set import CalibrationStore, make_part, parts_of
+from cellctl.calibration.calibration_set import CalibrationStore, parts_of
 from cellctl.calibration.readiness import check_ready
 
 LATER = NOW + timedelta(days=1)
-
-
-def cell(root: Path) -> CalibrationStore:
-    store = CalibrationStore(root)
-    for name in ("camera", "hand_eye", "laser"):
-        cur = store.current()
-        inputs = {dep: cur.part(dep).id for dep in INPUTS[name]} if cur else {}  # type: ignore[union-attr]
-        store.commit(name, make_part(name, values=VALUES[name], method="test", when=NOW, valid_days=90.0, inputs=inputs), now=NOW)
-    return store
-
-
-def teach(store: CalibrationStore, slot: str | None, taught_for: str | None, shift_mm: float, *, when: datetime = NOW,
-          nine_point: bool = True) -> None:
-    """A teaching recording ``taught_for`` (T0 moved ``shift_mm`` in y) and its nine-point map, written at ``slot``."""
-    cal = store.current()
-    assert cal is not None
-    T0 = np.array(VALUES["teaching"]["T0"], dtype=float)
-    T0[1, 3] += shift_mm
-    values = dict(VALUES["teaching"], T0=T0.tolist(), recipe=taught_for)
-    inputs = {dep: cal.part(dep).id for dep in INPUTS["teaching"]}  # type: ignore[union-attr]
-    store.commit("teaching", make_part("teaching", values=values, method="test", when=when, valid_days=90.0, inputs=inputs),
-                 now=when, recipe=slot)  # fmt: skip
-    if nine_point:
-        inputs = {"camera": cal.part("camera").id, "teaching": store.current().part("teaching", slot).id}  # type: ignore[union-attr]
-        store.commit("pixel_map", make_part("pixel_map", values=VALUES["pixel_map"], method="test", when=when, valid_days=90.0,
-                                            inputs=inputs), now=when, recipe=slot)  # fmt: skip
 
 
 def in_file(store: CalibrationStore) -> dict[str, Any]:

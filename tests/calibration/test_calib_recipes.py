@@ -6,8 +6,7 @@ import json
 from datetime import timedelta
 from pathlib import Path
 
-import numpy as np
-from calib_test_support import INPUTS, NOW, VALUES
+from calib_test_support import INPUTS, NOW, VALUES, commit_teaching
 
 from cellctl.calibration.calibration_set import CalibrationStore, load_calibration_set, make_part
 from cellctl.calibration.readiness import check_ready
@@ -24,18 +23,7 @@ def _cell(root: Path) -> CalibrationStore:
 
 
 def _teach(store: CalibrationStore, recipe: str, shift_mm: float, *, taught_for: str | None = None) -> None:
-    cal = store.current()
-    assert cal is not None
-    T0 = np.array(VALUES["teaching"]["T0"], dtype=float)
-    T0[1, 3] += shift_mm
-    values = dict(VALUES["teaching"], T0=T0.tolist(), recipe=taught_for or recipe)
-    inputs = {dep: cal.part(dep).id for dep in INPUTS["teaching"]}  # type: ignore[union-attr]
-    store.commit("teaching", make_part("teaching", values=values, method="test", when=NOW, valid_days=90.0, inputs=inputs),
-                 now=NOW, recipe=recipe)  # fmt: skip
-    taught = store.current().part("teaching", recipe)  # type: ignore[union-attr]
-    inputs = {"camera": cal.part("camera").id, "teaching": taught.id}  # type: ignore[union-attr]
-    store.commit("pixel_map", make_part("pixel_map", values=VALUES["pixel_map"], method="test", when=NOW, valid_days=90.0,
-                                        inputs=inputs), now=NOW, recipe=recipe)  # fmt: skip
+    commit_teaching(store, recipe, taught_for or recipe, shift_mm)
 
 
 def test_a_second_recipe_is_taught_on_its_own_and_the_first_keeps_its_teaching(tmp_path: Path) -> None:

@@ -10,12 +10,12 @@ from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "calibration"))
-from calib_test_support import INPUTS, NOW, VALUES  # noqa: E402
+from calib_test_support import NOW, store_with_common_parts  # noqa: E402
+from calib_test_support import commit_teaching as _teach  # noqa: E402
 
-from cellctl.calibration.calibration_set import CalibrationStore, make_part, parts_of  # noqa: E402
+from cellctl.calibration.calibration_set import CalibrationStore, parts_of  # noqa: E402
 from cellctl.calibration.readiness import check_ready  # noqa: E402
 from cellctl.calibration.source import CalibrationSetSource  # noqa: E402
 from cellctl.config import parse_config  # noqa: E402
@@ -24,27 +24,9 @@ ROOT = Path(__file__).resolve().parents[2]
 LATER = NOW + timedelta(days=1)
 
 
-def _teach(store: CalibrationStore, slot: str | None, taught_for: str | None, shift_mm: float, when: Any = NOW) -> None:
-    """A teaching (T0 moved ``shift_mm`` in y, recording ``taught_for``) and its nine-point map, at ``slot``."""
-    cal = store.current()
-    T0 = np.array(VALUES["teaching"]["T0"], dtype=float)
-    T0[1, 3] += shift_mm
-    values = dict(VALUES["teaching"], T0=T0.tolist(), recipe=taught_for)
-    inputs = {dep: cal.part(dep).id for dep in INPUTS["teaching"]}  # type: ignore[union-attr]
-    store.commit("teaching", make_part("teaching", values=values, method="test", when=when, valid_days=90.0, inputs=inputs),
-                 now=when, recipe=slot)  # fmt: skip
-    taught = store.current().part("teaching", slot)  # type: ignore[union-attr]
-    store.commit("pixel_map", make_part("pixel_map", values=VALUES["pixel_map"], method="test", when=when, valid_days=90.0,
-                                        inputs={"camera": cal.part("camera").id, "teaching": taught.id}), now=when, recipe=slot)  # type: ignore[union-attr]  # fmt: skip
-
-
 def _cell(root: Path) -> CalibrationStore:
     """The cell's parts; the side window's teaching in the first's place, the door window's under its name."""
-    store = CalibrationStore(root)
-    for name in ("camera", "hand_eye", "laser"):
-        cur = store.current()
-        inputs = {dep: cur.part(dep).id for dep in INPUTS[name]} if cur else {}  # type: ignore[union-attr]
-        store.commit(name, make_part(name, values=VALUES[name], method="test", when=NOW, valid_days=90.0, inputs=inputs), now=NOW)
+    store = store_with_common_parts(root)
     _teach(store, None, "side-window", 0.0)
     _teach(store, "door-window", "door-window", -400.0)
     return store

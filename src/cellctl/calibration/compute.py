@@ -20,7 +20,7 @@ import numpy as np
 
 from cellctl.align import AlignmentError, AlignmentResult, compute_alignment, readings_at_stops
 from cellctl.calibration.board import BoardDetection, BoardSpec, find_board
-from cellctl.calibration.calibration_set import CalibrationSet, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, parts_of, recipe_slot
 from cellctl.calibration.camera import ViewCorners, calibrate_camera
 from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
@@ -298,9 +298,9 @@ def compute_nine_point(ds: Dataset, cal: CalibrationSet | None, config: CellConf
     """The nine-point map and the pixel scale s from a nine_point dataset."""
     npc = config.calibration.procedure.nine_point
     camera_id = _need(cal, "pixel_map", "camera")
-    recipe = recipe_slot(ds.manifest.get("recipe"), config.default_recipe)
-    teaching_id = _need(cal, "pixel_map", "teaching", recipe)
     assert cal is not None
+    recipe = parts_of(cal, ds.manifest.get("recipe"), config.default_recipe)  # the map goes with the teaching it is of
+    teaching_id = _need(cal, "pixel_map", "teaching", recipe)
     lens = cal.lens()
     taught = cal.taught(recipe)
     views = ds.manifest["views"]

@@ -25,7 +25,7 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, command, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, command, parts_of, recipe_slot
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
@@ -292,11 +292,13 @@ class JobManager:
     async def _create(self, procedure: str, opts: dict[str, Any], *, actor: str, source: str) -> RunningJob:
         """The job's record and task, once its procedure's parts are calibrated (under the submit lock)."""
         cal = await asyncio.to_thread(self.current_calibration)
-        slot = recipe_slot(opts.get("recipe"), self.config.default_recipe)
+        first = self.config.default_recipe
+        slot = None if cal is None else parts_of(cal, opts.get("recipe"), first)
         missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
         if missing:
-            of = "" if slot is None else f" (recipe {slot})"
-            run = "; ".join(f"`{command(n, slot)}`" for n in missing)
+            named = recipe_slot(opts.get("recipe"), first)
+            of = "" if named is None else f" (recipe {named})"
+            run = "; ".join(f"`{command(n, named)}`" for n in missing)
             raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first: run {run}", conflict=True)
         rec = await self.store.create_job(
             procedure, actor=actor, source=source, options=opts, version_before=None if cal is None else cal.version

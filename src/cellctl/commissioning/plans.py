@@ -21,7 +21,7 @@ import numpy as np
 
 from cellctl.align import plan_spot_poses
 from cellctl.calibration.board import BoardSpec
-from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_slot
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
@@ -314,11 +314,14 @@ def more_laser_poses(config: CellConfig, planned: int, usable: int) -> str:
             f"--poses {ask} (options.poses; {ask - planned} more)")  # fmt: skip
 
 
-def _need(cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str | None = None) -> CalibrationSet:
-    """The set, when the parts the plan needs are usable (a recipe part: ``recipe``'s own); else PlanError."""
+def _need(
+    cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str | None = None, named: str | None = None
+) -> CalibrationSet:
+    """The set, when the parts the plan needs are usable (a recipe part: those at ``recipe``'s slot); else PlanError
+    with the command for recipe ``named`` (None: the first)."""
     for name in parts:
         if cal is None or not cal.usable(name, recipe):
-            raise PlanError(f"{procedure}: {name} must be calibrated first: run `{command(name, recipe)}`")
+            raise PlanError(f"{procedure}: {name} must be calibrated first: run `{command(name, named)}`")
     assert cal is not None
     return cal
 
@@ -366,8 +369,8 @@ def plan_nine_point(
     config: CellConfig, cal: CalibrationSet | None, *, start: Pose | None = None, recipe: str | None = None
 ) -> MotionPlan:
     """A 3 x 3 grid of camera shifts in the wall plane about the taught shooting pose (of ``recipe``; None: the first)."""
-    slot = recipe_slot(recipe, config.default_recipe)
-    cal = _need(cal, "pixel_map", "camera", "teaching", recipe=slot)
+    slot = None if cal is None else parts_of(cal, recipe, config.default_recipe)
+    cal = _need(cal, "pixel_map", "camera", "teaching", recipe=slot, named=recipe_slot(recipe, config.default_recipe))
     taught = cal.taught(slot)
     npc = config.calibration.procedure.nine_point
     offsets = nine_point_offsets(npc.step_mm)

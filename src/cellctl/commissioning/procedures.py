@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.calibration.calibration_set import CalibrationSet, command, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_slot
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
@@ -242,11 +242,14 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
 # -- teaching ------------------------------------------------------------------------------------
 
 
-def _need(cal: CalibrationSet | None, part: str, *names: str, recipe: str | None = None) -> CalibrationSet:
-    """The set, when the parts ``part`` builds on are usable (a recipe part: ``recipe``'s own); else refused."""
+def _need(
+    cal: CalibrationSet | None, part: str, *names: str, recipe: str | None = None, named: str | None = None
+) -> CalibrationSet:
+    """The set, when the parts ``part`` builds on are usable (a recipe part: those at ``recipe``'s slot); else refused
+    with the command for recipe ``named`` (None: the first)."""
     for name in names:
         if cal is None or not cal.usable(name, recipe):
-            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first: run `{command(name, recipe)}`")
+            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first: run `{command(name, named)}`")
     assert cal is not None
     return cal
 
@@ -352,8 +355,9 @@ def _glass_in_opening(where: str, clear: Pose) -> str:
 async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> Dataset:
     """Nine images of the window corner from the taught pose (of ``recipe``; None: the first) shifted in the wall plane, then the scale board."""
     recipe = recipe or ctx.config.default_recipe
-    slot = recipe_slot(recipe, ctx.config.default_recipe)
-    cal = _need(ctx.calibration, "pixel_map", "camera", "teaching", recipe=slot)
+    slot = None if ctx.calibration is None else parts_of(ctx.calibration, recipe, ctx.config.default_recipe)
+    cal = _need(ctx.calibration, "pixel_map", "camera", "teaching", recipe=slot,
+                named=recipe_slot(recipe, ctx.config.default_recipe))
     plan = await asyncio.to_thread(plan_nine_point, ctx.config, cal, start=await current_pose(ctx), recipe=recipe)
     taught = cal.taught(slot)
     npc = ctx.config.calibration.procedure.nine_point
