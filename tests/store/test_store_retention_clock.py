@@ -120,3 +120,26 @@ async def test_a_service_started_with_its_clock_far_ahead_prunes_nothing_and_a_r
     report = await restarted.run_once()
     assert (report.cycles_deleted, report.images_pruned) == (0, 0) and await _known(cell, 1, 2, 3) == [True] * 3
     assert "367 days ahead of the newest cycle record (cycle 3)" in restarted.status()["last_error"]
+
+
+async def test_records_made_while_the_clock_was_set_back_keep_their_true_age_after_a_restart(cell: SimpleNamespace) -> None:
+    """A PC whose clock battery died boots 400 days behind, records two cycles, and NTP sets it right while the
+    service is down: the restarted service (no memory of the step) keeps their records and images, and they go once
+    truly older than the retention periods."""
+    await cell.cycle(1)
+    cell.later(days=2)
+    cell.clock.advance(days=-400)
+    for n in (2, 3):
+        await cell.cycle(n)
+        cell.later(days=1)
+    cell.clock.advance(days=400)
+    await cell.cycle(4)  # recorded with the right clock before the restarted service's first pass
+    restarted = cell.make(images_days=30, cycles_days=365)
+    report = await restarted.run_once()
+    assert (report.cycles_deleted, report.images_pruned) == (0, 0) and restarted.status()["last_error"] is None
+    assert await _known(cell, 1, 2, 3, 4) == [True] * 4 and len(list(cell.images.iterdir())) == 4
+    cell.later(days=31)  # a month on: every image is older than 30 days on the true clock, no record a year
+    report = await restarted.run_once()
+    assert (report.cycles_deleted, report.images_pruned) == (0, 4)
+    cell.later(days=335)
+    assert (await restarted.run_once()).cycles_deleted == 4 and await _known(cell, 1, 2, 3, 4) == [False] * 4

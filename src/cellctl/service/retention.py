@@ -17,6 +17,8 @@ What is kept is :class:`cellctl.config.store.RetentionConfig` ([store.retention]
 - pruning by **age** is held while the wall clock is in doubt (:mod:`cellctl.service.retention_clock`: stepped
   since the last pass, or far ahead of the newest record), said in the log and ``last_error``; by size it goes on;
   after a hold that ended by confirming the clock, records from before it are aged without the gap for one period.
+  Cycle records and their images are aged from the cycle's end stamp, which never goes back, so those made while the
+  clock was set back keep their true age after it is right again, restarts included.
 - the **audit log** is never pruned. It is append-only and hash-chained from its first entry
   (the database refuses deletes, :meth:`cellctl.store.CellStore.verify_audit_chain` checks
   that no entry is missing), it is the record of who commanded what, and it is small beside the

@@ -10,7 +10,7 @@ the retention task (:mod:`cellctl.service.retention`) runs on the store's thread
   :data:`MISSING_REASON` says only that its file was not there when retention looked: such a file
   is never a leftover to delete, and when it is back its reference is kept again
   (:meth:`RetentionRows.restore_missing_images`);
-- cycle records older than a cutoff, deleted with their steps, image references, idempotency
+- cycle records that ended before a cutoff (on their end stamp, which a clock set back does not lower), deleted with their steps, image references, idempotency
   keys and closed-loop history rows, in batches so no single transaction holds the write lock for long
   (the loop's history is also pruned by age and count alone: :meth:`cellctl.store.spc.SpcRows.prune_spc_history`);
   the finished keys of no cycle (a refused request's) go after the same cutoff, by their own time stamp.
@@ -46,7 +46,7 @@ class KeptImage:
     id: int
     cycle_id: int
     uri: str
-    created_at: datetime
+    created_at: datetime  # aged from: when it was made, or its cycle's end stamp where that is later (a clock set back)
     cycle_active: bool  # its cycle is queued or running: never pruned
 
 
@@ -91,12 +91,15 @@ class RetentionRows(Database):
     # -- images -------------------------------------------------------------------------------
 
     def kept_images(self) -> list[KeptImage]:
-        """Every image reference not yet pruned, oldest first."""
+        """Every image reference not yet pruned, oldest first; each aged from the later of its own time and its cycle's end
+        stamp (which never goes back: an image made while the clock was set back is not aged by that clock)."""
         rows = self._conn.execute(
-            "SELECT i.id, i.cycle_id, i.uri, i.created_at, c.state IN ('queued', 'running') "
+            "SELECT i.id, i.cycle_id, i.uri, i.created_at, c.ended_at, c.state IN ('queued', 'running') "
             "FROM cycle_images i JOIN cycles c ON c.id = i.cycle_id WHERE i.pruned_at IS NULL ORDER BY i.id"
         ).fetchall()
-        return [KeptImage(int(r[0]), int(r[1]), r[2], datetime.fromisoformat(r[3]), bool(r[4])) for r in rows]
+        return [
+            KeptImage(int(r[0]), int(r[1]), r[2], max(datetime.fromisoformat(r[3]), datetime.fromisoformat(r[4] or r[3])), bool(r[5])) for r in rows
+        ]
 
     def mark_images_pruned(self, uris: Sequence[str], *, reason: str, at: datetime | None = None) -> int:
         """Say that the files ``uris`` are gone and why; every kept reference to them is marked. Returns how many."""
@@ -147,12 +150,17 @@ class RetentionRows(Database):
     def prune_cycles(
         self, *, created_before: datetime, batch: int = 500, keep_unpublished: bool = False
     ) -> tuple[list[int], list[str]]:
-        """Delete up to ``batch`` finished cycles created before the cutoff, oldest first, with their
+        """Delete up to ``batch`` finished cycles ended before the cutoff, oldest first, with their
         steps, image references, idempotency keys and closed-loop history rows. Returns (the ids deleted, the image files
         they still referenced: delete those too). Call again until it returns no ids.
 
         A cycle above the MQTT results' high-water mark (its result never queued) is kept with
-        ``keep_unpublished`` (publication is configured); else its deletion counts as a dropped result."""
+        ``keep_unpublished`` (publication is configured); else its deletion counts as a dropped result.
+
+        A cycle is aged by its end stamp ``ended_at``, which never goes back (:func:`cellctl.store.cycles.end_stamp`):
+        one recorded while the wall clock was set back (a PC's dead clock battery, say) is not taken for that old
+        once the clock is right again, across restarts. A finished cycle without one (none since schema 10) by
+        ``created_at``."""
         cutoff = ts(created_before)
         with self._tx() as c:
             hwm = c.execute("SELECT result_hwm FROM mqtt_outbox_state WHERE id = 1").fetchone()[0]
@@ -160,9 +168,9 @@ class RetentionRows(Database):
             ids = [
                 int(r[0])
                 for r in c.execute(
-                    f"SELECT id FROM cycles WHERE created_at < ? AND state IN {FINISHED_CYCLE_STATES} "
-                    f"{'AND id <= ? ' if held else ''}ORDER BY id LIMIT ?",
-                    (cutoff, *((int(hwm),) if held else ()), int(batch)),
+                    f"SELECT id FROM cycles WHERE (ended_at < ? OR (ended_at IS NULL AND created_at < ?)) "
+                    f"AND state IN {FINISHED_CYCLE_STATES} {'AND id <= ? ' if held else ''}ORDER BY id LIMIT ?",
+                    (cutoff, cutoff, *((int(hwm),) if held else ()), int(batch)),
                 )
             ]
             if not ids:
