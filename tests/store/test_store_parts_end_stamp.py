@@ -211,3 +211,24 @@ def test_upgrade_stamps_ended_cycles_with_the_time_their_window_was_on(tmp_path:
         mark = peer.execute("SELECT ended_at FROM cycle_end_mark").fetchall()
     assert rows == {1: t(1), 2: t(30), 3: t(2), 4: (T0 + timedelta(minutes=30) + US).isoformat()}, rows
     assert mark == [(rows[4],)]
+
+
+def test_an_install_after_the_upgrade_and_a_clock_step_back_is_in_the_next_export(tmp_path: Path) -> None:
+    """A release before end stamps gave out its clock as the export's bound (06:10), which the MES passes on as its next
+    ``since``; the upgrade at 06:15 starts the end stamps there, so an install after NTP steps the clock back to 06:05
+    is still in the MES's next window (it was stamped 06:06, before that ``since``, and never exported)."""
+    path = tmp_path / "cell.db"
+    conn = sqlite3.connect(path, isolation_level=None)
+    assert schema.migrate(conn, schema.MIGRATIONS[:9]) == (0, 9)
+    end = (T0 + timedelta(seconds=0.5)).isoformat(timespec="microseconds")
+    conn.execute(ROW, (1, "G-1", "G-1", "done", T0.isoformat(timespec="microseconds"), end, None))
+    conn.close()
+    clock = Clock()
+    clock.step(15 * 60)  # the service restarts on the new release at 06:15
+    with CellStore.open(path, clock=clock) as store:
+        assert store.upgrade is not None and store.upgrade.from_version == 9
+        mes = Mes(store, lambda: FAR, T0 + timedelta(minutes=10))  # the old release's last bound: its clock then
+        clock.step(-10 * 60)  # NTP steps the clock back to 06:05
+        run(store, clock, "G-2")
+        mes.export()
+    assert [r[0] for r in ended(path)] == [1, 2] and mes.got == [2] and mes.outside == []

@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 
 AHEAD_UNSAID = timedelta(minutes=5)
 """A part dated less than this ahead of the cell's clock is not warned about (two hosts' clocks, a slewing NTP)."""
+AHEAD_USED = timedelta(days=1)
+"""A part dated less than this ahead of the cell's clock is used (NTP stepped back a clock that ran ahead while it was
+calibrated); further ahead it is refused: its true age cannot be told, and it would count that much longer."""
 _warned: set[tuple[str, str]] = set()  # (part id, label): each logged once per process, not at every status poll
 
 
@@ -47,7 +50,7 @@ def valid_days(part: PartRecord, config: CellConfig | None = None) -> float:
 
 def expires_utc(part: PartRecord, config: CellConfig | None = None) -> datetime | None:
     """When ``part`` stops counting for production (UTC): ``calibrated_utc`` + :func:`valid_days`; None for a failed part.
-    (Its age counts from the earlier of ``calibrated_utc`` and now: a part dated ahead of the clock ends there too.)"""
+    (A part dated ahead of the clock, by less than :data:`AHEAD_USED`, ends there too: at most that much late.)"""
     if part.status == "failed":
         return None
     return part.calibrated_utc + timedelta(days=valid_days(part, config))
@@ -67,8 +70,8 @@ def check_ready(
     """Everything that stops production of ``recipe`` (None: the cell's first), one line per problem (empty: ready).
 
     ``parts`` limits the check to those parts (e.g. ``RECIPE_PART_NAMES``: the recipe's own). A part is a problem
-    when it is missing, failed, expired (:func:`expires_utc`, given the cell's ``config``), dated more than its validity
-    in the future (less: a warning, logged once and added to ``warnings`` if given, not a problem), or was
+    when it is missing, failed, expired (:func:`expires_utc`, given the cell's ``config``), dated :data:`AHEAD_USED` or
+    more in the future (less: a warning, logged once and added to ``warnings`` if given, not a problem), or was
     computed from a part that has since been replaced (stale); a teaching is one when it was
     taught for another recipe than the one it stands for (``first_recipe`` names the cell's first),
     or, given the cell's ``config``, read the wall elsewhere or otherwise than that recipe's cycle does, or was taught
@@ -104,14 +107,14 @@ def check_ready(
                 f"valid {days:g} days{by}); run `{cmd}`"
             )
         ahead = p.calibrated_utc - now
-        if ahead >= timedelta(days=valid_days(p, config)):
-            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC), over its validity of "
-                            f"{valid_days(p, config):g} days ahead of this cell's clock ({_utc(now)}); check the clock, "
-                            f"or run `{cmd}` again")  # fmt: skip
+        if ahead >= AHEAD_USED:
+            problems.append(f"{label}: calibrated in the future ({p.calibrated_utc:%Y-%m-%d %H:%M} UTC), "
+                            f"{ahead / timedelta(days=1):.1f} days ahead of this cell's clock ({_utc(now)}), a day or more: "
+                            f"its age cannot be told; check the clock, or run `{cmd}` again")  # fmt: skip
         elif ahead > AHEAD_UNSAID and expires is not None:
             _warn((p.id, label), f"{label}: calibrated {p.calibrated_utc:%Y-%m-%d %H:%M} UTC, ahead of this cell's clock "
-                        f"({_utc(now)}); used, its age counted from now, and it expires as dated, on "
-                        f"{expires:%Y-%m-%d %H:%M} UTC; check the clock (NTP)", warnings)  # fmt: skip
+                        f"({_utc(now)}); used, and it expires as dated, on {expires:%Y-%m-%d %H:%M} UTC; check the clock "
+                        f"(NTP)", warnings)  # fmt: skip
         taught_for = getattr(getattr(p, "values", None), "recipe", None)
         if taught_for is not None and wanted is not None and taught_for != wanted:
             problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
@@ -133,15 +136,6 @@ def check_ready(
                 problems.append(f"{label}: computed with {dep} {used}, but the set now holds {dep} {have.id}; run `{cmd}` again"
                                 + _offline_way(name, p, store_root))
     return problems
-
-
-def dated_ahead(cal: CalibrationSet | None, now: datetime, *, first_recipe: str | None = None,
-                config: CellConfig | None = None) -> list[str]:
-    """The warnings of :func:`check_ready` for the cell's parts: those dated ahead of the cell's clock ``now`` (UTC) by
-    more than AHEAD_UNSAID and less than their validity, used for production; one line each, naming the part and its date."""
-    warnings: list[str] = []
-    check_ready(cal, now, first_recipe=first_recipe, config=config, warnings=warnings)
-    return warnings
 
 
 def _utc(when: datetime) -> str:

@@ -49,7 +49,7 @@ from cellctl.calibration.calibration_set import (
 )
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.provenance import ADOPT_ACTION, ADOPT_ACTOR, ADOPT_SOURCE, adoption_params
-from cellctl.calibration.readiness import check_ready, dated_ahead, expires_utc
+from cellctl.calibration.readiness import check_ready, expires_utc
 from cellctl.calibration.taught_shot import taught_profile_of
 from cellctl.cell.cycle import CycleCalibration
 from cellctl.config.schema import CellConfig
@@ -304,12 +304,14 @@ class CalibrationSetSource:
             }  # fmt: skip
         now = datetime.now(timezone.utc)
         first = self.config.default_recipe
-        recipes = {}
+        recipes: dict[str, Any] = {}
+        warnings: list[str] = []  # the parts used though dated ahead of the clock, of every recipe
         for r in self.config.process.recipes:
-            lines = check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config, store_root=self.store.root)
+            lines = check_ready(cal, now, recipe=r.name, first_recipe=first, config=self.config, store_root=self.store.root,
+                                warnings=warnings)  # fmt: skip
             recipes[r.name] = {"ready": not lines, "taught": cal.usable("teaching", self._slot(cal, r.name)), "problems": lines}
         return {"source": str(self.store.root), "version": cal.version, "parts": parts, "recipes": recipes,
-                "warnings": dated_ahead(cal, now, first_recipe=first, config=self.config)}
+                "warnings": list(dict.fromkeys(warnings))}
 
     def history(self) -> list[dict[str, Any]]:
         """Every version, oldest first; each file read once per change, a damaged one listed as such."""

@@ -312,7 +312,8 @@ INSERT INTO cycle_end_mark (id, ended_at) SELECT 1, MAX(ended_at) FROM cycles;
 when the wall clock steps back (:func:`cellctl.store.cycles.end_stamp`); ``finished_at`` and ``interrupted_found_at``
 keep the wall clock's time. ``cycle_end_mark`` (one row) keeps the latest end stamp, retention's deletions aside (before
 any cycle ended, the bound an export applied less 1 us: the floor of the first end stamp).
-Cycles ended before this version get the time the window ran on before."""
+Cycles ended before this version get the time the window ran on before; the upgrade raises the floor to its own clock
+(an earlier release's export bounds went up to its clock: :func:`cellctl.store.upgrade.migrate_keeping_a_copy`)."""
 
 MIGRATIONS: Sequence[str] = (V1, V2_JOBS, V3_RETENTION, V4_SPC, V5_IMAGE_DIGEST, V6_MQTT_OUTBOX, V7_SPC_PER_RECIPE,
                              V8_INTERRUPTED_REASONS, V9_INTERRUPTED_CUT_OFF, V10_END_STAMP)

@@ -12,11 +12,11 @@ from __future__ import annotations
 import sqlite3
 from contextlib import closing
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 from cellctl.store.records import StoreError
-from cellctl.store.schema import MIGRATIONS, migrate, schema_version
+from cellctl.store.schema import MIGRATIONS, V10_END_STAMP, migrate, schema_version
 
 
 @dataclass(frozen=True)
@@ -64,5 +64,21 @@ def migrate_keeping_a_copy(conn: sqlite3.Connection, path: Path, now: datetime) 
             f"rollback ({copy}) could not be written ({err}): free space in {path.parent} (the copy is as large as "
             "the file), then start again; nothing was migrated"
         ) from None
-    _, after = migrate(conn)
+    _, after = migrate(conn, _end_stamps_floored(now))
     return StoreUpgrade(path, before, after, copy)
+
+
+END_STAMP_VERSION = MIGRATIONS.index(V10_END_STAMP) + 1
+"""The schema whose migration gave cycles their end stamp (``ended_at``)."""
+
+
+def _end_stamps_floored(now: datetime) -> list[str]:
+    """MIGRATIONS, with the end stamps' floor raised to ``now`` in the migration that brings them: a release before them
+    gave out export bounds up to its clock (an MES passes one on as its next ``since``), so an end stamped earlier,
+    once the clock stepped back, would fall before a window already exported and never be listed."""
+    at = now.astimezone(timezone.utc).isoformat(timespec="microseconds")  # as the store keeps times
+    floored = list(MIGRATIONS)
+    floored[END_STAMP_VERSION - 1] += (
+        f"UPDATE cycle_end_mark SET ended_at = '{at}' WHERE id = 1 AND (ended_at IS NULL OR ended_at < '{at}');\n"
+    )
+    return floored
