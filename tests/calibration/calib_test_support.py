@@ -84,13 +84,14 @@ VALUES = {
 INPUTS = {"camera": [], "hand_eye": ["camera"], "laser": [], "teaching": ["camera", "hand_eye", "laser"], "pixel_map": ["camera", "teaching"]}
 
 
-def store_with_common_parts(root: Path) -> CalibrationStore:
-    """A store holding camera, hand_eye and laser (the test values, valid 90 days from NOW)."""
+def store_with_common_parts(root: Path, when: datetime = NOW) -> CalibrationStore:
+    """A store holding camera, hand_eye and laser (the test values, calibrated ``when``, valid 90 days)."""
     store = CalibrationStore(root)
     for name in ("camera", "hand_eye", "laser"):
         cur = store.current()
         inputs = {dep: cur.part(dep).id for dep in INPUTS[name]} if cur else {}  # type: ignore[union-attr]
-        store.commit(name, make_part(name, values=VALUES[name], method="test", when=NOW, valid_days=90.0, inputs=inputs), now=NOW)
+        store.commit(name, make_part(name, values=VALUES[name], method="test", when=when, valid_days=90.0, inputs=inputs),
+                     now=when)  # fmt: skip
     return store
 
 

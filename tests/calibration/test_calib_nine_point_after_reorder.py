@@ -62,7 +62,7 @@ def test_a_recipe_with_no_teaching_is_refused_with_its_own_command_after_a_reord
     try:
         plan_nine_point(config, cal, recipe="door-window")
     except PlanError as err:
-        assert "run `cellctl teach`" in str(err)  # the door window is first now: the plain command is its
+        assert "run `cellctl teach --recipe door-window`" in str(err)  # its own, named
     else:
         raise AssertionError("the door window's nine-point was planned from the side window's teaching")
 

@@ -53,7 +53,8 @@ def test_a_newer_teaching_in_the_first_place_for_that_recipe_is_the_one_read(tmp
     _teach(store, None, "door-window", -380.0, when=NOW + timedelta(hours=1))  # taught again, now that it is first
     cal = store.current()
     assert cal is not None and parts_of(cal, "door-window", "door-window") is None
-    assert cal.taught(parts_of(cal, "door-window", "door-window")).T0[1, 3] == cal.taught("door-window").T0[1, 3] + 20.0
+    assert cal.taught(parts_of(cal, "door-window", "door-window")).T0[1, 3] == -380.0
+    assert "door-window" not in cal.recipes  # its earlier one under its name is gone with it: one teaching a recipe
 
 
 def _source(store: CalibrationStore, recipes: list[dict[str, Any]]) -> CalibrationSetSource:

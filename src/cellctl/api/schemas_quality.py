@@ -8,8 +8,10 @@ from pydantic import BaseModel, Field
 class SpcDrift(BaseModel):
     axis: str
     kind: str = Field(description="trend (the estimate passed the limit) or step (results jumped past the gate)")
-    value: float
+    value: float = Field(description="the estimate (trend) or the last deviation without the loop (step)")
     limit: float
+    gate: float | None = Field(None, description="a step: the gate its results failed (about the estimate, or the install tolerance)")
+    tested: float | None = Field(None, description="a step: what that gate refused in its last result (axis unit)")
 
 
 class SpcView(BaseModel):

@@ -158,15 +158,22 @@ class CalibrationSet(StrictRecord):
     ) -> "CalibrationSet":
         """A new version with ``part`` as ``name`` (of ``recipe``'s own parts when it names one), all else kept: a
         teaching written in ``parts`` first moves the one there, with its map, under the recipe it records
-        (:func:`_make_room`), so teaching the first recipe never takes another's parts, whatever their order."""
+        (:func:`_make_room`), so teaching the first recipe never takes another's parts, whatever their order; and a
+        recipe's teaching written in one place removes its earlier one, with its map, from the other, so the one
+        written last is the one read whatever their dates (a clock that ran ahead, a recompute of an older capture)."""
         if not isinstance(part, PART_MODELS[name]):
             raise TypeError(f"part {name} must be a {PART_MODELS[name].__name__}, got {type(part).__name__}")
         parts, recipes = self.parts, dict(self.recipes)
         if recipe is not None and name in RECIPE_PART_NAMES:
             recipes[recipe] = recipes.get(recipe, RecipeParts()).model_copy(update={name: part})
+            if name == "teaching" and taught_for(parts.teaching) == recipe:
+                parts = parts.model_copy(update={"teaching": None, "pixel_map": None})
         else:
             if name == "teaching":
-                parts, recipes = _make_room(parts, recipes, getattr(getattr(part, "values", None), "recipe", None))
+                new_for = taught_for(part)
+                parts, recipes = _make_room(parts, recipes, new_for)
+                if new_for is not None:
+                    recipes.pop(new_for, None)
             parts = parts.model_copy(update={name: part})
         return CalibrationSet(
             version=version, created_utc=created_utc, parent_version=self.version, note=note, parts=parts, recipes=recipes,
@@ -174,14 +181,19 @@ class CalibrationSet(StrictRecord):
         )
 
 
-def _make_room(parts: Parts, recipes: dict[str, RecipeParts], taught_for: str | None) -> tuple[Parts, dict[str, RecipeParts]]:
-    """``parts`` and ``recipes`` before a teaching for ``taught_for`` is written in ``parts``: the teaching there and
+def taught_for(part: PartRecord | None) -> str | None:
+    """The recipe a teaching records it was taught for (None: another part, none, or one taught before teachings did)."""
+    return getattr(getattr(part, "values", None), "recipe", None)
+
+
+def _make_room(parts: Parts, recipes: dict[str, RecipeParts], new_for: str | None) -> tuple[Parts, dict[str, RecipeParts]]:
+    """``parts`` and ``recipes`` before a teaching for ``new_for`` is written in ``parts``: the teaching there and
     its map moved under the recipe that teaching records when that is another, and they are what that recipe reads
     (:func:`parts_of`: its own under its name older, or none), else left out. A teaching recording no recipe (taught
     before teachings recorded it: the first's then) is replaced in place, as before."""
     old = parts.teaching
-    owner = getattr(getattr(old, "values", None), "recipe", None)
-    if old is None or owner is None or owner == taught_for:
+    owner = taught_for(old)
+    if old is None or owner is None or owner == new_for:
         return parts, recipes
     own = recipes.get(owner, RecipeParts()).teaching
     if own is None or old.calibrated_utc > own.calibrated_utc:
@@ -295,14 +307,21 @@ def recipe_slot(recipe: str | None, first_recipe: str | None) -> str | None:
     return None if recipe is None or recipe == first_recipe else recipe
 
 
+def recipe_named(slot: str | None, recipe: str | None, first_recipe: str | None) -> str | None:
+    """The recipe a fix's command names with ``--recipe``: the ``slot`` its parts are read at (:func:`parts_of`), or the
+    recipe itself when they are read in the first's place but it is no longer first (None: the plain command, the first's)."""
+    return slot if slot is not None or (recipe or first_recipe) == first_recipe else recipe
+
+
 def parts_of(cal: CalibrationSet, recipe: str | None, first_recipe: str | None) -> str | None:
     """Where ``recipe``'s (None: the first's) own parts are read: under its name, unless ``parts`` holds a teaching
-    recorded for it (or for none, and it is the first) and newer than its own (taught since it became the
-    first); a teaching there of another recipe is never its. None: ``parts``; a name with nothing there: untaught."""
+    recorded for it (or for none, and it is the first) and, where it has one under its name as well (a set written
+    before :meth:`CalibrationSet.with_part` kept one teaching per recipe), newer than that; a teaching there of another
+    recipe is never its. None: ``parts``; a name with nothing there: untaught."""
     name = recipe or first_recipe
     own, common = cal.recipes.get(name or "", RecipeParts()).teaching, cal.parts.teaching
-    taught_for = getattr(getattr(common, "values", None), "recipe", None)
-    if name is None or (common is not None and (taught_for == name or (taught_for is None and name == first_recipe))
+    owner = taught_for(common)
+    if name is None or (common is not None and (owner == name or (owner is None and name == first_recipe))
                         and (own is None or common.calibrated_utc > own.calibrated_utc)):
         return None
     return name

@@ -25,6 +25,7 @@ from cellctl.calibration.calibration_set import (
     CalibrationSet,
     command,
     parts_of,
+    recipe_named,
     wall_read_problem,
 )
 from cellctl.calibration.dataset import dataset_folder
@@ -86,7 +87,7 @@ def check_ready(
     slot = parts_of(cal, recipe, first_recipe)
     wanted = recipe or first_recipe
     # the recipe the fix names: the slot's, or one no longer first read in the first's place (`cellctl teach` is the first's)
-    named = slot if slot is not None or wanted == first_recipe else wanted
+    named = recipe_named(slot, wanted, first_recipe)
     problems: list[str] = []
     for name in (n for n in PART_NAMES if n in parts):
         p = cal.part(name, slot)

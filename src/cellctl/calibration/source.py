@@ -45,6 +45,7 @@ from cellctl.calibration.calibration_set import (
     damage_text,
     history_row,
     parts_of,
+    recipe_named,
     store_root,
 )
 from cellctl.calibration.errors import CalibrationRefused
@@ -348,7 +349,8 @@ class CalibrationSetSource:
             part = snap.cal.part(name, slot)
             if part is None or part.status != "ok":
                 state = "is missing" if part is None else f"failed ({part.failure})"
-                return f"recipe {recipe} is not taught: its {what} {state}; run `{command(name, slot)}`"
+                return (f"recipe {recipe} is not taught: its {what} {state}; "
+                        f"run `{command(name, recipe_named(slot, recipe, self.config.default_recipe))}`")
         taught_for = getattr(getattr(snap.cal.part("teaching", slot), "values", None), "recipe", None)
         if taught_for not in (None, recipe):  # a set edited by hand, or written by an older cellctl
             return (f"recipe {recipe} is not taught: the teaching it finds was taught for recipe {taught_for}; "

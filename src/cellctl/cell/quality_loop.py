@@ -224,7 +224,8 @@ class InstallQualityLoop:
             "estimate": {a: _figure(self.loop.working_estimate(x)) for a, x in s.axes.items()},
             "offset": {k: float(v) for k, v in s.offset.items()} if self.config.enabled else None,
             "excluded": dict(s.excluded),
-            "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit} for d in s.drifting],
+            "drifting": [{"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit, "gate": d.gate,
+                          "tested": d.tested} for d in s.drifting],  # fmt: skip
             "limits": {
                 "max_offset_mm": self.config.max_offset_mm, "max_offset_deg": self.config.max_offset_deg,
                 "drift_limit_mm": self.config.drift_limit_mm, "drift_limit_deg": self.config.drift_limit_deg,
@@ -255,7 +256,8 @@ def _drift_text(d: Drift, held: float) -> str:
     the offset the axis holds from now on (axis unit)."""
     unit = axis_unit(d.axis)
     if d.kind is DriftKind.STEP and d.gate is not None:
-        seen = f"step of {d.value:+.3f} {unit} (gate +-{d.gate:.3g} {unit})"
+        tested = d.value if d.tested is None else d.tested  # (a drift stored before it was recorded: the deviation)
+        seen = f"step of {tested:+.3f} {unit} (gate +-{d.gate:.3g} {unit})"
     else:
         seen = f"{d.kind.value} {d.value:+.3f} (limit {d.limit:g})"
     return f"{d.axis} {seen}, offset held at {held:+.3f} {unit}"

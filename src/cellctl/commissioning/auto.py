@@ -45,8 +45,9 @@ def parts_needed(jobs: JobManager) -> list[Needed]:
     if cal is None:
         return [Needed(part) for part in ORDER]
     now, first = datetime.now(timezone.utc), jobs.config.default_recipe
-    problems = check_ready(cal, now, config=jobs.config)
-    needed = [Needed(part) for part in ORDER if any(p.startswith(f"{part}:") for p in problems)]
+    problems = check_ready(cal, now, first_recipe=first, config=jobs.config)
+    about = {line.partition(": ")[0].split(" of recipe ")[0] for line in problems}  # "teaching" or "teaching of recipe X"
+    needed = [Needed(part) for part in ORDER if part in about]
     if needed:
         return needed
     for recipe in jobs.config.process.recipes[1:]:

@@ -27,7 +27,14 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
-from cellctl.calibration.calibration_set import PART_NAMES, CalibrationSet, CalibrationSetError, CalibrationStore, store_root
+from cellctl.calibration.calibration_set import (
+    PART_NAMES,
+    CalibrationSet,
+    CalibrationSetError,
+    CalibrationStore,
+    parts_of,
+    store_root,
+)
 from cellctl.calibration.provenance import offline_writer
 from cellctl.calibration.dataset import DatasetError, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
@@ -309,8 +316,12 @@ def _job_command(procedure: str) -> Callable[[argparse.Namespace], int]:
 
 
 def _part_problems(problems: list[str]) -> dict[str, list[str]]:
-    """check_ready's lines by the part they are about (each starts with ``"<part>: "``)."""
-    return {name: [p[len(name) + 2 :] for p in problems if p.startswith(f"{name}: ")] for name in PART_NAMES}
+    """check_ready's lines by the part they are about (each starts with ``"<part>: "`` or ``"<part> of recipe NAME: "``)."""
+    by_part: dict[str, list[str]] = {name: [] for name in PART_NAMES}
+    for line in problems:
+        head, _, rest = line.partition(": ")
+        by_part.get(head.split(" of recipe ")[0], []).append(rest)
+    return by_part
 
 
 def _cmd_status(args: argparse.Namespace) -> int:
@@ -323,7 +334,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
         return 2
     root = store.root.resolve()
     config = load_config(args.config) if getattr(args, "config", None) else None
-    problems = check_ready(cal, datetime.now(timezone.utc), config=config, store_root=store.root)
+    first = None if config is None else config.default_recipe
+    problems = check_ready(cal, datetime.now(timezone.utc), first_recipe=first, config=config, store_root=store.root)
     if cal is None:
         print(f"no calibration set in {root}")
         if not args.store:
@@ -332,8 +344,9 @@ def _cmd_status(args: argparse.Namespace) -> int:
     else:
         print(f"calibration store {root}: set version {cal.version} in use, {len(history)} version(s) kept")
         by_part = _part_problems(problems)
+        slot = parts_of(cal, None, first)  # where the first recipe's own parts are read
         for name in PART_NAMES:
-            p = cal.part(name)
+            p = cal.part(name, slot)
             if p is None:
                 print(f"  {name:10s} missing")
                 continue

@@ -25,7 +25,7 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from typing import Any
 
-from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, command, parts_of, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore, command, parts_of, recipe_named
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.dataset import Dataset, default_dataset_dir
 from cellctl.calibration.errors import CalibrationRefused
@@ -296,7 +296,7 @@ class JobManager:
         slot = None if cal is None else parts_of(cal, opts.get("recipe"), first)
         missing = [n for n in ALL_PROCEDURES[procedure].needs if cal is None or not cal.usable(n, slot)]
         if missing:
-            named = recipe_slot(opts.get("recipe"), first)
+            named = recipe_named(slot, opts.get("recipe"), first)
             of = "" if named is None else f" (recipe {named})"
             run = "; ".join(f"`{command(n, named)}`" for n in missing)
             raise JobRefused(f"{procedure}{of} needs {', '.join(missing)} calibrated first: run {run}", conflict=True)

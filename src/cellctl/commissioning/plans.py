@@ -21,7 +21,7 @@ import numpy as np
 
 from cellctl.align import plan_spot_poses
 from cellctl.calibration.board import BoardSpec
-from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_named
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.hand_eye import motion_diversity
 from cellctl.calibration.pixel_map import nine_point_offsets, nine_point_targets
@@ -370,7 +370,7 @@ def plan_nine_point(
 ) -> MotionPlan:
     """A 3 x 3 grid of camera shifts in the wall plane about the taught shooting pose (of ``recipe``; None: the first)."""
     slot = None if cal is None else parts_of(cal, recipe, config.default_recipe)
-    cal = _need(cal, "pixel_map", "camera", "teaching", recipe=slot, named=recipe_slot(recipe, config.default_recipe))
+    cal = _need(cal, "pixel_map", "camera", "teaching", recipe=slot, named=recipe_named(slot, recipe, config.default_recipe))
     taught = cal.taught(slot)
     npc = config.calibration.procedure.nine_point
     offsets = nine_point_offsets(npc.step_mm)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_slot
+from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_named
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
@@ -357,7 +357,7 @@ async def collect_nine_point(ctx: JobContext, *, recipe: str | None = None) -> D
     recipe = recipe or ctx.config.default_recipe
     slot = None if ctx.calibration is None else parts_of(ctx.calibration, recipe, ctx.config.default_recipe)
     cal = _need(ctx.calibration, "pixel_map", "camera", "teaching", recipe=slot,
-                named=recipe_slot(recipe, ctx.config.default_recipe))
+                named=recipe_named(slot, recipe, ctx.config.default_recipe))
     plan = await asyncio.to_thread(plan_nine_point, ctx.config, cal, start=await current_pose(ctx), recipe=recipe)
     taught = cal.taught(slot)
     npc = ctx.config.calibration.procedure.nine_point

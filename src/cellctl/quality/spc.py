@@ -216,7 +216,7 @@ class SpcLoop:
             state = _count(state, excluded.value, 1)
 
         held = set(state.drifting_axes)  # drifting before this result: their offsets stay
-        state, drift_started = self._check_drift(state, u, excluded)
+        state, drift_started = self._check_drift(state, u, excluded, applied_now)
         if drift_started:
             events.append(SpcEvent.DRIFT)
         fresh = replace(state, drifting=tuple(d for d in state.drifting if d.axis in held))
@@ -298,7 +298,7 @@ class SpcLoop:
         return replace(state, axes=started), None, True
 
     def _check_drift(
-        self, state: SpcState, u: Mapping[str, float] | None, excluded: Exclusion | None
+        self, state: SpcState, u: Mapping[str, float] | None, excluded: Exclusion | None, applied: Mapping[str, float]
     ) -> tuple[SpcState, tuple[Drift, ...]]:
         have = {(d.axis, d.kind) for d in state.drifting}
         new: list[Drift] = []
@@ -308,11 +308,11 @@ class SpcLoop:
                 new.append(Drift(a, DriftKind.TREND, s.estimate, limit))
             gated = excluded in (Exclusion.OUTLIER, Exclusion.BEYOND_TOLERANCE)
             if gated and u is not None and abs(s.run) >= self.config.outlier_run and (a, DriftKind.STEP) not in have:
-                if excluded == Exclusion.OUTLIER:
-                    gate = self._gate(a, s.sigma, state.n_samples - 1)
-                else:
-                    gate = self._tolerance[axis_unit(a)]
-                new.append(Drift(a, DriftKind.STEP, u[a], limit, gate))
+                if excluded == Exclusion.OUTLIER:  # the gate about the estimate
+                    gate, tested = self._gate(a, s.sigma, state.n_samples - 1), u[a] - float(s.estimate or 0.0)
+                else:  # the install tolerance about 0, on the deviation measured (u less the offset it was installed with)
+                    gate, tested = self._tolerance[axis_unit(a)], u[a] - applied[a]
+                new.append(Drift(a, DriftKind.STEP, u[a], limit, gate, tested))
         return (replace(state, drifting=(*state.drifting, *new)) if new else state), tuple(new)
 
     def _record(

@@ -65,8 +65,9 @@ class Drift:
     """An axis that drifts: recalibrate (``cellctl calibrate verify``, then the procedure it names).
 
     ``value`` is the estimate (trend) or the last uncompensated deviation (step), ``limit`` the
-    axis's drift limit, ``gate`` (a step) how far from the estimate the results were admitted (the
-    outlier gate, or the install tolerance), all in the axis's unit.
+    axis's drift limit, ``gate`` (a step) how far the results were admitted (the outlier gate about the
+    estimate, or the install tolerance about 0), ``tested`` (a step) what the gate refused in the last of
+    them (its distance from the estimate, or the measured deviation), all in the axis's unit.
     """
 
     axis: str
@@ -74,6 +75,7 @@ class Drift:
     value: float
     limit: float
     gate: float | None = None
+    tested: float | None = None
 
 
 @dataclass(frozen=True)
@@ -203,7 +205,7 @@ def state_to_dict(state: SpcState) -> dict[str, Any]:
         "n_samples": state.n_samples,
         "excluded": dict(state.excluded),
         "drifting": [
-            {"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit, "gate": d.gate}
+            {"axis": d.axis, "kind": d.kind.value, "value": d.value, "limit": d.limit, "gate": d.gate, "tested": d.tested}
             for d in state.drifting
         ],
         "last_cycle_id": state.last_cycle_id,
@@ -252,6 +254,7 @@ def state_from_dict(d: Mapping[str, Any]) -> SpcState:
                 Drift(
                     x["axis"], DriftKind(x["kind"]), float(x["value"]), float(x["limit"]),
                     _num("a step's gate", x.get("gate"), optional=True),
+                    _num("what a step's gate refused", x.get("tested"), optional=True),
                 )  # fmt: skip
                 for x in d["drifting"]
             ),
