@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from calib_test_support import commit_teaching, store_with_common_parts
 
-from cellctl.calibration.calibration_set import CalibrationStore, taught_for
+from cellctl.calibration.calibration_set import CalibrationStore, RecipeParts, taught_for
 from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.recipe_gate import cycle_refusal
@@ -113,3 +113,20 @@ def test_a_refused_cycle_names_the_recipes_own_command_after_a_reorder(tmp_path:
     source = CalibrationSetSource(store, _config((1, 0)))
     refusal = cycle_refusal(source, "side-window")  # what REST 409, OPC UA and Modbus 908 carry
     assert refusal is not None and "run `cellctl calibrate nine-point --recipe side-window`" in refusal, refusal
+
+
+def test_a_set_from_before_one_teaching_per_recipe_says_which_of_its_two_it_uses(tmp_path: Path) -> None:
+    """A set an earlier release left with the side window's teaching in both places (taught while first with the
+    clock ahead, then again under its name after a reorder): readiness warns, naming the one used and the fix."""
+    store = store_with_common_parts(tmp_path, NOW)
+    commit_teaching(store, None, "side-window", 0.0, when=NOW + timedelta(hours=6))  # dated ahead
+    commit_teaching(store, "door-window", "door-window", -400.0, when=NOW)
+    cal = store.current()
+    assert cal is not None and cal.parts.teaching is not None
+    again = cal.parts.teaching.model_copy(update={"id": "teaching-again", "calibrated_utc": NOW})
+    legacy = cal.model_copy(update={"recipes": {**cal.recipes, "side-window": RecipeParts(teaching=again)}})
+    warnings: list[str] = []
+    check_ready(legacy, NOW + timedelta(hours=7), recipe="side-window", first_recipe="door-window", warnings=warnings)
+    (line,) = [w for w in warnings if "two teachings" in w]
+    assert line.startswith("teaching of recipe side-window: two teachings") and "run `cellctl teach --recipe side-window`" in line
+    assert f"({(NOW + timedelta(hours=6)):%Y-%m-%d %H:%M} UTC)" in line  # the one read: the later dated

@@ -9,6 +9,7 @@ clock is the test's, stepped as NTP steps a PC's.
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 from collections.abc import Callable
 from datetime import datetime, timedelta, timezone
@@ -232,3 +233,34 @@ def test_an_install_after_the_upgrade_and_a_clock_step_back_is_in_the_next_expor
         run(store, clock, "G-2")
         mes.export()
     assert [r[0] for r in ended(path)] == [1, 2] and mes.got == [2] and mes.outside == []
+
+
+def test_a_clock_far_ahead_at_the_upgrade_delays_the_exports_a_day_at_most(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The upgrade starts once on a clock a year ahead (a year typed wrong), set right minutes later; an MES exports
+    hourly with its own clock as ``until``. Its end stamps start no more than a day past the store's newest record, so
+    every install of the week is listed, the first ones a day late at most (they were all a year ahead)."""
+    path = tmp_path / "cell.db"
+    conn = sqlite3.connect(path, isolation_level=None)
+    assert schema.migrate(conn, schema.MIGRATIONS[:9]) == (0, 9)
+    conn.execute(ROW, (1, "G-0", "G-0", "done", T0.isoformat(timespec="microseconds"),
+                       (T0 + timedelta(seconds=1)).isoformat(timespec="microseconds"), None))  # fmt: skip
+    conn.close()
+    clock = Clock()
+    clock.step(365 * 86400)
+    with caplog.at_level(logging.WARNING, logger="cellctl.store.upgrade"), CellStore.open(path, clock=clock) as store:
+        assert store.upgrade is not None
+    assert "365.0 days past the store's newest record" in caplog.text and "check the clock" in caplog.text
+    clock.step(-365 * 86400 + 300)
+    with CellStore.open(path, clock=clock) as store:
+        mes = Mes(store, clock, T0 + timedelta(seconds=10))
+        ids, listed_at = [], {}
+        for hour in range(7 * 24):
+            ids.append(run(store, clock, f"G-{hour + 1}"))
+            clock.step(3600 - 1)
+            mes.export()
+            listed_at.update({i: clock.now for i in mes.got if i not in listed_at})
+    assert sorted(mes.got) == ids and mes.outside == []
+    ends = {i: datetime.fromisoformat(f) for i, _, f in ended(path)}  # finished_at: the (right) clock's end
+    assert max(listed_at[i] - ends[i] for i in ids) <= timedelta(days=1, hours=1)

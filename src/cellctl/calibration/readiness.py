@@ -23,9 +23,11 @@ from cellctl.calibration.calibration_set import (
     PART_NAMES,
     RECIPE_PART_NAMES,
     CalibrationSet,
+    RecipeParts,
     command,
     parts_of,
     recipe_named,
+    taught_for,
     wall_read_problem,
 )
 from cellctl.calibration.dataset import dataset_folder
@@ -89,6 +91,13 @@ def check_ready(
     # the recipe the fix names: the slot's, or one no longer first read in the first's place (`cellctl teach` is the first's)
     named = recipe_named(slot, wanted, first_recipe)
     problems: list[str] = []
+    both = (cal.recipes.get(wanted or "", RecipeParts()).teaching, cal.parts.teaching)
+    if wanted is not None and both[0] is not None and taught_for(both[1]) == wanted:  # a set from before one per recipe
+        used = cal.part("teaching", slot)
+        assert used is not None
+        _warn((used.id, f"two of {wanted}"), f"teaching of recipe {wanted}: two teachings, in the first recipe's place and "
+              f"under its name (a set written before a recipe kept one); the later dated is used ({_utc(used.calibrated_utc)}"
+              f"): if it is not the one taught last, run `{command('teaching', wanted)}`", warnings)  # fmt: skip
     for name in (n for n in PART_NAMES if n in parts):
         p = cal.part(name, slot)
         cmd = command(name, named)
@@ -116,9 +125,9 @@ def check_ready(
             _warn((p.id, label), f"{label}: calibrated {p.calibrated_utc:%Y-%m-%d %H:%M} UTC, ahead of this cell's clock "
                         f"({_utc(now)}); used, and it expires as dated, on {expires:%Y-%m-%d %H:%M} UTC; check the clock "
                         f"(NTP)", warnings)  # fmt: skip
-        taught_for = getattr(getattr(p, "values", None), "recipe", None)
-        if taught_for is not None and wanted is not None and taught_for != wanted:
-            problems.append(f"{label}: taught for recipe {taught_for}, not {wanted}; run `{cmd}`")
+        owner = taught_for(p)
+        if owner is not None and wanted is not None and owner != wanted:
+            problems.append(f"{label}: taught for recipe {owner}, not {wanted}; run `{cmd}`")
         elif name == "teaching" and config is not None and isinstance(p, TeachingPart) and p.values is not None:
             of_recipe = wanted or config.default_recipe
             if of_recipe not in {r.name for r in config.process.recipes}:

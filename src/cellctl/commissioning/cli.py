@@ -344,7 +344,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     else:
         print(f"calibration store {root}: set version {cal.version} in use, {len(history)} version(s) kept")
         by_part = _part_problems(problems)
-        slot = parts_of(cal, None, first)  # where the first recipe's own parts are read
+        slot = None if first is None else parts_of(cal, None, first)  # where the first recipe's own parts are read
         for name in PART_NAMES:
             p = cal.part(name, slot)
             if p is None:

@@ -9,14 +9,17 @@ place of the file (README, "Backup, upgrade and rollback"). The copies are never
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 from contextlib import closing
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 from cellctl.store.records import StoreError
 from cellctl.store.schema import MIGRATIONS, V10_END_STAMP, migrate, schema_version
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -64,18 +67,36 @@ def migrate_keeping_a_copy(conn: sqlite3.Connection, path: Path, now: datetime) 
             f"rollback ({copy}) could not be written ({err}): free space in {path.parent} (the copy is as large as "
             "the file), then start again; nothing was migrated"
         ) from None
-    _, after = migrate(conn, _end_stamps_floored(now))
+    floor = now if before >= END_STAMP_VERSION else _end_stamp_floor(conn, now)
+    _, after = migrate(conn, _end_stamps_floored(floor))
     return StoreUpgrade(path, before, after, copy)
 
 
 END_STAMP_VERSION = MIGRATIONS.index(V10_END_STAMP) + 1
 """The schema whose migration gave cycles their end stamp (``ended_at``)."""
+FLOOR_PAST_NEWEST = timedelta(days=1)
+"""The end stamps' floor at that upgrade is the clock, but no later than this past the newest time the store holds."""
+
+
+def _end_stamp_floor(conn: sqlite3.Connection, now: datetime) -> datetime:
+    """Where the end stamps start after the upgrade that brings them: the clock (the older release's export bounds went
+    up to its clock), but no more than a day past the newest time the store holds (a cycle, an audit entry), so a
+    clock far ahead at the upgrade (a year typed wrong) does not stamp every later end that far ahead."""
+    row = conn.execute("SELECT MAX(t) FROM (SELECT MAX(created_at) AS t FROM cycles UNION ALL SELECT MAX(finished_at) "
+                       "FROM cycles UNION ALL SELECT MAX(at) FROM audit_log)").fetchone()  # fmt: skip
+    newest = None if row is None or row[0] is None else datetime.fromisoformat(row[0])
+    if newest is None or now <= newest + FLOOR_PAST_NEWEST:
+        return now
+    log.warning("store upgrade: the clock (%s) is %.1f days past the store's newest record (%s): its end stamps start at "
+                "%s; check the clock", now.isoformat(), (now - newest) / timedelta(days=1), newest.isoformat(),
+                (newest + FLOOR_PAST_NEWEST).isoformat())  # fmt: skip
+    return newest + FLOOR_PAST_NEWEST
 
 
 def _end_stamps_floored(now: datetime) -> list[str]:
-    """MIGRATIONS, with the end stamps' floor raised to ``now`` in the migration that brings them: a release before them
-    gave out export bounds up to its clock (an MES passes one on as its next ``since``), so an end stamped earlier,
-    once the clock stepped back, would fall before a window already exported and never be listed."""
+    """MIGRATIONS, with the end stamps' floor raised to ``now`` (:func:`_end_stamp_floor`) in the migration that brings
+    them: a release before them gave out export bounds up to its clock (an MES passes one on as its next ``since``), so
+    an end stamped earlier, once the clock stepped back, would fall before a window already exported, never listed."""
     at = now.astimezone(timezone.utc).isoformat(timespec="microseconds")  # as the store keeps times
     floored = list(MIGRATIONS)
     floored[END_STAMP_VERSION - 1] += (
