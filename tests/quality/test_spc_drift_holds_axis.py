@@ -15,8 +15,8 @@ from cellctl.cell.events import EventHub
 from cellctl.cell.packml import PackMLMachine
 from cellctl.cell.quality_loop import InstallQualityLoop
 from cellctl.config import load_config
-from cellctl.domain import AlarmCode, InstallDeviation
-from cellctl.quality import AXES, DriftKind, SpcState
+from cellctl.domain import Alarm, AlarmCode, InstallDeviation
+from cellctl.quality import AXES, Drift, DriftKind, SpcState
 from cellctl.store import AsyncCellStore
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,14 +59,15 @@ def test_a_step_holds_the_axis_estimate_and_offset_while_other_axes_go_on(sigma_
     assert not loop.reset(state).state.drifting and loop.reset(state).state.offset["dy_mm"] == 0.0
 
 
-async def test_alarm_1313_gives_a_step_against_its_gate_and_the_offset_it_holds(tmp_path: Path) -> None:
+async def _drift_on_y(tmp_path: Path, dy: list[float]) -> tuple[Alarm, Drift, float]:
+    """The first recipe's loop fed the results ``dy`` (mm on Y, the truth before the loop's offset): alarm 1313, the
+    drift it records and the offset Y holds."""
     config = load_config(ROOT / "config" / "sim.toml")
     store = await AsyncCellStore.open(tmp_path / "cell.db")
     try:
         alarms = AlarmManager(PackMLMachine(), robot_moving=lambda: False)
         loop = InstallQualityLoop(config, store, alarms, EventHub())
         recipe = loop.first_recipe
-        dy = [0.06 + 0.01 * ((k * 7) % 5 - 2) for k in range(40)] + [0.06 + STEP] * 3  # scatter, then the step
         for k, truth in enumerate(dy):
             offset = loop.offset_for_next(recipe, {"version": 7})
             seen = InstallDeviation(0.0, truth - offset["dy_mm"], 0.0, 0.0, 0.0, 0.0)
@@ -74,14 +75,19 @@ async def test_alarm_1313_gives_a_step_against_its_gate_and_the_offset_it_holds(
             await loop.raise_drift(k + 1, up, recipe)
         (alarm,) = [a for a in alarms.active() if a.code == AlarmCode.SPC_DRIFT]
         (drift,) = loop.states[recipe].drifting
-        held = loop.states[recipe].offset["dy_mm"]
-        assert drift.gate is not None
-        assert drift.tested is not None and abs(drift.tested - STEP) < 0.03  # the jump from the estimate the gate refused
-        assert f"dy_mm step of +{drift.tested:.3f} mm (gate +-{drift.gate:.3g} mm)" in alarm.message, alarm.message
-        assert f"offset held at {held:+.3f} mm" in alarm.message and "(limit" not in alarm.message
-        assert "the loop stops following it" in alarm.message
+        return alarm, drift, loop.states[recipe].offset["dy_mm"]
     finally:
         await store.close()
+
+
+async def test_alarm_1313_gives_a_step_against_its_gate_and_the_offset_it_holds(tmp_path: Path) -> None:
+    dy = [0.06 + 0.01 * ((k * 7) % 5 - 2) for k in range(40)] + [0.06 + STEP] * 3  # scatter, then the step
+    alarm, drift, held = await _drift_on_y(tmp_path, dy)
+    assert drift.gate is not None
+    assert drift.tested is not None and abs(drift.tested - STEP) < 0.03  # the jump from the estimate the gate refused
+    assert f"dy_mm step of +{drift.tested:.3f} mm (gate +-{drift.gate:.3g} mm)" in alarm.message, alarm.message
+    assert f"offset held at {held:+.3f} mm" in alarm.message and "(limit" not in alarm.message
+    assert "the loop stops following it" in alarm.message
 
 
 @pytest.mark.parametrize("jump_mm", [-0.20, +0.70])  # past the outlier gate about the estimate; past the install tolerance
@@ -89,22 +95,7 @@ async def test_alarm_1313_gives_the_figure_its_gate_refused(tmp_path: Path, jump
     """A cell that learnt a +0.15 mm bias on Y, then steps by ``jump_mm``: the alarm's step is that jump (what the gate
     refused: the distance from the estimate, or the measured deviation), beyond its gate, not the deviation without the
     loop (-0.05 mm for the first: a "step" inside its own gate)."""
-    config = load_config(ROOT / "config" / "sim.toml")
-    store = await AsyncCellStore.open(tmp_path / "cell.db")
-    try:
-        alarms = AlarmManager(PackMLMachine(), robot_moving=lambda: False)
-        loop = InstallQualityLoop(config, store, alarms, EventHub())
-        recipe = loop.first_recipe
-        dy = [0.15 + 0.02 * ((k * 7) % 5 - 2) for k in range(40)] + [0.15 + jump_mm] * 3
-        for k, truth in enumerate(dy):
-            offset = loop.offset_for_next(recipe, {"version": 7})
-            seen = InstallDeviation(0.0, truth - offset["dy_mm"], 0.0, 0.0, 0.0, 0.0)
-            _, up = await loop.after_cycle(k + 1, seen, recipe=recipe, calibration="7", applied=offset)
-            await loop.raise_drift(k + 1, up, recipe)
-        (alarm,) = [a for a in alarms.active() if a.code == AlarmCode.SPC_DRIFT]
-        (drift,) = loop.states[recipe].drifting
-        assert drift.gate is not None and drift.tested is not None
-        assert abs(drift.tested - jump_mm) < 0.03 and abs(drift.tested) > drift.gate, (drift, alarm.message)
-        assert f"dy_mm step of {drift.tested:+.3f} mm (gate +-{drift.gate:.3g} mm)" in alarm.message, alarm.message
-    finally:
-        await store.close()
+    alarm, drift, _ = await _drift_on_y(tmp_path, [0.15 + 0.02 * ((k * 7) % 5 - 2) for k in range(40)] + [0.15 + jump_mm] * 3)
+    assert drift.gate is not None and drift.tested is not None
+    assert abs(drift.tested - jump_mm) < 0.03 and abs(drift.tested) > drift.gate, (drift, alarm.message)
+    assert f"dy_mm step of {drift.tested:+.3f} mm (gate +-{drift.gate:.3g} mm)" in alarm.message, alarm.message

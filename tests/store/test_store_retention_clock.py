@@ -143,4 +143,3 @@ async def test_records_made_while_the_clock_was_set_back_keep_their_true_age_aft
     assert (report.cycles_deleted, report.images_pruned) == (0, 4)
     cell.later(days=335)
     assert (await restarted.run_once()).cycles_deleted == 4 and await _known(cell, 1, 2, 3, 4) == [False] * 4
-
