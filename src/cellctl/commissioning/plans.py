@@ -314,14 +314,19 @@ def more_laser_poses(config: CellConfig, planned: int, usable: int) -> str:
             f"--poses {ask} (options.poses; {ask - planned} more)")  # fmt: skip
 
 
-def _need(
-    cal: CalibrationSet | None, procedure: str, *parts: str, recipe: str | None = None, named: str | None = None
-) -> CalibrationSet:
-    """The set, when the parts the plan needs are usable (a recipe part: those at ``recipe``'s slot); else PlanError
-    with the command for recipe ``named`` (None: the first)."""
+def missing_part(cal: CalibrationSet | None, *parts: str, recipe: str | None = None, named: str | None = None) -> str | None:
+    """The first of ``parts`` not usable in ``cal`` (a recipe part: at ``recipe``'s slot), said with the command that
+    makes it for recipe ``named`` (None: the first); None when every one is usable."""
     for name in parts:
         if cal is None or not cal.usable(name, recipe):
-            raise PlanError(f"{procedure}: {name} must be calibrated first: run `{command(name, named)}`")
+            return f"{name} must be calibrated first: run `{command(name, named)}`"
+    return None
+
+
+def _need(cal: CalibrationSet | None, procedure: str, *parts: str, **where: str | None) -> CalibrationSet:
+    """The set, when the parts the plan needs are usable (:func:`missing_part`); else PlanError."""
+    if (missing := missing_part(cal, *parts, **where)) is not None:
+        raise PlanError(f"{procedure}: {missing}")
     assert cal is not None
     return cal
 

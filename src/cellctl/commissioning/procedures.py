@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.calibration.calibration_set import CalibrationSet, command, parts_of, recipe_named
+from cellctl.calibration.calibration_set import CalibrationSet, parts_of, recipe_named
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
 from cellctl.calibration.compute import (
@@ -39,6 +39,7 @@ from cellctl.commissioning.context import DatasetDraft, JobContext
 from cellctl.commissioning.plans import (
     MotionPlan,
     board_place,
+    missing_part,
     more_laser_poses,
     nominal_T0,
     plan_board,
@@ -242,14 +243,10 @@ async def collect_laser_plane(ctx: JobContext, *, poses: int | None = None) -> D
 # -- teaching ------------------------------------------------------------------------------------
 
 
-def _need(
-    cal: CalibrationSet | None, part: str, *names: str, recipe: str | None = None, named: str | None = None
-) -> CalibrationSet:
-    """The set, when the parts ``part`` builds on are usable (a recipe part: those at ``recipe``'s slot); else refused
-    with the command for recipe ``named`` (None: the first)."""
-    for name in names:
-        if cal is None or not cal.usable(name, recipe):
-            raise CalibrationRefused(part, "missing_input", f"{name} must be calibrated first: run `{command(name, named)}`")
+def _need(cal: CalibrationSet | None, part: str, *names: str, **where: str | None) -> CalibrationSet:
+    """The set, when the parts ``part`` builds on are usable (:func:`missing_part`); else refused."""
+    if (missing := missing_part(cal, *names, **where)) is not None:
+        raise CalibrationRefused(part, "missing_input", missing)
     assert cal is not None
     return cal
 
