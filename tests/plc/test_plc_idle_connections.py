@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import shutil
 import socket
 import subprocess
 import sys
@@ -81,7 +80,6 @@ async def test_silent_and_half_frame_connections_are_closed_when_idle_and_a_poll
     assert len(said) == 1 and "127.0.0.1" in said[0] and "1.5 s" in said[0], said  # ten closed, said once
 
 
-@pytest.mark.skipif(shutil.which("ss") is None, reason="needs ss (iproute2) to read the kernel's socket timers")
 async def test_accepted_connections_have_tcp_keepalive() -> None:
     async with running_cell(MemoryCell()) as (server, _plc):
         sock = await connect(server.port)

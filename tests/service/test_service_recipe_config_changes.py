@@ -43,11 +43,14 @@ def sim_recipes() -> list[dict[str, Any]]:
 
 
 def commit(store: CalibrationStore, cal: Any, recipe: str, names: tuple[str, ...], slot: str | None, *,
-           when: datetime | None = None, g_shift_mm: float = 0.0) -> None:
+           when: datetime | None = None, g_shift_mm: float = 0.0, shot: dict[str, Any] | None = None) -> None:
     """Commit the twin's truth of ``recipe``'s parts ``names`` at ``slot`` (None: ``parts``, the first's place);
-    ``g_shift_mm`` moves the taught install pose along x (a teaching that installs that far off)."""
+    ``g_shift_mm`` moves the taught install pose along x (a teaching that installs that far off); the teaching records
+    ``shot`` (None: what truth_values gives)."""
     values, m, now = truth_values(cal, recipe), cal.nine_point, when or datetime.now(timezone.utc)
     values["teaching"]["g_Pos_0"][0][3] += g_shift_mm
+    if shot is not None:
+        values["teaching"]["shot"] = shot
     for name in names:
         cur = store.current()
         inputs = {dep: cur.part(dep, slot).id for dep in DEPENDS_ON[name]} if cur else {}  # type: ignore[union-attr]

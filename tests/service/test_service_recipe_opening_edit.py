@@ -15,10 +15,10 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
-from service_test_support import api_client, running_service, to_execute, truth_values
-from test_service_recipe_config_changes import post, recipes_config, sim_recipes, within
+from service_test_support import api_client, running_service, to_execute
+from test_service_recipe_config_changes import commit, post, recipes_config, sim_recipes, within
 
-from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
+from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.taught_shot import taught_shot
 from cellctl.config import CellConfig
 
@@ -40,20 +40,6 @@ async def truth(workdir: Path, config: CellConfig, recipe: str) -> Any:
         return await asyncio.to_thread(service.orchestrator.calibration.cycle_calibration, recipe)
 
 
-def commit(store: CalibrationStore, cal: Any, recipe: str, names: tuple[str, ...], slot: str | None, shot: dict[str, Any] | None,
-           when: datetime) -> None:
-    """The twin's truth of ``recipe``'s parts ``names`` at ``slot``; its teaching records ``shot`` (None: nothing, as before)."""
-    values, m = truth_values(cal, recipe), cal.nine_point
-    if shot is not None:
-        values["teaching"]["shot"] = shot
-    for name in names:
-        cur = store.current()
-        inputs = {dep: cur.part(dep, slot).id for dep in DEPENDS_ON[name]} if cur else {}  # type: ignore[union-attr]
-        q = {"map_residuals_mm": m.residuals_mm.tolist(), "map_rms_mm": m.rms_mm, "map_max_mm": m.max_mm} if name == "pixel_map" else None
-        part = make_part(name, values=values[name], method="twin truth", when=when, valid_days=90.0, inputs=inputs, quality=q)
-        store.commit(name, part, now=when, recipe=slot)
-
-
 async def test_a_wider_opening_under_the_same_name_is_refused_until_taught_again(tmp_path: Path) -> None:
     side, door = sim_recipes()
     before, after = recipes_config(None, [side, door]), recipes_config(None, [side, wider(door)])
@@ -62,9 +48,9 @@ async def test_a_wider_opening_under_the_same_name_is_refused_until_taught_again
     when = datetime.now(timezone.utc) - timedelta(hours=1)
     # the side window's teaching recorded before teachings recorded the opening's size (an older set): still used
     older = {k: v for k, v in taught_shot(before.for_recipe("side-window")).items() if k not in ("width_mm", "height_mm")}
-    commit(store, cals["side-window"], "side-window", CELL_PARTS + ("teaching", "pixel_map"), None, older, when)
+    commit(store, cals["side-window"], "side-window", CELL_PARTS + ("teaching", "pixel_map"), None, shot=older, when=when)
     commit(store, cals["door-window"], "door-window", ("teaching", "pixel_map"), "door-window",
-           taught_shot(before.for_recipe("door-window")), when)  # fmt: skip
+           shot=taught_shot(before.for_recipe("door-window")), when=when)  # fmt: skip
     async with running_service(tmp_path / "cell", recipes_config(store.root, [side, door])) as service, api_client(service) as client:
         await to_execute(client)
         rec = (await post(client, "door-window", "door-1200")).json()
@@ -85,8 +71,8 @@ async def test_a_wider_opening_under_the_same_name_is_refused_until_taught_again
         assert rec["state"] == "done" and within(rec), (rec.get("error"), rec.get("true_error"))
         # taught again for the wider opening (the twin's truth of it, as the new teaching records it): it installs right
         wide = await truth(tmp_path / "oracle-wide", after, "door-window")
-        commit(store, wide, "door-window", ("teaching", "pixel_map"), "door-window", taught_shot(after.for_recipe("door-window")),
-               datetime.now(timezone.utc))  # fmt: skip
+        commit(store, wide, "door-window", ("teaching", "pixel_map"), "door-window",
+               shot=taught_shot(after.for_recipe("door-window")))  # fmt: skip
         assert (await client.get("/status")).json()["calibration"]["recipes"]["door-window"]["ready"]
         rec = (await post(client, "door-window", "door-1300-taught")).json()
         assert rec["state"] == "done" and within(rec), (rec.get("error"), rec.get("true_error"))

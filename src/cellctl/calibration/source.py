@@ -47,6 +47,7 @@ from cellctl.calibration.calibration_set import (
     parts_of,
     recipe_named,
     store_root,
+    taught_for,
 )
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.provenance import ADOPT_ACTION, ADOPT_ACTOR, ADOPT_SOURCE, adoption_params
@@ -351,9 +352,9 @@ class CalibrationSetSource:
                 state = "is missing" if part is None else f"failed ({part.failure})"
                 return (f"recipe {recipe} is not taught: its {what} {state}; "
                         f"run `{command(name, recipe_named(slot, recipe, self.config.default_recipe))}`")
-        taught_for = getattr(getattr(snap.cal.part("teaching", slot), "values", None), "recipe", None)
-        if taught_for not in (None, recipe):  # a set edited by hand, or written by an older cellctl
-            return (f"recipe {recipe} is not taught: the teaching it finds was taught for recipe {taught_for}; "
+        owner = taught_for(snap.cal.part("teaching", slot))
+        if owner not in (None, recipe):  # a set edited by hand, or written by an older cellctl
+            return (f"recipe {recipe} is not taught: the teaching it finds was taught for recipe {owner}; "
                     f"run `{command('teaching', recipe)}`")
         return None
 
