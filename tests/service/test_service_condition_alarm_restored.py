@@ -52,3 +52,23 @@ async def test_an_unacknowledged_condition_alarm_is_listed_after_a_restart_until
     assert all(active == 0 and ack is not None for active, ack in _rows(db).values()), _rows(db)
     async with running_service(tmp_path) as service, api_client(service) as client:  # acknowledged: not listed again
         assert not [a for a in (await client.get("/alarms")).json()["current"] if a["uid"].startswith("prev-")]
+
+
+async def test_acknowledgements_made_as_the_service_stops_are_all_stored(tmp_path: Path) -> None:
+    """The stop hands every alarm event queued so far to the store before it closes: the operator's acknowledge-all
+    answered 200 just before a SIGTERM is in the store (it was lost when the record's write was still queued)."""
+    db = tmp_path / "var" / "cellctl.db"
+    async with running_service(tmp_path):
+        pass
+    store = CellStore.open(db)
+    try:
+        for i in range(40):
+            store.save_alarm(_condition_alarm(f"prev-{i:02d}", AlarmCode.LASER_LOST, f"laser{i}", cleared=True))
+    finally:
+        store.close()
+    async with running_service(tmp_path) as service, api_client(service) as client:
+        r = await client.post("/alarms/acknowledge-all", headers=AUTH)
+        assert r.status_code == 200, r.text
+        assert sum(a["uid"].startswith("prev-") for a in r.json()) == 40
+    rows = _rows(db)
+    assert len(rows) == 40 and [uid for uid, (_, ack) in rows.items() if ack is None] == [], rows

@@ -1,11 +1,14 @@
-"""Fan-out of events to observers: plain callbacks and asyncio queues, in order, never blocking."""
+"""Fan-out of events to observers (plain callbacks and asyncio queues, in order, never blocking), and the pumps that
+hand a queue's events to an async sink."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
-from typing import Generic, TypeVar
+from collections.abc import Awaitable, Callable
+from typing import Any, Generic, TypeVar
+
+from cellctl.cell.cancel import cancel_until_done
 
 _log = logging.getLogger(__name__)
 
@@ -58,3 +61,38 @@ class Fanout(Generic[T]):
                 q.get_nowait()
                 self.dropped[id(q)] += 1
             q.put_nowait(event)
+
+
+class Pumps:
+    """Tasks that each hand a queue's events, in order, to an async sink (the store's records of alarms and machine
+    events). Stopping lets them finish what was queued first: an acknowledgement made as the service stops is stored."""
+
+    def __init__(self, what: str) -> None:
+        self._what = what
+        self._running: list[tuple[asyncio.Queue[Any], asyncio.Task[None]]] = []
+
+    def start(self, queue: asyncio.Queue[T], sink: Callable[[T], Awaitable[object]]) -> None:
+        self._running.append((queue, asyncio.create_task(self._pump(queue, sink))))
+
+    async def _pump(self, queue: asyncio.Queue[T], sink: Callable[[T], Awaitable[object]]) -> None:
+        while True:
+            event = await queue.get()
+            try:
+                await sink(event)
+            except Exception:  # a bad event must not stop the pump; it is logged with its trace
+                _log.exception("%s: handling %r failed", self._what, event)
+            finally:
+                queue.task_done()
+
+    async def stop(self, *, drain_timeout_s: float) -> None:
+        """Wait up to ``drain_timeout_s`` (s) for the events queued so far to be handled, then end the pumps."""
+        drained = [asyncio.ensure_future(q.join()) for q, t in self._running if not t.done()]
+        if drained:
+            _, late = await asyncio.wait(drained, timeout=drain_timeout_s)
+            for d in late:
+                d.cancel()
+            if late:
+                left = sum(q.qsize() for q, _ in self._running)
+                _log.error("%s: %d event(s) left unhandled after %.1f s at the stop", self._what, left, drain_timeout_s)
+        await cancel_until_done([t for _, t in self._running])  # a sink may swallow one cancel (Python 3.11's wait_for)
+        self._running.clear()

@@ -19,9 +19,9 @@ from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cancel import cancel_until_done
 from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
 from cellctl.cell.laser_timing import LaserTiming
+from cellctl.cell.observers import Pumps
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.cell.events import EventHub
 from cellctl.cell.final_record import FinalRecord, FinalRecords, despite_store_fault
@@ -49,6 +49,8 @@ from cellctl.ports import DeviceError
 from cellctl.store import REQUEST_AGAIN, AsyncCellStore, CycleRecord, CycleRequest, SubmitResult
 
 log = logging.getLogger(__name__)
+
+PUMP_DRAIN_S = 5.0  # at the stop, the events queued so far get this long (s) to be stored (the service's step: 10 s)
 
 # Acting states end by themselves once their action is done (PackML "SC").
 _ACTING = {
@@ -110,7 +112,7 @@ class CellOrchestrator:
         self.watchdog, self.events, self.image_dir, self.truth = watchdog, events, image_dir, truth
         self._queue: asyncio.Queue[None] = asyncio.Queue()  # nudges for the worker
         self._pending: list[int] = []  # cycles queued, in the order they came
-        self._tasks: list[asyncio.Task[None]] = []  # the pumps of machine and alarm events
+        self._pumps = Pumps("the cell's event records")  # machine and alarm events to the store
         self._worker_task: asyncio.Task[None] | None = None
         self._cycle_task: asyncio.Task[None] | None = None
         self._recording: asyncio.Future[None] | None = None  # the finished cycle's record being written
@@ -167,7 +169,7 @@ class CellOrchestrator:
             (self.machine.subscribe_queue(), self._on_machine_event),
             (alarm_events, self._on_alarm_event),
         ):
-            self._tasks.append(asyncio.create_task(self._pump(q, sink)))
+            self._pumps.start(q, sink)
         self._worker_task = asyncio.create_task(self._worker())
         if self.watchdog is not None:
             await self.watchdog.start()
@@ -186,18 +188,10 @@ class CellOrchestrator:
                 self._worker_task = None
             if self._recording is not None:  # a finished cycle's record is written before the store closes
                 await asyncio.gather(self._recording, return_exceptions=True)
+            await self._pumps.stop(drain_timeout_s=PUMP_DRAIN_S)  # an acknowledgement just made is stored too
             await self.records.stop()
         finally:
-            await cancel_until_done(self._tasks)  # a pump's sink may swallow one cancel (Python 3.11's wait_for)
-            self._tasks.clear()
-
-    async def _pump(self, q: asyncio.Queue[Any], sink: Any) -> None:
-        while True:
-            item = await q.get()
-            try:
-                await sink(item)
-            except Exception:  # a bad event must not stop the pump; it is logged with its trace
-                log.exception("handling %r failed", item)
+            await self._pumps.stop(drain_timeout_s=0.0)
 
     # -- PackML state actions ----------------------------------------------------------------
 
