@@ -84,3 +84,46 @@ async def test_a_stream_that_stops_stops_the_robot_with_alarm_1402() -> None:
         await _supervised(cell_run(clock, robot), CycleStep.ALIGN, never.wait(), StopsAfter(clock, 100.2))  # type: ignore[arg-type]
     assert failed.value.code is AlarmCode.POSITION_FEEDBACK_LOST and robot.stopped == 1
     assert 100.2 + STALE_S < clock.t < 100.2 + STALE_S + 0.01  # stopped at the first look past the limit
+
+
+class PausingController(StopsAfter):
+    """A controller that stops sending at ``stop_at`` and sends again ``resumes_s`` host seconds after the robot was told
+    to stop (its EGM task paused a little longer than the limit); its statistics as the ABB driver keeps them."""
+
+    def __init__(self, clock: CellClock, stop_at: float, resumes_s: float) -> None:
+        super().__init__(clock, stop_at)
+        self.resumes_s, self.received, self.gap_s = resumes_s, 400, 0.004
+
+    @property
+    def stream_stats(self) -> SimpleNamespace:
+        return SimpleNamespace(received=self.received, lost=0, max_interval_s=self.gap_s, delay_max_s=0.001, stamp="tm")
+
+    def resume(self) -> None:
+        self.received, self.gap_s = self.received + 1, 0.3
+
+
+async def test_the_stream_stays_open_after_the_robots_stop_until_a_late_sample_tells_the_gaps_side() -> None:
+    """A robot that stops at once: the stream is stopped only once the paused controller's next sample came (within
+    four times the limit), so the alarm says the controller paused, not that the link may have dropped."""
+    clock, never = CellClock(), asyncio.Event()
+    stream = PausingController(clock, 100.2, resumes_s=0.1)
+
+    class StopsAtOnce(Robot):
+        async def stop(self, *, timeout_s: float) -> None:
+            await super().stop(timeout_s=timeout_s)
+            asyncio.get_running_loop().call_later(stream.resumes_s, stream.resume)
+
+    robot = StopsAtOnce()
+    figures: list[dict[str, object]] = []
+
+    async def step_figures(step: CycleStep, f: dict[str, object]) -> None:
+        figures.append(f)
+
+    run = cell_run(clock, robot)
+    run.rec = SimpleNamespace(step_figures=step_figures)
+    with pytest.raises(CycleFailed) as failed:
+        await _supervised(run, CycleStep.ALIGN, never.wait(), stream)  # type: ignore[arg-type]
+    assert failed.value.code is AlarmCode.POSITION_FEEDBACK_LOST and robot.stopped == 1
+    assert "the controller sent nothing for 0.300 s" in str(failed.value), str(failed.value)
+    assert figures == [{"feedback_stream": {"received": 401, "lost": 0, "gap_events": 0, "max_interval_ms": 300.0,
+                                            "max_receipt_delay_ms": 1.0, "stamp": "tm"}}], figures  # fmt: skip
