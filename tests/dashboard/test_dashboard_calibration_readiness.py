@@ -195,3 +195,47 @@ def test_the_open_page_follows_a_part_expiring_and_says_overdue_without_a_day_co
         expect(pg.locator("#cal-due")).to_have_text(f"due {expires:%Y-%m-%d} (overdue)")
         shot(pg, "calibration-expired-while-open.png")
     assert errors == [], errors
+
+
+def test_due_times_are_reckoned_on_the_services_clock_not_the_browsers(tmp_path: Path, browser: Any) -> None:
+    """A workstation whose clock stands three days behind the cell controller's: the laser, expired 1.5 days ago by
+    the service's clock, reads overdue (the browser's own clock made it "in 1 d"), and the camera, due in 20 days less
+    the seconds the test takes, "in 19 d" (whole days; it read 22 d), in the header tile too."""
+    store = CalibrationStore(tmp_path / "calibration")
+    now = datetime.now(timezone.utc)
+    camera_at, laser_at, rest_at = now - timedelta(days=10), now - timedelta(days=31.5), now - timedelta(hours=1)
+    commit(store, ("camera",), None, camera_at, valid_days=30.0)
+    commit(store, ("hand_eye",), None, rest_at)
+    commit(store, ("laser",), None, laser_at, valid_days=30.0)
+    commit(store, RECIPE_PARTS, None, rest_at)
+    commit(store, RECIPE_PARTS, "door-window", rest_at)
+    context = browser.new_context(viewport={"width": 1920, "height": 1080}, timezone_id="UTC")
+    context.clock.install(time=now - timedelta(days=3))  # the browser's clock, running from three days back
+    pg = context.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.set_default_timeout(15_000)
+    try:
+        with serve(tmp_path, store) as live, httpx.Client(base_url=live.url, timeout=15.0) as client:
+            cal = client.get("/calibration").json()
+            served_at = datetime.fromisoformat(cal["now_utc"])
+            assert abs(served_at - datetime.now(timezone.utc)) < timedelta(seconds=30), cal["now_utc"]
+            laser_due = datetime.fromisoformat(cal["current"]["parts"]["laser"]["expires_utc"])
+            assert laser_due == laser_at + timedelta(days=30)
+            assert pg.evaluate("Date.now()") < (now - timedelta(days=2)).timestamp() * 1e3  # the page's clock is behind
+            open_calibration(pg, live.url)
+            expect(pg.locator("#cal-due-line")).to_contain_text(f"Due {laser_due:%Y-%m-%d}")
+            expect(pg.locator("#cal-due-line")).to_contain_text("(overdue by 1 d): laser expires first")
+            expect(pg.locator("#cal-due")).to_have_text(f"due {laser_due:%Y-%m-%d} (overdue by 1 d)")
+            # Without the laser's part the camera is first: due in 20 days by the service's clock.
+            commit(store, ("laser",), None, datetime.now(timezone.utc))
+            wait_for(client, "the laser's new part", lambda c: c["current"]["parts"]["laser"]["status"] == "ok")
+            pg.reload()
+            expect(pg.locator("body")).to_have_attribute("data-ready", "1")
+            camera_due = camera_at + timedelta(days=30)
+            expect(pg.locator("#cal-due-line")).to_contain_text(f"Due {camera_due:%Y-%m-%d}")
+            expect(pg.locator("#cal-due-line")).to_contain_text("(in 19 d): camera expires first")
+            expect(pg.locator("#cal-due")).to_have_text(f"due {camera_due:%Y-%m-%d} (19 d)")
+    finally:
+        context.close()
+    assert errors == [], errors

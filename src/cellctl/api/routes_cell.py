@@ -7,6 +7,7 @@ import enum
 import json
 import time
 from collections.abc import AsyncIterator
+from datetime import datetime, timezone
 
 from fastapi import APIRouter, Depends, HTTPException, Request, Response, status
 from fastapi.responses import StreamingResponse
@@ -133,9 +134,9 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @reads.get("/calibration", response_model=CalibrationView, response_model_exclude_unset=True)
     async def get_calibration() -> CalibrationView:
         versions = await asyncio.to_thread(orch.calibration.history)
-        return CalibrationView.model_validate(
-            {"current": orch.calibration.summary(), "problems": orch.calibration.problems(), "versions": versions}
-        )
+        now = datetime.now(timezone.utc).isoformat()  # the status of the parts below is reckoned on this clock
+        return CalibrationView.model_validate({"current": orch.calibration.summary(), "problems": orch.calibration.problems(),
+                                               "versions": versions, "now_utc": now})  # fmt: skip
 
     @reads.get(
         "/events", response_class=StreamingResponse,

@@ -224,6 +224,10 @@ class CalibrationView(BaseModel):
     current: CalibrationSummary
     problems: list[str]
     versions: list[CalibrationVersion]
+    now_utc: str = Field(
+        description="the service's clock as it answered (ISO 8601, UTC): the parts' status is reckoned on it, and a "
+        "client shows how far off expires_utc is against it, not against its own clock (a workstation's may be days off)"
+    )
 
 
 # -- /health ------------------------------------------------------------------------------------

@@ -16,8 +16,8 @@
                        hooks in state.js
    under them api.js (requests, token, event stream), state.js (the model, the address, the refresh
    scheduler, the hooks), dom.js and format.js (building elements, formatting figures), figures.js
-   (nested records as short, folded key-value lists), statemark.js (a shape per PackML state) and
-   caldue.js (when the calibration set falls due). */
+   (nested records as short, folded key-value lists), statemark.js (a shape per PackML state),
+   caldue.js (when the calibration set falls due) and clock.js (the service's clock, which due times are reckoned on). */
 
 import { getJSON, openEvents } from "./api.js";
 import { bindAlarms, refreshAlarmHistory, refreshAlarms } from "./alarms.js";

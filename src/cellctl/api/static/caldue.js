@@ -1,7 +1,7 @@
 /* cellctl dashboard: when the calibration set falls due. Each part's expiry is the service's own
    (GET /calibration: current.parts[name].expires_utc, from the validity the service applies to
    that part); the dashboard never re-derives it from the configuration. The set is due when its
-   first part expires. No DOM here. */
+   first part expires; `now` is the service's clock (clock.js). No DOM here. */
 
 const DAY_MS = 86400e3;
 const HOUR_MS = 3600e3;
@@ -15,7 +15,7 @@ export function partDue(p) {
 
 // {due: Date, part, msLeft, daysLeft (fractional days, negative when overdue)} of the part that
 // expires first, or null (no part with an expiry, e.g. the twin's truth).
-export function calibrationDue(cal, now = Date.now()) {
+export function calibrationDue(cal, now) {
   const parts = (cal && cal.current && cal.current.parts) || {};
   let first = null;
   for (const [name, p] of Object.entries(parts)) {
@@ -40,7 +40,7 @@ export function dueIn(due) {
 
 // The milliseconds until the next part expires after `now` (null: none ahead), so a page can
 // read the set again when a shown due time passes.
-export function nextExpiryMs(cal, now = Date.now()) {
+export function nextExpiryMs(cal, now) {
   const parts = (cal && cal.current && cal.current.parts) || {};
   let next = null;
   for (const p of Object.values(parts)) {

@@ -8,6 +8,7 @@ import { getJSON } from "./api.js";
 import { figureList } from "./figures.js";
 import { $, el, setClass } from "./dom.js";
 import { DUE_SOON_DAYS, calibrationDue, dueIn, nextExpiryMs, partDue } from "./caldue.js";
+import { noteServiceTime, serviceNow } from "./clock.js";
 import { readiness } from "./calready.js";
 import { dateTime } from "./format.js";
 import { emit, model, schedule } from "./state.js";
@@ -17,7 +18,9 @@ const RECHECK_MAX_MS = 6 * 3600e3; // the due texts ("in 5 h") are brought up to
 let dueTimer = null;
 
 export async function refreshCalibration() {
+  const sent = Date.now();
   model.calibration = await getJSON("/calibration");
+  noteServiceTime(model.calibration.now_utc, sent, Date.now());
   renderCalibration();
   if (model.status) renderCalibrationTile();
   emit("calibration", model.calibration);
@@ -27,7 +30,7 @@ export async function refreshCalibration() {
 // Read the set again a second after the next part's expiry (the service's check is `now >= expiry`).
 function armDueTimer() {
   clearTimeout(dueTimer);
-  const ms = nextExpiryMs(model.calibration);
+  const ms = nextExpiryMs(model.calibration, serviceNow());
   dueTimer = setTimeout(() => schedule("calibration", refreshCalibration, 0), Math.min(ms === null ? RECHECK_MAX_MS : ms + 1000, RECHECK_MAX_MS));
 }
 
@@ -121,7 +124,7 @@ function renderCalibration() {
   if (!cal) return;
   const r = readiness(cal.problems || [], (cal.current && cal.current.recipes) || {});
   $("cal-problems").replaceChildren(readinessPanel(r));
-  const due = calibrationDue(cal);
+  const due = calibrationDue(cal, serviceNow());
   const parts = Object.values((cal.current && cal.current.parts) || {}).filter((p) => p);
   $("cal-due-line").textContent = due
     ? `Due ${dateTime(due.due)} (${dueIn(due)}): ${due.part} expires first; an expired part keeps the cell from production.`

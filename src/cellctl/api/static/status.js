@@ -5,6 +5,7 @@
 import { forgetToken, getJSON, getLatest, post, saveToken, token } from "./api.js";
 import { $, el, setClass, showMessage } from "./dom.js";
 import { DUE_SOON_DAYS, calibrationDue, dueIn } from "./caldue.js";
+import { serviceNow } from "./clock.js";
 import { readiness, readinessLines, readinessWord } from "./calready.js";
 import { clock, day, isNum } from "./format.js";
 import { renderSpc } from "./spc.js";
@@ -125,7 +126,7 @@ export function renderCalibrationTile() {
   const current = model.calibration && model.calibration.current;
   const version = current && current.version !== undefined && current.version !== null ? `, set v${current.version}` : "";
   $("cal").textContent = r.ready ? `ready${version}` : readinessWord(r);
-  const due = calibrationDue(model.calibration);
+  const due = calibrationDue(model.calibration, serviceNow());
   const soon = due && due.daysLeft < DUE_SOON_DAYS;
   const rel = due ? dueIn(due) : "";
   $("cal-due").textContent = due
