@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import time
 
 import numpy as np
@@ -261,25 +262,25 @@ async def test_running_watchdog_detects_loss_and_return() -> None:
         (AlarmCode.DEVICE_SLOW, "laser", False), (AlarmCode.LASER_LOST, "laser", False)}  # fmt: skip
 
 
-async def test_stop_ends_a_loop_whose_cancellation_the_ping_swallowed(monkeypatch: pytest.MonkeyPatch) -> None:
-    # Python 3.11's asyncio.wait_for returns the call's result when the cancel lands as the call completes:
-    # the loop's task then runs on as if never cancelled. Here the first cancel is swallowed so.
+async def test_stop_ends_a_loop_whose_cancellation_the_ping_swallowed() -> None:
+    # Python 3.11's asyncio.wait_for (in a driver's ping) returns the call's result when the cancel lands as the call
+    # completes: the loop's task then runs on as if never cancelled. Here the first cancel is swallowed so.
     swallowed = [0]
 
-    async def swallowing_wait_for(aw: object, timeout: float | None = None) -> object:
-        try:
-            return await aw  # type: ignore[misc]
-        except asyncio.CancelledError:
-            swallowed[0] += 1
-            if swallowed[0] > 1:  # then as asyncio would: a test that fails still ends
-                raise
-            return 0.001
+    class SwallowingRobot(FakeRobot):
+        async def ping(self, *, timeout_s: float) -> float:
+            try:
+                return await super().ping(timeout_s=timeout_s)
+            except asyncio.CancelledError:
+                swallowed[0] += 1
+                if swallowed[0] > 1:  # then as asyncio would: a test that fails still ends
+                    raise
+                return 0.001
 
-    robot = FakeRobot()
+    robot = SwallowingRobot()
     robot.link.mode = "hang"  # every ping waits, so the cancel lands in it
     wd = DeviceWatchdog(AlarmManager(), defaults=WatchdogSettings(period_s=0.01, timeout_s=0.005, miss_threshold=2))
     wd.add("robot", robot)
-    monkeypatch.setattr(asyncio, "wait_for", swallowing_wait_for)
     await wd.start()
     while robot.link.calls == 0:
         await asyncio.sleep(0.005)
@@ -289,3 +290,36 @@ async def test_stop_ends_a_loop_whose_cancellation_the_ping_swallowed(monkeypatc
     calls = robot.link.calls
     await asyncio.sleep(0.05)
     assert robot.link.calls == calls and swallowed[0] >= 1  # a cancel was lost, and no loop is left pinging
+
+
+async def test_a_ping_failing_as_the_watchdog_stops_leaves_no_unretrieved_error() -> None:
+    """A driver whose ping, cancelled, ends with its own timeout (its deadline and the cancel met): the stop leaves no
+    task whose error nobody read ("Task exception was never retrieved" in the service's log at the exit: the ping ran
+    in a task of its own under asyncio.wait_for, which re-raised the cancel and dropped the ping's error)."""
+
+    class TimesOutWhenCancelled(FakeRobot):
+        async def ping(self, *, timeout_s: float) -> float:
+            self.link.calls += 1
+            try:
+                await asyncio.sleep(60)
+            except asyncio.CancelledError:
+                raise DeviceTimeout("robot", "WOBJ: no answer from the controller in time") from None
+            return 60.0
+
+    unretrieved: list[str] = []
+    loop = asyncio.get_running_loop()
+    loop.set_exception_handler(lambda _loop, context: unretrieved.append(str(context.get("message"))))
+    robot = TimesOutWhenCancelled()
+    wd = DeviceWatchdog(AlarmManager(), defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=2))
+    wd.add("robot", robot)
+    try:
+        await wd.start()
+        while robot.link.calls == 0:
+            await asyncio.sleep(0.005)
+        await asyncio.wait_for(wd.stop(), 10.0)
+        await asyncio.sleep(0)
+        gc.collect()
+        await asyncio.sleep(0)
+    finally:
+        loop.set_exception_handler(None)
+    assert unretrieved == [], unretrieved

@@ -172,7 +172,7 @@ class DeviceWatchdog:
 
     async def stop(self) -> None:
         self._running = False
-        # A ping's wait_for may swallow the cancel (Python 3.11); the loop then ends at its next turn, as _running is off.
+        # A driver's ping may swallow the cancel (its own wait_for, Python 3.11); the loop then ends at its next turn.
         await cancel_until_done([sup.task for sup in self._devices.values() if sup.task is not None])
         for sup in self._devices.values():
             sup.task = None
@@ -209,7 +209,8 @@ class DeviceWatchdog:
         error: str | None = None
         rtt: float | None = None
         try:
-            rtt = float(await asyncio.wait_for(sup.device.ping(timeout_s=s.timeout_s), s.timeout_s + TIMEOUT_GRACE_S))
+            async with asyncio.timeout(s.timeout_s + TIMEOUT_GRACE_S):  # in this task: nothing left behind at a cancel
+                rtt = float(await sup.device.ping(timeout_s=s.timeout_s))
         except asyncio.CancelledError:
             raise
         except DeviceBusy:  # another call held the link throughout (it has its own timeout): no answer, no miss
