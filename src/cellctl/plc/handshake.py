@@ -74,8 +74,9 @@ async def _ask(coro: Coroutine[Any, Any, Any], timeout_s: float, what: str, expe
                *, optional: bool = False) -> T:
     """Await one answer from the cell with a timeout, and check its type."""
     try:
-        answer = await asyncio.wait_for(coro, timeout_s)
-    except asyncio.TimeoutError:
+        async with asyncio.timeout(timeout_s):  # in the handshake's task: a cancel at the stop leaves no error unread
+            answer = await coro
+    except TimeoutError:
         log.error("PLC interface: the cell did not answer %s within %.1f s", what, timeout_s)
         raise _NoAnswer(what) from None
     except Exception:

@@ -103,8 +103,9 @@ class SimCamera:
         self._frame_id += 1
         frame_id = self._frame_id
         try:
-            rendered = await asyncio.wait_for(self._frame(pose, world, targets, frame_rng, glass), timeout_s)
-        except asyncio.TimeoutError:
+            async with asyncio.timeout(timeout_s):  # in the caller's task: a cancel leaves no frame's error unread
+                rendered = await self._frame(pose, world, targets, frame_rng, glass)
+        except TimeoutError:
             raise DeviceTimeout(self.name, f"frame {frame_id} not ready within {timeout_s:g} s") from None
         self._check_open()
         self.last_applied = rendered.applied
