@@ -49,6 +49,19 @@ def commit(store: CalibrationStore, names: tuple[str, ...], recipe: str | None, 
         store.commit(name, part, now=when, recipe=recipe)
 
 
+def _laser_overdue_set(store: CalibrationStore) -> tuple[datetime, datetime, datetime]:
+    """A ready set but for the laser, recorded valid 30 days and calibrated 31.5 days ago; the camera valid 30 days
+    since 10 days ago, the rest an hour old (90 days). Returns when the camera, the laser and the rest were calibrated."""
+    now = datetime.now(timezone.utc)
+    camera_at, laser_at, rest_at = now - timedelta(days=10), now - timedelta(days=31.5), now - timedelta(hours=1)
+    commit(store, ("camera",), None, camera_at, valid_days=30.0)
+    commit(store, ("hand_eye",), None, rest_at)
+    commit(store, ("laser",), None, laser_at, valid_days=30.0)
+    commit(store, RECIPE_PARTS, None, rest_at)
+    commit(store, RECIPE_PARTS, "door-window", rest_at)
+    return camera_at, laser_at, rest_at
+
+
 def serve(tmp_path: Path, store: CalibrationStore) -> LiveCell:
     """The simulated cell on the set at ``store`` (config/sim.toml: calibration.max_age_days = 90)."""
     cfg = sim_config(calibration={"source": "set", "auto_calibrate_in_sim": False, "directory": str(store.root)})
@@ -134,13 +147,7 @@ def test_due_dates_are_each_parts_own_expiry_not_the_configured_age(tmp_path: Pa
     from now, the laser 1.5 days overdue. The page dated every part calibrated + 90 days ("laser ... in 58 d")."""
     pg, errors = utc_page
     store = CalibrationStore(tmp_path / "calibration")
-    now = datetime.now(timezone.utc)
-    camera_at, laser_at, rest_at = now - timedelta(days=10), now - timedelta(days=31.5), now - timedelta(hours=1)
-    commit(store, ("camera",), None, camera_at, valid_days=30.0)
-    commit(store, ("hand_eye",), None, rest_at)
-    commit(store, ("laser",), None, laser_at, valid_days=30.0)
-    commit(store, RECIPE_PARTS, None, rest_at)
-    commit(store, RECIPE_PARTS, "door-window", rest_at)
+    camera_at, laser_at, rest_at = _laser_overdue_set(store)
     truth = {"camera": camera_at + timedelta(days=30), "laser": laser_at + timedelta(days=30),
              **{n: rest_at + timedelta(days=90) for n in ("hand_eye", "teaching", "pixel_map")}}  # fmt: skip
     with serve(tmp_path, store) as live, httpx.Client(base_url=live.url, timeout=15.0) as client:
@@ -202,13 +209,7 @@ def test_due_times_are_reckoned_on_the_services_clock_not_the_browsers(tmp_path:
     the service's clock, reads overdue (the browser's own clock made it "in 1 d"), and the camera, due in 20 days less
     the seconds the test takes, "in 19 d" (whole days; it read 22 d), in the header tile too."""
     store = CalibrationStore(tmp_path / "calibration")
-    now = datetime.now(timezone.utc)
-    camera_at, laser_at, rest_at = now - timedelta(days=10), now - timedelta(days=31.5), now - timedelta(hours=1)
-    commit(store, ("camera",), None, camera_at, valid_days=30.0)
-    commit(store, ("hand_eye",), None, rest_at)
-    commit(store, ("laser",), None, laser_at, valid_days=30.0)
-    commit(store, RECIPE_PARTS, None, rest_at)
-    commit(store, RECIPE_PARTS, "door-window", rest_at)
+    now, (camera_at, laser_at, rest_at) = datetime.now(timezone.utc), _laser_overdue_set(store)
     context = browser.new_context(viewport={"width": 1920, "height": 1080}, timezone_id="UTC")
     context.clock.install(time=now - timedelta(days=3))  # the browser's clock, running from three days back
     pg = context.new_page()
