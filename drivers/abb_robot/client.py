@@ -157,7 +157,7 @@ class AbbRobot:
         """Stop whatever motion runs (harmless when none does); a position stream ends with it (the
         module's STOP ends it, and STREAM is refused while the robot decelerates)."""
         await self._verbs.stop(timeout_s=timeout_s)
-        self._stream.ended_by_controller()
+        await self._stream.ended_by_controller()
 
     async def set_gripper(self, hold: bool, *, timeout_s: float) -> None:
         """Vacuum on (``hold``) or off (release); refused while the robot moves (see

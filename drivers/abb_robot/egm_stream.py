@@ -49,8 +49,9 @@ from cellctl.ports import (
 MAX_SAMPLES = 262_144
 """A stream keeps its newest samples, at most this many (about 17 min at 4 ms)."""
 STOP_POLL_S = 0.004
-"""After STREAM 0, the peer is looked at this often until no more datagrams come (s)."""
-STOP_POLLS = 12
+"""After the stream ended (STREAM 0, a STOP), the peer is looked at this often until no more datagrams come (s)."""
+STOP_POLLS = 12  # ... at most this many times
+QUIET_POLLS = 3  # ... until this many looks in a row found none (the datagrams on their way arrive with some jitter)
 BUSY_TAG = f"{int(P.ErrorCode.BUSY)} BUSY"
 _CTL = STREAM_WIDTH  # the record's stamp on the controller's clock (s since the stream's first sample)
 _U32 = float(1 << 32)
@@ -302,17 +303,23 @@ class EgmStream:
                 f"{port} in{other}")
 
     async def _end_on_controller(self, deadline: float) -> None:
-        """``STREAM 0`` (a link that is down has ended it already), then collect the datagrams sent before
-        it that are still on their way: until the peer has had none for a poll (bounded)."""
+        """``STREAM 0`` (a link that is down has ended it already), then collect the datagrams sent before it."""
         try:
             await self._request(0, deadline, reconnect=False)
         except DeviceDisconnected:
             pass
+        await self._collect_in_flight(deadline)
+
+    async def _collect_in_flight(self, deadline: float) -> None:
+        """Collect the datagrams the controller sent before it ended the stream that are still on their way: until
+        the peer has had none for QUIET_POLLS polls (bounded)."""
+        quiet = 0
         for _ in range(STOP_POLLS):
             if time.monotonic() + STOP_POLL_S > deadline:
                 break
             await asyncio.sleep(STOP_POLL_S)
-            if not self._drain():
+            quiet = 0 if self._drain() else quiet + 1
+            if quiet >= QUIET_POLLS:
                 break
         self._drain()
 
@@ -331,11 +338,13 @@ class EgmStream:
             self._latest = PoseSample(float(self._to_clock(self._last[_CTL])), _pose(self._last))
         return self._latest
 
-    def ended_by_controller(self) -> None:
-        """The controller has ended the stream (a STOP): what came is kept for :meth:`stop`, which then sends
-        nothing; the peer answers guidance again."""
-        if self.active and self.peer is not None:
-            self._drain()
+    async def ended_by_controller(self) -> None:
+        """The controller has ended the stream (a STOP): what came, the datagrams still on their way included, is
+        kept for :meth:`stop`, which then sends nothing; the peer answers guidance again."""
+        if not (self.active and self.peer is not None):
+            return
+        await self._collect_in_flight(time.monotonic() + STOP_POLLS * STOP_POLL_S)
+        if self.active and self.peer is not None:  # not stopped meanwhile
             self.peer.end_stream()
             self._ended, self._ended_at = True, time.monotonic()
 

@@ -141,11 +141,11 @@ async def test_a_controller_that_sends_nothing_for_a_while_is_told_from_the_netw
         robot = fake.egm.stream._args[2]  # the fake controller's robot: its EGM thread reads the TCP every tick
         tcp, paused = robot.tcp, []
 
-        def stalling_tcp() -> Any:  # the controller's EGM task stalls once, 1.6 s into the stream (on the path), for
-            s = fake.egm_stream_stats  # longer than the robot's stop takes once the gap is found: the cell waits for it
+        def stalling_tcp() -> Any:  # the controller's EGM task stalls once, 1.6 s into the stream (on the path)
+            s = fake.egm_stream_stats
             if not paused and threading.current_thread().name == "fake-egm-robot" and s is not None and s.sent >= 400:
                 paused.append(time.monotonic())
-                time.sleep(0.6)
+                time.sleep(0.4)
             return tcp()
 
         monkeypatch.setattr(robot, "tcp", stalling_tcp)

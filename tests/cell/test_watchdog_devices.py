@@ -293,8 +293,8 @@ async def test_stop_ends_a_loop_whose_cancellation_the_ping_swallowed() -> None:
 
 
 async def test_a_ping_failing_as_the_watchdog_stops_leaves_no_unretrieved_error() -> None:
-    """A driver whose ping, cancelled, ends with its own timeout (its deadline and the cancel met): the stop leaves no
-    task whose error nobody read ("Task exception was never retrieved" in the service's log at the exit: the ping ran
+    """A driver whose ping, cancelled, ends with its own timeout (its deadline and the cancel met): the stop raises no
+    alarm and leaves no task whose error nobody read ("Task exception was never retrieved" in the service's log at the exit: the ping ran
     in a task of its own under asyncio.wait_for, which re-raised the cancel and dropped the ping's error)."""
 
     class TimesOutWhenCancelled(FakeRobot):
@@ -310,7 +310,8 @@ async def test_a_ping_failing_as_the_watchdog_stops_leaves_no_unretrieved_error(
     loop = asyncio.get_running_loop()
     loop.set_exception_handler(lambda _loop, context: unretrieved.append(str(context.get("message"))))
     robot = TimesOutWhenCancelled()
-    wd = DeviceWatchdog(AlarmManager(), defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=2))
+    am = AlarmManager()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=1))
     wd.add("robot", robot)
     try:
         await wd.start()
@@ -323,3 +324,5 @@ async def test_a_ping_failing_as_the_watchdog_stops_leaves_no_unretrieved_error(
     finally:
         loop.set_exception_handler(None)
     assert unretrieved == [], unretrieved
+    # The stop's cancel is not a missed ping: no alarm (one miss would be the robot lost, an Abort), no miss counted.
+    assert am.current() == [] and wd.health()["robot"].misses == 0, (am.current(), wd.health()["robot"])

@@ -36,3 +36,11 @@ async def to_the_end(work: Awaitable[_T]) -> tuple[_T, bool]:
         except asyncio.CancelledError:
             cancelled = True
     return fut.result(), cancelled
+
+
+def cancel_first(exc: BaseException) -> None:
+    """Raise CancelledError (from ``exc``) when the running task is being cancelled: an awaited call that ended the
+    cancel with an error of its own (a driver's timeout as the stop came) must end the task, not count as its failure."""
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError() from exc

@@ -67,9 +67,12 @@ class Pumps:
     """Tasks that each hand a queue's events, in order, to an async sink (the store's records of alarms and machine
     events). Stopping lets them finish what was queued first: an acknowledgement made as the service stops is stored."""
 
+    DRAIN_POLL_S = 0.005
+
     def __init__(self, what: str) -> None:
         self._what = what
         self._running: list[tuple[asyncio.Queue[Any], asyncio.Task[None]]] = []
+        self._busy = 0  # events taken from a queue and not yet handled
 
     def start(self, queue: asyncio.Queue[T], sink: Callable[[T], Awaitable[object]]) -> None:
         self._running.append((queue, asyncio.create_task(self._pump(queue, sink))))
@@ -77,22 +80,26 @@ class Pumps:
     async def _pump(self, queue: asyncio.Queue[T], sink: Callable[[T], Awaitable[object]]) -> None:
         while True:
             event = await queue.get()
+            self._busy += 1
             try:
                 await sink(event)
             except Exception:  # a bad event must not stop the pump; it is logged with its trace
                 _log.exception("%s: handling %r failed", self._what, event)
             finally:
-                queue.task_done()
+                self._busy -= 1
+
+    def _idle(self) -> bool:
+        """Every queue empty and no event in hand, at once (a sink may queue an event on another pump's queue)."""
+        return self._busy == 0 and all(q.empty() for q, t in self._running if not t.done())
 
     async def stop(self, *, drain_timeout_s: float) -> None:
         """Wait up to ``drain_timeout_s`` (s) for the events queued so far to be handled, then end the pumps."""
-        drained = [asyncio.ensure_future(q.join()) for q, t in self._running if not t.done()]
-        if drained:
-            _, late = await asyncio.wait(drained, timeout=drain_timeout_s)
-            for d in late:
-                d.cancel()
-            if late:
-                left = sum(q.qsize() for q, _ in self._running)
-                _log.error("%s: %d event(s) left unhandled after %.1f s at the stop", self._what, left, drain_timeout_s)
+        loop = asyncio.get_running_loop()
+        end = loop.time() + drain_timeout_s
+        while not self._idle() and loop.time() < end:
+            await asyncio.sleep(self.DRAIN_POLL_S)
+        if not self._idle():
+            left = sum(q.qsize() for q, _ in self._running) + self._busy
+            _log.error("%s: %d event(s) left unhandled after %.1f s at the stop", self._what, left, drain_timeout_s)
         await cancel_until_done([t for _, t in self._running])  # a sink may swallow one cancel (Python 3.11's wait_for)
         self._running.clear()

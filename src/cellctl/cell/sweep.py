@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import time
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
@@ -54,7 +53,6 @@ log = logging.getLogger(__name__)
 STEP = CycleStep.ALIGN
 SUPERVISION_PERIOD_S = 0.002  # how often the feedback's freshness is checked while the robot sweeps (host seconds)
 AT_CORNER_MM = 2.0  # a reading at rest this near a corner's commanded position was read standing at that corner
-GAP_SIDE_WAIT_STALE = 4.0  # once the robot stands, samples are awaited this many feedback_stale_s to tell the gap's side
 CHECK_WINDOW_S = 0.005  # a check of the kept latency searches this far either side of it before the whole range
 
 
@@ -303,7 +301,6 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
         await run.dev.robot.stop(timeout_s=run.motion.read_timeout_s)
     except DeviceError as err:
         raise CycleFailed(step, AlarmCode.ROBOT_FAULT, f"the position feedback stopped and the robot did not stop: {err}") from err
-    await _samples_after(stream, at_trip, GAP_SIDE_WAIT_STALE * cfg.feedback_stale_s)
     why = await _stream_fault(stream, run.motion.read_timeout_s)
     stats = stream_stats(stream)
     came_after = 1 if at_trip is None or stats is None else stats.received - at_trip.received
@@ -313,16 +310,6 @@ async def _supervised(run: CycleRun, step: CycleStep, moves: Coroutine[Any, Any,
         f"the robot's position feedback stopped mid-path (no sample for {age:.3f} s, limit {cfg.feedback_stale_s:g} s{why}): "
         f"the robot was stopped and nothing was fitted; {gap_side(stats, age, came_after=came_after)}",
     )  # fmt: skip
-
-
-async def _samples_after(stream: PoseStream, at_trip: Any | None, wait_s: float) -> None:
-    """Keep the stream open (the robot stands) until a sample comes after the gap, for up to ``wait_s`` (host s):
-    a controller that paused for a little longer than the limit resumes then, which tells the gap's side."""
-    if at_trip is None:
-        return
-    end = time.monotonic() + wait_s
-    while (stats := stream_stats(stream)) is not None and stats.received <= at_trip.received and time.monotonic() < end:
-        await asyncio.sleep(SUPERVISION_PERIOD_S)
 
 
 async def _stream_fault(stream: PoseStream, timeout_s: float) -> str:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cancel import cancel_until_done
+from cellctl.cell.cancel import cancel_first, cancel_until_done
 from cellctl.domain import AlarmCode
 from cellctl.ports import Camera, DeviceBusy, DisplacementSensor, Robot
 
@@ -213,13 +213,12 @@ class DeviceWatchdog:
                 rtt = float(await sup.device.ping(timeout_s=s.timeout_s))
         except asyncio.CancelledError:
             raise
-        except DeviceBusy:  # another call held the link throughout (it has its own timeout): no answer, no miss
-            sup.health = replace(sup.health, pings=sup.health.pings + 1)
-            return
-        except TimeoutError:
-            error = f"no answer within {s.timeout_s:g} s"
         except Exception as exc:
-            error = f"{type(exc).__name__}: {exc}"
+            cancel_first(exc)  # the stop's cancel, ended by the driver with its own error: no miss, no alarm
+            if isinstance(exc, DeviceBusy):  # another call held the link throughout (it has its own timeout): no miss
+                sup.health = replace(sup.health, pings=sup.health.pings + 1)
+                return
+            error = f"no answer within {s.timeout_s:g} s" if isinstance(exc, TimeoutError) else f"{type(exc).__name__}: {exc}"
         h = sup.health
         if error is None:
             sup.last_ok_at = self._clock()

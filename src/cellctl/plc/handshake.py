@@ -25,6 +25,7 @@ from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
+from cellctl.cell.cancel import cancel_first
 from cellctl.plc.codec import Value
 from cellctl.plc.facade import (
     UINT32_MAX,
@@ -76,11 +77,12 @@ async def _ask(coro: Coroutine[Any, Any, Any], timeout_s: float, what: str, expe
     try:
         async with asyncio.timeout(timeout_s):  # in the handshake's task: a cancel at the stop leaves no error unread
             answer = await coro
-    except TimeoutError:
-        log.error("PLC interface: the cell did not answer %s within %.1f s", what, timeout_s)
-        raise _NoAnswer(what) from None
-    except Exception:
-        log.exception("PLC interface: the cell failed to answer %s", what)
+    except Exception as exc:
+        cancel_first(exc)  # the stop's cancel, ended by the call with its own error: nothing is told the PLC
+        if isinstance(exc, TimeoutError):
+            log.error("PLC interface: the cell did not answer %s within %.1f s", what, timeout_s)
+        else:
+            log.exception("PLC interface: the cell failed to answer %s", what)
         raise _NoAnswer(what) from None
     if not isinstance(answer, expect) and not (optional and answer is None):
         log.error("PLC interface: the cell answered %s with %r, not a %s", what, answer, expect.__name__)
