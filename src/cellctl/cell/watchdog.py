@@ -211,9 +211,7 @@ class DeviceWatchdog:
         try:
             async with asyncio.timeout(s.timeout_s + TIMEOUT_GRACE_S):  # in this task: nothing left behind at a cancel
                 rtt = float(await sup.device.ping(timeout_s=s.timeout_s))
-        except asyncio.CancelledError:
-            raise
-        except Exception as exc:
+        except Exception as exc:  # a cancel (not an Exception) goes up as it is
             cancel_first(exc)  # the stop's cancel, ended by the driver with its own error: no miss, no alarm
             if isinstance(exc, DeviceBusy):  # another call held the link throughout (it has its own timeout): no miss
                 sup.health = replace(sup.health, pings=sup.health.pings + 1)
