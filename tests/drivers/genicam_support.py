@@ -27,6 +27,10 @@ if not os.path.isfile(TLSIMU):
     )
 
 MONO = "SN_InterfaceA_0"
+# A grab that times out says so in one of two ways, depending on which side of the worker thread saw the deadline
+# first (the worker's wait for a buffer: "no frame within the grab's timeout"; the event loop's: "grabbing a frame took
+# longer than"): on a loaded machine either comes first.
+GRAB_TIMED_OUT = "no frame within the grab's timeout|grabbing a frame took longer than"
 
 
 def ramp_offset(image: np.ndarray) -> int:

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from genicam_support import MONO, TLSIMU, camera, ramp_offset  # noqa: F401 - camera is a fixture
+from genicam_support import GRAB_TIMED_OUT, MONO, TLSIMU, camera, ramp_offset  # noqa: F401 - camera is a fixture
 from cellctl.ports import DeviceDisconnected, DeviceTimeout
 from genicam_camera import GenicamCamera
 
@@ -68,7 +68,7 @@ async def test_a_late_frame_of_a_timed_out_grab_is_not_the_next_grabs(camera: Ge
     before = ramp_offset((await camera.grab(timeout_s=5.0)).image)
     slow = SlowFrames(camera._acquirer)  # noqa: SLF001
     camera._acquirer = slow  # noqa: SLF001
-    with pytest.raises(DeviceTimeout, match="no frame"):
+    with pytest.raises(DeviceTimeout, match=GRAB_TIMED_OUT):
         await camera.grab(timeout_s=0.05)  # its frame is still on the way when the call gives up
     began = time.monotonic()
     frame = await camera.grab(timeout_s=2.0)
@@ -90,7 +90,7 @@ async def test_a_trigger_whose_frame_never_comes_is_given_up() -> None:
             num_buffers=real.num_buffers, try_fetch=real.try_fetch,
             remote_device=SimpleNamespace(node_map=SimpleNamespace(TriggerSoftware=SimpleNamespace(execute=lambda: None))),
         )
-        with pytest.raises(DeviceTimeout, match="no frame"):
+        with pytest.raises(DeviceTimeout, match=GRAB_TIMED_OUT):
             await cam.grab(timeout_s=0.1)
         cam._acquirer = real  # noqa: SLF001
         began = time.monotonic()
