@@ -106,6 +106,31 @@ def test_nine_point_dots_are_found_at_their_projected_centres(renderer: CameraRe
     assert len(truth) == 9
 
 
+def test_band_rendering_of_targets_equals_shading_every_pixel() -> None:
+    """The blocks a board or a dot plate leaves in one level (camera_blocks.TARGET_BLOCK_PX) hold what shading each
+    of their pixels gives: a board and a dot plate on the wall seen askew, in a crop of no whole number of blocks."""
+    w, h = 902, 698
+    crop = CameraIntrinsics(width_px=w, height_px=h, cx=INTR.cx - (INTR.width_px - w) / 2, cy=INTR.cy - (INTR.height_px - h) / 2)
+    fast, slow = CameraRenderer(crop, RenderConfig()), CameraRenderer(crop, RenderConfig(), band_rendering=False)
+    world = nominal_world(WorldConfig())
+    placed = [
+        PlacedTarget(Checkerboard(inner_corners=(7, 5), square_mm=5.0, border_mm=5.0),
+                     place_on_world_plane(world.T_B_T, (-110.0, 40.0), np.radians(7.0))),
+        PlacedTarget(NinePointTarget(pitch_mm=10.0, dot_diameter_mm=4.0, border_mm=5.0),
+                     place_on_world_plane(world.T_B_T, (-160.0, 40.0), np.radians(-4.0))),
+    ]  # fmt: skip
+    R = rot_y(0.3) @ rot_x(-0.2) @ rot_z(0.15)
+    T_B_C = world.T_B_T @ make_pose(R, np.array([-118.0, 50.0, 0.0]) - R @ np.array([0.0, 0.0, 700.0]))
+    a, _ = fast.render_signal(T_B_C, world, targets=placed, rng=np.random.default_rng(5))
+    b, _ = slow.render_signal(T_B_C, world, targets=placed, rng=np.random.default_rng(5))
+    assert np.array_equal(a, b)
+    # Both targets are wholly in the crop, with their dark and light print (not a blank wall).
+    for p in placed:
+        uv = fast.project(p.points_B(), T_B_C)
+        assert np.all((uv > 20) & (uv < [w - 20, h - 20])), (p.target.name, uv.min(axis=0), uv.max(axis=0))
+    assert a.max() - a.min() > 150
+
+
 def test_target_seen_from_behind_is_refused(renderer: CameraRenderer) -> None:
     board = Checkerboard()
     flipped = PlacedTarget(board, make_pose(rot_x(np.pi), [0.0, 0.0, 400.0]))

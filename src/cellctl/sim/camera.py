@@ -8,8 +8,8 @@ through the opening (``opening_dn``), the drawn surface of a real opening around
 2. Shading: the scene convolved with the optics' Gaussian (``blur_sigma_px``, ``defocus_sigma_px``
    in quadrature) over each pixel's square footprint, exact for straight edges as a function of
    the signed distance (edge_coverage), plane mm turned into px by each pixel's Jacobian.
-3. Blocks of 16 x 16 px (8 x 8 on the wall) farther from every edge than their footprint plus the
-   kernel's reach are filled with one level; only blocks near edges are shaded per pixel, to
+3. Blocks of 8 x 8 px (camera_blocks' WALL_BLOCK_PX, TARGET_BLOCK_PX) farther from every edge than their
+   footprint plus the kernel's reach are filled with one level; only blocks near edges are shaded per pixel, to
    within 1e-9 of the contrast of full per-pixel shading (camera_blocks).
 4. Lighting: vignetting cos^``vignetting_power`` of the field angle, a linear gradient, glare.
 5. Sensor: shot noise (Poisson, its normal approximation above 100 e-), read noise, black level,
@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from cellctl.config.mounting import CameraIntrinsics
 from cellctl.config.render import RenderConfig
 from cellctl.geometry.pose import check_pose
-from cellctl.sim.camera_blocks import BLOCK_PX, WALL_BLOCK_PX, Blocks, PlaneView
+from cellctl.sim.camera_blocks import BLOCK_PX, TARGET_BLOCK_PX, WALL_BLOCK_PX, Blocks, PlaneView
 from cellctl.sim.camera_disturbances import Occluder, add_glare, plan_occlusion
 from cellctl.sim.camera_model import CameraModel, ray_map
 from cellctl.sim.edge_coverage import coverage_from_sdf, kernel_reach_px, rounded_rect_sdf
@@ -112,6 +112,7 @@ class CameraRenderer:
         wp = -(-intrinsics.width_px // B) * B
         self._blocks = Blocks(ray_map(intrinsics, hp + 1, wp + 1), hp, wp)
         self._wall_blocks = Blocks(self._blocks.rays, hp, wp, WALL_BLOCK_PX)
+        self._target_blocks = Blocks(self._blocks.rays, hp, wp, TARGET_BLOCK_PX)
         self._illumination = self._illumination_field()
         self._surfaces: dict[tuple[int, float, float, float], DrawnSurface] = {}
         self._surfaces_lock = threading.Lock()
@@ -302,7 +303,7 @@ class CameraRenderer:
         albedo4[bi, :, bj, :] = shade.reshape(bi.size, B, B)
 
     def _shade_target(self, albedo: F32, T_B_C: F64, placed: PlacedTarget, sigma: float) -> None:
-        blocks = self._blocks
+        blocks = self._target_blocks
         plane = PlaneView.of(placed.T_B_P, T_B_C)
         if plane.o[2] >= 0.0:
             raise ValueError(
@@ -320,7 +321,7 @@ class CameraRenderer:
         solid = valid & (sd_plate < -margin) & flat_print & self.band_rendering
         si, sj = np.nonzero(solid)
         if si.size:
-            albedo.reshape(blocks.nby, BLOCK_PX, blocks.nbx, BLOCK_PX)[si, :, sj, :] = level[si, sj].astype(np.float32)[
+            albedo.reshape(blocks.nby, blocks.B, blocks.nbx, blocks.B)[si, :, sj, :] = level[si, sj].astype(np.float32)[
                 :, None, None
             ]
         bi, bj = np.nonzero(near & ~solid)

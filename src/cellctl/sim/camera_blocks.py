@@ -20,6 +20,7 @@ F64 = NDArray[np.float64]
 
 BLOCK_PX = 16
 WALL_BLOCK_PX = 8  # the wall's many parallel edges are shaded in finer blocks (fewer pixels near them)
+TARGET_BLOCK_PX = 8  # and a board's grid lines (at 16 px, a board view took 1.5 times as long)
 
 
 @dataclass(frozen=True)
