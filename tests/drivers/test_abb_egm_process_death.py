@@ -40,13 +40,23 @@ def _egm_children() -> set[int]:
     return found
 
 
+def _has_exited(pid: int) -> bool:
+    """The child can be waited for (the OS's answer, the child left unreaped): a process on its way out has dropped
+    its command line already, and a killed leader shows as a zombie in /proc while its other threads still exit; in
+    both its parent's poll still finds it running."""
+    try:
+        return os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+    except ChildProcessError:  # reaped already
+        return True
+
+
 async def _kill_the_egm_child() -> int:
     (pid,) = _egm_children()
     os.kill(pid, signal.SIGKILL)
     deadline = time.monotonic() + 5.0
-    while pid in _egm_children() and time.monotonic() < deadline:
+    while not _has_exited(pid) and time.monotonic() < deadline:
         await asyncio.sleep(0.01)
-    assert pid not in _egm_children()
+    assert _has_exited(pid) and pid not in _egm_children()
     return pid
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 from plc_test_support import PlcClient
 from pymodbus.client import AsyncModbusTcpClient
-from service_test_support import AUTH, ROOT, _command, api_client, running_service, to_execute, truth_values
+from service_test_support import AUTH, ROOT, _command, alarms_listed, api_client, running_service, to_execute, truth_values
 
 from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
 from cellctl.config import CellConfig, parse_config
@@ -96,7 +96,7 @@ async def test_the_door_window_left_alone_runs_on_its_own_teaching_and_a_new_one
         rec = (await post(client, "door-window", "door-retaught")).json()
         assert rec["state"] == "done" and within(rec), (rec.get("error"), rec.get("true_error"))
         assert rec["steps"][0]["figures"]["calibration"]["parts"]["teaching"] == store.current().part("teaching").id  # type: ignore[union-attr]
-        assert not (await client.get("/alarms")).json()["current"]
+        assert not await alarms_listed(client)
 
 
 async def test_a_renamed_first_recipe_is_refused_up_front_over_rest_and_the_plc(tmp_path: Path) -> None:
@@ -121,7 +121,7 @@ async def test_a_renamed_first_recipe_is_refused_up_front_over_rest_and_the_plc(
         finally:
             plc.client.close()
         status = (await client.get("/status")).json()
-        assert status["state"] == "EXECUTE" and not (await client.get("/alarms")).json()["current"]  # no Hold, no alarm
+        assert status["state"] == "EXECUTE" and not await alarms_listed(client)  # no Hold, no alarm
         assert (await client.get("/cycles")).json() == []
         # the door window's own teaching still runs it, by the twin's truth
         rec = (await post(client, "door-window", "door-1")).json()

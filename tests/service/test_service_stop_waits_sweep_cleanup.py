@@ -52,7 +52,9 @@ async def test_a_stop_waits_for_the_sweeps_clean_up(tmp_path: Path, monkeypatch:
             cid = r.json().get("cycle_id") or r.json().get("id")
             await asyncio.wait_for(moving.wait(), timeout=30.0)
             t0 = time.monotonic()
-            answers = await asyncio.gather(*(client.post(f"/commands/{c}", headers=AUTH) for c in commands))  # at once
+            # One right after the other (each answered as the state machine takes it, the clean-up still ahead): sent
+            # concurrently, the abort could come first and the hold be refused in Aborting, as it should.
+            answers = [await client.post(f"/commands/{c}", headers=AUTH) for c in commands]
             assert all(r.status_code == 200 for r in answers), [r.text for r in answers]
             # poll the REST record until the cycle has ended
             for _ in range(400):
