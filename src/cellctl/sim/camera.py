@@ -329,8 +329,14 @@ class CameraRenderer:
             return
         ray_idx, img_idx = blocks.indices(bi, bj)
         Xp, Yp, jac, hit = blocks.pixel_hits(plane, ray_idx)
-        sd, gx, gy = placed.plate_sdf(Xp, Yp)
-        cover = np.where(hit, coverage_from_sdf(sd, gx, gy, jac, sigma), 0.0)
+        # Pixels of blocks wholly on the plate, clear of its outline, are covered (1, as shading them gives).
+        on_plate = np.repeat(valid[bi, bj] & (sd_plate[bi, bj] < -margin[bi, bj]) & self.band_rendering, blocks.B**2)
+        cover = on_plate.astype(np.float64)
+        if not np.all(on_plate):
+            rim = ~on_plate
+            sd, gx, gy = placed.plate_sdf(Xp[rim], Yp[rim])
+            cover[rim] = coverage_from_sdf(sd, gx, gy, tuple(j[rim] for j in jac), sigma)  # type: ignore[arg-type]
+        cover = np.where(hit, cover, 0.0)
         inside = cover > 0.0
         if not np.any(inside):
             return
