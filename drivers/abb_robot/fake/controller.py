@@ -142,6 +142,13 @@ class FakeController:
                 await self.aclose()
 
             loop.run_until_complete(main())
+            # As asyncio.run ends: what still runs (a connection's session) is cancelled and finished on this loop,
+            # not left for the garbage collector to close after the loop has gone.
+            left = asyncio.all_tasks(loop)
+            for task in left:
+                task.cancel()
+            loop.run_until_complete(asyncio.gather(*left, return_exceptions=True))
+            loop.run_until_complete(loop.shutdown_asyncgens())
             loop.close()
 
         self._thread = threading.Thread(target=run, name="fake-abb-controller", daemon=True)

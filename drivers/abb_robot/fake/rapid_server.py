@@ -118,20 +118,22 @@ class RapidLineServer:
     # -- connection ---------------------------------------------------------------------------
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        async with self._one_client:
-            session = _Session(writer)
-            self._current = session
-            try:
-                await self._session(reader, session)
-            except (ConnectionError, asyncio.IncompleteReadError, OSError):
-                pass
-            finally:
-                self._current = None
-                if self.busy:
-                    log.info("client gone during a motion: stopping it")
-                    await self._halt_motion()
-                await self._end_stream()
-                writer.close()
+        try:
+            async with self._one_client:  # a second client waits its turn (closed if the controller stops meanwhile)
+                session = _Session(writer)
+                self._current = session
+                try:
+                    await self._session(reader, session)
+                except (ConnectionError, asyncio.IncompleteReadError, OSError):
+                    pass
+                finally:
+                    self._current = None
+                    if self.busy:
+                        log.info("client gone during a motion: stopping it")
+                        await self._halt_motion()
+                    await self._end_stream()
+        finally:
+            writer.close()
 
     async def _session(self, reader: asyncio.StreamReader, session: _Session) -> None:
         pending = b""
