@@ -316,9 +316,11 @@ class CameraRenderer:
         X, Y, ok = plane.hit(blocks.corner_x, blocks.corner_y)
         any_ok = ok[:-1, :-1] | ok[:-1, 1:] | ok[1:, :-1] | ok[1:, 1:]
         near = np.where(valid, sd_plate <= margin, any_ok)
-        # Blocks wholly on the plate and clear of every printed edge take one printed level.
+        # Blocks wholly on the plate, clear of its outline (covered, as shading each pixel gives), and of every printed
+        # edge too take one printed level.
+        on_plate = valid & (sd_plate < -margin) & self.band_rendering
         flat_print, level = placed.target.uniform_level(bx, by, margin)
-        solid = valid & (sd_plate < -margin) & flat_print & self.band_rendering
+        solid = on_plate & flat_print
         si, sj = np.nonzero(solid)
         if si.size:
             albedo.reshape(blocks.nby, blocks.B, blocks.nbx, blocks.B)[si, :, sj, :] = level[si, sj].astype(np.float32)[
@@ -329,11 +331,10 @@ class CameraRenderer:
             return
         ray_idx, img_idx = blocks.indices(bi, bj)
         Xp, Yp, jac, hit = blocks.pixel_hits(plane, ray_idx)
-        # Pixels of blocks wholly on the plate, clear of its outline, are covered (1, as shading them gives).
-        on_plate = np.repeat(valid[bi, bj] & (sd_plate[bi, bj] < -margin[bi, bj]) & self.band_rendering, blocks.B**2)
-        cover = on_plate.astype(np.float64)
-        if not np.all(on_plate):
-            rim = ~on_plate
+        covered = np.repeat(on_plate[bi, bj], blocks.B**2)
+        cover = covered.astype(np.float64)
+        if not np.all(covered):
+            rim = ~covered
             sd, gx, gy = placed.plate_sdf(Xp[rim], Yp[rim])
             cover[rim] = coverage_from_sdf(sd, gx, gy, tuple(j[rim] for j in jac), sigma)  # type: ignore[arg-type]
         cover = np.where(hit, cover, 0.0)
