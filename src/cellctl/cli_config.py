@@ -49,9 +49,12 @@ def _speeds(config: CellConfig) -> str:
     """The cycle's speeds with the glass on the gripper and once it is released (process.motion)."""
     m = config.process.motion
     (held_mm_s, held_deg_s), (empty_mm_s, empty_deg_s) = m.speeds(glass_on_gripper=True), m.speeds(glass_on_gripper=False)
+    held_sweep, empty_sweep = (config.process.sweep_speed_mm_s(glass_on_gripper=g) for g in (True, False))
     return (f"with the glass {held_mm_s:g} mm/s and {held_deg_s:g} deg/s, into the opening {m.fine_speed_mm_s:g} mm/s; "
             f"released {empty_mm_s:g} mm/s and {empty_deg_s:g} deg/s, out of the opening {m.back_off_mm_s():g} mm/s "
-            "(process.motion)")
+            f"(process.motion); on the move the alignment sweeps at {held_sweep:g} mm/s with the glass, the inspection "
+            f"at {empty_sweep:g} mm/s (process.align.sweep.speed_mm_s {config.process.align.sweep.speed_mm_s:g}, at most "
+            "the travel speed)")
 
 
 def _recipe(config: CellConfig, name: str) -> str:

@@ -49,6 +49,9 @@ def test_config_check_summarises_a_valid_configuration(capsys: pytest.CaptureFix
     assert (f"with the glass {m.travel_speed_mm_s:g} mm/s and {m.speed_deg_s:g} deg/s" in out
             and f"released {m.empty_travel_speed_mm_s:g} mm/s and {m.empty_speed_deg_s:g} deg/s, out of the opening "
                 f"{m.back_off_speed_mm_s:g} mm/s" in out), out  # fmt: skip
+    # the sweeps on the move: the alignment's carries the glass, so no faster than its travel speed
+    assert (f"the alignment sweeps at {m.travel_speed_mm_s:g} mm/s with the glass, the inspection at "
+            f"{min(m.empty_travel_speed_mm_s or 0, load_config(SIM).process.align.sweep.speed_mm_s):g} mm/s" in out), out
     rc, out, _ = run_cli(capsys, "--config", str(SIM), "config", "check", "--secrets")
     assert rc == 0 and "could be read" in out
 

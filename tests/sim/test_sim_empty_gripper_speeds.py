@@ -34,9 +34,9 @@ def test_moves_after_the_release_run_at_the_empty_speeds_and_none_with_the_glass
     assert len(run.installed) == 2 and all(t.measured_deviation for t in run.installed), [t.reason for t in run.trials]
     held = [r for glass, r in moves if glass]
     empty = [r for glass, r in moves if not glass]
-    # With the glass: never faster than its speeds (the alignment's sweep on the move runs at the sweep's).
-    loaded_mm_s = max(motion.travel_speed_mm_s, sweep.speed_mm_s if mode == "on_the_fly" else 0.0)
-    assert held and all(r.speed_mm_s <= loaded_mm_s and r.speed_deg_s == motion.speed_deg_s for r in held)
+    # With the glass: never faster than its speeds, the alignment's sweep on the move included (it asks for more).
+    assert sweep.speed_mm_s > motion.travel_speed_mm_s
+    assert held and all(r.speed_mm_s <= motion.travel_speed_mm_s and r.speed_deg_s == motion.speed_deg_s for r in held)
     # Released: every move turns at the empty speed; the first of each cycle backs out at the back-off speed,
     # the travels run at the empty travel speed.
     assert empty and all(r.speed_deg_s == motion.empty_speed_deg_s for r in empty)

@@ -199,7 +199,9 @@ def sweep_legs_s(config: CellConfig) -> dict[str, float]:
     path turns back on itself, the least any blended path along the same corners could take (a real robot
     also slows in a corner's zone)."""
     sweep, robot = config.process.align.sweep, config.sim.robot
-    v, a, settle = min(sweep.speed_mm_s, robot.max_speed_mm_s), robot.acceleration_mm_s2, robot.settle_time_s
+    a, settle = robot.acceleration_mm_s2, robot.settle_time_s
+    # The alignment's sweep carries the glass, the inspection's does not: each at its own speed.
+    speeds = [min(config.process.sweep_speed_mm_s(glass_on_gripper=held), robot.max_speed_mm_s) for held in (True, False)]
 
     def runs(path_mm: tuple[tuple[float, float], ...], first_mm: float = 0.0) -> list[list[float]]:
         """The legs' lengths, in runs between the corners where the path turns back (the move in comes first)."""
@@ -212,10 +214,10 @@ def sweep_legs_s(config: CellConfig) -> dict[str, float]:
         return out
 
     paths = (runs(sweep.path_mm, sweep.approach_mm), runs(config.process.inspect.sweep_path_mm))
-    stopping = sum(TrapezoidProfile(L, v, a).duration + settle for path in paths for run in path for L in run)
-    flown = sum(sum(TrapezoidProfile(sum(run), v, a).duration for run in path) + settle for path in paths)
+    stopping = sum(TrapezoidProfile(L, v, a).duration + settle for path, v in zip(paths, speeds) for run in path for L in run)
+    flown = sum(sum(TrapezoidProfile(sum(run), v, a).duration for run in path) + settle for path, v in zip(paths, speeds))
     length = sum(L for path in paths for run in path for L in run)
-    return {"length_mm": float(length), "speed_mm_s": v, "stopping_s": stopping, "flown_s": flown}
+    return {"length_mm": float(length), "speeds_mm_s": speeds, "stopping_s": stopping, "flown_s": flown}
 
 
 def format_cycle_time(out: dict[str, Any]) -> str:
@@ -256,7 +258,8 @@ def format_cycle_time(out: dict[str, Any]) -> str:
     legs = out["sweep_legs"]
     rest = fast["cycle_median_s"] - shared - legs["stopping_s"]
     lines.append(
-        f"  of which the sweeps' legs ({legs['length_mm']:.0f} mm at {legs['speed_mm_s']:g} mm/s) take {legs['stopping_s']:.2f} s "
+        f"  of which the sweeps' legs ({legs['length_mm']:.0f} mm at {legs['speeds_mm_s'][0]:g} mm/s with the glass and "
+        f"{legs['speeds_mm_s'][1]:g} mm/s without) take {legs['stopping_s']:.2f} s "
         f"stopping at every corner, and would take {legs['flown_s']:.2f} s at the least flown through every corner at full "
         f"speed (stopping only where the path turns back): with the rest as now ({rest:.2f} s) align and inspect could not take under {legs['flown_s'] + rest:.2f} s"
     )

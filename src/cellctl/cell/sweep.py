@@ -192,7 +192,8 @@ async def sweep_path(
     timing = route[1 : 1 + beam_moves]
     await run.move(step, route[0], kind="joint")
     timeout = run.motion.read_timeout_s
-    path_s = _path_seconds(corners, cfg.speed_mm_s) + beam_moves * cfg.approach_mm / cfg.speed_mm_s
+    speed = run.process.sweep_speed_mm_s(glass_on_gripper=run.glass_on_gripper)
+    path_s = _path_seconds(corners, speed) + beam_moves * cfg.approach_mm / speed
     count = int(min(65535, np.ceil(3.0 * path_s / cfg.storage_cycle_s) + 100))
     approach: list[float] = []
     leg_starts: list[float] = []
@@ -203,11 +204,11 @@ async def sweep_path(
         # the laser's linearity) is the same both ways, so it does not pass for latency. A check moves in once.
         approach.append(run.dev.clock())
         for T in timing:
-            await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
+            await run.move(step, T, speed_mm_s=speed)
         approach.append(run.dev.clock())
         for T in route[1 + len(timing):]:  # leg j: corners[j] -> corners[j + 1]
             leg_starts.append(run.dev.clock())
-            await run.move(step, T, speed_mm_s=cfg.speed_mm_s)
+            await run.move(step, T, speed_mm_s=speed)
 
     try:
         await stream.start_stream(timeout_s=timeout)
@@ -255,6 +256,7 @@ async def sweep_path(
         "readings_on_the_legs": int(len(on_path)),
         "feedback_samples": len(samples),
         "latency_ms": 1e3 * lat_s,
+        "speed_mm_s": speed,
         "storage_start": None if start is None else start.figures(),
     }
     if moved_from is not None:

@@ -76,11 +76,11 @@ def wall_plan(config: CellConfig) -> WallPlan:
         return robot.move_time_s(spots[i], spots[j], motion.travel_speed_mm_s, motion.speed_deg_s)
 
     order, fastest = fastest_order(len(spots), between)
-    sw = ac.sweep
+    sw, speed = ac.sweep, config.process.sweep_speed_mm_s(glass_on_gripper=True)  # the alignment carries the glass
     route = sweep_route(list(poses(sw.path_mm)), l, sw.approach_mm, beam_moves=0 if sw.fixed_latency_s is not None else 1)
-    sweep_s = sum(robot.move_time_s(a, b, sw.speed_mm_s, motion.speed_deg_s) for a, b in zip(route, route[1:]))
+    sweep_s = sum(robot.move_time_s(a, b, speed, motion.speed_deg_s) for a, b in zip(route, route[1:]))
     readout_s = sweep_s / sw.storage_cycle_s * readout_s_per_reading(config)  # everything stored from start to stop
-    along = sweep_readings(sw.path_mm, sw.speed_mm_s * sw.storage_cycle_s)
+    along = sweep_readings(sw.path_mm, speed * sw.storage_cycle_s)
     standing = poses(sw.points_along_mm())
     along_s = sum(robot.move_time_s(a, b, motion.travel_speed_mm_s, motion.speed_deg_s) for a, b in zip(standing, standing[1:]))
     noise = {"laser_sigma_mm": LASER_SIGMA_MM, "robot_sigma_mm": ROBOT_SIGMA_MM}

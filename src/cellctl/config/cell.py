@@ -42,7 +42,9 @@ class SweepConfig(StrictModel):
     # The first corner (where the laser is timed) stands 100 mm above the opening: 1.5 m from the window's corner,
     # a car body turned 2 deg and moved 20 mm puts it up to 73 mm lower, and at 60 mm the beam went through the opening.
     path_mm: tuple[Vec2, ...] = ((-1500.0, -100.0), (60.0, -60.0), (60.0, 1200.0), (60.0, -60.0))
-    speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)  # the laser stores every 10 mm at the default cycle
+    # At most process.motion's travel speed for what the gripper holds (ProcessConfig.sweep_speed_mm_s): the
+    # alignment's sweep carries the glass, the inspection's does not. The laser stores every 10 mm at 1000 mm/s.
+    speed_mm_s: Finite = Field(1000.0, gt=0, le=2000)
     approach_mm: Finite = Field(40.0, gt=5, le=200)
     # The LK-G's storage cycle. Each stored reading costs 0.78 ms of read-out at 115200 Bd after the sweep:
     # at 2 ms that is 39 % of the sweep's time again (8 s a cycle), at 5 ms 16 %, at 10 ms 8 %, at no cost in
@@ -313,6 +315,10 @@ class ProcessConfig(StrictModel):
         for what in ("id", "name"):
             check_unique("recipes", what, [getattr(r, what) for r in self.recipes])
         return self
+
+    def sweep_speed_mm_s(self, *, glass_on_gripper: bool) -> float:
+        """A sweep's TCP speed (mm/s): align.sweep.speed_mm_s, at most motion's travel speed for what the gripper holds."""
+        return min(self.align.sweep.speed_mm_s, self.motion.speeds(glass_on_gripper=glass_on_gripper)[0])
 
     def recipe_names(self) -> dict[int, str]:
         """PLC recipe number -> recipe name."""
