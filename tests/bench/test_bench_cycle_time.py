@@ -23,9 +23,10 @@ def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_t
     slow, fast = out["stop_and_go"], out["on_the_fly"]
     assert slow["installed"] == fast["installed"] == 1 and fast["aligned_on_the_fly"] == 1
     align, inspect, twin = config.process.align, config.process.inspect, config.sim
-    # The alignment's sweep carries the glass: at its travel speed; the inspection's at the sweep's own.
+    # Each sweep at most at the travel speed for what the gripper holds: the alignment's carries the glass.
     held_v, empty_v = (config.process.sweep_speed_mm_s(glass_on_gripper=g) for g in (True, False))
-    assert held_v == config.process.motion.travel_speed_mm_s < align.sweep.speed_mm_s == empty_v
+    motion = config.process.motion
+    assert held_v == motion.travel_speed_mm_s < empty_v == motion.empty_travel_speed_mm_s < align.sweep.speed_mm_s
     swept = (f"moves at {held_v:g} mm/s", f"moves at {empty_v:g} mm/s")
     at_sweep_speeds = sum(fast["spent_median_s"].get(n, 0.0) for n in swept)
     for mode in (slow, fast):
@@ -44,7 +45,6 @@ def test_each_mode_says_where_its_robot_time_goes_and_the_sweeps_take_at_least_t
     assert fast["spent_median_s"]["laser read-out"] > readings * twin.laser.readout_s_per_reading
     # The install's and the inspection's moves are the same in both modes.
     # (The glass's turns at 30 deg/s, mostly the install's, also lead an alignment's last move where it is short.)
-    motion = config.process.motion
     shared = [f"turns at {motion.empty_speed_deg_s:g} deg/s", f"moves at {motion.fine_speed_mm_s:g} mm/s"]
     assert all(slow["spent_median_s"][n] == pytest.approx(fast["spent_median_s"][n], abs=0.05) for n in shared)
     glass_turns = f"turns at {motion.speed_deg_s:g} deg/s"
@@ -81,7 +81,7 @@ def test_the_sweeps_legs_take_the_trapezoids_closed_form_stopping_or_flown_throu
     got = sweep_legs_s(config)
     align_stopping, there, back = sum(map(rest_to_rest, align)), align[:-1], align[-1:]
     align_flown = rest_to_rest(sum(there)) + rest_to_rest(sum(back)) - settle
-    v = sweep.speed_mm_s  # the inspection's, with the gripper empty
+    v = config.process.motion.empty_travel_speed_mm_s  # the inspection's, with the gripper empty
     assert got["stopping_s"] == pytest.approx(align_stopping + sum(map(rest_to_rest, inspect)))
     assert sweep.path_mm[1] == sweep.path_mm[3] and sweep.path_mm[1][0] == sweep.path_mm[2][0]  # up the side and back
     assert got["flown_s"] == pytest.approx(align_flown + rest_to_rest(sum(inspect)))
