@@ -95,6 +95,7 @@ function calibrationVerdict(status) {
 function onEvent(kind, data) {
   const wasStale = model.stale && model.lastMessageAt !== 0;
   model.lastMessageAt = Date.now();
+  model.lastMessageMono = performance.now();
   renderLive();
   if (wasStale && kind !== "status") schedule("all", resync, 0);
   switch (kind) {

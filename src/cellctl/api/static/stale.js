@@ -12,7 +12,7 @@ const CONTROLS = "button, input, select, textarea";
 // Kept on while the cell answers reads 401: the data comes back only with a token (the cell is there).
 const TOKEN_FORM = "#token-form";
 
-export function applyStale(stale, lastMessageAt) {
+export function applyStale(stale, lastMessageAt, ageS) {
   const note = $("stale-note");
   if (!stale) {
     for (const n of document.querySelectorAll("[data-stale-off]")) {
@@ -33,7 +33,7 @@ export function applyStale(stale, lastMessageAt) {
     n.disabled = true;
     n.dataset.staleOff = "1";
   }
-  const age = Math.round((Date.now() - lastMessageAt) / 1000);
+  const age = Math.round(ageS);
   const text = lastMessageAt
     ? `Commands and forms are off: no data from the cell controller since ${clock(new Date(lastMessageAt).toISOString())} (${age} s ago). They come back by themselves when the data does.`
     : "Commands and forms are off until the first data from the cell controller arrives.";

@@ -38,7 +38,8 @@ export const model = {
   currentCycle: null, // the record of the cycle running now
   liveImage: null, // {cycle_id, name} of the last "image" event
   detailId: null, // the cycle whose detail the cycles page shows
-  lastMessageAt: 0, // Date.now() of the last event
+  lastMessageAt: 0, // Date.now() of the last event: when, as the page shows it
+  lastMessageMono: 0, // performance.now() of it: its age, which a step of the workstation's clock does not change
   stale: true,
   source: null, // the EventSource
 };

@@ -173,7 +173,7 @@ function renderCommands() {
 }
 
 export function renderLive() {
-  const age = model.lastMessageAt ? (Date.now() - model.lastMessageAt) / 1000 : Infinity;
+  const age = model.lastMessageAt ? (performance.now() - model.lastMessageMono) / 1000 : Infinity;
   const stale = age > model.config.stale_after_s;
   const changed = stale !== model.stale;
   model.stale = stale;
@@ -186,7 +186,7 @@ export function renderLive() {
     : "Waiting for the cell controller";
   setClass(tile, "is-warn", stale);
   setClass(document.body, "stale", stale);
-  applyStale(stale, model.lastMessageAt);
+  applyStale(stale, model.lastMessageAt, age);
   if (changed && model.status) renderCommands(); // the state's own rules again on recovery
 }
 
