@@ -134,9 +134,9 @@ def build_router(orch: CellOrchestrator, guard: TokenGuard) -> APIRouter:
     @reads.get("/calibration", response_model=CalibrationView, response_model_exclude_unset=True)
     async def get_calibration() -> CalibrationView:
         versions = await asyncio.to_thread(orch.calibration.history)
-        now = datetime.now(timezone.utc).isoformat()  # the status of the parts below is reckoned on this clock
-        return CalibrationView.model_validate({"current": orch.calibration.summary(), "problems": orch.calibration.problems(),
-                                               "versions": versions, "now_utc": now})  # fmt: skip
+        now = datetime.now(timezone.utc)  # every verdict below is reckoned at this one instant
+        return CalibrationView.model_validate({"current": orch.calibration.summary(now=now), "problems": orch.calibration.problems(now=now),
+                                               "versions": versions, "now_utc": now.isoformat()})  # fmt: skip
 
     @reads.get(
         "/events", response_class=StreamingResponse,

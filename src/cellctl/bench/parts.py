@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -233,13 +234,13 @@ class FixedCalibrationSource:
         self._cal = cal
         self._label = label
 
-    def problems(self, recipe: str | None = None) -> list[str]:
+    def problems(self, recipe: str | None = None, *, now: datetime | None = None) -> list[str]:
         return []
 
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         return self._cal
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self, *, now: datetime | None = None) -> dict[str, Any]:
         return {"source": f"bench: {self._label}", "version": 0, "parts": {}}
 
     def history(self) -> list[dict[str, Any]]:

@@ -255,12 +255,12 @@ class CalibrationSetSource:
         """Where ``recipe``'s own parts are read in ``cal``: by its name first (:func:`parts_of`)."""
         return parts_of(cal, recipe, self.config.default_recipe)
 
-    def problems(self, recipe: str | None = None) -> list[str]:
+    def problems(self, recipe: str | None = None, *, now: datetime | None = None) -> list[str]:
         snap = self._snapshot()
         if snap.damage is not None:
             return [snap.damage]
         return check_ready(
-            snap.cal, datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config,
+            snap.cal, now or datetime.now(timezone.utc), recipe=recipe, first_recipe=self.config.default_recipe, config=self.config,
             store_root=self.store.root,
         )
 
@@ -288,7 +288,7 @@ class CalibrationSetSource:
             self._cached = {k: v for k, v in self._cached.items() if v[0] is snap} | {slot: cached}
         return cached[1]
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self, *, now: datetime | None = None) -> dict[str, Any]:
         snap = self._snapshot()
         cal = snap.cal
         if snap.damage is not None:
@@ -304,7 +304,7 @@ class CalibrationSetSource:
                 "expires_utc": None if expires is None else expires.astimezone(timezone.utc).isoformat(), "method": p.method,
                 "quality": p.quality, "failure": p.failure,
             }  # fmt: skip
-        now = datetime.now(timezone.utc)
+        now = now or datetime.now(timezone.utc)
         first = self.config.default_recipe
         recipes: dict[str, Any] = {}
         warnings: list[str] = []  # the parts used though dated ahead of the clock, of every recipe

@@ -4,6 +4,7 @@ cycle request whose recipe is not taught or whose own parts (teaching, nine-poin
 from __future__ import annotations
 
 from collections.abc import Iterable
+from datetime import datetime, timezone
 from typing import Any
 
 from cellctl.cell.sources import CalibrationSource, RecipePartsCheck
@@ -12,9 +13,10 @@ from cellctl.cell.sources import CalibrationSource, RecipePartsCheck
 def calibration_status(calibration: CalibrationSource, recipes: Iterable[str]) -> dict[str, Any]:
     """``/status`` calibration: ``problems`` of the cell's first recipe (the cell's parts included), and for each
     of ``recipes`` whether it is ready and its own lines (the cell's parts included)."""
-    by_recipe = {name: calibration.problems(name) for name in recipes}
+    now = datetime.now(timezone.utc)  # one instant for every verdict: a part expiring meanwhile cannot split them
+    by_recipe = {name: calibration.problems(name, now=now) for name in recipes}
     return {
-        "problems": calibration.problems(),
+        "problems": calibration.problems(now=now),
         "recipes": {name: {"ready": not lines, "problems": lines} for name, lines in by_recipe.items()},
     }
 

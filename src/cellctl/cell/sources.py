@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Any, Protocol, runtime_checkable
 
 from cellctl.cell.cycle import CycleCalibration
@@ -11,16 +12,17 @@ from cellctl.domain import InstallDeviation
 class CalibrationSource(Protocol):
     """Where the cycle's calibration comes from (the versioned calibration set)."""
 
-    def problems(self, recipe: str | None = None) -> list[str]:
-        """What keeps ``recipe`` (None: the first) from production (missing, failed, out of date); empty when ready."""
+    def problems(self, recipe: str | None = None, *, now: datetime | None = None) -> list[str]:
+        """What keeps ``recipe`` (None: the first) from production (missing, failed, out of date) at ``now`` (None: the
+        clock's; a document of several verdicts gives them one); empty when ready."""
         ...
 
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
         """The parts a cycle of ``recipe`` needs (the cell's, and the recipe's teaching); only when :meth:`problems` is empty."""
         ...
 
-    def summary(self) -> dict[str, Any]:
-        """Versions, dates and quality figures for the records and the dashboard."""
+    def summary(self, *, now: datetime | None = None) -> dict[str, Any]:
+        """Versions, dates and quality figures for the records and the dashboard; each recipe's verdict at ``now``."""
         ...
 
     def history(self) -> list[dict[str, Any]]:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import threading
 from collections import OrderedDict
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -155,7 +156,7 @@ class OracleCalibrationSource:
         self._cals: dict[str, CycleCalibration] = {}  # by recipe
         self._lock = threading.Lock()
 
-    def problems(self, recipe: str | None = None) -> list[str]:
+    def problems(self, recipe: str | None = None, *, now: datetime | None = None) -> list[str]:
         return []
 
     def cycle_calibration(self, recipe: str | None = None) -> CycleCalibration:
@@ -169,7 +170,7 @@ class OracleCalibrationSource:
                     self._cals[name] = taught_once(self._config.for_recipe(name), self._rig.cell.seed)
             return self._cals[name]
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self, *, now: datetime | None = None) -> dict[str, Any]:
         first = self._cals.get(self._config.default_recipe)
         return {"source": "twin truth (oracle)", "template_px": None if first is None else [first.template.u_px, first.template.v_px],
                 "recipes": {r.name: {"ready": True, "taught": True, "problems": []} for r in self._config.process.recipes}}  # fmt: skip
