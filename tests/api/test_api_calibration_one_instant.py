@@ -1,7 +1,7 @@
 """One calibration document, one instant: ``GET /calibration`` and ``/status`` reckon every verdict they hold (the
 first recipe's ``problems`` and each recipe's) at the same time, so a part expiring while the document is built
-cannot make its lines disagree (stop 50's CI: the top-level problems said "camera: expired" and every recipe
-"ready"). The time that passes while the document is built is made a second here: the clock the calibration set
+cannot make its lines disagree (as in a full run of the suite: the top-level problems said "camera: expired" and
+every recipe "ready"). The time that passes while the document is built is made a second here: the clock the calibration set
 reads stands just before the camera's recorded expiry and steps past it after the first verdict. Truth: the
 camera's expiry as the test recorded it, against the document's own ``now_utc``.
 """
@@ -14,25 +14,14 @@ from pathlib import Path
 from typing import Any
 
 import httpx
-import numpy as np
 import pytest
+from calibration_set_support import CELL_PARTS, RECIPE_PARTS, commit
+from live_cell import LiveCell
 from service_test_support import sim_config
 
 import cellctl.calibration.source as source_module
-from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
+from cellctl.calibration.calibration_set import CalibrationStore
 from cellctl.calibration.source import CalibrationSetSource
-from live_cell import LiveCell
-
-POSE = np.eye(4).tolist()
-VALUES: dict[str, dict[str, Any]] = {  # valid part values (readiness checks shape and links, not accuracy)
-    "camera": {"K": [[5249.6, 0.0, 1014.7], [0.0, 5248.6, 1012.0], [0.0, 0.0, 1.0]], "dist": [-0.158, -0.025, -3e-4, 4e-4, 0.04],
-               "image_size": [2048, 2048]},
-    "hand_eye": {"T_H_C": POSE},
-    "laser": {"r": [43.68, -40.49, 90.10], "l": [1.0, 0.0, 0.0]},
-    "teaching": {"T0": POSE, "C_Pos_0": POSE, "g_Pos_0": POSE, "u_d": 1014.0, "v_d": 1012.0, "theta_d": 0.0, "top_angle_d": 0.0,
-                 "right_angle_d": 0.0},
-    "pixel_map": {"affine": [[0.0762, 0.0, -77.3], [0.0, 0.0762, -77.1]], "scale_mm_per_px": 0.0762},
-}  # fmt: skip
 
 
 class SteppingClock:
@@ -51,25 +40,15 @@ class SteppingClock:
         return getattr(datetime, name)
 
 
-def _commit(store: CalibrationStore, name: str, recipe: str | None, when: datetime, valid_days: float) -> None:
-    cur = store.current()
-    inputs = {dep: cur.part(dep, recipe).id for dep in DEPENDS_ON[name]} if cur else {}  # type: ignore[union-attr]
-    values = dict(VALUES[name], recipe=recipe or "side-window") if name == "teaching" else VALUES[name]
-    store.commit(name, make_part(name, values=values, method="test", when=when, valid_days=valid_days, inputs=inputs),
-                 now=when, recipe=recipe)  # fmt: skip
-
-
 @pytest.fixture()
 def cell(tmp_path: Path) -> Iterator[tuple[LiveCell, datetime]]:
     """The simulated cell on a ready set whose camera expires in an hour; the camera's expiry."""
     store = CalibrationStore(tmp_path / "calibration")
     at = datetime.now(timezone.utc) - timedelta(days=1)
     expires = at + timedelta(days=1, hours=1)
-    _commit(store, "camera", None, at, valid_days=(expires - at) / timedelta(days=1))
-    for name in ("hand_eye", "laser", "teaching", "pixel_map"):
-        _commit(store, name, None, at, 90.0)
-    for name in ("teaching", "pixel_map"):
-        _commit(store, name, "door-window", at, 90.0)
+    commit(store, ("camera",), None, at, valid_days=(expires - at) / timedelta(days=1))
+    commit(store, CELL_PARTS[1:], None, at)
+    commit(store, RECIPE_PARTS, "door-window", at)
     cfg = sim_config(calibration={"source": "set", "auto_calibrate_in_sim": False, "directory": str(store.root)})
     with LiveCell(tmp_path / "cell", cfg) as live:
         yield live, expires
