@@ -14,10 +14,9 @@ from datetime import datetime, timedelta, timezone
 from typing import Any
 
 import pytest
-from dashboard_test_support import LiveCell, chromium_missing_reason
+from dashboard_test_support import LiveCell, browser_marks
 
-_missing = chromium_missing_reason()
-pytestmark = [pytest.mark.skipif(_missing is not None, reason=_missing or ""), pytest.mark.timeout(120)]
+pytestmark = browser_marks(120)  # skipped only where Chromium is missing (CI installs it)
 
 
 @pytest.fixture(scope="module")
