@@ -41,8 +41,8 @@ from cellctl.config import CellConfig, ConfigError, load_config
 from cellctl.config.api import TokenUnavailable
 from cellctl.config.loader import check_tokens, format_validation_errors
 from cellctl.logsetup import FORMATS, LEVELS, JsonFormatter, configure_logging
-from cellctl.service.compose import ServiceClockBehind, ServiceConfigError
-from cellctl.service.compose import ServiceError as BuildError
+from cellctl.service.errors import ServiceClockBehind, ServiceConfigError
+from cellctl.service.errors import ServiceError as BuildError
 from cellctl.store.records import StoreError
 
 CONFIG_ENV = "CELLCTL_CONFIG"
@@ -395,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
     from cellctl.cli_config import register as register_config
 
     register_config(sub)
-    from cellctl.commissioning.cli import register as register_commissioning
+    from cellctl.commissioning.cli_parser import register as register_commissioning
 
     register_commissioning(sub, positive_int)
     from cellctl.bench.cli import register as register_bench

@@ -13,7 +13,6 @@ from cellctl.config.devices import AbbRobotDevice, SimAbbDevice
 from cellctl.config.loader import check_tokens
 from cellctl.config.settings_id import recipe_settings_id
 from cellctl.cli_args import default_workdir
-from cellctl.commissioning.wall_plan import wall_plan
 from cellctl.folders import calibration_folder_problem
 from cellctl.listen import port_problem
 
@@ -85,6 +84,8 @@ def wall_reading_in_use(config: CellConfig, who: str = "this cell") -> str:
 
 def wall_readings(config: CellConfig, who: str = "this cell") -> list[str]:
     """The wall plan's lines for ``config`` (a recipe's view: its own align on its opening) and the choice in use."""
+    from cellctl.commissioning.wall_plan import wall_plan  # scipy's fitting: only the commands that print the plan
+
     try:
         return wall_plan(config).lines() + [wall_reading_in_use(config, who)]
     except ValueError as err:  # the nominal layout cannot make the plan (spots on a line are refused at load)

@@ -55,7 +55,7 @@ def test_calibrate_status_does_not_call_a_stale_part_ok(monkeypatch: pytest.Monk
     stale = "teaching: computed with hand_eye hand_eye-0, but the set now holds hand_eye hand_eye-1; run `cellctl teach` again"
     monkeypatch.setattr(ccli, "_store", lambda args: _Store(cal))
     monkeypatch.setattr(ccli, "check_ready", lambda cal, now, **_: [stale])
-    assert ccli._cmd_status(argparse.Namespace(history=False, store=None, workdir=Path("/srv/cell"))) == 1
+    assert ccli.cmd_status(argparse.Namespace(history=False, store=None, workdir=Path("/srv/cell"))) == 1
     out = capsys.readouterr().out
     assert "set version 2 in use, 2 version(s) kept" in out
     rows = {line.split()[0]: line.split()[1] for line in out.splitlines() if line.startswith("  ") and line.split()[0] in PART_NAMES}

@@ -8,5 +8,6 @@
 - :mod:`~cellctl.commissioning.registry`: the procedures a job may run, their options;
 - :mod:`~cellctl.commissioning.jobs`: one job at a time in Stopped or Idle, cancel, records;
 - :mod:`~cellctl.commissioning.schedule`: when a drift check is due;
-- :mod:`~cellctl.commissioning.cli` and :mod:`~cellctl.commissioning.terminal`: ``cellctl calibrate``.
+- :mod:`~cellctl.commissioning.cli` and :mod:`~cellctl.commissioning.terminal`: ``cellctl calibrate``
+  (its options: :mod:`~cellctl.commissioning.cli_parser`).
 """

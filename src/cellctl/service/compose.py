@@ -37,6 +37,7 @@ from cellctl.folders import calibration_folder_problem
 from cellctl.listen import port_problem
 from cellctl.ports import Camera, DisplacementSensor, Robot
 from cellctl.service.plc_link import PlcCellLink
+from cellctl.service.errors import ServiceClockBehind, ServiceConfigError, ServiceError
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.service.store_lock import StoreInUse, StoreLock
 from cellctl.store import AsyncCellStore
@@ -52,23 +53,6 @@ JOB_END_BEFORE_STREAMS_S = 2.5
 closes them itself 3 s after the signal, cellctl.service.http.GRACEFUL_SHUTDOWN_S)."""
 CYCLE_END_AT_EXIT_S = 2.5
 """On SIGINT/SIGTERM a running cycle gets this long (s) to stop and be recorded (before a running job is cancelled)."""
-
-
-class ServiceError(RuntimeError):
-    """The service cannot be built from this configuration; the message says what to change."""
-
-
-class ServiceConfigError(ServiceError):
-    """A configuration problem found at start (a secret, certificate or key file, or a folder or file the configuration
-    names, such as ``[store] path`` or ``calibration.directory``, that cannot be used): starting again cannot help, so
-    ``serve`` exits 2, not 1 (a port another program holds can clear; that stays a ServiceError)."""
-
-
-class ServiceClockBehind(ServiceError):
-    """A certificate the service presents (opcua.certificate, api.tls_cert, mqtt.tls.cert_file) is not valid yet by this
-    computer's clock: the clock stands behind (at boot before NTP has set it, a flat RTC battery). A start once the clock
-    is right succeeds, so ``serve`` exits 1 and systemd starts it again (deploy/cellctl.service: Restart=on-failure);
-    an expired or unusable certificate stays a ServiceConfigError (exit 2)."""
 
 
 @dataclass
