@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from cellctl.align.onthefly import LatencyEstimate
-from cellctl.cell.sweep_start import SweepLatency
+from cellctl.cell.sweep_start import StartWindow, SweepLatency
 
 BeamMoves = Literal[1, 3]
 
@@ -32,6 +32,8 @@ class LaserTiming:
         retime_reason: why the next sweep times anew (None: it checks, unless due or never timed).
         last_sweep: the last alignment sweep's own latency and its storage's start window (the flush sweep
             takes its latency from it, :mod:`cellctl.cell.sweep_start`).
+        start: the storage start window of the sweep that timed ``latency_s`` (a checking sweep moves the kept
+            latency from it to its own start, as the flush sweep does; None: the driver gives no window).
     """
 
     latency_s: float | None = None
@@ -40,6 +42,7 @@ class LaserTiming:
     devices: tuple[object, object] | None = None  # the objects, not id()s: a replaced driver may reuse a freed id
     retime_reason: str | None = None
     last_sweep: SweepLatency | None = None
+    start: StartWindow | None = None
 
     def why_time(self, laser: object, robot: object, retime_every: int) -> str | None:
         """Why the coming sweep times the laser (three moves along the beam); None: it checks the kept latency."""
@@ -53,27 +56,37 @@ class LaserTiming:
             return f"{retime_every} sweeps since the last timing (process.align.sweep.retime_every)"
         return None
 
-    def timed(self, estimate: LatencyEstimate, laser: object, robot: object) -> None:
-        """A sweep timed the laser: keep its estimate."""
+    def timed(self, estimate: LatencyEstimate, laser: object, robot: object, start: StartWindow | None = None) -> None:
+        """A sweep timed the laser (its storage started in ``start``): keep its estimate."""
         self.latency_s, self.sigma_s, self.sweeps_since = estimate.latency_s, estimate.sigma_s, 0
-        self.devices, self.retime_reason = (laser, robot), None
+        self.devices, self.retime_reason, self.start = (laser, robot), None, start
 
-    def checked(self, estimate: LatencyEstimate, tolerance_s: float) -> tuple[float, dict[str, Any]]:
-        """A sweep checked the kept latency: the latency it uses, and the check's figures for the record.
-
-        Within ``tolerance_s`` the kept latency stays (timed on three moves, it is the better one);
-        beyond, the sweep uses the check's and the next sweep times anew.
-        """
+    def kept_at(self, start: StartWindow | None) -> tuple[float, float]:
+        """The kept latency (s) for a sweep whose storage started in ``start``, and the most it can be off (s)."""
         assert self.latency_s is not None, "why_time() said to time first"
+        return SweepLatency(self.latency_s, self.sigma_s, "timed", self.start, self.latency_s).moved_to(start)
+
+    def checked(
+        self, estimate: LatencyEstimate, tolerance_s: float, start: StartWindow | None = None
+    ) -> tuple[float, dict[str, Any]]:
+        """A sweep (its storage started in ``start``) checked the kept latency: the latency it uses, and the check's
+        figures for the record.
+
+        The kept latency is moved from its timing sweep's storage start to this one's (how late the host noticed
+        each start differs, :mod:`cellctl.cell.sweep_start`). Within ``tolerance_s`` of the check it stays (timed on
+        three moves, it is the better one); beyond, the sweep uses the check's and the next sweep times anew.
+        """
+        kept_s, bound_s = self.kept_at(start)
         self.sweeps_since += 1
-        off_s = estimate.latency_s - self.latency_s
+        off_s = estimate.latency_s - kept_s
         agrees = abs(off_s) <= tolerance_s
-        figures = {"kept_ms": 1e3 * self.latency_s, "checked_ms": 1e3 * estimate.latency_s,
-                   "checked_sigma_ms": 1e3 * estimate.sigma_s, "off_ms": 1e3 * off_s, "agrees": agrees}  # fmt: skip
+        figures = {"kept_ms": 1e3 * kept_s, "kept_timed_ms": 1e3 * self.latency_s, "kept_bound_ms": 1e3 * bound_s,
+                   "checked_ms": 1e3 * estimate.latency_s, "checked_sigma_ms": 1e3 * estimate.sigma_s, "off_ms": 1e3 * off_s,
+                   "agrees": agrees}  # fmt: skip
         if agrees:
-            return self.latency_s, figures
+            return kept_s, figures
         self.retime_reason = (
-            f"the last check found {1e3 * estimate.latency_s:.2f} ms against the kept {1e3 * self.latency_s:.2f} ms "
+            f"the last check found {1e3 * estimate.latency_s:.2f} ms against the kept {1e3 * kept_s:.2f} ms "
             f"(tolerance {1e3 * tolerance_s:g} ms)"
         )
         return estimate.latency_s, figures

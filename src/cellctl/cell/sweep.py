@@ -106,14 +106,14 @@ async def sweep_readings(
     elif (why := kept.why_time(laser, robot, cfg.retime_every)) is not None:
         swept = await sweep_path(run, STEP, corners, latency_s=None, stops=True)
         assert swept.estimate is not None
-        kept.timed(swept.estimate, laser, robot)
+        kept.timed(swept.estimate, laser, robot, swept.start)
         timing, how = {"latency": "timed", "timed_because": why}, "timed"
     else:
         assert kept.latency_s is not None
         timing = {"latency": "checked"}
 
-        def check(estimate: LatencyEstimate) -> float:
-            used_s, timing["latency_check"] = kept.checked(estimate, cfg.latency_check_tolerance_s)
+        def check(estimate: LatencyEstimate, start: StartWindow | None) -> float:
+            used_s, timing["latency_check"] = kept.checked(estimate, cfg.latency_check_tolerance_s, start)
             return used_s
 
         swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check, stops=True)
@@ -171,14 +171,15 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
 
 async def sweep_path(
     run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None, check_s: float | None = None,
-    choose: Callable[[LatencyEstimate], float] | None = None, stops: bool = False, moved_from: SweepLatency | None = None,
+    choose: Callable[[LatencyEstimate, StartWindow | None], float] | None = None, stops: bool = False,
+    moved_from: SweepLatency | None = None,
 ) -> Swept:
     """Sweep the flange through ``corners`` while the laser stores and the robot streams; pair the legs' readings.
 
     With ``latency_s`` given, the sweep follows the corners and pairs with it. Else it moves along
     the beam at the first corner and estimates the latency from that: in, out and in (timing), or
-    with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate
-    into the latency the readings are paired with (default: the estimate's). With ``stops`` the
+    with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate and this
+    sweep's storage start window into the latency the readings are paired with (default: the estimate's). With ``stops`` the
     readings taken with the flange standing are kept too (the alignment's distance comes from them).
     With ``moved_from`` (an earlier sweep's own latency) the sweep follows the corners and pairs with that
     latency moved to this storage's start; refused (before the robot moves) when it cannot be known within
@@ -230,7 +231,7 @@ async def sweep_path(
     latency: LatencyEstimate | None = None
     if latency_s is None:  # plane fits: off the loop
         latency = await asyncio.to_thread(_latency, run, step, instants, distances, (t, T), window, check_s)
-        lat_s = (choose or (lambda e: e.latency_s))(latency)
+        lat_s = latency.latency_s if choose is None else choose(latency, start)
     else:
         lat_s = float(latency_s)
     try:
