@@ -16,7 +16,7 @@ from cellctl.calibration.set_parts import TaughtProfileValues
 from cellctl.calibration.taught_shot import taught_profile, taught_profile_of
 from cellctl.config.sim import SimConfig
 from cellctl.config.surface import BandConfig, SurfaceConfig
-from cellctl.config.vision import VisionConfig
+from cellctl.config.vision import FeatureConfig, VisionConfig
 from cellctl.sim.camera import CameraRenderer
 from cellctl.sim.image_truth import camera_pose_seeing_corner, glass_truth
 from cellctl.sim.world import nominal_world
@@ -55,13 +55,17 @@ def taught() -> TaughtProfile:
     return profile
 
 
-def _inspect(surface: SurfaceConfig, seed: int, taught: TaughtProfile | None) -> tuple[GapMeasurement, dict[str, float]]:
-    """The inspection of a known install on a body with ``surface``, and its gaps' errors against the truth (mm)."""
+def _inspect(
+    surface: SurfaceConfig, seed: int, taught: TaughtProfile | None, feature: FeatureConfig | None = None
+) -> tuple[GapMeasurement, dict[str, float]]:
+    """The inspection of a known install on a body with ``surface`` (the recipe's ``feature`` settings, default
+    the cell's), and its gaps' errors against the truth (mm)."""
     renderer = _renderer(surface)
     template, nine_point = taught_view(renderer, WORLD, CORNER_PX, D)
     pose, glass = _pose(renderer), glass_at(SIM, WORLD, INSTALL)
     image = renderer.render(pose, WORLD, rng=np.random.default_rng(seed), glass=glass).image
-    m = measure_gaps(image, LENS, template, CONFIG.gap, gap_px_expected=GAP / nine_point.mm_per_px, taught=taught)
+    m = measure_gaps(image, LENS, template, CONFIG.gap, gap_px_expected=GAP / nine_point.mm_per_px, taught=taught,
+                     feature=feature or CONFIG.feature)  # fmt: skip
     if not m.ok:
         return m, {}
     truth = glass_truth(renderer.camera, pose, WORLD, glass, reference_along_mm=m.start_px * nine_point.mm_per_px)
@@ -85,3 +89,12 @@ def test_an_unchanged_body_is_inspected_as_without_the_check(taught: TaughtProfi
     assert plain.ok and checked.ok, checked.message
     assert checked.steps_px == plain.steps_px and err_checked == err
     assert all(abs(e) < 0.05 for e in err.values()), err
+
+
+def test_a_recipe_with_the_taught_check_switched_off_is_measured_by_its_rule_alone(taught: TaughtProfile) -> None:
+    # [vision.feature] taught_profile = false: the recipe asks for its rule alone, even with a profile taught, so the
+    # paint line is measured into both gaps (1.5 mm wider than the twin's) instead of refused
+    off = CONFIG.feature.model_copy(update={"taught_profile": False})
+    m, err = _inspect(PAINT_LINE, 2, taught, feature=off)
+    assert m.ok, m.message
+    assert all(1.3 < e < 1.7 for e in err.values()), err
