@@ -9,7 +9,8 @@ from cellctl.config.sim import RobotSimConfig
 from cellctl.geometry.pose import Pose, invert_pose, make_pose, pose_error
 from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, xyz_fixed_to_matrix
 from cellctl.geometry.motion import TrapezoidProfile, interpolate_pose
-from cellctl.sim.robot import ISO_9283_RP_PER_SIGMA, ReachError, RobotArm, RobotBusy, RobotModel
+from cellctl.sim.arm import RobotArm, RobotBusy
+from cellctl.sim.robot import ISO_9283_RP_PER_SIGMA, ReachError, RobotModel
 from cellctl.sim.timeline import TwinTimeline
 
 R_DOWN = xyz_fixed_to_matrix(0.0, 0.0, np.pi)  # flange z down, x towards the wall (+x of the base)

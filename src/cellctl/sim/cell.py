@@ -18,9 +18,10 @@ from numpy.typing import ArrayLike
 from cellctl.config.sim import SimConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import LaserStatus
+from cellctl.sim.arm import RobotArm
 from cellctl.sim.glass import InstalledGlass, glass_scene
 from cellctl.sim.laser import LaserModel
-from cellctl.sim.robot import RobotArm, RobotModel
+from cellctl.sim.robot import RobotModel
 from cellctl.sim.streams import WORLD_POSTURE, rng_stream
 from cellctl.sim.timeline import TwinTimeline
 from cellctl.sim.truth import CellTruth, InstallError

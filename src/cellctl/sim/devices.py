@@ -38,8 +38,9 @@ from cellctl.ports import (
     StoredReadings,
     UnreachableTarget,
 )
+from cellctl.sim.arm import Motion, RobotBusy
 from cellctl.sim.cell import SimCell
-from cellctl.sim.robot import Motion, ReachError, RobotBusy
+from cellctl.sim.robot import ReachError
 from cellctl.sim.streams import rng_stream
 
 # The stream of the feedback's phase on the controller's sample grid and of its stamps' jitter.
