@@ -25,7 +25,7 @@ from keyence_lkg.errors import (
     STATUS_ERROR,
     Dialect,
 )
-from keyence_lkg.fake_storage import Refuse, StorageCommands, StorageState
+from keyence_lkg.fake_storage import Refuse, StorageCommands
 from keyence_lkg.units import (
     NO_VALUE,
     OVER_RANGE_MINUS,

@@ -8,7 +8,6 @@ import asyncio
 import sqlite3
 from pathlib import Path
 
-import pytest
 
 from cellctl.cell.store_faults import WriteBehind
 from cellctl.store import AsyncCellStore

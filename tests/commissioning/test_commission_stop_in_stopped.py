@@ -18,7 +18,7 @@ from opcua_test_support import PASSWORD, call, ns_of, opcua_client
 from plc_test_support import PlcClient
 from pymodbus.client import AsyncModbusTcpClient
 from service_test_support import AUTH, api_client, running_service, slow_moves
-from test_commission_jobs import _command, _config, _laser_job_under_way, _start, _wait_done
+from test_commission_jobs import _command, _config, _laser_job_under_way, _wait_done
 
 from cellctl.cell.packml import CommandNotAllowed, PackMLMachine
 from cellctl.domain import EventKind, PackMLCommand, PackMLState

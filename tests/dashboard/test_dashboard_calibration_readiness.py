@@ -185,7 +185,7 @@ def test_due_times_are_reckoned_on_the_services_clock_not_the_browsers(tmp_path:
     the service's clock, reads overdue (the browser's own clock made it "in 1 d"), and the camera, due in 20 days less
     the seconds the test takes, "in 19 d" (whole days; it read 22 d), in the header tile too."""
     store = CalibrationStore(tmp_path / "calibration")
-    now, (camera_at, laser_at, rest_at) = datetime.now(timezone.utc), _laser_overdue_set(store)
+    now, (camera_at, laser_at, _) = datetime.now(timezone.utc), _laser_overdue_set(store)
     context = browser.new_context(viewport={"width": 1920, "height": 1080}, timezone_id="UTC")
     context.clock.install(time=now - timedelta(days=3))  # the browser's clock, running from three days back
     pg = context.new_page()

@@ -40,7 +40,7 @@ async def test_a_command_as_the_glass_is_released_stops_the_cycle_and_every_moti
         lines = [line.split()[1] for line in fake.server.lines_received if len(line.split()) > 1]  # "<id> <VERB> ..."
         stop = max(i for i, verb in enumerate(lines) if verb == "STOP")
         assert [v for v in lines[stop + 1:] if v in MOTION] == [], lines[stop - 3:]
-        assert rec["state"] == "failed" and rec["error"].startswith(f"stopped: the cell went to"), rec["error"]
+        assert rec["state"] == "failed" and rec["error"].startswith("stopped: the cell went to"), rec["error"]
         assert rec["install_started_at"] is not None  # the glass is in: the PLC sees install_started, nok
         assert await _settled(client) == state
         del driver.set_gripper

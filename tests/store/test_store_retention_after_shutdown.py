@@ -20,7 +20,7 @@ from cellctl.cell.packml import PackMLMachine
 from cellctl.config.store import RetentionConfig
 from cellctl.service.retention import StorageRetention
 from cellctl.service.retention_plan import GB, DiskUsage
-from cellctl.store import AsyncCellStore, CellStore
+from cellctl.store import AsyncCellStore
 
 
 @pytest.fixture

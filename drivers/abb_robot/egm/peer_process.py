@@ -131,6 +131,20 @@ def child_main(settings: Any, shm_name: str) -> None:
     if settings.rt_priority is not None:
         warning = set_realtime_priority(settings.rt_priority)
     _report({"port": int(sock.getsockname()[1]), "warning": warning})
+    try:
+        _serve_on(array, sock, settings)
+    finally:
+        sock.close()
+        del array  # the last view of the block here: _serve_on's went with its frame
+        try:
+            shm.close()
+        except BufferError:
+            pass  # a view is still alive (a traceback holds _serve_on's frame); the mapping goes with the process
+
+
+def _serve_on(array: np.ndarray, sock: socket.socket, settings: Any) -> None:
+    """Serve on ``sock`` until told to stop, the reference, status and rings in the shared ``array``; every view of
+    the block made here is dropped when it returns, so the caller can close the block."""
     ref = SeqBlock(array, REF_AT, REF_LEN)
     status = SeqBlock(array, STATUS_AT, STATUS_LEN)
     core = PeerCore(
@@ -165,15 +179,8 @@ def child_main(settings: Any, shm_name: str) -> None:
               Hooks(lock=no_lock(), keep_going=lambda: True, wake_fds=[sys.stdin], before_batch=before_batch,
                     after_batch=after_batch))
     finally:
-        sock.close()
-        del ref, status, vector, array
         core.latency = LatencySink(1)
         core.stream = StreamSink(1)
-        try:
-            shm.close()
-        except BufferError:
-            pass  # a view is still alive; the mapping goes with the process
-
 
 SETTING_FIELDS = ("port", "bind_host", "controller_host", "max_rate_hz", "receive_timeout_s", "rt_priority")
 

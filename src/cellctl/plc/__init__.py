@@ -3,8 +3,7 @@
 The rest of the cell is reached only through ``CellFacade`` (plc/facade.py).
 """
 
-from cellctl.plc import facade
 from cellctl.plc.facade import CellFacade, CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
 from cellctl.plc.server import PlcServer
 
-__all__ = [*facade.__all__, "PlcServer"]
+__all__ = ["CellFacade", "CellStatus", "CommandReply", "CycleAcceptance", "CycleOutcome", "PlcErrorCode", "PlcServer"]
