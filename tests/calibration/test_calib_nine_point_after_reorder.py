@@ -13,7 +13,7 @@ from calib_test_support import commit_teaching, config, store_with_common_parts
 from test_calib_teach import _taught  # the seeded twin commissioned once per test process, shared
 
 from cellctl.calibration.calibration_set import CalibrationSet, CalibrationStore
-from cellctl.calibration.compute import compute_nine_point
+from cellctl.calibration.compute_recipe import compute_nine_point
 from cellctl.calibration.dataset import read_dataset
 from cellctl.commissioning.plans import PlanError, plan_nine_point
 from cellctl.config import parse_config

@@ -19,9 +19,10 @@ import pytest
 from calib_test_support import config
 from test_calib_teach import _taught  # the seeded twin commissioned once per test process, shared
 
-from cellctl.calibration import compute
+from cellctl.calibration import compute_recipe
 from cellctl.calibration.calibration_set import CalibrationSet
-from cellctl.calibration.compute import Outcome, compute_nine_point
+from cellctl.calibration.compute import Outcome
+from cellctl.calibration.compute_recipe import compute_nine_point
 from cellctl.calibration.dataset import Dataset, pose_array, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.config.feature import shot_feature
@@ -62,7 +63,7 @@ def _with_corners(monkeypatch: pytest.MonkeyPatch, change: Callable[[float, floa
         u, v = change(shot.features.u_px, shot.features.v_px)
         return dataclasses.replace(shot, features=dataclasses.replace(shot.features, u_px=u, v_px=v))
 
-    monkeypatch.setattr(compute, "detect_feature", detect)
+    monkeypatch.setattr(compute_recipe, "detect_feature", detect)
 
 
 def _with_offsets(ds: Dataset, cal: CalibrationSet, gain: tuple[float, float]) -> Dataset:

@@ -12,10 +12,11 @@ import pytest
 from calib_test_support import NOW, SEED, board_views, config, scratch, store_with_camera
 
 from cellctl.calibration.calibration_set import CalibrationStore
-from cellctl.calibration.compute import Outcome, compute_hand_eye, compute_laser, compute_nine_point, compute_teaching
+from cellctl.calibration.compute import Outcome, compute_hand_eye, compute_laser
+from cellctl.calibration.compute_recipe import compute_nine_point, compute_teaching
 from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.recording import record
-from cellctl.calibration.compute import _taught_install
+from cellctl.calibration.compute_recipe import _taught_install
 from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.sim.commissioning import TwinCommissioning

@@ -21,16 +21,8 @@ import numpy as np
 from cellctl.calibration.calibration_set import CalibrationSet, parts_of, recipe_named
 from cellctl.calibration.collect import move_and_report
 from cellctl.calibration.collect import move_or_skip as collect_move_or_skip
-from cellctl.calibration.compute import (
-    Outcome,
-    align_for_teaching,
-    compute_camera,
-    compute_hand_eye,
-    compute_laser,
-    compute_nine_point,
-    compute_teaching,
-    detect_views,
-)
+from cellctl.calibration.compute import Outcome, compute_camera, compute_hand_eye, compute_laser, detect_views
+from cellctl.calibration.compute_recipe import align_for_teaching, compute_nine_point, compute_teaching
 from cellctl.calibration.dataset import Dataset, pose_list
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.taught_shot import taught_shot
