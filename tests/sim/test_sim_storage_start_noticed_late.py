@@ -93,3 +93,31 @@ def test_a_storage_start_noticed_late_is_started_again_and_the_flush_sweep_pairs
         # the bound holds the windows; the alignment sweep's estimate adds its own error (a check on one move in: about
         # 0.1 ms on the twin), well below the 0.8 ms the kept latency would be off here
         assert abs(swept.latency_s - truth_s) <= bound_s + 0.00025, (k, 1e3 * swept.latency_s, 1e3 * truth_s, 1e3 * bound_s)
+
+
+def test_a_check_searches_near_the_kept_latency_moved_to_its_own_storage_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # cycle 1: every start of the timing sweep noticed 8 ms late (its restarts run out: timed from an 8 ms wide window);
+    # cycle 2: the check's start noticed at once. The kept latency as timed lies 8 ms past the check's truth, outside
+    # the check's +-5 ms search; moved to the check's start it lies within the windows' halves (about 4 ms) of it.
+    # No inspection: its flush sweep would refuse to move a latency known within 8 ms, and a failed cycle times anew.
+    used = late_notices(monkeypatch, [0.008, 0.008, 0.008, 0.008, 0.0])
+    centres: list[float | None] = []
+    inner = sweep_module._latency
+
+    def spy(*args: Any) -> Any:
+        centres.append(args[-1])  # check_s: where a check searches first
+        return inner(*args)
+
+    monkeypatch.setattr(sweep_module, "_latency", spy)
+    config = with_align_mode(load_config(ROOT / "config" / "sim.toml"), "on_the_fly")
+    process = config.process.model_copy(update={"inspect": config.process.inspect.model_copy(update={"enabled": False})})
+    config = config.model_copy(update={"process": process})
+    twin = config.sim
+    l0_s = twin.laser.storage_latency_s + twin.robot.path_lag_s - twin.robot.feedback_latency_s
+    run = run_accuracy(config, RunSettings(trials=2, seed=2, calibration="oracle", devices="twin"), progress=False, workdir=tmp_path)
+    assert [t.outcome for t in run.trials] == ["done", "done"], [t.reason for t in run.trials]
+    assert used == [0.008] * 4 + [0.0], used
+    assert centres[0] is None and len(centres) == 2, centres  # the timing sweep, then the check
+    assert centres[1] is not None and abs(centres[1] - l0_s) < sweep_module.CHECK_WINDOW_S - 0.0005, (1e3 * centres[1], 1e3 * l0_s)

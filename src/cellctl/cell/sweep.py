@@ -116,7 +116,7 @@ async def sweep_readings(
             used_s, timing["latency_check"] = kept.checked(estimate, cfg.latency_check_tolerance_s, start)
             return used_s
 
-        swept = await sweep_path(run, STEP, corners, latency_s=None, check_s=kept.latency_s, choose=check, stops=True)
+        swept = await sweep_path(run, STEP, corners, latency_s=None, check=lambda start: kept.kept_at(start)[0], choose=check, stops=True)
     run.sweep_latency_s = swept.latency_s
     own = swept.estimate  # the flush sweep takes this sweep's own latency, not the kept one it may have paired with
     kept.last_sweep = SweepLatency(
@@ -170,7 +170,8 @@ async def sweep_flush(run: CycleRun, T2: Pose) -> tuple[FlushResult, dict[str, A
 
 
 async def sweep_path(
-    run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None, check_s: float | None = None,
+    run: CycleRun, step: CycleStep, corners: list[Pose], *, latency_s: float | None,
+    check: Callable[[StartWindow | None], float] | None = None,
     choose: Callable[[LatencyEstimate, StartWindow | None], float] | None = None, stops: bool = False,
     moved_from: SweepLatency | None = None,
 ) -> Swept:
@@ -178,9 +179,10 @@ async def sweep_path(
 
     With ``latency_s`` given, the sweep follows the corners and pairs with it. Else it moves along
     the beam at the first corner and estimates the latency from that: in, out and in (timing), or
-    with ``check_s`` (a kept latency) in once, searching near it; ``choose`` then turns the estimate and this
-    sweep's storage start window into the latency the readings are paired with (default: the estimate's). With ``stops`` the
-    readings taken with the flange standing are kept too (the alignment's distance comes from them).
+    with ``check`` (the kept latency at this sweep's storage start window) in once, searching near it;
+    ``choose`` then turns the estimate and this sweep's storage start window into the latency the readings
+    are paired with (default: the estimate's). With ``stops`` the readings taken with the flange standing
+    are kept too (the alignment's distance comes from them).
     With ``moved_from`` (an earlier sweep's own latency) the sweep follows the corners and pairs with that
     latency moved to this storage's start; refused (before the robot moves) when it cannot be known within
     the latency check's tolerance. Each sweep starts its storage again while its start is not known within that.
@@ -188,7 +190,7 @@ async def sweep_path(
     cfg, cal = run.process.align.sweep, run.cal
     laser, stream = run.dev.laser, pose_stream_of(run.dev.robot)
     assert isinstance(laser, StoringSensor) and stream is not None, "sweep_unavailable() first"
-    beam_moves = 0 if latency_s is not None or moved_from is not None else 1 if check_s is not None else 3
+    beam_moves = 0 if latency_s is not None or moved_from is not None else 1 if check is not None else 3
     route = sweep_route(corners, cal.laser_l, cfg.approach_mm, beam_moves=beam_moves)
     timing = route[1 : 1 + beam_moves]
     await run.move(step, route[0], kind="joint")
@@ -230,6 +232,7 @@ async def sweep_path(
     t, T = await asyncio.to_thread(pose_samples_arrays, samples)  # thousands of matrices: off the loop
     latency: LatencyEstimate | None = None
     if latency_s is None:  # plane fits: off the loop
+        check_s = None if check is None else check(start)  # near the kept latency moved to this start
         latency = await asyncio.to_thread(_latency, run, step, instants, distances, (t, T), window, check_s)
         lat_s = latency.latency_s if choose is None else choose(latency, start)
     else:

@@ -10,7 +10,9 @@ robot moves.
 
 The flush sweep does not time the laser: it takes the alignment sweep's own estimate and moves it from
 that sweep's window to its own, both referred to their windows' middles. It is then off by at most half
-the two windows together (the estimate's own sigma aside); beyond the tolerance it is refused.
+the two windows together (the estimate's own sigma aside); beyond the tolerance it is refused. A checking
+alignment sweep moves the kept latency the same way, from the timing sweep's window to its own
+(:meth:`cellctl.cell.laser_timing.LaserTiming.kept_at`), and searches near it.
 """
 
 from __future__ import annotations
