@@ -27,13 +27,3 @@ def test_building_the_parser_imports_none_of_the_commands_heavy_modules() -> Non
     assert run.returncode == 0, run.stderr
     loaded = json.loads(run.stdout.strip().splitlines()[-1])
     assert loaded == [], f"building cellctl's parser imported {loaded}: import them in the command that needs them"
-
-
-def test_the_calibrate_commands_still_reach_their_implementation() -> None:
-    """The parser's lazy references resolve: ``calibrate status`` runs the commissioning module's command."""
-    from cellctl.cli import build_parser
-    from cellctl.commissioning import cli as commands
-
-    args = build_parser().parse_args(["calibrate", "status", "--store", "/nonexistent/cellctl-store"])
-    assert args.func.__module__ == "cellctl.commissioning.cli_parser"
-    assert callable(commands.cmd_status) and callable(commands.job_command("camera"))

@@ -20,9 +20,7 @@ from cellctl.sim.image_truth import camera_pose_seeing_corner, glass_truth
 from cellctl.sim.world import nominal_world
 from cellctl.vision import Lens
 from cellctl.vision.corner import CornerFeatures
-from cellctl.vision.gap import GapLines, GapMeasurement, GapRefusal, in_plane_from_gaps, measure_gaps
-from cellctl.vision.lines import Line2D
-from cellctl.vision.ninepoint import AffineMap
+from cellctl.vision.gap import GapMeasurement, GapRefusal, in_plane_from_gaps, measure_gaps
 
 SIM = SimConfig()
 LENS = Lens.from_intrinsics(SIM.camera.intrinsics)
@@ -36,14 +34,22 @@ def renderer() -> CameraRenderer:
     return CameraRenderer(SIM.camera.intrinsics, SIM.camera.render)
 
 
-def _measure(renderer: CameraRenderer, corner_px: tuple[float, float], deviation: list[float], seed: int, *, dz_known: bool = True):  # type: ignore[no-untyped-def]
-    """Render the glass at ``deviation`` (dX, dY, dZ mm, dRx, dRy, dRz deg) seen with the corner at ``corner_px``."""
+def _gaps_of(renderer: CameraRenderer, corner_px: tuple[float, float], deviation: list[float], seed: int,
+             config: GapVisionConfig = CONFIG):  # type: ignore[no-untyped-def]
+    """Render the glass at ``deviation`` (dX, dY, dZ mm, dRx, dRy, dRz deg) seen with the corner at ``corner_px`` and
+    measure its gaps; with the scene (pose, world, glass) and the taught nine-point map."""
     world = nominal_world(SIM.world)
     glass = glass_at(SIM, world, np.concatenate([deviation[:3], np.radians(deviation[3:])]))
     template, nine_point = taught_view(renderer, world, corner_px, D)
     pose = camera_pose_seeing_corner(renderer.camera, world, corner_px, distance_mm=D)
     image = renderer.render(pose, world, rng=np.random.default_rng(seed), glass=glass).image
-    m = measure_gaps(image, LENS, template, CONFIG, gap_px_expected=GAP / nine_point.mm_per_px)
+    m = measure_gaps(image, LENS, template, config, gap_px_expected=GAP / nine_point.mm_per_px)
+    return m, (pose, world, glass), nine_point
+
+
+def _measure(renderer: CameraRenderer, corner_px: tuple[float, float], deviation: list[float], seed: int, *, dz_known: bool = True):  # type: ignore[no-untyped-def]
+    """The gaps of the glass at ``deviation`` (see :func:`_gaps_of`), its in-plane figures and the twin's truth."""
+    m, (pose, world, glass), nine_point = _gaps_of(renderer, corner_px, deviation, seed)
     assert m.ok, m.message
     truth = glass_truth(renderer.camera, pose, world, glass, reference_along_mm=m.start_px * nine_point.mm_per_px)
     fig = in_plane_from_gaps(
@@ -159,54 +165,6 @@ def test_auto_polarity_finds_the_same_edges(renderer: CameraRenderer) -> None:
     assert max(darker.rms_px.values()) < CONFIG.max_rms_px
 
 
-def _rot(a: float) -> np.ndarray:
-    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
-
-
-def test_in_plane_figures_from_exact_lines() -> None:
-    """Lines built from a known glass in mm, seen through a map and a recess: the figures come back exact."""
-    L = 0.0762 * _rot(0.01) @ np.array([[1.0, 0.002], [0.0, 1.001]])
-    c = np.array([-77.0, -78.0])
-    nine = AffineMap(np.column_stack([L, c]), np.zeros(9), 0.0, 0.0)
-    principal = (1014.7, 1012.0)
-    foot = nine.apply(np.array([principal]))[0]
-    O, phi_o = np.array([0.4, -0.3]), 0.003
-    dx, dy, drz, dz, g = 0.25, -0.15, math.radians(0.12), 0.6, 5.0
-    k = (D + dz) / D
-    R_o = _rot(phi_o)
-    C = O + R_o @ (np.array([dx, dy]) + _rot(drz) @ np.array([-g, g]))  # the glass's tangent corner (true, mm)
-    x_o, y_o = R_o @ [1.0, 0.0], R_o @ [0.0, 1.0]
-    x_g, y_g = R_o @ _rot(drz) @ [1.0, 0.0], R_o @ _rot(drz) @ [0.0, 1.0]
-    to_px = np.linalg.inv(L)
-
-    def line_px(point_mm: np.ndarray, direction_mm: np.ndarray, seen_scale: float = 1.0) -> Line2D:
-        ends = np.array([point_mm, point_mm + 50.0 * direction_mm])
-        ends = foot + (ends - foot) / seen_scale  # where a recessed glass is seen on the wall's plane
-        px = (ends - c) @ to_px.T
-        d = px[1] - px[0]
-        return Line2D(px[0], d / np.linalg.norm(d))
-
-    lines = GapLines(line_px(O, -x_o), line_px(O, y_o), line_px(C, -x_g, k), line_px(C, y_g, k))
-    a = 33.0
-    fig = in_plane_from_gaps(
-        lines, nine, nominal_gap_mm=g, dz_mm=dz, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
-    )
-    assert (fig.dx_mm, fig.dy_mm, fig.drz_rad) == pytest.approx((dx, dy, drz), abs=1e-9)
-    assert fig.opening_corner_mm == pytest.approx(O, abs=1e-9) and fig.opening_angle_rad == pytest.approx(phi_o, abs=1e-12)
-    # Gaps in the opening's frame: the glass's top line at x = -a, its right line at y = a, perpendicular distances.
-    q = np.array([dx, dy]) + _rot(drz) @ np.array([-g, g])
-    assert fig.top_gap_mm == pytest.approx((q[1] + (-a - q[0]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
-    assert fig.right_gap_mm == pytest.approx(-(q[0] - (a - q[1]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
-    assert (fig.top_angle_rad, fig.right_angle_rad) == pytest.approx((drz, drz), abs=1e-12)
-    # Without the recess, the glass's corner moves away from the foot point by dz / D of its distance.
-    flat = in_plane_from_gaps(
-        lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
-    )
-    assert flat.glass_corner_mm == pytest.approx(foot + (C - foot) / k, abs=1e-9)
-    with pytest.raises(ValueError, match="reference_along_mm"):
-        in_plane_from_gaps(lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal)
-
-
 def test_gap_config_is_checked_and_sits_in_the_vision_section() -> None:
     assert VisionConfig().gap == GapVisionConfig()
     with pytest.raises(ValidationError, match="glass_search_px"):
@@ -227,12 +185,7 @@ def test_the_benchmark_runs(capsys: pytest.CaptureFixture[str]) -> None:
 
 def _known_install(renderer: CameraRenderer, corner_px: tuple[float, float], config: GapVisionConfig) -> GapMeasurement:
     """A known install (0.2 mm, -0.1 mm off, 0.3 mm deep) seen with the opening's corner at ``corner_px``."""
-    world = nominal_world(SIM.world)
-    template, nine_point = taught_view(renderer, world, corner_px, D)
-    pose = camera_pose_seeing_corner(renderer.camera, world, corner_px, distance_mm=D)
-    glass = glass_at(SIM, world, np.array([0.2, -0.1, 0.3, 0.0, 0.0, 0.0]))
-    image = renderer.render(pose, world, rng=np.random.default_rng(3), glass=glass).image
-    return measure_gaps(image, LENS, template, config, gap_px_expected=GAP / nine_point.mm_per_px)
+    return _gaps_of(renderer, corner_px, [0.2, -0.1, 0.3, 0.0, 0.0, 0.0], 3, config)[0]
 
 
 def test_an_edge_scattering_past_its_limit_refuses_the_gaps(renderer: CameraRenderer) -> None:

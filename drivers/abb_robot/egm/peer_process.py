@@ -135,16 +135,16 @@ def child_main(settings: Any, shm_name: str) -> None:
         _serve_on(array, sock, settings)
     finally:
         sock.close()
-        del array  # the last view of the block here: _serve_on's went with its frame
+        del array  # no view may outlive the block: close() unmaps it even while an array still points into it
         try:
             shm.close()
         except BufferError:
-            pass  # a view is still alive (a traceback holds _serve_on's frame); the mapping goes with the process
+            pass  # a view still exported (a traceback holding _serve_on's frame); the mapping goes with the process
 
 
 def _serve_on(array: np.ndarray, sock: socket.socket, settings: Any) -> None:
-    """Serve on ``sock`` until told to stop, the reference, status and rings in the shared ``array``; every view of
-    the block made here is dropped when it returns, so the caller can close the block."""
+    """Serve on ``sock`` until told to stop, the reference, status and rings in the shared ``array``; the views of
+    the block made here (and the core's rings) are dropped when it returns, before the caller closes the block."""
     ref = SeqBlock(array, REF_AT, REF_LEN)
     status = SeqBlock(array, STATUS_AT, STATUS_LEN)
     core = PeerCore(

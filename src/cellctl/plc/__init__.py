@@ -3,7 +3,8 @@
 The rest of the cell is reached only through ``CellFacade`` (plc/facade.py).
 """
 
-from cellctl.plc.facade import CellFacade, CellStatus, CommandReply, CycleAcceptance, CycleOutcome, PlcErrorCode
+from cellctl.plc import facade
+from cellctl.plc.facade import *  # noqa: F403 - the facade's values are the package's vocabulary
 from cellctl.plc.server import PlcServer
 
-__all__ = ["CellFacade", "CellStatus", "CommandReply", "CycleAcceptance", "CycleOutcome", "PlcErrorCode", "PlcServer"]
+__all__ = [*facade.__all__, "PlcServer"]

@@ -1,6 +1,7 @@
-"""Rules of the inspection's in-plane figures that a mutation run found unguarded: an opening out of square is
-measured from the direction between its two edges (as the corner detector gives T its rotation), and a recess
-or a nominal gap that cannot be a glass's is refused rather than scaled into the figures.
+"""The inspection's in-plane figures from four lines (cellctl.vision.gap_figures): exact for a known glass seen through
+a known map and recess; an opening out of square measured from the direction between its two edges (as the corner
+detector gives T its rotation); a recess or a nominal gap that cannot be a glass's refused rather than scaled into the
+figures (the last rules from a mutation run).
 
 The four lines are built in millimetres from a known opening and a known glass and taken to pixels through a
 known nine-point map, so the expected figures are the construction's.
@@ -28,9 +29,15 @@ def _rot(a: float) -> np.ndarray:
     return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
 
 
-def _line_px(point_mm: np.ndarray, direction_mm: np.ndarray) -> Line2D:
+def _line_px(
+    point_mm: np.ndarray, direction_mm: np.ndarray, nine: AffineMap = NINE, foot: np.ndarray | None = None, seen_scale: float = 1.0
+) -> Line2D:
+    """The line through ``point_mm`` along ``direction_mm`` (mm on the wall) in pixels through ``nine``; a glass recessed
+    by dz is seen on the wall's plane pulled toward the foot point ``foot`` by ``seen_scale`` = (D + dz) / D."""
     ends = np.array([point_mm, point_mm + 50.0 * direction_mm])
-    px = (ends - C0) @ np.linalg.inv(L).T
+    if foot is not None:
+        ends = foot + (ends - foot) / seen_scale
+    px = (ends - nine.matrix[:, 2]) @ np.linalg.inv(nine.matrix[:, :2]).T  # mm = L px + c, inverted
     d = px[1] - px[0]
     return Line2D(px[0], d / np.linalg.norm(d))
 
@@ -89,3 +96,37 @@ def test_a_nominal_gap_that_is_no_gap_is_refused(gap_mm: float) -> None:
     with pytest.raises(ValueError, match="nominal_gap_mm must be a positive number"):
         in_plane_from_gaps(_square_lines(), NINE, nominal_gap_mm=gap_mm, dz_mm=0.0, working_distance_mm=D,
                            principal_point_px=PRINCIPAL, reference_along_mm=30.0)  # fmt: skip
+
+
+def test_in_plane_figures_from_exact_lines() -> None:
+    """Lines built from a known glass in mm, seen through a map and a recess: the figures come back exact."""
+    skewed = 0.0762 * _rot(0.01) @ np.array([[1.0, 0.002], [0.0, 1.001]])  # mm per px, turned and sheared
+    nine = AffineMap(np.column_stack([skewed, C0]), np.zeros(9), 0.0, 0.0)
+    principal = PRINCIPAL
+    foot = nine.apply(np.array([principal]))[0]
+    O, phi_o = np.array([0.4, -0.3]), 0.003
+    dx, dy, drz, dz, g = 0.25, -0.15, math.radians(0.12), 0.6, 5.0
+    k = (D + dz) / D
+    R_o = _rot(phi_o)
+    C = O + R_o @ (np.array([dx, dy]) + _rot(drz) @ np.array([-g, g]))  # the glass's tangent corner (true, mm)
+    x_o, y_o = R_o @ [1.0, 0.0], R_o @ [0.0, 1.0]
+    x_g, y_g = R_o @ _rot(drz) @ [1.0, 0.0], R_o @ _rot(drz) @ [0.0, 1.0]
+    lines = GapLines(_line_px(O, -x_o, nine), _line_px(O, y_o, nine), _line_px(C, -x_g, nine, foot, k), _line_px(C, y_g, nine, foot, k))
+    a = 33.0
+    fig = in_plane_from_gaps(
+        lines, nine, nominal_gap_mm=g, dz_mm=dz, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
+    )
+    assert (fig.dx_mm, fig.dy_mm, fig.drz_rad) == pytest.approx((dx, dy, drz), abs=1e-9)
+    assert fig.opening_corner_mm == pytest.approx(O, abs=1e-9) and fig.opening_angle_rad == pytest.approx(phi_o, abs=1e-12)
+    # Gaps in the opening's frame: the glass's top line at x = -a, its right line at y = a, perpendicular distances.
+    q = np.array([dx, dy]) + _rot(drz) @ np.array([-g, g])
+    assert fig.top_gap_mm == pytest.approx((q[1] + (-a - q[0]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
+    assert fig.right_gap_mm == pytest.approx(-(q[0] - (a - q[1]) * math.tan(drz)) * math.cos(drz), abs=1e-9)
+    assert (fig.top_angle_rad, fig.right_angle_rad) == pytest.approx((drz, drz), abs=1e-12)
+    # Without the recess, the glass's corner moves away from the foot point by dz / D of its distance.
+    flat = in_plane_from_gaps(
+        lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal, reference_along_mm=a
+    )
+    assert flat.glass_corner_mm == pytest.approx(foot + (C - foot) / k, abs=1e-9)
+    with pytest.raises(ValueError, match="reference_along_mm"):
+        in_plane_from_gaps(lines, nine, nominal_gap_mm=g, dz_mm=0.0, working_distance_mm=D, principal_point_px=principal)
