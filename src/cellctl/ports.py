@@ -136,7 +136,7 @@ class StoredReadings:
     """Readings a sensor stored on its own at a fixed cycle while the robot moved (LK-G data storage).
 
     The k-th reading stands for the instant ``started_s + k * cycle_s`` on the cell's clock (the
-    clock of :class:`cellctl.cell.cycle.CellDevices`); the sensor's own delay on top of that is the
+    clock of :class:`cellctl.cell.cycle_values.CellDevices`); the sensor's own delay on top of that is the
     latency the cell estimates. ``distances_mm`` is None where a reading had no valid distance.
     """
 

@@ -8,7 +8,7 @@ from typing import Any
 from service_test_support import AUTH, api_client, running_service, to_execute
 
 from cellctl.cell.alarms import AlarmCode
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.cell.tags import PackMLState
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
 
 from cellctl.cell.alarms import AlarmCode
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.cell.tags import PackMLState
 from cellctl.geometry.pose import make_pose
 from cellctl.sim.cell import SimCell

@@ -26,7 +26,7 @@ from service_test_support import AUTH, TOKEN, api_client, running_service, serve
 
 from cellctl.calibration.calibration_set import DEPENDS_ON, CalibrationStore, make_part
 from cellctl.calibration.source import CalibrationSetSource
-from cellctl.cell.cycle import CycleCalibration
+from cellctl.cell.cycle_values import CycleCalibration
 from cellctl.domain import CycleStep
 from cellctl.service.compose import Service
 

@@ -16,7 +16,7 @@ from test_service_recipe_config_changes import commit, recipes_config, sim_recip
 from test_service_inspection import JoltingRobot
 
 from cellctl.calibration.calibration_set import CalibrationStore, make_part
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 
 JOLT_MM = 0.15
 LOOP = {"min_samples": 3, "ewma_lambda": 0.5}

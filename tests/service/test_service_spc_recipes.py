@@ -15,7 +15,7 @@ import numpy as np
 from service_test_support import AUTH, api_client, running_service, sim_config, to_execute
 from test_service_inspection import JoltingRobot
 
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 
 JOLT_MM = {"side-window": 0.15, "door-window": -0.15}
 WIDTH = {2000.0: "side-window", 1200.0: "door-window"}  # config/sim.toml's openings

@@ -23,7 +23,8 @@ from cellctl.calibration.calibration_set import CalibrationSet, make_part
 from cellctl.calibration.set_parts import Parts
 from cellctl.calibration.source import cycle_calibration_from_set
 from cellctl.calibration.taught_shot import taught_profile
-from cellctl.cell.cycle import CellDevices, CycleCalibration, CycleRun
+from cellctl.cell.cycle import CycleRun
+from cellctl.cell.cycle_values import CellDevices, CycleCalibration
 from cellctl.config import load_config
 from cellctl.config.feature import shot_feature
 from cellctl.config.surface import BandConfig, SurfaceConfig

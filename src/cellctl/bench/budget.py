@@ -21,7 +21,7 @@ from cellctl.bench.sources import (
     data_calibration_available,
 )
 from cellctl.bench.stats import AXES
-from cellctl.cell.cycle import CycleCalibration
+from cellctl.cell.cycle_values import CycleCalibration
 from cellctl.config import CellConfig
 
 BudgetMode = Literal["alone-on", "alone-off"]

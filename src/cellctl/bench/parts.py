@@ -1,6 +1,6 @@
 """The calibration parts of a cell, one at a time swapped for the twin's true value (the budget by part).
 
-A cycle uses, from the calibration set (:class:`~cellctl.cell.cycle.CycleCalibration`): the camera
+A cycle uses, from the calibration set (:class:`~cellctl.cell.cycle_values.CycleCalibration`): the camera
 intrinsics (``lens``), the hand-eye transform (``T_H_C``), the laser ray (``laser_r``, ``laser_l``),
 the nine-point map (``nine_point``) and what teaching recorded (``taught``: T0, C_Pos_0, g_Pos_0, and
 the corner ``template``). They are not independent: teaching measures the shooting pose C_Pos_0 by
@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.cell.cycle import CycleCalibration
+from cellctl.cell.cycle_values import CycleCalibration
 from cellctl.compensate import TaughtPoses
 from cellctl.config import CellConfig
 from cellctl.geometry.pose import Pose, apply_pose, invert_pose, mean_pose

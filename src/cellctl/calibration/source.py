@@ -53,7 +53,7 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.provenance import ADOPT_ACTION, ADOPT_ACTOR, ADOPT_SOURCE, adoption_params
 from cellctl.calibration.readiness import check_ready, expires_utc
 from cellctl.calibration.taught_shot import taught_profile_of
-from cellctl.cell.cycle import CycleCalibration
+from cellctl.cell.cycle_values import CycleCalibration
 from cellctl.config.schema import CellConfig
 from cellctl.vision import AffineMap, CornerFeatures
 

@@ -17,10 +17,8 @@ persisted) before the robot is commanded there, so a restart never repeats it. A
 from __future__ import annotations
 
 import asyncio
-import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -34,13 +32,13 @@ from cellctl.align import (
 from cellctl.align.errors import WallFitScatter
 from cellctl.cell.camera_frame import grab_checked
 from cellctl.cell.cycle_failure import CycleFailed
+from cellctl.cell.cycle_values import CellDevices, CycleCalibration, CycleRecorder, CycleResult, ShotRecord
 from cellctl.cell.fine_motion import verification_move
 from cellctl.cell.inspect_step import inspect_install
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.sweep import sweep_readings, sweep_unavailable
 from cellctl.compensate import (
     CorrectionLimitError,
-    TaughtPoses,
     check_correction,
     corrected_workpiece_frame,
     deviation_in_frame,
@@ -54,111 +52,19 @@ from cellctl.config.vision import VisionConfig
 from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry.planar import PlanarOffset
 from cellctl.geometry.pose import Pose, invert_pose, make_pose, mean_pose
-from cellctl.inspection import MeasuredDeviation
 from cellctl.ports import (
-    Camera,
     CartesianPose,
     DeviceError,
-    DisplacementSensor,
     LaserStatus,
     MotionKind,
     MotionRequest,
-    Robot,
     UnreachableTarget,
 )
-from cellctl.vision import AffineMap, CornerFeatures, Lens, annotate, offset_from_map
+from cellctl.vision import CornerFeatures, annotate, offset_from_map
 from cellctl.vision.annotate_arc import annotate_arc
 from cellctl.vision.arc_corner import ArcCornerMeasurement
 from cellctl.vision.feature import FeatureShot, detect_feature, first_shot_limits
-from cellctl.vision.taught_profile import TaughtProfile
 from cellctl.vision.offset import turn_measured
-
-
-@dataclass(frozen=True)
-class CellDevices:
-    """The three devices a cycle uses, behind their ports, and the cell's clock.
-
-    ``clock`` (s) times the cycle and its steps: the host's monotonic clock on a real cell; in
-    simulation the twin's time line, on which a move takes the seconds a real robot would.
-    """
-
-    laser: DisplacementSensor
-    camera: Camera
-    robot: Robot
-    clock: Callable[[], float] = time.monotonic
-
-
-@dataclass(frozen=True)
-class CycleCalibration:
-    """What a cycle needs from the calibration set (all checked before production)."""
-
-    lens: Lens
-    T_H_C: Pose
-    laser_r: np.ndarray
-    laser_l: np.ndarray
-    laser_range_mm: tuple[float, float]
-    nine_point: AffineMap
-    taught: TaughtPoses
-    template: CornerFeatures
-    taught_profile: TaughtProfile | None = None  # the template's edge profiles (None: not recorded; the rule alone counts)
-
-
-class CycleRecorder(Protocol):
-    """Where a running cycle reports what it does (the store, the event stream)."""
-
-    async def step_started(self, step: CycleStep) -> None:
-        """The cycle entered ``step``."""
-        ...
-
-    async def step_figures(self, step: CycleStep, figures: dict[str, Any]) -> None:
-        """Figures of a step (JSON-serialisable), possibly several times per step."""
-        ...
-
-    async def image(self, name: str, png: bytes) -> None:
-        """An annotated image of the cycle."""
-        ...
-
-    async def install_started(self, target: CartesianPose) -> None:
-        """The install step begins: persist it and return only once it is durable.
-
-        Called before the robot moves the glass towards the car body (the approach included), so a
-        cycle that crashes from here on is never resumed and the install never repeated.
-        """
-        ...
-
-
-@dataclass(frozen=True)
-class ShotRecord:
-    """One shot of the compensate loop and the offset it measured."""
-
-    index: int
-    offset: PlanarOffset
-    corner_sigma_px: float
-
-
-@dataclass(frozen=True)
-class CycleResult:
-    """What a finished cycle did.
-
-    Attributes:
-        workpiece_correction_mm / _rad: the corrected workpiece frame T2 relative to the taught T0,
-            in T0's axes (dX, dY, dZ; dRx, dRy, dRz as XYZ fixed angles).
-        install_target: the commanded install flange pose (belief, in B).
-        install_reached: the flange pose read back after the move.
-        alignment: the laser alignment's result.
-        shots: the compensate loop's shots, first to last.
-        measured: the inspection's six figures of the installed glass (None: inspection off).
-        install_offset: the closed loop's offset the install target took out (None: none applied).
-    """
-
-    workpiece_correction_mm: np.ndarray
-    workpiece_correction_rad: np.ndarray
-    install_target: Pose
-    install_reached: Pose
-    alignment: AlignmentResult
-    shots: tuple[ShotRecord, ...] = field(default=())
-    measured: MeasuredDeviation | None = None
-    install_offset: Pose | None = None
 
 
 def _offset_size(offset: PlanarOffset) -> tuple[float, float]:

@@ -19,7 +19,8 @@ from typing import Any
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cycle import CellDevices, CycleResult, run_cycle
+from cellctl.cell.cycle import run_cycle
+from cellctl.cell.cycle_values import CellDevices, CycleResult
 from cellctl.cell.laser_timing import LaserTiming
 from cellctl.cell.observers import Pumps
 from cellctl.cell.cycle_failure import CycleFailed

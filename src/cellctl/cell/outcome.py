@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.cell.cycle import CycleResult
+from cellctl.cell.cycle_values import CycleResult
 from cellctl.config.cell import ToleranceConfig
 from cellctl.domain import DEVIATION_KEYS, AlarmCode, CycleStep, InstallDeviation
 from cellctl.store import CycleRecord, CycleState

@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 
 class StoreRecorder:
-    """Implements :class:`cellctl.cell.cycle.CycleRecorder` for one cycle.
+    """Implements :class:`cellctl.cell.cycle_values.CycleRecorder` for one cycle.
 
     A step stays open until the next one starts; its figures are merged and written when it
     closes. The install step's begin row is the durable "install started" marker of the store.

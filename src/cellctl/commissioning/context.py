@@ -26,7 +26,7 @@ from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.dataset import Dataset, write_dataset
 from cellctl.calibration.recording import software
 from cellctl.cell.cancel import to_the_end
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.commissioning.plans import MotionPlan
 from cellctl.commissioning.prompts import Ask
 from cellctl.config.calibration_procedure import MotionSettings

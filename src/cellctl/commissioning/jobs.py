@@ -33,7 +33,7 @@ from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.recording import record
 from cellctl.cell.alarms import AlarmManager
 from cellctl.cell.cancel import to_the_end
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.cell.events import EventHub
 from cellctl.cell.packml import PackMLMachine, TakenAction
 from cellctl.cell.robots import ReducedSpeedRobot

@@ -22,7 +22,7 @@ from typing import Any
 from cellctl.calibration.calibration_set import CalibrationStore, store_root
 from cellctl.calibration.source import CalibrationSetSource
 from cellctl.cell.alarms import AlarmManager
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.cell.events import EventHub
 from cellctl.cell.orchestrator import CellOrchestrator
 from cellctl.cell.packml import PackMLMachine

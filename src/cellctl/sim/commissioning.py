@@ -12,7 +12,7 @@ from typing import Any
 
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.dataset import Dataset
-from cellctl.cell.cycle import CellDevices
+from cellctl.cell.cycle_values import CellDevices
 from cellctl.cell.robots import ReducedSpeedRobot
 from cellctl.commissioning.context import JobContext, describe_source
 from cellctl.commissioning.prompts import Answer, PromptDesk

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.align import AlignmentResult, compute_alignment, plan_spot_poses, readings_at_stops
-from cellctl.cell.cycle import CycleCalibration
+from cellctl.cell.cycle_values import CycleCalibration
 from cellctl.compensate import TaughtPoses
 from cellctl.config.feature import shot_aim_mm, shot_feature
 from cellctl.config.schema import CellConfig
