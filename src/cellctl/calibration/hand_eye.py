@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import get_args
 
 import cv2
 import numpy as np
@@ -27,13 +26,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.reproducible import opencv_one_thread
-from cellctl.config.calibration_procedure import HandEyeCalibrationConfig, HandEyeMethod
+from cellctl.config.calibration_procedure import HAND_EYE_METHODS, HandEyeCalibrationConfig, HandEyeMethod
 from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose, mean_pose
 from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
 
 F64 = NDArray[np.float64]
 
-METHODS: tuple[HandEyeMethod, ...] = get_args(HandEyeMethod)
 _OPENCV_METHOD = {
     "opencv_tsai": cv2.CALIB_HAND_EYE_TSAI,
     "opencv_park": cv2.CALIB_HAND_EYE_PARK,
@@ -394,7 +392,7 @@ def solve_hand_eye(
     T_C_P: Sequence[ArrayLike],
     *,
     chosen: HandEyeMethod = "tsai",
-    methods: Sequence[HandEyeMethod] = METHODS,
+    methods: Sequence[HandEyeMethod] = HAND_EYE_METHODS,
     limits: HandEyeCalibrationConfig = HandEyeCalibrationConfig(),
     object_points: ArrayLike | None = None,
     corners_px: Sequence[ArrayLike] | None = None,
@@ -414,11 +412,11 @@ def solve_hand_eye(
     """
     if len(T_B_H) != len(T_C_P):
         raise ValueError(f"{len(T_B_H)} flange poses but {len(T_C_P)} board poses; give one of each per view")
-    if chosen not in METHODS:
-        raise ValueError(f"unknown hand-eye method {chosen!r}; choose one of {list(METHODS)}")
+    if chosen not in HAND_EYE_METHODS:
+        raise ValueError(f"unknown hand-eye method {chosen!r}; choose one of {list(HAND_EYE_METHODS)}")
     for m in methods:
-        if m not in METHODS:
-            raise ValueError(f"unknown hand-eye method {m!r}; choose one of {list(METHODS)}")
+        if m not in HAND_EYE_METHODS:
+            raise ValueError(f"unknown hand-eye method {m!r}; choose one of {list(HAND_EYE_METHODS)}")
     _checked_poses(T_B_H, T_C_P, names)
     diversity = motion_diversity(T_B_H, min_pair_angle_rad=np.deg2rad(limits.min_pair_angle_deg))
     warnings = check_motion(diversity, limits)

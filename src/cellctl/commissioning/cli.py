@@ -52,7 +52,6 @@ if TYPE_CHECKING:
     from cellctl.store import CellStore
 
 
-
 def _client(args: argparse.Namespace) -> CellClient:
     return remote_client(args, load_config(args.config))
 

@@ -9,12 +9,9 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from pathlib import Path
-from typing import get_args
 
 from cellctl.cli_args import WORKDIR_ENV, add_remote_options, default_workdir
-from cellctl.config.calibration_procedure import HandEyeMethod
-
-HAND_EYE_METHODS: tuple[str, ...] = get_args(HandEyeMethod)
+from cellctl.config.calibration_procedure import HAND_EYE_METHODS
 
 JOB_HELP = (
     "Runs as a job of the running service (cellctl serve): a progress bar, each prompt answered at the keyboard "

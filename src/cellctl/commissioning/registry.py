@@ -5,13 +5,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from cellctl.calibration.hand_eye import METHODS as HAND_EYE_METHODS
 from cellctl.cell.alarm_table import ALARM_CATALOGUE
 from cellctl.cell.alarms import AlarmManager
 from cellctl.commissioning.plans import laser_floor_why, laser_poses_floor
 from cellctl.commissioning.procedures import PROCEDURES, Procedure
 from cellctl.commissioning.verify import collect_verify, compute_verify, plan_verify
-from cellctl.config.calibration_procedure import MotionSettings
+from cellctl.config.calibration_procedure import HAND_EYE_METHODS, MotionSettings
 from cellctl.config.schema import CellConfig
 from cellctl.domain import AlarmCode
 from cellctl.store import JobRecord

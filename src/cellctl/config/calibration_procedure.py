@@ -6,7 +6,7 @@ opening's upper-right corner, z into the wall; the opening is x in [-width, 0], 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -70,6 +70,7 @@ class CameraCalibrationConfig(StrictModel):
 
 
 HandEyeMethod = Literal["tsai", "opencv_tsai", "opencv_park", "opencv_horaud", "opencv_andreff", "opencv_daniilidis"]
+HAND_EYE_METHODS: tuple[HandEyeMethod, ...] = get_args(HandEyeMethod)
 
 
 class HandEyeCalibrationConfig(StrictModel):

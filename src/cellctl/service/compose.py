@@ -36,8 +36,8 @@ from cellctl.domain import PackMLState, UnitMode
 from cellctl.folders import calibration_folder_problem
 from cellctl.listen import port_problem
 from cellctl.ports import Camera, DisplacementSensor, Robot
-from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.errors import ServiceClockBehind, ServiceConfigError, ServiceError
+from cellctl.service.plc_link import PlcCellLink
 from cellctl.service.retention import StorageRetention  # issue 15 item 7
 from cellctl.service.store_lock import StoreInUse, StoreLock
 from cellctl.store import AsyncCellStore
