@@ -5,6 +5,8 @@ own count of the datagrams it sent, never the driver's objects."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import queue
 import threading
 import time
 from typing import Any
@@ -20,15 +22,26 @@ LATENCY_S = 0.02  # the network's: five datagrams at 250 Hz are on their way at 
 
 
 class _Late:
-    """Stands in for the fake's EGM socket: every datagram arrives ``LATENCY_S`` after it was sent (when: ``sent_at``)."""
+    """Stands in for the fake's EGM socket: every datagram arrives ``LATENCY_S`` after it was sent (when: ``sent_at``),
+    in the order sent, through one delivery thread (a timer thread a datagram starts late under load, out of order)."""
 
     def __init__(self, sock: Any) -> None:
         self.sock, self.sent_at = sock, []
+        self._due: queue.SimpleQueue[tuple[float, bytes, tuple[str, int]]] = queue.SimpleQueue()
+        threading.Thread(target=self._deliver, daemon=True).start()
 
     def sendto(self, data: bytes, addr: tuple[str, int]) -> int:
-        self.sent_at.append(time.monotonic())
-        threading.Timer(LATENCY_S, self.sock.sendto, (data, addr)).start()
+        now = time.monotonic()
+        self.sent_at.append(now)
+        self._due.put((now + LATENCY_S, data, addr))
         return len(data)
+
+    def _deliver(self) -> None:
+        while True:
+            due, data, addr = self._due.get()
+            time.sleep(max(0.0, due - time.monotonic()))
+            with contextlib.suppress(OSError):  # the fake's socket closed at the end of the test
+                self.sock.sendto(data, addr)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.sock, name)
