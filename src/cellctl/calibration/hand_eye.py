@@ -7,7 +7,8 @@ T_B_H and board poses T_C_P, X = T_H_C solves ``A @ X = X @ B`` with
 :func:`tsai_lenz` (Tsai and Lenz, 1989): with P = 2 sin(theta/2) axis of A and B,
 ``skew(P_A + P_B) @ P' = P_B - P_A`` by least squares over all pairs, P_X = 2 P' / sqrt(1 + |P'|^2),
 then ``(R_A - I) t_X = R_X t_B - t_A``; a second pass on the rotation left after the first keeps
-it well conditioned near 180 deg. OpenCV's five methods run beside it (method passed by keyword,
+it well conditioned near 180 deg (not at exactly 180 deg on noise-free views, where the first pass breaks
+down and the methods' comparison refuses the set). OpenCV's five methods run beside it (method passed by keyword,
 DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion sets that cannot
 determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
 A method far (by its median distance) from the others is left out of the agreement check and named
@@ -219,7 +220,7 @@ class HandEyeReport:
 
     ``agreement_mm``/``agreement_deg``: for each method, the distance of its X from the chosen
     one. ``warnings``: weak but usable data (few views, little axis spread, an outlier method).
-    ``median_mm``/``median_deg``: each method's median distance from the other methods.
+    ``median_mm``/``median_deg``: each method's median distance from the other methods (the lower median).
     ``outliers``: methods whose median distance exceeds the limits, or that failed, with why.
     """
 
@@ -350,15 +351,22 @@ def _checked_poses(T_B_H: Sequence[ArrayLike], T_C_P: Sequence[ArrayLike], names
 
 
 def _median_distances(solutions: dict[str, HandEyeSolution]) -> tuple[dict[str, float], dict[str, float]]:
-    """Each method's median distance (mm, deg) from the other methods' X."""
+    """Each method's median distance (mm, deg) from the other methods' X: the lower median, within which at least half
+    of the others lie (of four others, the second nearest: three of five methods that agree are not outvoted by the
+    mean of an agreeing and a stray one)."""
     mm: dict[str, float] = {}
     deg: dict[str, float] = {}
     for m, s in solutions.items():
         others = [o.T_H_C for n, o in solutions.items() if n != m]
         X = s.T_H_C
-        mm[m] = float(np.median([np.linalg.norm(X[:3, 3] - Y[:3, 3]) for Y in others])) if others else 0.0
-        deg[m] = float(np.median([np.degrees(rotation_angle_between(X[:3, :3], Y[:3, :3])) for Y in others])) if others else 0.0
+        mm[m] = _lower_median([np.linalg.norm(X[:3, 3] - Y[:3, 3]) for Y in others])
+        deg[m] = _lower_median([np.degrees(rotation_angle_between(X[:3, :3], Y[:3, :3])) for Y in others])
     return mm, deg
+
+
+def _lower_median(values: list[float]) -> float:
+    """The middle value, or of an even count the lower of the two middle ones (0 for none)."""
+    return float(np.quantile(values, 0.5, method="lower")) if values else 0.0
 
 
 def refuse_disagreement(rep: HandEyeReport, limits: HandEyeCalibrationConfig) -> tuple[float, float]:
