@@ -157,3 +157,18 @@ def test_three_methods_of_five_that_agree_are_not_outvoted_by_two_strays(monkeyp
     with pytest.raises(CalibrationRefused) as err:
         hand_eye.refuse_disagreement(rep, HandEyeCalibrationConfig())
     assert err.value.reason == "methods_disagree"
+
+
+@pytest.mark.parametrize("axis", [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.3, -0.5, 0.8]])
+def test_a_mounting_turned_exactly_half_a_turn_is_found_from_noise_free_views(axis: list[float]) -> None:
+    # A camera mounted turned 180 deg (a drawing's Rz(180)): Tsai's P' = tan(theta/2) axis is unbounded there, so a
+    # first pass solved at the half turn itself broke down (180 deg and a metre off, and the methods then disagreed).
+    X = make_pose(axis_angle_to_matrix(np.pi * np.asarray(axis) / np.linalg.norm(axis)), T_X)
+    H = _flange_poses(10, np.random.default_rng(5))
+    C = _views(X, H)
+    pairs = motion_pairs(H, C, min_pair_angle_rad=np.deg2rad(5.0))
+    est = tsai_lenz(pairs.A, pairs.B)
+    assert _error_deg(est, X) < 1e-7 and np.linalg.norm(est[:3, 3] - X[:3, 3]) < 1e-6
+    rep = solve_hand_eye(H, C)
+    hand_eye.refuse_disagreement(rep, HandEyeCalibrationConfig())
+    assert _error_deg(rep.solutions["tsai"].T_H_C, X) < 1e-7

@@ -7,8 +7,8 @@ T_B_H and board poses T_C_P, X = T_H_C solves ``A @ X = X @ B`` with
 :func:`tsai_lenz` (Tsai and Lenz, 1989): with P = 2 sin(theta/2) axis of A and B,
 ``skew(P_A + P_B) @ P' = P_B - P_A`` by least squares over all pairs, P_X = 2 P' / sqrt(1 + |P'|^2),
 then ``(R_A - I) t_X = R_X t_B - t_A``; a second pass on the rotation left after the first keeps
-it well conditioned near 180 deg (not at exactly 180 deg on noise-free views, where the first pass breaks
-down and the methods' comparison refuses the set). OpenCV's five methods run beside it (method passed by keyword,
+it well conditioned near 180 deg, and the first pass runs from four pre-turns so that none is solved at a half
+turn (at exactly 180 deg on noise-free views it broke down). OpenCV's five methods run beside it (method passed by keyword,
 DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion sets that cannot
 determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
 A method far (by its median distance) from the others is left out of the agreement check and named
@@ -29,7 +29,7 @@ from cellctl.calibration.errors import CalibrationRefused
 from cellctl.calibration.reproducible import opencv_one_thread
 from cellctl.config.calibration_procedure import HAND_EYE_METHODS, HandEyeCalibrationConfig, HandEyeMethod
 from cellctl.geometry.pose import Pose, check_pose, invert_pose, make_pose, mean_pose
-from cellctl.geometry.rotation import matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
+from cellctl.geometry.rotation import axis_angle_to_matrix, matrix_to_axis_angle, nearest_rotation, rotation_angle_between, skew
 
 F64 = NDArray[np.float64]
 
@@ -72,6 +72,26 @@ def _tsai_rotation(A: Sequence[F64], B: Sequence[F64]) -> F64:
     return _rotation_from_modified_rodrigues(P)
 
 
+# The identity and turns of 120 deg about x, y and z: X is a half turn from one of them only about an axis square to
+# its axis, and no axis is square to all three.
+_PRE_TURNS = (np.eye(3), *(axis_angle_to_matrix(2.0 * np.pi / 3.0 * e) for e in np.eye(3)))
+
+
+def _pre_turned_rotation(A: Sequence[F64], B: Sequence[F64], R0: F64) -> F64:
+    """Tsai's rotation of X solved as X = X' R0: A X' = X' B' with B' = R0 B R0^T, so X' is X turned back by R0."""
+    Bp = []
+    for b in B:
+        m = np.eye(4)
+        m[:3, :3] = R0 @ b[:3, :3] @ R0.T
+        Bp.append(m)
+    return _tsai_rotation(A, Bp) @ R0
+
+
+def _rotation_misfit(A: Sequence[F64], B: Sequence[F64], R: F64) -> float:
+    """Sum over the pairs of |R_A R - R R_B|^2 (Frobenius): 0 for the rotation of X on exact data."""
+    return float(sum(np.sum((a[:3, :3] @ R - R @ b[:3, :3]) ** 2) for a, b in zip(A, B)))
+
+
 def tsai_lenz(A: Sequence[ArrayLike], B: Sequence[ArrayLike]) -> Pose:
     """X with A_k X = X B_k for all motion pairs k (Tsai and Lenz): rotation first, then translation.
 
@@ -83,15 +103,10 @@ def tsai_lenz(A: Sequence[ArrayLike], B: Sequence[ArrayLike]) -> Pose:
     Bs = [check_pose(b, "camera motion B") for b in B]
     if len(As) != len(Bs) or len(As) < 2:
         raise ValueError(f"Tsai needs at least 2 motion pairs with one A per B, got {len(As)} A and {len(Bs)} B")
-    R1 = _tsai_rotation(As, Bs)
-    # Second pass for the rotation left after R1: A X' = X' B' with X = X' R1, B' = R1 B R1^T.
-    Bp = []
-    for b in Bs:
-        m = np.eye(4)
-        m[:3, :3] = R1 @ b[:3, :3] @ R1.T
-        Bp.append(m)
-    R_res = _tsai_rotation(As, Bp)
-    R = nearest_rotation(R_res @ R1)
+    # First pass from each pre-turn, the one whose rotation fits the pairs best (P' grows without bound as the
+    # rotation solved for nears a half turn; none is a half turn from all four); then a second pass for what is left.
+    R1 = min((_pre_turned_rotation(As, Bs, R0) for R0 in _PRE_TURNS), key=lambda R: _rotation_misfit(As, Bs, R))
+    R = nearest_rotation(_pre_turned_rotation(As, Bs, R1))
     C = np.vstack([a[:3, :3] - np.eye(3) for a in As])
     d = np.concatenate([R @ b[:3, 3] - a[:3, 3] for a, b in zip(As, Bs)])
     t, *_ = np.linalg.lstsq(C, d, rcond=None)
