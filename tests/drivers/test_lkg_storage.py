@@ -149,6 +149,7 @@ def test_the_fake_refuses_the_read_out_while_it_stores() -> None:
         assert fake._handle("AO,02")[0].startswith("ER,AO,")  # OUT2 was not stored
 
 
+@pytest.mark.realtime  # scores how closely the driver dates the fake's start on the host's clock
 async def test_the_storage_start_is_given_on_the_cells_clock(fake: FakeLkgController) -> None:
     # The cell pairs the stored readings with the robot's feedback on its own clock (the simulated cell's
     # runs ahead of the host's); the driver gives the first reading's instant on the clock it was handed.
