@@ -361,13 +361,14 @@ def detect_corner(
                 at_most("top edge gap to the arc", abs(arc.gap_top_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
                 at_most("right edge gap to the arc", abs(arc.gap_right_px), lim.max_arc_gap_px, Refusal.ARC_MISMATCH, " px"),
             ]
-    inside = roi.x_px <= corner[0] <= roi.x_px + roi.width_px - 1 and roi.y_px <= corner[1] <= roi.y_px + roi.height_px - 1
+    raw = lens.distort(corner[None, :])[0]  # the ROI is in the raw image's pixels, the corner in the ideal image's
+    inside = roi.x_px <= raw[0] <= roi.x_px + roi.width_px - 1 and roi.y_px <= raw[1] <= roi.y_px + roi.height_px - 1
     theta = 0.5 * (top.angle_rad + right.angle_rad)
     result = dict(
         roi=roi,
         arc_exclusion_px=exclusion,
         corner_px=corner,
-        corner_raw_px=lens.distort(corner[None, :])[0],
+        corner_raw_px=raw,
         theta_rad=theta,
         corner_angle_rad=corner_angle,
         corner_sigma_px=sigma,
