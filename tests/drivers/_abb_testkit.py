@@ -124,3 +124,21 @@ def hello_then(respond: Callable[[int, str, list[str]], list[bytes] | None]) -> 
         return []
 
     return script
+
+
+@contextlib.asynccontextmanager
+async def scripted_robot(
+    respond: Callable[[int, str, list[str]], list[bytes] | None], *, connect: bool = True
+) -> AsyncIterator[tuple[AbbRobot, ScriptedController]]:
+    """A robot driver on 127.0.0.1 talking to a :class:`ScriptedController` that answers through
+    ``hello_then(respond)``; connected unless ``connect`` is False; both closed after."""
+    ctl = ScriptedController(hello_then(respond))
+    port = await ctl.start()
+    robot = AbbRobot(AbbRobotSettings(host=LOOPBACK, rapid_port=port, egm_port=None, heartbeat_period_s=5.0))
+    try:
+        if connect:
+            await robot.connect(timeout_s=2.0)
+        yield robot, ctl
+    finally:
+        await robot.close()
+        await ctl.close()

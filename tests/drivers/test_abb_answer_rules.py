@@ -25,7 +25,7 @@ from typing import TypeVar
 
 import pytest
 
-from _abb_testkit import LOOPBACK, ScriptedController, hello_then
+from _abb_testkit import LOOPBACK, scripted_robot
 from abb_robot import AbbRobot, AbbRobotSettings
 from abb_robot import protocol as P
 from abb_robot.link import RapidLink
@@ -42,38 +42,21 @@ Respond = Callable[[int, str, list[str]], "list[bytes] | None"]
 T = TypeVar("T")
 
 
-def _robot(port: int) -> AbbRobot:
-    return AbbRobot(AbbRobotSettings(host=LOOPBACK, rapid_port=port, egm_port=None, heartbeat_period_s=5.0))
-
-
 async def _with(respond: Respond, call: Callable[[AbbRobot], Awaitable[T]]) -> tuple[T, list[str]]:
     """Run ``call(robot)`` against a scripted controller; returns what it returned and the lines it received."""
-    ctl = ScriptedController(hello_then(respond))
-    port = await ctl.start()
-    robot = _robot(port)
-    try:
-        await robot.connect(timeout_s=2.0)
+    async with scripted_robot(respond) as (robot, ctl):
         return await call(robot), ctl.received
-    finally:
-        await robot.close()
-        await ctl.close()
 
 
 async def test_a_hello_answer_with_another_protocol_version_is_refused() -> None:
     def respond(rid: int, verb: str, args: list[str]) -> list[bytes] | None:
         return [f"{rid} OK 2 TEST_ROBOT RW_TEST\n".encode()] if verb == "HELLO" else None
 
-    ctl = ScriptedController(hello_then(respond))
-    port = await ctl.start()
-    robot = _robot(port)
-    try:
+    async with scripted_robot(respond, connect=False) as (robot, ctl):
         with pytest.raises(DeviceProtocolError, match="HELLO"):
             await robot.connect(timeout_s=2.0)
         assert ctl.received[0] == "1 HELLO 1"
         assert not robot.connected
-    finally:
-        await robot.close()
-        await ctl.close()
 
 
 async def test_a_getj_answer_with_seven_angles_is_malformed() -> None:

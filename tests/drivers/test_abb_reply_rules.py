@@ -12,8 +12,7 @@ import math
 
 import pytest
 
-from _abb_testkit import LOOPBACK, ScriptedController, hello_then
-from abb_robot import AbbRobot, AbbRobotSettings
+from _abb_testkit import scripted_robot
 from abb_robot import protocol as P
 from cellctl.ports import DeviceProtocolError
 
@@ -34,9 +33,6 @@ def test_the_servers_id_0_error_is_a_reply() -> None:
     assert (reply.req_id, reply.status, reply.error_code) == (0, P.Status.ERR, 101)
 
 
-def _robot(port: int) -> AbbRobot:
-    return AbbRobot(AbbRobotSettings(host=LOOPBACK, rapid_port=port, egm_port=None, heartbeat_period_s=5.0))
-
 
 async def test_an_id_0_error_leaves_the_link_up_and_the_next_answer_is_taken() -> None:
     """``0 ERR 101`` answers a line the server could not read, no request of the client's: the link stays, and
@@ -47,17 +43,10 @@ async def test_an_id_0_error_leaves_the_link_up_and_the_next_answer_is_taken() -
             return [b"0 ERR 101 line longer than 80 bytes\n", f"{rid} OK 10 20 30 40 50 60\n".encode()]
         return None
 
-    ctl = ScriptedController(hello_then(respond))
-    port = await ctl.start()
-    robot = _robot(port)
-    try:
-        await robot.connect(timeout_s=2.0)
+    async with scripted_robot(respond) as (robot, ctl):
         joints = await robot.read_joints(timeout_s=2.0)
         assert joints == pytest.approx(tuple(math.radians(v) for v in (10, 20, 30, 40, 50, 60)))
         assert robot.connections == 1 and ctl.connections == 1
-    finally:
-        await robot.close()
-        await ctl.close()
 
 
 async def test_an_err_reply_with_a_two_digit_code_is_a_protocol_error() -> None:
@@ -66,13 +55,6 @@ async def test_an_err_reply_with_a_two_digit_code_is_a_protocol_error() -> None:
             return [f"{rid} ERR 13 bad code\n".encode()]
         return None
 
-    ctl = ScriptedController(hello_then(respond))
-    port = await ctl.start()
-    robot = _robot(port)
-    try:
-        await robot.connect(timeout_s=2.0)
+    async with scripted_robot(respond) as (robot, _):
         with pytest.raises(DeviceProtocolError, match="3-digit"):
             await robot.read_joints(timeout_s=2.0)
-    finally:
-        await robot.close()
-        await ctl.close()
