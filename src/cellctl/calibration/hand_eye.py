@@ -6,11 +6,10 @@ T_B_H and board poses T_C_P, X = T_H_C solves ``A @ X = X @ B`` with
 
 :func:`tsai_lenz` (Tsai and Lenz, 1989): with P = 2 sin(theta/2) axis of A and B,
 ``skew(P_A + P_B) @ P' = P_B - P_A`` by least squares over all pairs, P_X = 2 P' / sqrt(1 + |P'|^2),
-then ``(R_A - I) t_X = R_X t_B - t_A``; a second pass on the rotation left after the first keeps
-it well conditioned near 180 deg, and the first pass runs from four pre-turns so that none is solved at a half
-turn (at exactly 180 deg on noise-free views it broke down). OpenCV's five methods run beside it (method passed by keyword,
-DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion sets that cannot
-determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
+then ``(R_A - I) t_X = R_X t_B - t_A``; the first pass runs from four pre-turns and keeps the best fit, so
+none is solved at a half turn, where P' is unbounded; a second pass refines the rest. OpenCV's five methods run
+beside it (method passed by keyword, DESIGN.md section 7); :func:`solve_hand_eye` compares them and refuses motion
+sets that cannot determine X. The robot poses are the controller's beliefs, so residuals include the robot's error.
 A method far (by its median distance) from the others is left out of the agreement check and named
 in a warning: OpenCV's Andreff is 58 mm off on an orbit around the board even with exact data,
 where the other methods agree to 0.01 mm. :func:`refuse_disagreement` refuses when the chosen one is.
@@ -72,8 +71,8 @@ def _tsai_rotation(A: Sequence[F64], B: Sequence[F64]) -> F64:
     return _rotation_from_modified_rodrigues(P)
 
 
-# The identity and turns of 120 deg about x, y and z: X is a half turn from one of them only about an axis square to
-# its axis, and no axis is square to all three.
+# The identity and turns of 120 deg about x, y and z: a half turn X stays one after a pre-turn only if its axis is
+# square to the pre-turn's, and no axis is square to all three.
 _PRE_TURNS = (np.eye(3), *(axis_angle_to_matrix(2.0 * np.pi / 3.0 * e) for e in np.eye(3)))
 
 
@@ -103,8 +102,7 @@ def tsai_lenz(A: Sequence[ArrayLike], B: Sequence[ArrayLike]) -> Pose:
     Bs = [check_pose(b, "camera motion B") for b in B]
     if len(As) != len(Bs) or len(As) < 2:
         raise ValueError(f"Tsai needs at least 2 motion pairs with one A per B, got {len(As)} A and {len(Bs)} B")
-    # First pass from each pre-turn, the one whose rotation fits the pairs best (P' grows without bound as the
-    # rotation solved for nears a half turn; none is a half turn from all four); then a second pass for what is left.
+    # First pass from each pre-turn, keeping the rotation that fits the pairs best; a second pass for what is left.
     R1 = min((_pre_turned_rotation(As, Bs, R0) for R0 in _PRE_TURNS), key=lambda R: _rotation_misfit(As, Bs, R))
     R = nearest_rotation(_pre_turned_rotation(As, Bs, R1))
     C = np.vstack([a[:3, :3] - np.eye(3) for a in As])
