@@ -67,3 +67,31 @@ def test_views_alike_but_all_too_noisy_are_refused_on_the_rms() -> None:
     with pytest.raises(CalibrationRefused) as err:
         calibrate_camera(views, OBJ, SIZE, fix_k3=True, limits=CameraCalibrationConfig())
     assert err.value.reason == "rms_too_high"
+
+
+@pytest.mark.parametrize(("k2", "folds"), [(-100.0, True), (-10.0, False)])
+def test_a_lens_whose_model_folds_over_inside_the_image_is_refused(monkeypatch: pytest.MonkeyPatch, k2: float, folds: bool) -> None:
+    # OpenCV stands in for a fit whose higher terms ran away beyond the board's reach: its k2 replaced. With k1 = p = k3
+    # = 0, r (1 + k2 r^4) turns back at r^4 = -1 / (5 k2), where the distorted radius peaks at 0.8 r. The image's corner
+    # lies 0.276 from the axis (normalised): k2 = -100 turns back at 0.211 (peak 0.169, inside the image: no inverse for
+    # the corner's pixels), k2 = -10 at 0.376 (peak 0.301, beyond the corner: every pixel has its one inverse).
+    real = cv2.calibrateCameraExtended
+
+    def runaway(*args: object, **kwargs: object) -> tuple[object, ...]:
+        out = list(real(*args, **kwargs))
+        out[2] = np.array([[0.0, k2, 0.0, 0.0, 0.0]])
+        return tuple(out)
+
+    monkeypatch.setattr(cv2, "calibrateCameraExtended", runaway)
+    corner_r = np.hypot(*(np.array(SIZE) - K_TRUE[:2, 2]) / np.diag(K_TRUE)[:2])
+    assert 0.27 < corner_r < 0.28
+    assert (0.8 * (-1.0 / (5.0 * k2)) ** 0.25 < corner_r) == folds
+    if folds:
+        with pytest.raises(CalibrationRefused) as err:
+            calibrate_camera(_views([0.1] * 12), OBJ, SIZE, limits=CameraCalibrationConfig())
+        assert err.value.reason == "lens_folds_over" and "k2 -100" in err.value.detail
+    else:
+        try:
+            calibrate_camera(_views([0.1] * 12), OBJ, SIZE, limits=CameraCalibrationConfig())
+        except CalibrationRefused as err:
+            assert err.reason != "lens_folds_over", err

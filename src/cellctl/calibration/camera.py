@@ -152,6 +152,21 @@ _SINGLE_VIEW_FLAGS = (
 )  # fmt: skip
 
 
+def _refuse_folding(lens: Lens) -> None:
+    """Refuse a lens whose distortion model folds over inside its image (eq. 17 has no unique inverse there): the
+    corner finder could not undistort the pixels beyond the fold. Checked on 33 x 33 pixels spanning the image."""
+    u, v = np.meshgrid(np.linspace(0.0, lens.width_px - 1.0, 33), np.linspace(0.0, lens.height_px - 1.0, 33))
+    try:
+        lens.undistort(np.column_stack([u.ravel(), v.ravel()]))
+    except ValueError as err:
+        raise CalibrationRefused(
+            "camera", "lens_folds_over",
+            f"the distortion (k1 {lens.k1:.4g}, k2 {lens.k2:.4g}, k3 {lens.k3:.4g}) folds over inside the image ({err}): "
+            "the board's corners did not reach far enough into the image's corners for the higher terms; add views with "
+            "the board in the corners of the image, or hold k3 at 0 (calibration.camera.fix_k3 = true)",
+        ) from None
+
+
 def view_focal_lengths(op: F64, ip: Sequence[F64], size: tuple[int, int], K: F64, D: F64) -> tuple[F64, F64]:
     """Each view's own fx (the other intrinsics held at K, D) and its standard deviation (px)."""
     f, s = [], []
@@ -264,6 +279,8 @@ def calibrate_camera(
             f"reprojection RMS {rms:.3f} px exceeds {limits.max_rms_px:g} px: check the board's flatness and printed "
             "square size, focus and that the camera and lens were fixed during the views",
         )
+    lens = lens_from_matrix(K, D, (w, h))
+    _refuse_folding(lens)
     std = np.asarray(std_in, dtype=float).reshape(-1)
     tilt = _tilts_deg(rvecs)
     _refuse_unobservable(np.asarray(K, dtype=float), std, tilt, limits)
@@ -274,7 +291,7 @@ def calibrate_camera(
         R, _ = cv2.Rodrigues(rv)
         poses[v.name] = make_pose(R, np.asarray(tv, dtype=float).reshape(3))
     return CameraCalibration(
-        intrinsics=lens_from_matrix(K, D, (w, h)),
+        intrinsics=lens,
         rms_px=float(rms),
         per_view_rms_px={v.name: float(p) for v, p in zip(used, per)},
         rejected=rejected,
