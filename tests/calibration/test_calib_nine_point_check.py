@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 import pytest
 from calib_test_support import config
-from test_calib_teach import _taught  # the seeded twin commissioned once per test process, shared
+from test_calib_teach import _taught, _taught_dataset  # the seeded twin commissioned once per test process, shared
 
 from cellctl.calibration import compute_recipe
 from cellctl.calibration.calibration_set import CalibrationSet
 from cellctl.calibration.compute import Outcome
 from cellctl.calibration.compute_recipe import compute_nine_point
-from cellctl.calibration.dataset import Dataset, pose_array, read_dataset
+from cellctl.calibration.dataset import Dataset, pose_array
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.config.feature import shot_feature
 from cellctl.vision.feature import FeatureShot, detect_feature
@@ -37,12 +37,7 @@ def _true_mm_per_px() -> float:
 @functools.lru_cache(maxsize=1)
 def _nine_point() -> tuple[CalibrationSet, Dataset, tuple[FeatureShot, ...]]:
     """The commissioned set, its nine-point dataset and the corner found in each of its images (in view order)."""
-    store, _, _, _ = _taught()
-    cal = store.current()
-    assert cal is not None
-    part = cal.part("pixel_map")
-    assert part is not None and part.dataset is not None
-    ds = read_dataset(part.dataset.path, "nine_point")
+    cal, ds = _taught_dataset("pixel_map", "nine_point")
     feature = shot_feature(config())
     shots = tuple(
         detect_feature(ds.image(v["image"]), cal.lens(), config().vision, feature.arc, corner_radius=feature.corner_radius)

@@ -17,7 +17,8 @@ from cellctl.calibration.compute_recipe import compute_nine_point, compute_teach
 from cellctl.calibration.readiness import check_ready
 from cellctl.calibration.recording import record
 from cellctl.calibration.compute_recipe import _taught_install
-from cellctl.calibration.dataset import Dataset
+from cellctl.calibration.calibration_set import CalibrationSet
+from cellctl.calibration.dataset import Dataset, read_dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.sim.commissioning import TwinCommissioning
 from cellctl.geometry.pose import make_pose
@@ -55,6 +56,15 @@ def _taught() -> tuple[CalibrationStore, Outcome, Outcome, dict]:  # type: ignor
     teach, nine, truth = asyncio.run(go())
     return store, teach, nine, truth
 
+
+
+def _taught_dataset(part_name: str, kind: str) -> tuple[CalibrationSet, Dataset]:
+    """The commissioned set of :func:`_taught` and the dataset its part ``part_name`` was computed from."""
+    cal = _taught()[0].current()
+    assert cal is not None
+    part = cal.part(part_name)
+    assert part is not None and part.dataset is not None
+    return cal, read_dataset(part.dataset.path, kind)
 
 def test_teaching_finds_the_workpiece_frame_and_the_template() -> None:
     store, teach, _, truth = _taught()

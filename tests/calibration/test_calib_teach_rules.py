@@ -8,10 +8,10 @@ import asyncio
 import numpy as np
 import pytest
 from calib_test_support import SEED, config, scratch
-from test_calib_teach import _install_dataset, _taught
+from test_calib_teach import _install_dataset, _taught, _taught_dataset
 
 from cellctl.calibration.compute_recipe import _taught_install, compute_teaching
-from cellctl.calibration.dataset import Dataset, read_dataset
+from cellctl.calibration.dataset import Dataset
 from cellctl.calibration.errors import CalibrationRefused
 from cellctl.compensate import deviation_in_frame
 from cellctl.config.feature import feature_point_mm
@@ -37,12 +37,7 @@ def test_installs_turned_apart_about_the_corner_are_refused_though_the_corner_ag
 def test_an_image_taken_turned_from_the_aligned_pose_is_refused_though_the_flange_barely_moved() -> None:
     # The seeded twin's teaching dataset with its C_Pos_0 turned 0.2 deg about the camera's centre: the flange moves
     # well under 1 mm, but the image was not taken at the aligned pose the laser readings give (limit 0.05 deg).
-    store, _, _, _ = _taught()
-    cal = store.current()
-    assert cal is not None
-    part = cal.part("teaching")
-    assert part is not None and part.dataset is not None
-    ds = read_dataset(part.dataset.path, "teaching")
+    cal, ds = _taught_dataset("teaching", "teaching")
     C_Pos_0 = np.asarray(ds.manifest["C_Pos_0"], dtype=float)
     T_B_C = C_Pos_0 @ cal.T_H_C()
     turn = T_B_C @ make_pose(axis_angle_to_matrix(np.radians([0.2, 0.0, 0.0])), [0.0, 0.0, 0.0]) @ invert_pose(T_B_C)
