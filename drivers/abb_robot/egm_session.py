@@ -31,6 +31,9 @@ from cellctl.ports import (
     MotionInterrupted,
 )
 
+# How long a session the peer saw end in MCI_ERROR waits for the controller's error reply, which names the cause (s).
+FAULT_REPLY_GRACE_S = 0.5
+
 
 def egm_peer_for(settings: AbbRobotSettings, name: str) -> EgmPeer | None:
     """The sensor-side EGM peer the settings ask for (None when ``egm_port`` is None).
@@ -217,8 +220,9 @@ class EgmSession:
             now = time.monotonic()
             if snap.session > session_before and snap.received_at is not None:
                 if snap.fault is not None:
+                    why = await self._controller_says(final, deadline)
                     await self.link.stop_quietly()
-                    raise MotionInterrupted(self.name, f"EGM correction stopped: {snap.fault}")
+                    raise MotionInterrupted(self.name, f"EGM correction stopped: {snap.fault}{why}")
             elif now - t_ack > s.egm_receive_timeout_s:
                 await self.link.stop_quietly()
                 raise DeviceTimeout(
@@ -232,3 +236,15 @@ class EgmSession:
                 detail = "" if err is None else f"; last error {err:.3f} mm"
                 raise DeviceTimeout(self.name, f"EGM correction did not converge within {timeout_s:g} s{detail}")
             await asyncio.wait({final}, timeout=0.004)
+
+    async def _controller_says(self, final: asyncio.Future[P.Reply], deadline: float) -> str:
+        """Why the controller ended the session, from its error reply to the ``EGM`` request ("" if none comes
+        within ``FAULT_REPLY_GRACE_S``): the EGM datagrams only say MCI_ERROR, the RAPID module's reply names
+        the cause (ERR 150 for no data from the sensor, 152 for a state or a reference it refused)."""
+        await asyncio.wait({final}, timeout=min(FAULT_REPLY_GRACE_S, max(deadline - time.monotonic(), 0.0)))
+        if not final.done() or final.cancelled() or final.exception() is not None:
+            return ""
+        reply = final.result()
+        if reply.status is not P.Status.ERR:
+            return ""
+        return f"; the controller says: {self.link.error('EGM', reply).message}"

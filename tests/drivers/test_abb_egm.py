@@ -111,6 +111,29 @@ async def test_controller_comm_timeout_ends_the_session_with_code_150() -> None:
         assert stats is not None and stats.end == "comm_timeout" and stats.replies > 10
 
 
+async def test_a_correction_the_controller_ends_in_mci_error_names_the_controllers_reason(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # (Almost) every reply lost on the way: the controller hears nothing for 0.3 s and ends the session
+    # (ERR_UDPUC_COMM). Its last datagram says only MCI_ERROR; its error reply to the EGM request, here 0.2 s
+    # after that datagram, names the cause, and the correction's error says both.
+    async with _egm_cell(fake_kw={"egm": EgmDynamics(comm_timeout_s=0.3), "egm_loss_in": 0.999}) as (fake, robot):
+        server = fake.server
+        assert server is not None
+        reply = server._reply_quietly  # noqa: SLF001
+
+        async def after_the_datagram(session: object, data: bytes) -> None:
+            if b" ERR " in data:
+                await asyncio.sleep(0.2)
+            await reply(session, data)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(server, "_reply_quietly", after_the_datagram)
+        with pytest.raises(MotionInterrupted, match=r"MCI_ERROR.*controller says.*41822.*code 150 EGM_COMM"):
+            await robot.correct_to(_near_home(dx=1.0), tolerance_mm=0.1, tolerance_rad=0.01, timeout_s=5.0)
+        stats = fake.last_egm_stats
+        assert stats is not None and stats.end == "comm_timeout" and stats.dropped_in > 0
+
+
 async def test_no_egm_data_on_the_pc_port_times_out_and_stops_the_session() -> None:
     wrong_port = free_udp_port()
     fake = start_fake(egm_sensor_port=wrong_port, time_scale=0.05, egm=EgmDynamics(comm_timeout_s=5.0))

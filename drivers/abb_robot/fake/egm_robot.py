@@ -302,7 +302,7 @@ class EgmRobotSide:
                     end, detail = EgmEnd.MOTORS_OFF, "motors off during the EGM session"
                 elif now - last_reply > dyn.comm_timeout_s:
                     end, detail = EgmEnd.COMM_TIMEOUT, (
-                        f"no data from the sensor for {dyn.comm_timeout_s:g} s (41822 No data from the UdpUc device)"
+                        f"no data from the sensor for {dyn.comm_timeout_s:g} s (41822)"  # fits the 80-byte line
                     )
                 elif converged_since is not None and now - converged_since >= params.cond_s:
                     end, detail = EgmEnd.CONVERGED, "converged"
