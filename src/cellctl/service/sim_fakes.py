@@ -9,6 +9,7 @@ releases it. The controller reports the belief back, as a real one does.
 
 from __future__ import annotations
 
+import random
 import socket
 from collections.abc import Awaitable, Callable
 from typing import Literal
@@ -171,11 +172,25 @@ def abb_fake(cell: SimCell, *, time_scale: float | None = None, egm_sensor_port:
     )
 
 
+# Where the twin's EGM ports are drawn: below the kernel's ephemeral range, apart from the tests' stripes (20000 up).
+EGM_PORTS = range(10000, 20000)
+
+
 def free_udp_port() -> int:
-    """A UDP port free on loopback now (the EGM peer binds it a moment later)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    """A UDP port free on loopback now, for the EGM peer, which binds it at the first EGM use, maybe minutes later.
+
+    Drawn from ``EGM_PORTS``, never from the ephemeral range: a port the kernel hands out for ``bind(0)`` can go
+    to another socket meanwhile, such as another twin's fake controller sending EGM, whose datagrams this cell's
+    peer would then take for its controller's.
+    """
+    for port in random.sample(EGM_PORTS, 200):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free loopback UDP port in {EGM_PORTS.start}-{EGM_PORTS.stop - 1} for the twin's EGM")
 
 
 def _grip(cell: SimCell, hold: bool) -> None:
