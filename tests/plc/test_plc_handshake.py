@@ -261,3 +261,58 @@ def test_facade_values_refuse_inconsistent_input() -> None:
         CycleAcceptance(False)
     with pytest.raises(ValueError, match="stop_reason_id"):
         CellStatus(PackMLState.IDLE, UnitMode.PRODUCTION, CycleStep.NONE, -1, True)
+
+
+class _MixedUpCell(MemoryCell):
+    """Answers result_of with the newest result it has, whatever id was asked."""
+
+    async def result_of(self, req_id: int) -> CycleOutcome | None:
+        return next(reversed(self.outcomes.values()), None)
+
+
+async def test_a_stored_result_under_another_id_is_a_bad_answer_and_starts_nothing() -> None:
+    cell = _MixedUpCell()
+    async with running_cell(cell) as (_server, plc):
+        assert (await plc.run_cycle(5, 1, 3))["error_code"] == 0
+        mixed = await plc.run_cycle(6, 1, 4)  # the cell answers result_of(6) with cycle 5's result
+        assert mixed["nok"] and mixed["error_code"] == PlcErrorCode.CELL_BAD_ANSWER and not mixed["replayed"]
+        assert cell.started == [5]
+
+
+class _ResultOnceCell(MemoryCell):
+    """Gives each result once: a cell that does not keep them (the interface's own memory must)."""
+
+    async def result_of(self, req_id: int) -> CycleOutcome | None:
+        return self.outcomes.pop(req_id, None)
+
+
+async def test_a_result_the_cell_did_not_keep_is_replayed_from_the_interfaces_memory_not_run_again() -> None:
+    cell = _ResultOnceCell()
+    async with running_cell(cell) as (_server, plc):
+        first = await plc.run_cycle(7, 2, 9)
+        assert first["error_code"] == 0 and not first["replayed"]
+        again = await plc.run_cycle(7, 2, 9)
+        assert again["replayed"] and again["error_code"] == 0 and not again["request_mismatch"]
+        assert cell.started == [7]
+
+
+class _OnceSilentCell(MemoryCell):
+    """Does not answer the second result_of in time (a moment's stall), then answers as usual."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.asked = 0
+
+    async def result_of(self, req_id: int) -> CycleOutcome | None:
+        self.asked += 1
+        if self.asked == 2:
+            await asyncio.sleep(1.0)
+        return await super().result_of(req_id)
+
+
+async def test_a_result_query_the_cell_misses_once_is_asked_again_until_the_cycle_timeout() -> None:
+    cell = _OnceSilentCell()
+    async with running_cell(cell, facade_timeout_s=0.2, cycle_result_timeout_s=10.0) as (_server, plc):
+        done = await plc.run_cycle(8, 1, 2)
+        assert done["error_code"] == 0 and not done["nok"] and cell.asked >= 3
+        assert cell.started == [8]

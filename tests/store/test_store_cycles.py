@@ -139,6 +139,25 @@ def test_cycle_state_rules(store: CellStore) -> None:
         store.begin_step(999, CycleStep.ALIGN)
 
 
+def test_an_ended_cycle_begins_no_step(store: CellStore) -> None:
+    # A step begun under a done, failed or interrupted record (a late retry, a second process) would write into an
+    # ended cycle, and an install step there would be a robot commanded for a cycle already reported.
+    ends: dict[str, Callable[[int], object]] = {
+        "done": lambda cid: store.complete_cycle(cid, result={}),
+        "failed": lambda cid: store.fail_cycle(cid, error="alignment NOK"),
+        "interrupted": lambda cid: store.recover(),
+    }
+    for state, end in ends.items():
+        cid = store.submit_cycle(REQ, scope="rest", key=state, actor="line").cycle.id
+        store.start_cycle(cid)
+        end(cid)
+        assert store.cycle(cid).state.value == state
+        for step in (CycleStep.ALIGN, CycleStep.INSTALL):
+            with pytest.raises(CycleStateError, match=f"is {state}, a step can only begin in a running cycle"):
+                store.begin_step(cid, step)
+        assert store.cycle(cid).install_started_at is None
+
+
 def test_install_marker_is_written_once_and_cannot_be_undone(store: CellStore, tmp_path: Path) -> None:
     cid = store.submit_cycle(REQ, scope="rest", key="k", actor="line").cycle.id
     store.start_cycle(cid)
@@ -184,3 +203,18 @@ async def test_alarm_records_round_trip(store: CellStore) -> None:
     assert [x.uid for x in store.alarms(active_only=True)] == [b.uid]
     assert saved[a.uid].ack_by == "op" and saved[a.uid].reaction is None
     assert PackMLCommand.HOLD not in {x.reaction for x in saved.values()}  # no machine: nothing issued
+
+
+async def test_recovery_closes_the_alarms_a_stopped_process_left_active(store: CellStore) -> None:
+    # The process that raised them is gone: what still holds is raised anew by the watchdog, so none stays active.
+    am = AlarmManager(clock=stepping_clock())
+    am.subscribe(lambda ev: store.save_alarm(ev.alarm))
+    a = await am.raise_alarm(AlarmCode.LASER_LOST, source="laser")
+    b = await am.raise_alarm(AlarmCode.CAMERA_LOST, source="camera")
+    am.clear(AlarmCode.CAMERA_LOST, source="camera")
+    assert [x.uid for x in store.alarms(active_only=True)] == [a.uid]
+    assert store.recover().alarms_closed == 1
+    assert store.alarms(active_only=True) == []
+    closed = {x.uid: x for x in store.alarms()}
+    assert closed[a.uid].cleared_at is not None and closed[b.uid].cleared_at == am.get(b.uid).cleared_at
+    assert store.recover().alarms_closed == 0
