@@ -254,3 +254,21 @@ def test_committed_alarm_docs_equal_the_generated_tables() -> None:
     assert doc.read_text(encoding="utf-8") == alarms_doc.render_markdown(), (
         "docs/alarm_reactions.md is stale: run `python -m cellctl.cell.alarms_doc -o docs/alarm_reactions.md`"
     )
+
+
+async def test_restored_alarms_are_listed_inactive_and_hold_back_no_recovery() -> None:
+    # What a previous run left: a condition present as it stopped, one it had cleared, one already acknowledged.
+    # This run raises its own for what persists, so a restored one never blocks a Reset nor stays active.
+    earlier = manager(None)
+    present = await earlier.raise_alarm(AlarmCode.ROBOT_LOST, source="robot")
+    gone = await earlier.raise_alarm(AlarmCode.LASER_LOST, source="laser")
+    earlier.clear(AlarmCode.LASER_LOST, source="laser")
+    seen = earlier.acknowledge((await earlier.raise_alarm(AlarmCode.CAMERA_LOST, source="camera")).uid, by="op")
+    m = await machine_in(S.STOPPED)
+    am = manager(m)
+    ended = am.restore([present, earlier.get(gone.uid), seen])
+    assert [a.uid for a in ended] == [present.uid]  # stored as active: the store must be told it is not
+    assert {a.uid for a in am.current()} == {present.uid, gone.uid}  # the acknowledged one is not listed again
+    assert am.active() == [] and am.interlocking() == []
+    assert (await m.command(C.RESET, actor="op", source="test")).state_after == S.RESETTING
+    assert am.get(present.uid).active is False and not am.get(present.uid).acknowledged
