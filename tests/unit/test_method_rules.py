@@ -25,8 +25,9 @@ from cellctl.align import (
 from cellctl.cell.cycle import CycleRun
 from cellctl.cell.cycle_failure import CycleFailed
 from cellctl.compensate import CorrectionLimitError, TaughtPoses, check_correction
-from cellctl.domain import AlarmCode
+from cellctl.domain import AlarmCode, CycleStep
 from cellctl.geometry import angle_between_vectors, make_pose, rot_y, rot_z
+from cellctl.ports import DeviceRejected, UnreachableTarget
 
 WALL_X = 1000.0
 # Four wall spots, no three of them collinear.
@@ -160,3 +161,45 @@ async def test_an_install_pose_beyond_the_correction_limit_is_refused_before_the
     target, _ = await run.install(T0 @ make_pose(np.eye(3), [5.0, 0.0, 0.0]))  # within the limit: it goes on
     np.testing.assert_allclose(target[:3, 3] - taught.g_Pos_0[:3, 3], [5.0, 0.0, 0.0], atol=1e-9)
     assert calls == ["install started", "move", "move"]
+
+
+async def test_the_install_goes_into_the_opening_at_the_fine_speed() -> None:
+    """The approach pose at the travel speed with the glass, the last move into the opening at process.motion's
+    fine_speed_mm_s (the glass meets the opening's edges there)."""
+    cfg = sim_config(**{"process.motion": {"fine_speed_mm_s": 20.0, "travel_speed_mm_s": 400.0}})
+    T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
+    taught = TaughtPoses(T0, T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]), T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]))
+    speeds: list[float] = []
+
+    class Robot:
+        async def move(self, request: Any, *, timeout_s: float) -> Any:
+            speeds.append(request.speed_mm_s)
+            return request.target
+
+    class Recorder:
+        async def install_started(self, target: Any) -> None: ...
+
+    run = CycleRun(SimpleNamespace(robot=Robot()), SimpleNamespace(taught=taught), cfg.process, cfg.vision, Recorder())  # type: ignore[arg-type]
+    await run.install(T0 @ make_pose(np.eye(3), [2.0, -1.0, 0.5]))
+    assert speeds == [400.0, 20.0]
+
+
+async def test_a_target_the_robot_cannot_reach_is_a_correction_for_the_operator_not_a_robot_fault() -> None:
+    """The controller refusing a target out of reach means the car body stands where the correction cannot go: the
+    cell holds for the operator (CORRECTION_LIMIT_EXCEEDED) instead of aborting on a robot fault; other refusals
+    and failures of a move stay robot faults."""
+    cfg = sim_config()
+    refusals = iter([UnreachableTarget("robot", "MOVEL target refused: out of reach", "130 REACH"),
+                     DeviceRejected("robot", "MOVEL refused: busy", "110 BUSY")])  # fmt: skip
+
+    class Robot:
+        async def move(self, request: Any, *, timeout_s: float) -> Any:
+            raise next(refusals)
+
+    run = CycleRun(SimpleNamespace(robot=Robot()), SimpleNamespace(), cfg.process, cfg.vision, None)  # type: ignore[arg-type]
+    with pytest.raises(CycleFailed) as out_of_reach:
+        await run.move(CycleStep.ALIGN, make_pose(np.eye(3), [1500.0, 0.0, 900.0]))
+    assert out_of_reach.value.code is AlarmCode.CORRECTION_LIMIT_EXCEEDED and "out of reach" in out_of_reach.value.reason
+    with pytest.raises(CycleFailed) as busy:
+        await run.move(CycleStep.ALIGN, make_pose(np.eye(3), [1500.0, 0.0, 900.0]))
+    assert busy.value.code is AlarmCode.ROBOT_FAULT
