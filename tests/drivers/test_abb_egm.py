@@ -5,11 +5,15 @@ from __future__ import annotations
 import asyncio
 from collections.abc import AsyncIterator, Callable, Iterable
 import contextlib
+import itertools
 import math
 import os
+import select
 from pathlib import Path
 import socket
 import time
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,7 +21,7 @@ import pytest
 from _abb_testkit import LOOPBACK, fake_and_robot, free_udp_port, settings_for, start_fake
 from abb_robot import AbbRobot, EgmPeer, EgmPeerSettings
 from abb_robot.egm import egm_pb2 as pb
-from abb_robot.fake import DEFAULT_HOME, EgmDynamics, FakeController
+from abb_robot.fake import DEFAULT_HOME, EgmDynamics, FakeController, egm_robot
 from abb_robot.fake.egm_robot import EgmSessionParams
 from cellctl.ports import CartesianPose, DeviceRejected, DeviceTimeout, MotionInterrupted
 
@@ -132,6 +136,32 @@ async def test_a_correction_the_controller_ends_in_mci_error_names_the_controlle
             await robot.correct_to(_near_home(dx=1.0), tolerance_mm=0.1, tolerance_rad=0.01, timeout_s=5.0)
         stats = fake.last_egm_stats
         assert stats is not None and stats.end == "comm_timeout" and stats.dropped_in > 0
+
+
+async def test_a_stall_of_the_fake_controller_itself_is_not_taken_for_a_silent_sensor(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The fake's EGM thread comes back 0.5 s late from a wait that found no reply (a loaded host), past its 0.2 s comm
+    # timeout: it sent nothing meanwhile, so the sensor had nothing to answer, and the session goes on to converge.
+    real_select = select.select
+    waits = itertools.count()
+    stalled: list[float] = []
+
+    def late_after_a_quiet_wait(*args: Any) -> Any:
+        ready = real_select(*args)
+        if next(waits) >= 5 and not ready[0] and not stalled:
+            stalled.append(0.5)
+            time.sleep(0.5)
+        return ready
+
+    monkeypatch.setattr(egm_robot, "select", SimpleNamespace(select=late_after_a_quiet_wait))
+    async with _egm_cell(fake_kw={"egm": EgmDynamics(comm_timeout_s=0.2)},
+                         robot_kw={"egm_receive_timeout_s": 2.0, "egm_cond_time_s": 0.3}) as (fake, robot):  # fmt: skip
+        target = _near_home(dx=2.0)
+        got = await robot.correct_to(target, tolerance_mm=0.1, tolerance_rad=math.radians(0.05), timeout_s=5.0)
+        assert math.dist(got.position_mm, target.position_mm) <= 0.1
+        stats = fake.last_egm_stats
+        assert stalled and stats is not None and stats.end == "converged", stats
 
 
 async def test_no_egm_data_on_the_pc_port_times_out_and_stops_the_session() -> None:

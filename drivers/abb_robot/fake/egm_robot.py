@@ -12,7 +12,8 @@ reference (without repeatability noise: EGM converges on the controller's own me
 the robot, which is what the feedback reports). The session ends
 
 - converged: every axis within the band for ``cond_s`` (after the first reference), or
-- on a communication timeout: no reply for ``comm_timeout_s`` (ERR_UDPUC_COMM, elog 41822), or
+- on a communication timeout: no reply for ``comm_timeout_s`` (ERR_UDPUC_COMM, elog 41822), not counting
+  the time this thread itself ran late (it sent nothing then: a loaded host, not a silent sensor), or
 - on STOP, on motors off, or on an unreachable reference.
 
 The last datagram of a session carries MCI_STOPPED (converged, stopped) or MCI_ERROR.
@@ -273,6 +274,8 @@ class EgmRobotSide:
         while True:
             now = time.perf_counter()
             loop_late = now - next_tick > dyn.period_s / 2
+            if loop_late:  # this thread itself ran late: nothing went out meanwhile, so the sensor had nothing to answer
+                last_reply += now - next_tick
             # -- physics: apply references whose dead time has passed, then follow them
             while delayed and delayed[0][0] <= now:
                 _, active_ref = delayed.popleft()
@@ -352,6 +355,7 @@ class EgmRobotSide:
             late = time.perf_counter() - next_tick
             if late > dyn.period_s / 2:
                 stats.tick_overruns += 1
+                last_reply += late  # the same: a stall of the fake is not the sensor's silence
                 next_tick = time.perf_counter() + dyn.period_s / 2
             while True:
                 remaining = next_tick - time.perf_counter()
