@@ -184,6 +184,24 @@ async def test_lost_sensor_holds_the_cell_and_its_return_clears_the_alarm() -> N
     assert am.active() == [] and h["laser"].pings == 6 and h["laser"].misses == 4
 
 
+async def test_a_slow_answer_followed_by_a_good_one_clears_the_slow_alarm() -> None:
+    # One missed ping warns (DEVICE_SLOW, no state change); the next answer in time ends the warning.
+    m = await executing_machine()
+    am = AlarmManager(m)
+    am.install()
+    clock = FakeClock()
+    laser = FakeLaser()
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=3), clock=clock)
+    wd.add("laser", laser)
+    laser.link.mode = "timeout"
+    h = await wd.check_once()
+    assert h["laser"].link == LinkState.DEGRADED and [a.code for a in am.active()] == [AlarmCode.DEVICE_SLOW]
+    laser.link.mode = "up"
+    clock.t += 1.0
+    h = await wd.check_once()
+    assert h["laser"].link == LinkState.UP and am.active() == [] and m.state == PackMLState.EXECUTE
+
+
 async def test_a_link_held_by_another_call_is_neither_an_answer_nor_a_miss() -> None:
     m = await executing_machine()
     am = AlarmManager(m)
@@ -326,3 +344,27 @@ async def test_a_ping_failing_as_the_watchdog_stops_leaves_no_unretrieved_error(
     assert unretrieved == [], unretrieved
     # The stop's cancel is not a missed ping: no alarm (one miss would be the robot lost, an Abort), no miss counted.
     assert am.current() == [] and wd.health()["robot"].misses == 0, (am.current(), wd.health()["robot"])
+
+
+async def test_a_check_that_overran_is_followed_by_one_check_not_a_burst() -> None:
+    # The first ping takes five periods on the watchdog's clock (a stalled loop): the missed slots are skipped, so one
+    # check follows at once and the next comes a period later, not five pings in a row to catch up.
+    clock = FakeClock()
+    laser = FakeLaser()
+    real_ping = laser.link.ping
+
+    async def first_one_slow(device: str, timeout_s: float) -> float:
+        if laser.link.calls == 0:
+            clock.t += 5.0
+        return await real_ping(device, timeout_s)
+
+    laser.link.ping = first_one_slow  # type: ignore[method-assign]
+    wd = DeviceWatchdog(AlarmManager(), defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=3),
+                        clock=clock)  # fmt: skip
+    wd.add("laser", laser)
+    async with wd:
+        deadline = time.monotonic() + 0.8  # the third check is due a whole period (1 s on the host's clock) later
+        while laser.link.calls < 2 and time.monotonic() < deadline:
+            await asyncio.sleep(0.005)
+        await asyncio.sleep(0.05)
+        assert laser.link.calls == 2
