@@ -262,3 +262,29 @@ def test_an_operator_reset_forgets_estimate_and_drift() -> None:
 def test_the_loop_refuses_a_drift_limit_at_or_past_the_install_tolerance() -> None:
     with pytest.raises(ValueError, match=r"drift_limit_mm = 0.5 is not below .*position_mm = 0.5"):
         make_loop(SpcConfig(drift_limit_mm=0.5))
+
+
+def test_a_cell_without_scatter_still_takes_results_within_the_sigma_floor() -> None:
+    """The outlier gate assumes at least sigma_floor of noise (the measurement's resolution): after results with no
+    scatter at all, a next one a little off is taken, not excluded as an outlier for ever after."""
+    cfg = SpcConfig()
+    loop = make_loop(cfg)
+    state = simulate_loop({"dx_mm": 0.1}, (0.0, 0.0), 10, cfg, seed=0, loop=loop).state
+    assert state.axes["dx_mm"].sigma == pytest.approx(0.0, abs=1e-12)
+    off = cfg.outlier_k * cfg.sigma_floor_mm * 0.5  # within k floors of the estimate
+    up = loop.update(state, {**ZERO, "dx_mm": off}, calibration_version="1", cycle_id=11)
+    assert up.excluded is None and up.state.n_samples == state.n_samples + 1
+
+
+def test_tolerance_is_judged_on_the_install_as_measured_not_on_the_uncompensated_deviation() -> None:
+    """A cell whose bias the offset takes out: an install measured within tolerance is not "beyond tolerance", even
+    when the deviation without the offset (u) would be."""
+    loop = make_loop()
+    state = simulate_loop({"dx_mm": 0.2}, SIGMA, 30, seed=5, loop=loop).state
+    applied = loop.offset(state, "1")["dx_mm"]
+    assert applied > 0.15
+    measured = TOL_MM - 0.5 * applied  # within tolerance as installed; u = measured + applied is beyond it
+    up = loop.update(state, {**ZERO, "dx_mm": measured}, calibration_version="1", cycle_id=31)
+    assert up.excluded is not Exclusion.BEYOND_TOLERANCE
+    over = loop.update(up.state, {**ZERO, "dx_mm": TOL_MM + 0.01}, calibration_version="1", cycle_id=32)
+    assert over.excluded is Exclusion.BEYOND_TOLERANCE
