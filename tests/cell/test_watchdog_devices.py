@@ -184,15 +184,24 @@ async def test_lost_sensor_holds_the_cell_and_its_return_clears_the_alarm() -> N
     assert am.active() == [] and h["laser"].pings == 6 and h["laser"].misses == 4
 
 
-async def test_a_slow_answer_followed_by_a_good_one_clears_the_slow_alarm() -> None:
-    # One missed ping warns (DEVICE_SLOW, no state change); the next answer in time ends the warning.
+async def _laser_watched_in_execute(
+    *, miss_threshold: int
+) -> tuple[PackMLMachine, AlarmManager, FakeLaser, DeviceWatchdog, FakeClock]:
+    """A machine in Execute with its alarm manager, and a fake laser under a watchdog on a fake clock (1 s pings)."""
     m = await executing_machine()
     am = AlarmManager(m)
     am.install()
     clock = FakeClock()
     laser = FakeLaser()
-    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=3), clock=clock)
+    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=miss_threshold),
+                        clock=clock)  # fmt: skip
     wd.add("laser", laser)
+    return m, am, laser, wd, clock
+
+
+async def test_a_slow_answer_followed_by_a_good_one_clears_the_slow_alarm() -> None:
+    # One missed ping warns (DEVICE_SLOW, no state change); the next answer in time ends the warning.
+    m, am, laser, wd, clock = await _laser_watched_in_execute(miss_threshold=3)
     laser.link.mode = "timeout"
     h = await wd.check_once()
     assert h["laser"].link == LinkState.DEGRADED and [a.code for a in am.active()] == [AlarmCode.DEVICE_SLOW]
@@ -203,13 +212,7 @@ async def test_a_slow_answer_followed_by_a_good_one_clears_the_slow_alarm() -> N
 
 
 async def test_a_link_held_by_another_call_is_neither_an_answer_nor_a_miss() -> None:
-    m = await executing_machine()
-    am = AlarmManager(m)
-    am.install()
-    clock = FakeClock()
-    laser = FakeLaser()
-    wd = DeviceWatchdog(am, defaults=WatchdogSettings(period_s=1.0, timeout_s=0.5, miss_threshold=2), clock=clock)
-    wd.add("laser", laser)
+    m, am, laser, wd, clock = await _laser_watched_in_execute(miss_threshold=2)
     await wd.check_once()
     laser.link.mode = "busy"  # a read-out longer than the threshold's pings: the cell goes on
     for _ in range(5):
