@@ -288,3 +288,29 @@ def test_tolerance_is_judged_on_the_install_as_measured_not_on_the_uncompensated
     assert up.excluded is not Exclusion.BEYOND_TOLERANCE
     over = loop.update(up.state, {**ZERO, "dx_mm": TOL_MM + 0.01}, calibration_version="1", cycle_id=32)
     assert over.excluded is Exclusion.BEYOND_TOLERANCE
+
+
+def _sigma_ratios(n: int, seeds: range, start: int) -> np.ndarray:
+    """The noise estimate over the truth, per cell (seed) and axis: its mean over results ``start`` to ``n``."""
+    ratios = []
+    for seed in seeds:
+        run = simulate_loop({"dx_mm": 0.05, "dry_deg": 0.01}, SIGMA, n, seed=seed)
+        for a in AXES:
+            sig = np.array([u.state.axes[a].sigma for u in run.updates[start:]], dtype=float)
+            ratios.append(sig.mean() / _sigma(a))
+    return np.array(ratios)
+
+
+def test_the_noise_estimate_is_the_installs_scatter_in_the_long_run() -> None:
+    """A residual against the EWMA also carries the estimate's own noise: (2 - lambda) / 2 of its square is the
+    installs' scatter. Over 20 cells x 6 axes x 1,200 results the estimate's mean is the true sigma within 1.2 %
+    (0.997 here; 1.023 without the factor, at lambda = 0.1)."""
+    assert abs(_sigma_ratios(1500, range(20), 300).mean() - 1.0) < 0.012
+
+
+def test_the_first_noise_estimates_are_a_running_mean_of_the_residuals() -> None:
+    """After the warm-up's few results, sigma goes on as a running mean of the residuals, not at once as the slow EWMA
+    that would keep the warm-up's guess: 30 results in, within 16 % RMS of the truth over 40 cells x 6 axes (13 %
+    here; 21 % with the slow weight from the start)."""
+    ratios = _sigma_ratios(30, range(40), 29)
+    assert float(np.sqrt(np.mean((ratios - 1.0) ** 2))) < 0.16
