@@ -10,7 +10,15 @@ from typing import Any
 
 import httpx
 import pytest
-from service_test_support import AUTH, api_client, back_to_execute, running_service, sim_config, to_execute
+from service_test_support import (
+    AUTH,
+    api_client,
+    back_to_execute,
+    command_settled,
+    running_service,
+    sim_config,
+    to_execute,
+)
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -54,12 +62,8 @@ async def test_a_request_stored_as_the_cell_stops_is_dropped_and_never_starts_by
         store_it = orch.store.submit_cycle
 
         async def stop_meanwhile(*args: Any, **kw: Any) -> Any:
-            assert (await client.post("/commands/stop", headers=AUTH)).status_code == 200
-            for _ in range(500):  # stopped, and the stop's events handled, before the request is stored
-                if (await client.get("/status")).json()["state"] == "STOPPED":
-                    break
-                await asyncio.sleep(0.01)
-            await asyncio.sleep(0.2)
+            assert await command_settled(client, "stop") == "STOPPED"
+            await asyncio.sleep(0.2)  # the stop's events handled too, before the request is stored
             return await store_it(*args, **kw)
 
         orch.store.submit_cycle = stop_meanwhile  # type: ignore[method-assign]

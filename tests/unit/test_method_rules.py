@@ -137,11 +137,18 @@ def test_camera_behind_the_wall_is_refused() -> None:
         correct_distance(behind, T_H_C, wall.plane, 400.0)
 
 
+# The taught workpiece frame T0 and its shooting and gripping poses for the install tests.
+INSTALL_T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
+INSTALL_TAUGHT = TaughtPoses(
+    INSTALL_T0, INSTALL_T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]),
+    INSTALL_T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]),
+)
+
+
 async def test_an_install_pose_beyond_the_correction_limit_is_refused_before_the_robot_moves() -> None:
     """Paper 4.3: T2 @ inv(T0) @ g_Pos_0 is checked against g_Pos_0 before the install starts (limits.max_correction_mm)."""
     cfg = sim_config(**{"process.limits": {"max_correction_mm": 10.0}})
-    T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
-    taught = TaughtPoses(T0, T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]), T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]))
+    T0, taught = INSTALL_T0, INSTALL_TAUGHT
     calls: list[str] = []
 
     class Robot:
@@ -167,8 +174,7 @@ async def test_the_install_goes_into_the_opening_at_the_fine_speed() -> None:
     """The approach pose at the travel speed with the glass, the last move into the opening at process.motion's
     fine_speed_mm_s (the glass meets the opening's edges there)."""
     cfg = sim_config(**{"process.motion": {"fine_speed_mm_s": 20.0, "travel_speed_mm_s": 400.0}})
-    T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
-    taught = TaughtPoses(T0, T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]), T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]))
+    T0, taught = INSTALL_T0, INSTALL_TAUGHT
     speeds: list[float] = []
 
     class Robot:
