@@ -95,7 +95,7 @@ async def api_client(service: Service) -> AsyncIterator[httpx.AsyncClient]:
         yield client
 
 
-async def command_settled(client: httpx.AsyncClient, cmd: str) -> str:
+async def _command(client: httpx.AsyncClient, cmd: str) -> str:
     """One PackML command over REST; the state once the acting state (Clearing, Resetting, ...) is over."""
     import asyncio
 
@@ -112,7 +112,7 @@ async def command_settled(client: httpx.AsyncClient, cmd: str) -> str:
 async def to_execute(client: httpx.AsyncClient) -> None:
     """Clear, reset and start the cell over REST, waiting out the acting states."""
     for cmd in ("clear", "reset", "start"):
-        state = await command_settled(client, cmd)
+        state = await _command(client, cmd)
     assert state == "EXECUTE", state
 
 
@@ -122,7 +122,7 @@ async def back_to_execute(client: httpx.AsyncClient) -> None:
     assert r.status_code == 200, r.text
     state = (await client.get("/status")).json()["state"]
     for cmd in {"ABORTED": ["clear", "reset", "start"], "STOPPED": ["reset", "start"], "HELD": ["unhold"]}.get(state, []):
-        state = await command_settled(client, cmd)
+        state = await _command(client, cmd)
     assert state == "EXECUTE", state
 
 

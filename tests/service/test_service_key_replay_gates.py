@@ -14,7 +14,7 @@ from service_test_support import (
     AUTH,
     api_client,
     back_to_execute,
-    command_settled,
+    _command,
     running_service,
     sim_config,
     to_execute,
@@ -62,7 +62,7 @@ async def test_a_request_stored_as_the_cell_stops_is_dropped_and_never_starts_by
         store_it = orch.store.submit_cycle
 
         async def stop_meanwhile(*args: Any, **kw: Any) -> Any:
-            assert await command_settled(client, "stop") == "STOPPED"
+            assert await _command(client, "stop") == "STOPPED"
             await asyncio.sleep(0.2)  # the stop's events handled too, before the request is stored
             return await store_it(*args, **kw)
 
