@@ -14,6 +14,7 @@ from keyence_lkg import KeyenceLkgSensor, link
 from keyence_lkg.fake import FakeLkgController
 
 REF_MM = 350.0
+BAUD = 115200
 STALL_S = 0.02  # the event loop busy (a scrape, a dashboard page) when the AS echo comes back
 
 
@@ -25,24 +26,25 @@ def fake(request: pytest.FixtureRequest) -> Iterator[FakeLkgController]:
 
 def make_sensor(fake: FakeLkgController, ahead_s: float) -> KeyenceLkgSensor:
     return KeyenceLkgSensor(
-        port=fake.path, dialect=fake.dialect, display_unit="0.001mm", reference_distance_mm=REF_MM,
+        port=fake.path, baud=BAUD, dialect=fake.dialect, display_unit="0.001mm", reference_distance_mm=REF_MM,
         displacement_positive="away_from_head", exchange_timeout_s=1.0, mode_change_timeout_s=1.0,
         clock=lambda: time.monotonic() + ahead_s,
     )  # fmt: skip
 
 
-def stall_after_as(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    """Block the event loop ``STALL_S`` right after every AS is written: its echo is noticed that late."""
-    original, stalled = link.SerialLine.write, [0]
+def stall_after_as(monkeypatch: pytest.MonkeyPatch) -> list[float]:
+    """Block the event loop ``STALL_S`` right after every AS is written: its echo is noticed that late.
+    Returns the host-clock times the AS writes returned (the stalls' starts)."""
+    original, written = link.SerialLine.write, []
 
     async def write(self: link.SerialLine, data: bytes, deadline: float) -> None:
         await original(self, data, deadline)
         if data.startswith(b"AS"):
+            written.append(time.monotonic())
             time.sleep(STALL_S)
-            stalled[0] += 1
 
     monkeypatch.setattr(link.SerialLine, "write", write)
-    return stalled
+    return written
 
 
 @pytest.mark.parametrize("stall", [False, True])
@@ -50,7 +52,7 @@ async def test_the_controllers_start_lies_in_the_window_and_a_late_notice_widens
     fake: FakeLkgController, monkeypatch: pytest.MonkeyPatch, stall: bool
 ) -> None:
     ahead_s = 321.0  # the cell's clock runs ahead of the host's: the window is on the driver's clock
-    stalled = stall_after_as(monkeypatch) if stall else [0]
+    written = stall_after_as(monkeypatch) if stall else []
     sensor = make_sensor(fake, ahead_s)
     try:
         assert sensor.storage_start_window() is None  # no storage started yet
@@ -63,9 +65,12 @@ async def test_the_controllers_start_lies_in_the_window_and_a_late_notice_widens
     assert earliest <= truth <= latest, (earliest - truth, latest - truth)
     assert earliest <= started <= latest
     if stall:
-        assert stalled[0] == 1
-        # The start stamp is the echo as noticed: STALL_S after the controller's start; the window says so.
-        assert started - truth >= STALL_S - 0.002 and latest - earliest >= STALL_S
+        assert len(written) == 1
+        # The echo is noticed at least STALL_S after the AS went out (the controller's start lies between,
+        # wherever the fake's thread got to run), and the start stamp is that notice less the echo's 3
+        # characters on the wire: the stall is in it, and the window says so.
+        assert latest - (written[0] + ahead_s) >= STALL_S and latest - earliest >= STALL_S
+        assert latest - started == pytest.approx(10.0 * len(b"AS\r") / BAUD, abs=1e-6)
     else:  # a prompt host: the window is the AS and its echo on the wire, a ms or so
         assert latest - earliest < 0.005 and abs(started - truth) < 0.005
 
