@@ -175,9 +175,10 @@ def stopped_cell_to_commission(workdir: Path) -> Iterator[str]:
     serve, url = serve_to_commission(workdir)
     try:
         wait_up(url, serve, workdir)
-        assert httpx.post(f"{url}/commands/clear", headers=AUTH).status_code == 200
-        while httpx.get(f"{url}/status").json()["state"] != "STOPPED":
-            time.sleep(0.05)
+        with httpx.Client() as http:
+            assert http.post(f"{url}/commands/clear", headers=AUTH).status_code == 200
+            while http.get(f"{url}/status").json()["state"] != "STOPPED":
+                time.sleep(0.05)
         yield url
     finally:
         for job in httpx.get(f"{url}/jobs", headers=AUTH).json() if serve.poll() is None else []:
@@ -207,14 +208,15 @@ def wait_up(url: str, proc: Any, workdir: Path, deadline_s: float = 60.0) -> Non
     import time
 
     end = time.monotonic() + deadline_s
-    while True:
-        try:
-            if httpx.get(f"{url}/status", timeout=2).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        assert proc.poll() is None and time.monotonic() < end, (workdir / "service.log").read_text()
-        time.sleep(0.1)
+    with httpx.Client(timeout=2) as http:  # one client: a new one per try loads the CA bundle each time
+        while True:
+            try:
+                if http.get(f"{url}/status").status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            assert proc.poll() is None and time.monotonic() < end, (workdir / "service.log").read_text()
+            time.sleep(0.1)
 
 
 def truth_values(cal: Any, recipe: str) -> dict[str, dict[str, Any]]:

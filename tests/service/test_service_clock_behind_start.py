@@ -61,13 +61,14 @@ def _up(proc: subprocess.Popen[bytes], url: str, deadline_s: float = 90.0) -> bo
     import time
 
     end = time.monotonic() + deadline_s
-    while time.monotonic() < end and proc.poll() is None:
-        try:
-            if httpx.get(f"{url}/status", timeout=2).status_code == 200:
-                return True
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
+    with httpx.Client(timeout=2) as http:  # one client: a new one per try loads the CA bundle each time
+        while time.monotonic() < end and proc.poll() is None:
+            try:
+                if http.get(f"{url}/status").status_code == 200:
+                    return True
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
     return False
 
 
