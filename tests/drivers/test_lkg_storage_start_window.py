@@ -47,7 +47,8 @@ def stall_after_as(monkeypatch: pytest.MonkeyPatch) -> list[float]:
     return written
 
 
-@pytest.mark.parametrize("stall", [False, True])
+# A prompt host's window (a few ms) is scored on the host's clock: with the real-time tests, after the rest.
+@pytest.mark.parametrize("stall", [pytest.param(False, marks=pytest.mark.realtime), True])
 async def test_the_controllers_start_lies_in_the_window_and_a_late_notice_widens_it(
     fake: FakeLkgController, monkeypatch: pytest.MonkeyPatch, stall: bool
 ) -> None:
