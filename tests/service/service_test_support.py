@@ -203,12 +203,13 @@ def start_serve(config: Path, workdir: Path) -> Any:
     return proc
 
 
-def wait_up(url: str, proc: Any, workdir: Path, deadline_s: float = 60.0) -> None:
-    """Until GET /status answers (the process must stay alive meanwhile)."""
+def wait_up(url: str, proc: Any, workdir: Path, deadline_s: float = 60.0, *, verify: Any = True) -> None:
+    """Until GET /status answers (the process must stay alive meanwhile); ``verify`` as httpx takes it (an
+    ``ssl.SSLContext`` trusting the plant's CA for an https ``url``)."""
     import time
 
     end = time.monotonic() + deadline_s
-    with httpx.Client(timeout=2) as http:  # one client: a new one per try loads the CA bundle each time
+    with httpx.Client(verify=verify, timeout=2) as http:  # one client: a new one per try loads the CA bundle each time
         while True:
             try:
                 if http.get(f"{url}/status").status_code == 200:

@@ -12,13 +12,11 @@ import ssl
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
 import pytest
-from service_test_support import free_port, sim_toml, start_serve
+from service_test_support import free_port, sim_toml, start_serve, wait_up
 from tls_test_support import plant_chain
 
 from cellctl.client import ServiceError, pinned_to, trusting_ca
@@ -43,7 +41,7 @@ def test_the_cli_reaches_a_tls_service_by_its_configuration_or_by_url_and_ca(tmp
     cfg.write_text(text)
     proc = start_serve(cfg, tmp_path)
     try:
-        _wait_up(port, pki["ca"], proc)
+        wait_up(f"https://localhost:{port}", proc, tmp_path, verify=trusting_ca(pki["ca"]))  # by the name localhost
         # on the cell's computer, from serve's workdir: the configuration's [api] over https, its own certificate trusted
         own = _cli("status", "--config", str(cfg), cwd=tmp_path)
         assert own.returncode == 0 and own.stdout.startswith("state "), own.stdout + own.stderr
@@ -62,20 +60,6 @@ def test_the_cli_reaches_a_tls_service_by_its_configuration_or_by_url_and_ca(tmp
     finally:
         proc.terminate()
         assert proc.wait(timeout=30) == 0, (tmp_path / "service.log").read_text()
-
-
-def _wait_up(port: int, ca: Path, proc: subprocess.Popen[bytes]) -> None:
-    """Until the service answers over HTTPS (trusting the plant's CA, by the name localhost)."""
-    with httpx.Client(verify=trusting_ca(ca), timeout=5.0) as client:
-        end = time.monotonic() + 60.0
-        while True:
-            try:
-                if client.get(f"https://localhost:{port}/status").status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            assert proc.poll() is None and time.monotonic() < end, "serve ended or never answered"
-            time.sleep(0.1)
 
 
 @pytest.fixture
