@@ -220,3 +220,33 @@ def test_nothing_is_operable_while_the_data_is_stale(cell: LiveCell, cycle_ids: 
     finally:
         for context, _, _ in screens:
             context.close()
+
+
+@pytest.mark.parametrize(("width", "height"), VIEWPORTS, ids=lambda v: str(v))
+def test_the_command_bars_lines_filling_or_emptying_do_not_move_the_page(
+    cell: LiveCell, cycle_ids: list[int], browser: Any, width: int, height: int
+) -> None:
+    """The command bar's blocked line and message line keep their room when empty, and the message its padding when
+    it is no alarm: a state change or a command's answer must not move the page under the operator's pointer (one
+    alarm's Acknowledge onto the next one's). Chromium lays the overview out with each in turn."""
+    context, pg, _ = _sized(browser, width, height)
+    try:
+        pg.goto(cell.url + "/")
+        expect(pg.locator("body")).to_have_attribute("data-ready", "1")
+        tops = pg.evaluate(
+            """() => {
+                const blocked = document.getElementById("blocked"), message = document.getElementById("message");
+                const out = [];
+                for (const [why, said, alarm] of [["", "", false], ["Start: acknowledge it first.", "Mode changed: PRODUCTION.", false],
+                                                  ["", "Acknowledge refused (409): gone.", true], ["Start: acknowledge it first.", "", false]]) {
+                    blocked.textContent = why;
+                    message.textContent = said;
+                    message.classList.toggle("is-alarm", alarm);
+                    out.push(document.getElementById("main").getBoundingClientRect().top);
+                }
+                return out;
+            }"""
+        )
+        assert len(set(tops)) == 1, tops
+    finally:
+        context.close()
