@@ -11,18 +11,15 @@ from typing import Any
 import numpy as np
 import pytest
 from service_test_support import sim_config
+from test_method_rules import INSTALL_TAUGHT as TAUGHT
 
 from cellctl.cell.cycle import CycleRun
 from cellctl.cell.cycle_failure import CycleFailed
-from cellctl.compensate import TaughtPoses
 from cellctl.domain import AlarmCode
-from cellctl.geometry import make_pose
 from cellctl.geometry.planar import PlanarOffset
 from cellctl.ports import CartesianPose
 from cellctl.vision.corner import CornerFeatures
 
-T0 = make_pose(np.eye(3), [2000.0, 0.0, 1500.0])
-TAUGHT = TaughtPoses(T0, T0 @ make_pose(np.eye(3), [-300.0, 200.0, -400.0]), T0 @ make_pose(np.eye(3), [-1000.0, 750.0, -120.0]))
 CORNER = CornerFeatures(1224.0, 1024.0, 0.0, 0.0, 1.5707963)  # both edges seen: its offsets turn
 
 
