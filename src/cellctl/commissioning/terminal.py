@@ -206,6 +206,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
     out.write(f"job {job_id} ({job['procedure']}) started on the cell; Ctrl-C cancels it (the robot stops at once)\n")
     out.flush()
     prompt: dict[str, Any] | None = None
+    answered: set[int] = set()  # prompts this terminal answered: no later line goes to them, even before their close comes
     synced = False
     last: dict[str, Any] = {}  # the job as its last event showed it
 
@@ -228,7 +229,7 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                 job = client.job(job_id)  # what happened before the stream was up
                 if job["state"] in FINISHED:
                     break
-                if job.get("prompt") and (prompt is None or prompt["id"] != job["prompt"]["id"]):
+                if job.get("prompt") and job["prompt"]["id"] not in answered and (prompt is None or prompt["id"] != job["prompt"]["id"]):
                     prompt = job["prompt"]
                     bar.clear()
                     stdin = _open(prompt)
@@ -259,9 +260,10 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
             elif kind == "prompt":
                 p = data["prompt"]
                 if data["open"]:
-                    prompt = p
-                    bar.clear()
-                    stdin = _open(p)
+                    if p["id"] not in answered:
+                        prompt = p
+                        bar.clear()
+                        stdin = _open(p)
                 else:
                     if prompt is not None and prompt["id"] == p["id"]:
                         prompt = None
@@ -290,6 +292,9 @@ def follow(client: CellClient, job: dict[str, Any], *, out: TextIO = sys.stdout,
                     client.answer_prompt(job_id, int(prompt["id"]), parsed[0], parsed[1])
                 except ServiceError as err:
                     out.write(f"    not taken: {err}\n")
+                else:  # the next line is for the next prompt (piped answers in order), not for this one again
+                    answered.add(int(prompt["id"]))
+                    prompt = None
     except KeyboardInterrupt:
         bar.clear()
         out.write(f"\ncancelling job {job_id}: the robot is told to stop ...\n")
