@@ -1,13 +1,18 @@
-"""What every test folder may need: a free loopback port, and "skip here, but fail on CI" for optional kit."""
+"""What every test folder may need: a free loopback port, a scratch folder that does not outlive the run, and
+"skip here, but fail on CI" for optional kit."""
 
 from __future__ import annotations
 
 import asyncio
+import atexit
 import os
 import random
+import shutil
 import socket
+import tempfile
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any, NoReturn
 
 import numpy as np
@@ -27,6 +32,18 @@ def skip_or_fail(reason: str, fix: str) -> NoReturn:
     if on_ci():
         pytest.fail(f"{reason} (CI must provide it: {fix})")
     pytest.skip(reason)
+
+
+_scratch_root: list[str] = []
+
+
+def scratch_dir(name: str) -> Path:
+    """A new folder for what a cached helper writes outside any one test's ``tmp_path`` (a dataset, a calibration
+    store); all of them go when this test process ends: the calibration tests' datasets alone are about 250 MB a run."""
+    if not _scratch_root:
+        _scratch_root.append(tempfile.mkdtemp(prefix="cellctl-tests-"))
+        atexit.register(shutil.rmtree, _scratch_root[0], True)
+    return Path(tempfile.mkdtemp(prefix=f"{name}-", dir=_scratch_root[0]))
 
 
 _PORTS_PER_WORKER = 3000

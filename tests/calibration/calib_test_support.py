@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import functools
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
+from shared_support import scratch_dir
 
 from cellctl.calibration.board import BoardDetection
 from cellctl.calibration.calibration_set import CalibrationStore, make_part
@@ -40,7 +40,7 @@ def with_robot(cfg: CellConfig, **robot: float) -> CellConfig:
 
 
 def scratch(name: str) -> Path:
-    return Path(tempfile.mkdtemp(prefix=f"calib-{name}-"))
+    return scratch_dir(f"calib-{name}")
 
 
 @functools.lru_cache(maxsize=1)

@@ -57,7 +57,8 @@ asyncio.run(main())
 
 
 def _die_after_the_commit(workdir: Path) -> dict[str, int]:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS / "service"), str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS / "service"), str(TESTS), os.environ.get("PYTHONPATH", "")]),
+           "TMPDIR": str(workdir)}  # the LK-G fake's link folder, which a process that dies leaves behind: in the test's tmp_path
     run = subprocess.run([sys.executable, "-c", DYING_SERVICE, str(workdir), json.dumps(SECTIONS)],
                          capture_output=True, text=True, timeout=120, env=env)  # fmt: skip
     assert run.returncode == 9, run.stdout + run.stderr

@@ -15,7 +15,6 @@ import functools
 import hashlib
 import json
 import shutil
-import tempfile
 from collections.abc import Iterator
 from datetime import datetime, timezone
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from shared_support import scratch_dir
 from service_test_support import AUTH, api_client, running_service, sim_config
 
 from cellctl.calibration.calibration_set import CalibrationStore
@@ -52,7 +52,7 @@ def _config() -> Any:
 def _commissioned() -> Path:
     """A workdir whose store holds camera, hand-eye and laser calibrated in the seeded twin from datasets in the store."""
     cfg = _config()
-    workdir = Path(tempfile.mkdtemp(prefix="cellctl-moved-store-")) / "cell"
+    workdir = scratch_dir("cellctl-moved-store") / "cell"
     store = CalibrationStore(workdir / STORE)
 
     async def go() -> None:

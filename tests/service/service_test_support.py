@@ -192,13 +192,15 @@ def stopped_cell_to_commission(workdir: Path) -> Iterator[str]:
 
 
 def start_serve(config: Path, workdir: Path) -> Any:
-    """`cellctl serve` in a subprocess; its output goes to ``workdir/service.log``."""
+    """`cellctl serve` in a subprocess; its output goes to ``workdir/service.log``, and its temporary files (the LK-G
+    fake's link, left behind by a killed service) to ``workdir``."""
+    import os
     import subprocess
     import sys
 
     log = open(workdir / "service.log", "ab")  # noqa: SIM115 - the child writes it; closed with the child
     proc = subprocess.Popen([sys.executable, "-m", "cellctl.cli", "--config", str(config), "serve", "--workdir", str(workdir)],
-                            stdout=log, stderr=log)  # fmt: skip
+                            stdout=log, stderr=log, env={**os.environ, "TMPDIR": str(workdir)})  # fmt: skip
     log.close()
     return proc
 

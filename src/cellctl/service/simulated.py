@@ -11,6 +11,7 @@ through the same jobs an engineer would run. Only here (and in the benchmarks) i
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -90,17 +91,23 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
     rig = SimRig(config.sim, seed=seed, recipes=recipe_twins(config))
     closers: list[Closer] = []
     fakes: dict[str, object] = {}
-    laser, camera, robot, jog = _devices(config, rig, closers, fakes)
-    calibration = None
-    if config.calibration.source == "oracle":
-        from cellctl.sim.oracle import OracleCalibrationSource
+    try:
+        laser, camera, robot, jog = _devices(config, rig, closers, fakes)
+        calibration = None
+        if config.calibration.source == "oracle":
+            from cellctl.sim.oracle import OracleCalibrationSource
 
-        calibration = OracleCalibrationSource(rig, config)
-    operator, witness = rig.add_operator(jog, twin_camera=camera is rig.camera)
-    service = await assemble_service(
-        config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
-        witness=witness, clock=rig.cell.timeline.now,
-    )  # fmt: skip
+            calibration = OracleCalibrationSource(rig, config)
+        operator, witness = rig.add_operator(jog, twin_camera=camera is rig.camera)
+        service = await assemble_service(
+            config, laser=laser, camera=camera, robot=robot, workdir=workdir, calibration=calibration, truth=rig,
+            witness=witness, clock=rig.cell.timeline.now,
+        )  # fmt: skip
+    except BaseException:  # a refused start (store, ports, calibration) leaves no fake's terminal or thread behind
+        for close in reversed([*closers, rig.close]):  # the order the service's stop runs them in
+            with contextlib.suppress(Exception):
+                await close()
+        raise
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
     service.closers.extend(closers)
     service.closers.append(rig.close)  # the twin's devices, then its operator
