@@ -11,7 +11,6 @@ through the same jobs an engineer would run. Only here (and in the benchmarks) i
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -105,8 +104,10 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
         )  # fmt: skip
     except BaseException:  # a refused start (store, ports, calibration) leaves no fake's terminal or thread behind
         for close in reversed([*closers, rig.close]):  # the order the service's stop runs them in
-            with contextlib.suppress(Exception):
+            try:
                 await close()
+            except Exception:  # noqa: BLE001 - the refusal is what the caller must see; this is logged beside it
+                log.warning("closing %s after the refused start failed", getattr(close, "__qualname__", "a device"), exc_info=True)
         raise
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
     service.closers.extend(closers)
