@@ -55,6 +55,22 @@ CYCLE_END_AT_EXIT_S = 2.5
 """On SIGINT/SIGTERM a running cycle gets this long (s) to stop and be recorded (before a running job is cancelled)."""
 
 
+def closer_steps(closers: list[Closer]) -> list[tuple[str, Closer]]:
+    """``closers`` as named stop steps, the last added first (a device before what it was built on)."""
+    return [(getattr(close, "__qualname__", "device"), close) for close in reversed(closers)]
+
+
+async def stop_in_turn(steps: list[tuple[str, Closer]]) -> None:
+    """Run each step within ``STOP_STEP_TIMEOUT_S``; one that hangs or fails is logged and the rest still run."""
+    for name, step in steps:
+        try:
+            await asyncio.wait_for(step(), STOP_STEP_TIMEOUT_S)
+        except asyncio.TimeoutError:
+            log.error("stopping %s took over %.0f s; went on without it", name, STOP_STEP_TIMEOUT_S)
+        except Exception:  # a failing part must not keep the others running; logged with its trace
+            log.exception("stopping %s failed", name)
+
+
 @dataclass
 class Service:
     """Everything the running cell is made of."""
@@ -135,15 +151,9 @@ class Service:
         if self.opcua_server is not None:
             steps.append(("OPC UA server", self.opcua_server.stop))
         steps += [("PLC link", self.plc_link.close), ("orchestrator", self.orchestrator.stop)]
-        steps += [(getattr(close, "__qualname__", "device"), close) for close in reversed(self.closers)]
+        steps += closer_steps(self.closers)
         steps.append(("store", self.store.close))
-        for name, step in steps:
-            try:
-                await asyncio.wait_for(step(), STOP_STEP_TIMEOUT_S)
-            except asyncio.TimeoutError:
-                log.error("stopping %s took over %.0f s; went on without it", name, STOP_STEP_TIMEOUT_S)
-            except Exception:  # a failing part must not keep the others running; logged with its trace
-                log.exception("stopping %s failed", name)
+        await stop_in_turn(steps)
         if self.store_lock is not None:
             self.store_lock.release()
 

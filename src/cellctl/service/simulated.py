@@ -20,7 +20,7 @@ from cellctl.config.devices import SimAbbDevice, SimKeyenceLkgDevice
 from cellctl.config.schema import TWIN_KINDS, CellConfig
 from cellctl.geometry.pose import Pose
 from cellctl.ports import Camera, DisplacementSensor, Robot
-from cellctl.service.compose import Closer, Service, ServiceConfigError, ServiceError, assemble_service
+from cellctl.service.compose import Closer, Service, ServiceConfigError, ServiceError, assemble_service, closer_steps, stop_in_turn
 from cellctl.sim.operator import ACTOR
 from cellctl.sim.rig import SimRig, recipe_twins
 
@@ -103,15 +103,10 @@ async def build_sim_service(config: CellConfig, *, workdir: Path | None = None, 
             witness=witness, clock=rig.cell.timeline.now,
         )  # fmt: skip
     except BaseException:  # a refused start (store, ports, calibration) leaves no fake's terminal or thread behind
-        for close in reversed([*closers, rig.close]):  # the order the service's stop runs them in
-            try:
-                await close()
-            except Exception:  # noqa: BLE001 - the refusal is what the caller must see; this is logged beside it
-                log.warning("closing %s after the refused start failed", getattr(close, "__qualname__", "a device"), exc_info=True)
+        await stop_in_turn(closer_steps([*closers, rig.close]))  # as the service's stop would have
         raise
     operator.attach(service.jobs.desk.watch, service.jobs.answer)
-    service.closers.extend(closers)
-    service.closers.append(rig.close)  # the twin's devices, then its operator
+    service.closers.extend([*closers, rig.close])  # the twin's devices, then its operator, are closed first
     service.extras.update(twin=rig, operator=operator, fakes=fakes)
     if config.calibration.source == "set" and config.calibration.auto_calibrate_in_sim:
 
